@@ -1,0 +1,181 @@
+"""Pure, vectorised geometry shared by the factors and by :mod:`misrgraph`.
+
+Everything here is numpy-only (no GTSAM), arrays in and arrays out, so it can be tested alone and
+imported by both packages without cycles (DESIGN.md section 2).
+
+Conventions (DESIGN.md section 3):
+
+* Rotation matrices are *active* right-handed rotations; ``rot_z(a) @ v`` rotates ``v`` by ``a``
+  about +z. Angles are radians. Leading dimensions broadcast: an angle array of shape ``(N,)``
+  gives matrices of shape ``(N, 3, 3)``.
+* Attitude (eq. 5): ``T_os = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` maps spacecraft -> orbital frame.
+* Orbital frame (eqs. 3-4, EOS convention): ``z = -P/|P|`` (toward geocentric nadir),
+  ``y = z x V / |z x V|``, ``x = y x z``; ``T_go = [x y z]`` maps orbital -> inertial.
+* Camera model (eq. 2): ``r_scs = T_si @ T_ic @ T_cd @ d`` with ``T_si = Rz(wz) Ry(wy) Rx(wx)``,
+  ``T_ic = Rz(delta) Ry(beta)``, ``T_cd = Rz(eps)`` and the detector vector
+  ``d = [-(k + (l - INT(l + 0.5)) dx), f * sum_i alpha_i (s - c_y)^i, f]`` (metres).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "rot_x",
+    "rot_y",
+    "rot_z",
+    "drot_x",
+    "drot_y",
+    "drot_z",
+    "attitude_matrix",
+    "attitude_matrix_derivatives",
+    "orbital_frame",
+    "hermite_weights",
+    "line_fraction",
+    "detector_vector",
+    "skew",
+]
+
+Array = NDArray[np.float64]
+
+
+def _cs(a: ArrayLike) -> tuple[Array, Array, Array, Array]:
+    a = np.asarray(a, dtype=float)
+    return np.cos(a), np.sin(a), np.zeros_like(a), np.ones_like(a)
+
+
+def _stack(rows: list[list[Array]]) -> Array:
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def rot_x(a: ArrayLike) -> Array:
+    """Active rotation about +x by ``a`` radians; shape ``a.shape + (3, 3)``."""
+    c, s, z, o = _cs(a)
+    return _stack([[o, z, z], [z, c, -s], [z, s, c]])
+
+
+def rot_y(a: ArrayLike) -> Array:
+    """Active rotation about +y by ``a`` radians; shape ``a.shape + (3, 3)``."""
+    c, s, z, o = _cs(a)
+    return _stack([[c, z, s], [z, o, z], [-s, z, c]])
+
+
+def rot_z(a: ArrayLike) -> Array:
+    """Active rotation about +z by ``a`` radians; shape ``a.shape + (3, 3)``."""
+    c, s, z, o = _cs(a)
+    return _stack([[c, -s, z], [s, c, z], [z, z, o]])
+
+
+def drot_x(a: ArrayLike) -> Array:
+    """Derivative of :func:`rot_x` with respect to the angle."""
+    c, s, z, _ = _cs(a)
+    return _stack([[z, z, z], [z, -s, -c], [z, c, -s]])
+
+
+def drot_y(a: ArrayLike) -> Array:
+    """Derivative of :func:`rot_y` with respect to the angle."""
+    c, s, z, _ = _cs(a)
+    return _stack([[-s, z, c], [z, z, z], [-c, z, -s]])
+
+
+def drot_z(a: ArrayLike) -> Array:
+    """Derivative of :func:`rot_z` with respect to the angle."""
+    c, s, z, _ = _cs(a)
+    return _stack([[-s, -c, z], [c, -s, z], [z, z, z]])
+
+
+def attitude_matrix(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> Array:
+    """``T_os`` of eq. 5: spacecraft -> orbital frame, ``Rz(yaw) Ry(pitch) Rx(roll)``.
+
+    Angles in radians, broadcast together; returns ``(..., 3, 3)``.
+    """
+    return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+
+
+def attitude_matrix_derivatives(
+    roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike
+) -> tuple[Array, Array, Array, Array]:
+    """``T_os`` and its partial derivatives with respect to roll, pitch and yaw.
+
+    Returns ``(T, dT/droll, dT/dpitch, dT/dyaw)``, each ``(..., 3, 3)``.
+    """
+    rx, ry, rz = rot_x(roll), rot_y(pitch), rot_z(yaw)
+    drx, dry, drz = drot_x(roll), drot_y(pitch), drot_z(yaw)
+    return rz @ ry @ rx, rz @ ry @ drx, rz @ dry @ rx, drz @ ry @ rx
+
+
+def orbital_frame(position: ArrayLike, velocity: ArrayLike) -> Array:
+    """``T_go`` of eqs. 3-4 from inertial position and velocity (m, m/s), shape ``(..., 3)``.
+
+    Columns are the orbital axes expressed in the inertial frame: x ~ along velocity, y = cross
+    track (to the right of the flight direction when looking down), z = toward geocentric nadir.
+    """
+    p = np.asarray(position, dtype=float)
+    v = np.asarray(velocity, dtype=float)
+    z = -p / np.linalg.norm(p, axis=-1, keepdims=True)
+    y = np.cross(z, v)
+    y = y / np.linalg.norm(y, axis=-1, keepdims=True)
+    x = np.cross(y, z)
+    return np.stack([x, y, z], axis=-1)
+
+
+def hermite_weights(tau: ArrayLike, dt: ArrayLike) -> Array:
+    """Weights of ``(a_i, a'_i, a_{i+1}, a'_{i+1})`` in the cubic Hermite segment of eqs. 23-27.
+
+    ``a(t) = w0 a_i + w1 a'_i + w2 a_{i+1} + w3 a'_{i+1}`` with ``tau = (t - t_i)/(t_{i+1} - t_i)``
+    in [0, 1] and ``dt = t_{i+1} - t_i`` (s); rates are per second. Expanding eqs. 24-27:
+    ``w0 = 1 - 3 tau^2 + 2 tau^3``, ``w1 = dt (tau - 2 tau^2 + tau^3)``,
+    ``w2 = 3 tau^2 - 2 tau^3``, ``w3 = dt (tau^3 - tau^2)``. Returns ``(..., 4)``.
+    """
+    t = np.asarray(tau, dtype=float)
+    d = np.asarray(dt, dtype=float)
+    t2 = t * t
+    t3 = t2 * t
+    return np.stack(
+        np.broadcast_arrays(1 - 3 * t2 + 2 * t3, d * (t - 2 * t2 + t3), 3 * t2 - 2 * t3, d * (t3 - t2)),
+        axis=-1,
+    )
+
+
+def line_fraction(line: ArrayLike) -> tuple[Array, Array]:
+    """Split an image line coordinate into the exposed line ``INT(l + 0.5)`` and ``l - INT(l+0.5)``.
+
+    Lines are non-negative, so ``INT`` is ``floor``. The fraction lies in [-0.5, 0.5).
+    """
+    ln = np.asarray(line, dtype=float)
+    whole = np.floor(ln + 0.5)
+    return whole, ln - whole
+
+
+def detector_vector(
+    line: ArrayLike,
+    sample: ArrayLike,
+    k: ArrayLike,
+    dx: ArrayLike,
+    f: ArrayLike,
+    alpha: ArrayLike,
+    cy: ArrayLike,
+) -> Array:
+    """The detector-frame vector of eq. 2 (metres), shape ``(..., 3)``.
+
+    ``d = [-(k + (l - INT(l + 0.5)) dx), f * sum_{i=0}^{5} alpha_i (s - c_y)^i, f]``.
+
+    ``k`` band offset (m), ``dx`` along-track pitch (m), ``f`` focal length (m), ``alpha``
+    ``(..., 6)`` polynomial coefficients (``alpha_i`` in pixel^-i), ``cy`` boresight sample.
+    """
+    _, frac = line_fraction(line)
+    s = np.asarray(sample, dtype=float) - np.asarray(cy, dtype=float)
+    a = np.asarray(alpha, dtype=float)
+    powers = s[..., None] ** np.arange(a.shape[-1])
+    poly = np.sum(a * powers, axis=-1)
+    f = np.asarray(f, dtype=float)
+    x = -(np.asarray(k, dtype=float) + frac * np.asarray(dx, dtype=float))
+    return np.stack(np.broadcast_arrays(x, f * poly, f), axis=-1)
+
+
+def skew(v: ArrayLike) -> Array:
+    """Cross-product matrix ``[v]x`` with ``[v]x @ w = v x w``; ``(..., 3) -> (..., 3, 3)``."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros_like(v[..., 0])
+    return _stack([[z, -v[..., 2], v[..., 1]], [v[..., 2], z, -v[..., 0]], [-v[..., 1], v[..., 0], z]])

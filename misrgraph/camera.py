@@ -1,0 +1,224 @@
+"""The Camera Geometric Model (CGM) of eq. 2 for the nine MISR cameras and four bands.
+
+``r_scs = T_si @ T_ic @ T_cd @ [-(k + (l - INT(l + 0.5)) dx), f * sum_i alpha_i (s - c_y)^i, f]``
+
+with ``T_si = Rz(wz) Ry(wy) Rx(wx)`` (instrument -> spacecraft, common to all cameras),
+``T_ic = Rz(delta) Ry(beta)`` (camera -> instrument; beta tilts the boresight along track, positive
+forward; delta is the azimuth offset compensating Earth rotation) and ``T_cd = Rz(eps)``
+(detector -> camera). Units: radians, metres, pixels. ``alpha_i`` is in pixel^-i, so that
+``f * alpha_1 = 21 um`` is the cross-track pitch and ``f * sum alpha_i (s - c_y)^i`` is the
+cross-track focal-plane coordinate in metres.
+
+The parameters are data: :class:`CameraModel` is a dataclass that saves to and loads from HDF5
+(kind ``camera_model``). Camera arrays are indexed in the order of
+:data:`misrgraph.constants.CAMERAS`, band arrays in the order of :data:`~misrgraph.constants.BANDS`.
+A model may be tabulated at several temperatures (``temperatures_c``), in which case every
+per-camera array carries a leading temperature axis and :meth:`CameraModel.at_temperature`
+interpolates linearly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors.geometry import detector_vector, rot_x, rot_y, rot_z
+from misrgraph.constants import BANDS, CAMERAS, LINE_TIME_S, N_PIXELS, PITCH_ALONG_M, PITCH_CROSS_M
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.h5io import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
+
+__all__ = ["CameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "validate_pixel_inputs"]
+
+Array = NDArray[np.float64]
+N_ALPHA = 6
+NC, NB = len(CAMERAS), len(BANDS)
+
+#: Nominal along-track angle of each band's line array from the optical axis (deg, detector
+#: frame, positive toward -x_detector i.e. k > 0). Red matches Table 1's An value (-0.050 deg);
+#: the arrays are equally spaced by 0.075 deg.
+BAND_ANGLE_DEG: dict[str, float] = {"blue": 0.100, "green": 0.025, "red": -0.050, "nir": -0.125}
+
+
+@dataclass
+class CameraModel:
+    """Parameters of eq. 2 for all cameras and bands (SI units, radians).
+
+    Shapes: ``omega (3,)`` as (wx, wy, wz); ``delta, beta, epsilon (9,)``;
+    ``focal_length, k, cy (9, 4)``; ``alpha (9, 4, 6)``. ``dx``/``dy`` are the along/cross-track
+    detector pitches (m); ``line_time`` the line repeat time (s); ``temperature_c`` the
+    temperature (deg C) at which the parameters hold.
+    """
+
+    omega: Array
+    delta: Array
+    beta: Array
+    epsilon: Array
+    focal_length: Array
+    alpha: Array
+    k: Array
+    cy: Array
+    dx: float = PITCH_ALONG_M
+    dy: float = PITCH_CROSS_M
+    line_time: float = LINE_TIME_S
+    temperature_c: float = 5.0
+    provenance: dict[str, str] = field(default_factory=dict)
+
+    _SHAPES = {
+        "omega": (3,), "delta": (NC,), "beta": (NC,), "epsilon": (NC,),
+        "focal_length": (NC, NB), "alpha": (NC, NB, N_ALPHA), "k": (NC, NB), "cy": (NC, NB),
+    }
+
+    def __post_init__(self) -> None:
+        for name, shape in self._SHAPES.items():
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if arr.shape != shape:
+                raise InputError(f"CameraModel.{name}", arr.shape, f"shape {shape}")
+            if not np.all(np.isfinite(arr)):
+                raise InputError(f"CameraModel.{name}", "non-finite values", "finite numbers")
+            setattr(self, name, arr)
+        if np.any(self.focal_length <= 0):
+            raise InputError("CameraModel.focal_length", self.focal_length.min(), "positive metres")
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def nominal(cls) -> "CameraModel":
+        """The nominal (design) model, derived from DESIGN.md's geometry; see :mod:`misrgraph.nominal`."""
+        from misrgraph.nominal import nominal_camera_model
+
+        return nominal_camera_model().copy()
+
+    def copy(self) -> "CameraModel":
+        """Deep copy."""
+        return dataclasses.replace(
+            self, **{n: np.array(getattr(self, n)) for n in self._SHAPES}, provenance=dict(self.provenance)
+        )
+
+    # ------------------------------------------------------------------ geometry
+    def t_si(self) -> Array:
+        """Instrument -> spacecraft rotation ``Rz(wz) Ry(wy) Rx(wx)``, (3, 3)."""
+        wx, wy, wz = self.omega
+        return rot_z(wz) @ rot_y(wy) @ rot_x(wx)
+
+    def t_ic(self, cam: ArrayLike) -> Array:
+        """Camera -> instrument rotation ``Rz(delta) Ry(beta)`` for camera indices, (..., 3, 3)."""
+        c = np.asarray(cam, dtype=int)
+        return rot_z(self.delta[c]) @ rot_y(self.beta[c])
+
+    def t_cd(self, cam: ArrayLike) -> Array:
+        """Detector -> camera rotation ``Rz(eps)``, (..., 3, 3)."""
+        return rot_z(self.epsilon[np.asarray(cam, dtype=int)])
+
+    def detector_to_spacecraft(self, cam: ArrayLike) -> Array:
+        """``T_si T_ic T_cd`` for camera indices, (..., 3, 3)."""
+        return self.t_si() @ self.t_ic(cam) @ self.t_cd(cam)
+
+    def detector_vectors(self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike) -> Array:
+        """Eq. 2 detector-frame vectors (m) for index arrays, (..., 3)."""
+        c = np.asarray(cam, dtype=int)
+        b = np.asarray(band, dtype=int)
+        return detector_vector(line, sample, self.k[c, b], self.dx, self.focal_length[c, b], self.alpha[c, b], self.cy[c, b])
+
+    def direction_scs(self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike) -> Array:
+        """Unit pointing vectors in the spacecraft frame for pixels, (..., 3) (eq. 2)."""
+        d = self.detector_vectors(cam, band, line, sample)
+        r = np.einsum("...ij,...j->...i", self.detector_to_spacecraft(cam), d)
+        return r / np.linalg.norm(r, axis=-1, keepdims=True)
+
+    def focal_plane_y(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
+        """Cross-track focal-plane coordinate ``f sum alpha_i (s - c_y)^i`` (m)."""
+        c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+        s = np.asarray(sample, dtype=float) - self.cy[c, b]
+        a = self.alpha[c, b]
+        return self.focal_length[c, b] * np.sum(a * s[..., None] ** np.arange(N_ALPHA), axis=-1)
+
+    def focal_plane_dy_ds(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
+        """Derivative of :meth:`focal_plane_y` with respect to the sample (m per pixel)."""
+        c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+        s = np.asarray(sample, dtype=float) - self.cy[c, b]
+        a = self.alpha[c, b]
+        i = np.arange(1, N_ALPHA)
+        return self.focal_length[c, b] * np.sum(i * a[..., 1:] * s[..., None] ** (i - 1), axis=-1)
+
+    def sample_from_focal_plane_y(self, cam: ArrayLike, band: ArrayLike, y: ArrayLike, iterations: int = 8) -> Array:
+        """Invert :meth:`focal_plane_y` by Newton's method (the polynomial is monotonic on the swath)."""
+        c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+        y = np.asarray(y, dtype=float)
+        s = self.cy[c, b] + y / (self.focal_length[c, b] * self.alpha[c, b, 1])
+        for _ in range(iterations):
+            s = s - (self.focal_plane_y(c, b, s) - y) / self.focal_plane_dy_ds(c, b, s)
+        return s
+
+    def ifov_cross_rad(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
+        """Cross-track angular size of one pixel (rad) at a sample."""
+        c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+        y = self.focal_plane_y(c, b, sample)
+        f = self.focal_length[c, b]
+        return self.focal_plane_dy_ds(c, b, sample) * f / (f * f + y * y)
+
+    # ------------------------------------------------------------------ temperature
+    def at_temperature(self, temperature_c: float) -> "CameraModel":
+        """This model (single temperature) unchanged; tabulated models override (see TabulatedCameraModel)."""
+        return self
+
+    # ------------------------------------------------------------------ I/O
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write to HDF5 (kind ``camera_model``), atomically."""
+        with atomic_h5(path, "camera_model") as f:
+            self.write_group(f.create_group("camera_model"))
+
+    def write_group(self, g: Any) -> None:
+        """Write the parameters into an open HDF5 group."""
+        g.attrs["cameras"] = ",".join(CAMERAS)
+        g.attrs["bands"] = ",".join(BANDS)
+        units = {"focal_length": "m", "k": "m", "cy": "pixel", "alpha": "pixel^-i", "omega": "rad"}
+        for name in self._SHAPES:
+            write_dataset(g, name, getattr(self, name), units=units.get(name, "rad"))
+        g["omega"].attrs["order"] = "wx,wy,wz"
+        for name in ("dx", "dy"):
+            g.attrs[name] = float(getattr(self, name))
+        g.attrs["line_time"] = float(self.line_time)
+        g.attrs["temperature_c"] = float(self.temperature_c)
+        prov = g.create_group("provenance")
+        for key, value in self.provenance.items():
+            prov.attrs[key] = str(value)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> "CameraModel":
+        """Read a model written by :meth:`save`, validating every field."""
+        with open_h5(path, "camera_model") as f:
+            if "camera_model" not in f:
+                raise FileFormatError(path, "missing group /camera_model")
+            return cls.read_group(f["camera_model"])
+
+    @classmethod
+    def read_group(cls, g: Any) -> "CameraModel":
+        """Read parameters from an open HDF5 group (see :meth:`write_group`)."""
+        cams = str(read_attr(g, "cameras")).split(",")
+        if tuple(cams) != CAMERAS:
+            raise FileFormatError(g.file.filename, f"camera order {cams}; expected {list(CAMERAS)}")
+        values = {name: read_dataset(g, name, shape) for name, shape in cls._SHAPES.items()}
+        prov = {k: str(v) for k, v in g["provenance"].attrs.items()} if "provenance" in g else {}
+        return cls(
+            **values,
+            dx=float(read_attr(g, "dx")),
+            dy=float(read_attr(g, "dy")),
+            line_time=float(read_attr(g, "line_time")),
+            temperature_c=float(read_attr(g, "temperature_c")),
+            provenance=prov,
+        )
+
+
+def validate_pixel_inputs(camera: str, band: str, sample: float | None = None) -> tuple[int, int]:
+    """Validate a (camera, band, sample) triple from a user; return indices or raise InputError."""
+    from misrgraph.constants import band_index, camera_index
+
+    c = camera_index(camera)
+    b = band_index(band)
+    if sample is not None and not (0 <= float(sample) <= N_PIXELS - 1):
+        raise InputError("pixel", sample, f"a sample number in 0..{N_PIXELS - 1}")
+    return c, b

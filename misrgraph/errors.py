@@ -1,0 +1,61 @@
+"""Exception hierarchy of misrgraph.
+
+Every error the package raises on purpose derives from :class:`MisrGraphError`, so a caller (the
+CLI, a notebook, a batch script) can catch one class. Messages are single lines that name the
+offending field, the value received and what was expected.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterable
+
+__all__ = [
+    "MisrGraphError",
+    "InputError",
+    "FileFormatError",
+    "ConvergenceError",
+    "DegenerateProblemError",
+]
+
+
+class MisrGraphError(Exception):
+    """Root of every error raised deliberately by misrgraph."""
+
+
+class InputError(MisrGraphError, ValueError):
+    """A user-supplied value is out of range, of the wrong shape or not one of the allowed names.
+
+    Parameters
+    ----------
+    field:
+        Name of the field / option / argument at fault (e.g. ``"camera"``, ``"--pixel"``).
+    value:
+        The offending value as received.
+    expected:
+        Human-readable description of what is allowed (e.g. ``"one of Df, Cf, ..."``).
+    """
+
+    def __init__(self, field: str, value: Any, expected: str | Iterable[str]) -> None:
+        if not isinstance(expected, str):
+            expected = "one of " + ", ".join(str(e) for e in expected)
+        self.field = field
+        self.value = value
+        self.expected = expected
+        super().__init__(f"{field}: got {value!r}; expected {expected}")
+
+
+class FileFormatError(MisrGraphError):
+    """An input file is missing, unreadable, of the wrong kind or version, or lacks a field."""
+
+    def __init__(self, path: Any, problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class ConvergenceError(MisrGraphError):
+    """An iterative computation did not converge within its limits."""
+
+
+class DegenerateProblemError(MisrGraphError):
+    """The estimation problem is not well posed (e.g. no observations, a singular system)."""
