@@ -156,15 +156,20 @@ def detector_vector(
     f: ArrayLike,
     alpha: ArrayLike,
     cy: ArrayLike,
+    exposure: ArrayLike | None = None,
 ) -> Array:
     """The detector-frame vector of eq. 2 (metres), shape ``(..., 3)``.
 
-    ``d = [-(k + (l - INT(l + 0.5)) dx), f * sum_{i=0}^{5} alpha_i (s - c_y)^i, f]``.
+    ``d = [-(k + (l - L) dx), f * sum_{i=0}^{5} alpha_i (s - c_y)^i, f]`` with the exposure index
+    ``L = INT(l + 0.5)`` unless given explicitly.
 
     ``k`` band offset (m), ``dx`` along-track pitch (m), ``f`` focal length (m), ``alpha``
     ``(..., 6)`` polynomial coefficients (``alpha_i`` in pixel^-i), ``cy`` boresight sample.
     """
-    _, frac = line_fraction(line)
+    if exposure is None:
+        _, frac = line_fraction(line)
+    else:
+        frac = np.asarray(line, dtype=float) - np.asarray(exposure, dtype=float)
     s = np.asarray(sample, dtype=float) - np.asarray(cy, dtype=float)
     a = np.asarray(alpha, dtype=float)
     powers = s[..., None] ** np.arange(a.shape[-1])

@@ -117,15 +117,24 @@ class CameraModel:
         """``T_si T_ic T_cd`` for camera indices, (..., 3, 3)."""
         return self.t_si() @ self.t_ic(cam) @ self.t_cd(cam)
 
-    def detector_vectors(self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike) -> Array:
-        """Eq. 2 detector-frame vectors (m) for index arrays, (..., 3)."""
+    def detector_vectors(
+        self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike, exposure: ArrayLike | None = None
+    ) -> Array:
+        """Eq. 2 detector-frame vectors (m) for index arrays, (..., 3).
+
+        The along-track fraction is ``line - exposure`` with ``exposure = INT(line + 0.5)`` unless
+        given (see :class:`misrgraph.geolocation.ImagePoints`)."""
         c = np.asarray(cam, dtype=int)
         b = np.asarray(band, dtype=int)
-        return detector_vector(line, sample, self.k[c, b], self.dx, self.focal_length[c, b], self.alpha[c, b], self.cy[c, b])
+        return detector_vector(
+            line, sample, self.k[c, b], self.dx, self.focal_length[c, b], self.alpha[c, b], self.cy[c, b], exposure
+        )
 
-    def direction_scs(self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike) -> Array:
+    def direction_scs(
+        self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike, exposure: ArrayLike | None = None
+    ) -> Array:
         """Unit pointing vectors in the spacecraft frame for pixels, (..., 3) (eq. 2)."""
-        d = self.detector_vectors(cam, band, line, sample)
+        d = self.detector_vectors(cam, band, line, sample, exposure)
         r = np.einsum("...ij,...j->...i", self.detector_to_spacecraft(cam), d)
         return r / np.linalg.norm(r, axis=-1, keepdims=True)
 

@@ -80,20 +80,43 @@ def sensitivity(
     table = Table(title=f"Ground displacement (m) for +{arcsec:g} arcsec, pixel {pixel:g}, {band} band")
     table.add_column("camera")
     for ang in ("yaw", "pitch", "roll"):
-        table.add_column(f"{ang} along")
-        table.add_column(f"{ang} cross")
-    if ephemeris_m is not None:
-        for ax in ("along", "cross", "radial"):
-            table.add_column(f"eph {ax} a/c")
+        table.add_column(f"{ang}\nalong", justify="right")
+        table.add_column(f"{ang}\ncross", justify="right")
     for cam, v in res["cameras"].items():
-        row = [cam]
-        for ang in ("yaw", "pitch", "roll"):
-            row += [f"{v[ang]['along_m']:.1f}", f"{v[ang]['cross_m']:.1f}"]
-        if ephemeris_m is not None:
-            for ax in ("along", "cross", "radial"):
-                e = v["ephemeris"][ax]
-                row.append(f"{e['along_m']:.1f}/{e['cross_m']:.1f}")
-        table.add_row(*row)
+        table.add_row(cam, *[f"{v[a][d]:.1f}" for a in ("yaw", "pitch", "roll") for d in ("along_m", "cross_m")])
+    console.print(table)
+    if ephemeris_m is not None:
+        eph = Table(title=f"Ground displacement (m) for +{ephemeris_m:g} m of position error")
+        eph.add_column("camera")
+        for ax in ("along", "cross", "radial"):
+            eph.add_column(f"{ax}\nalong", justify="right")
+            eph.add_column(f"{ax}\ncross", justify="right")
+        for cam, v in res["cameras"].items():
+            e = v["ephemeris"]
+            eph.add_row(cam, *[f"{e[a][d]:.1f}" for a in ("along", "cross", "radial") for d in ("along_m", "cross_m")])
+        console.print(eph)
+
+
+@app.command()
+@handle_errors
+def demo(out: Path = typer.Option(Path("demo-output"), "--out", help="Directory for the demo's products.")) -> None:
+    """Run every stage that exists on the built-in simulated scenario and print a summary table."""
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from misrgraph.demo import STAGES, run_demo
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=err_console) as bar:
+        task = bar.add_task("demo", total=len(STAGES))
+
+        def step(name: str) -> None:
+            bar.update(task, description=name, advance=1)
+
+        records = run_demo(out, progress=step)
+    table = Table(title="misrgraph demo")
+    for col in ("stage", "status", "result", "time (s)"):
+        table.add_column(col)
+    for r in records:
+        table.add_row(r["stage"], r["status"], r["summary"], f"{r['seconds']:.1f}" if r["status"] == "done" else "")
     console.print(table)
 
 

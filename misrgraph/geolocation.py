@@ -16,7 +16,7 @@ Ground points are ECEF metres; ``r_eci`` is rotated to ECEF with :class:`EarthOr
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -28,10 +28,26 @@ from misrgraph.errors import ConvergenceError, InputError
 from misrgraph.frames import WGS84_A, WGS84_B, EarthOrientation, ecef_to_geodetic, enu_basis
 from misrgraph.orbit import AttitudeSeries, Ephemeris
 
-__all__ = ["PassGeometry", "NavState", "ray_ellipsoid"]
+__all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid"]
 
 Array = NDArray[np.float64]
 Correction = Callable[[Array], Array]
+
+
+class ImagePoints(NamedTuple):
+    """Result of :meth:`PassGeometry.ground_to_pixel`, each ``(N,)``.
+
+    ``line`` = ``exposure + frac`` (eq. 2's line coordinate), ``sample``, ``visible`` (bool) and
+    ``exposure`` = the integer exposure (time) index ``L``. For the A cameras the along-track
+    image moves ~1.1 detector pitches per line, so ``|frac|`` can slightly exceed 0.5 and
+    ``INT(line + 0.5)`` can differ from ``exposure``: pass ``exposure`` back to
+    :meth:`PassGeometry.pixel_to_ground` to reproduce the ground point exactly.
+    """
+
+    line: NDArray[np.float64]
+    sample: NDArray[np.float64]
+    visible: NDArray[np.bool_]
+    exposure: NDArray[np.float64]
 
 
 @dataclass
@@ -111,11 +127,13 @@ class PassGeometry:
         assert self.earth is not None
         return NavState(tt, p, t_go, angles, r, self.earth.eci_to_ecef(tt))
 
-    def line_time(self, cam: ArrayLike, band: ArrayLike, line: ArrayLike) -> Array:
-        """Exposure time (s) of image line ``l``: ``t0[c, b] + INT(l + 0.5) * dt_line``."""
+    def line_time(self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, exposure: ArrayLike | None = None) -> Array:
+        """Exposure time (s) of image line ``l``: ``t0[c, b] + L * dt_line`` with ``L = INT(l + 0.5)``
+        unless the exposure index ``L`` is given explicitly."""
         assert self.t0 is not None
         c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
-        return self.t0[c, b] + np.floor(np.asarray(line, dtype=float) + 0.5) * self.camera.line_time
+        big_l = np.floor(np.asarray(line, dtype=float) + 0.5) if exposure is None else np.asarray(exposure, dtype=float)
+        return self.t0[c, b] + big_l * self.camera.line_time
 
     def lines_in_pass(self, cam: int, band: int) -> float:
         """Number of whole image lines the ephemeris span covers for a camera/band."""
@@ -123,17 +141,24 @@ class PassGeometry:
         return float(np.floor((self.ephemeris.t[-1] - self.t0[cam, band]) / self.camera.line_time))
 
     # ------------------------------------------------------------------ forward
-    def pixel_rays(self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike) -> tuple[Array, Array]:
-        """ECEF ray origins (m) and unit directions for pixels, each ``(N, 3)``."""
+    def pixel_rays(
+        self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike, exposure: ArrayLike | None = None
+    ) -> tuple[Array, Array]:
+        """ECEF ray origins (m) and unit directions for pixels, each ``(N, 3)``.
+
+        ``exposure`` (optional) is the integer exposure index ``L``; by default ``INT(l + 0.5)``.
+        The focal-plane fraction is always ``l - L``.
+        """
         c, b, ln, s = (np.ravel(x) for x in np.broadcast_arrays(
             np.asarray(cam, dtype=int), np.asarray(band, dtype=int), np.asarray(line, dtype=float), np.asarray(sample, dtype=float)))
+        big_l = np.floor(ln + 0.5) if exposure is None else np.ravel(np.broadcast_to(np.asarray(exposure, dtype=float), ln.shape))
         if np.any((c < 0) | (c >= len(CAMERAS))):
             raise InputError("camera", c[(c < 0) | (c >= len(CAMERAS))][0], f"an index in 0..{len(CAMERAS) - 1}")
         if np.any((b < 0) | (b >= len(BANDS))):
             raise InputError("band", b[(b < 0) | (b >= len(BANDS))][0], f"an index in 0..{len(BANDS) - 1}")
-        t = self.line_time(c, b, ln)
+        t = self.line_time(c, b, ln, big_l)
         nav = self.nav_state(t)
-        r_scs = self.camera.direction_scs(c, b, ln, s)
+        r_scs = self.camera.direction_scs(c, b, ln, s, exposure=big_l)
         r_eci = np.einsum("nij,nj->ni", nav.r_eci_scs, r_scs)
         origin = np.einsum("nij,nj->ni", nav.eci_to_ecef, nav.position)
         direction = np.einsum("nij,nj->ni", nav.eci_to_ecef, r_eci)
@@ -148,6 +173,7 @@ class PassGeometry:
         height: ArrayLike = 0.0,
         surface: Callable[[Array, Array], Array] | None = None,
         tol_m: float = 1e-4,
+        exposure: ArrayLike | None = None,
     ) -> Array:
         """Ground point (ECEF m, ``(N, 3)``) where each pixel's ray meets the ground.
 
@@ -157,7 +183,7 @@ class PassGeometry:
         which are estimated along the ray; the first crossing from above is not guaranteed where
         terrain occludes itself. Rays that miss the Earth give NaN.
         """
-        origin, direction = self.pixel_rays(cam, band, line, sample)
+        origin, direction = self.pixel_rays(cam, band, line, sample, exposure)
         n = origin.shape[0]
         if surface is None:
             h_target = np.broadcast_to(np.asarray(height, dtype=float), (n,)) if np.ndim(height) else np.full(n, float(height))
@@ -190,65 +216,63 @@ class PassGeometry:
         with np.errstate(divide="ignore", invalid="ignore"):
             return f * v_det[..., 0] / v_det[..., 2], f * v_det[..., 1] / v_det[..., 2], v_det[..., 2]
 
-    def ground_to_pixel(
-        self, cam: ArrayLike, band: ArrayLike, ground: ArrayLike, coarse_step_s: float = 10.0
-    ) -> tuple[Array, Array, Array]:
-        """Image line and sample at which camera ``cam``/band ``band`` sees ECEF ground points.
+    def ground_to_pixel(self, cam: ArrayLike, band: ArrayLike, ground: ArrayLike, coarse_step_s: float = 10.0) -> ImagePoints:
+        """Image coordinates at which camera ``cam``/band ``band`` sees ECEF ground points.
 
-        Returns ``(line, sample, visible)`` each ``(N,)``; ``visible`` is False (and line/sample
-        NaN) where the point is outside the swath or outside the pass. The continuous time at
-        which the point crosses the band's line array (detector x = -k) is bracketed on a coarse
-        time grid and refined by the Illinois method; the exposed line ``L = INT(l + 0.5)`` then
-        fixes the fractional line from the detector x at ``t(L)`` (eq. 2).
+        The continuous time ``t*`` at which the point crosses the band's line array (detector
+        ``x = -k``) is bracketed on a coarse time grid (only where the point is in front of the
+        camera and above the local horizon) and refined by the Illinois method. The exposure is
+        the line nearest that crossing, ``L = round((t* - t0) / dt_line)``, and eq. 2's fraction
+        follows from the detector x at ``t(L)``: ``frac = -(x + k) / dx``.
+
+        Eq. 2 with whole-line timing is not one-to-one: the along-track image moves ~0.39 pitch
+        per line in the D cameras (several lines see the same point) and ~1.1 in the A cameras.
+        This inverse returns the canonical pixel, the exposure in which the point is closest to
+        the array centre; ``pixel_to_ground(..., exposure=...)`` of the result reproduces the
+        ground point exactly. Returns an :class:`ImagePoints`; invisible points get NaN.
         """
         g = np.atleast_2d(np.asarray(ground, dtype=float))
-        if g.shape[-1] != 3:
+        if g.ndim != 2 or g.shape[-1] != 3:
             raise InputError("ground", g.shape, "ECEF points of shape (N, 3)")
         n = g.shape[0]
         c = np.broadcast_to(np.asarray(cam, dtype=int), (n,)).copy()
         b = np.broadcast_to(np.asarray(band, dtype=int), (n,)).copy()
         k = self.camera.k[c, b]
         t_lo, t_hi = self.ephemeris.span
-        grid = np.arange(t_lo, t_hi, coarse_step_s)
-        grid = np.append(grid, t_hi)
+        grid = np.append(np.arange(t_lo, t_hi, coarse_step_s), t_hi)
         ng = grid.size
         nav = self.nav_state(grid)
         x, _, depth = self._project(c[:, None], b[:, None], g[:, None, :], nav)
         h = x + k[:, None]
-        ok = (depth[:, :-1] > 0) & (depth[:, 1:] > 0) & (np.sign(h[:, :-1]) != np.sign(h[:, 1:]))
+        sc_ecef = np.einsum("nij,nj->ni", nav.eci_to_ecef, nav.position)
+        up = g / np.linalg.norm(g, axis=-1, keepdims=True)
+        elevation_ok = np.einsum("gj,nj->ng", sc_ecef, up) - np.sum(g * up, axis=-1)[:, None] > 0
+        front = (depth > 0) & elevation_ok
+        ok = front[:, :-1] & front[:, 1:] & (np.sign(h[:, :-1]) != np.sign(h[:, 1:]))
         has = ok.any(axis=1)
         j = np.argmax(ok, axis=1)
-        ta = np.where(has, grid[j], np.nan)
-        tb = np.where(has, grid[np.minimum(j + 1, ng - 1)], np.nan)
         idx = np.flatnonzero(has)
         line = np.full(n, np.nan)
         sample = np.full(n, np.nan)
+        exposure = np.full(n, np.nan)
         if idx.size:
             f_t = lambda tt, ii: self._along_cross(c[ii], b[ii], g[ii], tt)[0] + k[ii]
-            t_star = _illinois(f_t, ta[idx], tb[idx], tol=1e-7, index=idx)
+            t_star = _illinois(f_t, grid[j[idx]], grid[j[idx] + 1], tol=1e-7, index=idx)
             assert self.t0 is not None
             dt = self.camera.line_time
-            lc = (t_star - self.t0[c[idx], b[idx]]) / dt
-            big_l = np.floor(lc + 0.5)
-            dx = self.camera.dx
-            for _ in range(3):
-                tl = self.t0[c[idx], b[idx]] + big_l * dt
-                tl = np.clip(tl, t_lo, t_hi)
-                xl, yl, _ = self._along_cross(c[idx], b[idx], g[idx], tl)
-                frac = -(xl + k[idx]) / dx
-                shift = np.where(frac >= 0.5, 1.0, np.where(frac < -0.5, -1.0, 0.0))
-                if not np.any(shift):
-                    break
-                big_l = big_l + shift
-            line[idx] = big_l + frac
-            sample[idx] = self.camera.sample_from_focal_plane_y(c[idx], b[idx], yl)
-        visible = np.isfinite(line) & (line >= 0) & (sample >= -0.5) & (sample <= N_PIXELS - 0.5)
-        visible &= np.isfinite(sample)
-        tl_all = np.where(visible, self.line_time(c, b, np.where(visible, line, 0.0)), np.nan)
-        visible &= (tl_all >= t_lo) & (tl_all <= t_hi)
-        line = np.where(visible, line, np.nan)
-        sample = np.where(visible, sample, np.nan)
-        return line, sample, visible
+            t0 = self.t0[c[idx], b[idx]]
+            big_l = np.floor((t_star - t0) / dt + 0.5)
+            tl = t0 + big_l * dt
+            inside = (tl >= t_lo) & (tl <= t_hi) & (big_l >= 0)
+            xl, yl, _ = self._along_cross(c[idx], b[idx], g[idx], np.clip(tl, t_lo, t_hi))
+            frac = -(xl + k[idx]) / self.camera.dx
+            line[idx] = np.where(inside, big_l + frac, np.nan)
+            exposure[idx] = np.where(inside, big_l, np.nan)
+            sample[idx] = np.where(inside, self.camera.sample_from_focal_plane_y(c[idx], b[idx], yl), np.nan)
+        visible = np.isfinite(line) & np.isfinite(sample) & (sample >= -0.5) & (sample <= N_PIXELS - 0.5)
+        return ImagePoints(
+            np.where(visible, line, np.nan), np.where(visible, sample, np.nan), visible, np.where(visible, exposure, np.nan)
+        )
 
     # ------------------------------------------------------------------ local frames
     def track_frame(self, ground: ArrayLike, t: ArrayLike) -> tuple[Array, Array, Array]:

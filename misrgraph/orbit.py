@@ -137,7 +137,7 @@ def terra_like_orbit(
     The nodal period is the 16-day/233-orbit repeat (5932.4 s), the semi-major axis follows from
     it with Kepler's law (altitude ~700 km), the node drifts at the sun-synchronous rate, and the
     descending node crosses the path's longitude at 10:30 mean local solar time on
-    ``epoch_date``. The pass starts when the descending track is at ``start_lat_deg`` and lasts
+    ``epoch_date``. The pass starts when the descending track is at geocentric latitude ``start_lat_deg`` and lasts
     ``duration_s``; the epoch of the returned :class:`Ephemeris` is the pass start (UTC).
     """
     if not (-80.0 < start_lat_deg < 81.5):

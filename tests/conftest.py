@@ -1,0 +1,36 @@
+"""Shared, seeded fixtures: the nominal camera model and a reference pass geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import settings
+
+from misrgraph.camera import CameraModel
+from misrgraph.geolocation import PassGeometry
+from misrgraph.orbit import AttitudeSeries, terra_like_orbit
+
+settings.register_profile("ci", max_examples=40, deadline=None, derandomize=True)
+settings.load_profile("ci")
+
+
+@pytest.fixture(scope="session")
+def nominal_camera() -> CameraModel:
+    return CameraModel.nominal()
+
+
+@pytest.fixture(scope="session")
+def reference_pass(nominal_camera: CameraModel) -> PassGeometry:
+    """A 30-minute descending pass with a slowly varying attitude (not identity, to exercise it)."""
+    eph = terra_like_orbit(epoch_date="2001-06-15", path=37, start_lat_deg=60.0, duration_s=1800.0)
+    t = eph.t
+    w = 2 * np.pi / 600.0
+    amp = np.radians(np.array([20.0, 30.0, 15.0]) / 3600.0)
+    angles = amp * np.sin(w * t[:, None] + np.array([0.0, 1.0, 2.0]))
+    rates = amp * w * np.cos(w * t[:, None] + np.array([0.0, 1.0, 2.0]))
+    return PassGeometry(eph, AttitudeSeries(t, angles, rates), nominal_camera)
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(12345)
