@@ -64,6 +64,6 @@ def _coerce(name: str, value: Any, hint: Any) -> Any:
             raise InputError(name, value, "a string")
         return value
     origin = typing.get_origin(hint)
-    if origin is tuple and isinstance(value, (list, tuple)):
+    if (hint is tuple or origin is tuple) and isinstance(value, (list, tuple)):
         return tuple(value)
     return value

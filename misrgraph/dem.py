@@ -1,0 +1,332 @@
+"""Digital elevation model: synthetic terrain, 3-arcsecond tiles, local surface fits (eq. 8).
+
+* :class:`SyntheticTerrain` is a deterministic global height field (m above mean sea level) made
+  of random plane waves with wavelengths from 1.5 km to 300 km and amplitudes growing with
+  wavelength (a fractal-like spectrum, relief of a few km, slopes up to ~20 deg), zero over the
+  ocean (real land mask from ``global-land-mask``).
+* :class:`DemTiles` holds square tiles of heights at 3-arcsecond postings with a
+  land/water/boundary flag per posting and a quality identifier per tile (``1`` = DTED-1 class,
+  30 m vertical 1 sigma, about 60 % of tiles; ``2`` = reduced accuracy, 60-120 m). Each tile's
+  heights carry an error that is a tile-wide bias of the quality's sigma plus white noise of a
+  tenth of it, so the local fit's reported sigma is honest.
+* :func:`fit_local_surface` fits the surface of eq. 8 around a point from at most 6 x 6 postings
+  -- bilinear (2 x 2), biquadratic (least squares on 4 x 4) or bicubic (least squares on 6 x 6) --
+  and returns height, gradient and the height's sigma.
+* Heights are above mean sea level; :class:`Geoid` converts to ellipsoidal heights. For simulated
+  data the named option ``"zero"`` (geoid = ellipsoid) is allowed; a constant undulation or any
+  callable ``N(lat, lon)`` in metres can be given instead.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.h5io import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
+
+__all__ = [
+    "SyntheticTerrain",
+    "DemTiles",
+    "LocalSurface",
+    "fit_local_surface",
+    "Geoid",
+    "POSTING_DEG",
+    "QUALITY_SIGMA_M",
+    "FLAG_LAND",
+    "FLAG_WATER",
+    "FLAG_BOUNDARY",
+]
+
+Array = NDArray[np.float64]
+POSTING_DEG = 3.0 / 3600.0
+FLAG_LAND, FLAG_WATER, FLAG_BOUNDARY = 1, 2, 3
+#: Vertical 1-sigma (m) of each quality identifier.
+QUALITY_SIGMA_M = {1: 30.0, 2: 60.0, 3: 120.0}
+EARTH_R = 6371e3
+
+
+def land_mask(lat: ArrayLike, lon: ArrayLike) -> NDArray[np.bool_]:
+    """True over land (``global-land-mask``, 1 km resolution)."""
+    from global_land_mask import globe
+
+    la = np.clip(np.asarray(lat, dtype=float), -89.999, 89.999)
+    lo = (np.asarray(lon, dtype=float) + 180.0) % 360.0 - 180.0
+    lo = np.clip(lo, -179.999, 179.999)
+    return np.asarray(globe.is_land(la, lo), dtype=bool)
+
+
+@dataclass(frozen=True)
+class SyntheticTerrain:
+    """Deterministic global terrain (m above MSL) from a seed; see the module docstring."""
+
+    seed: int = 0
+    n_waves: int = 32
+    max_relief_m: float = 2500.0
+
+    def _waves(self) -> tuple[Array, Array, Array, Array]:
+        rng = np.random.default_rng(self.seed)
+        lam = np.exp(rng.uniform(np.log(1.5e3), np.log(300e3), self.n_waves))
+        theta = rng.uniform(0, np.pi, self.n_waves)
+        phase = rng.uniform(0, 2 * np.pi, self.n_waves)
+        amp = (lam / 300e3) ** 0.9
+        amp = amp / amp.sum() * self.max_relief_m
+        k = 2 * np.pi / lam
+        return k * np.cos(theta), k * np.sin(theta), phase, amp
+
+    def relief(self, lat: ArrayLike, lon: ArrayLike) -> Array:
+        """Terrain before the land mask (m); smooth everywhere."""
+        kx, ky, ph, amp = self._waves()
+        la = np.radians(np.asarray(lat, dtype=float))
+        lo = np.radians(np.asarray(lon, dtype=float))
+        # local metric coordinates, continuous in longitude away from the poles
+        x = EARTH_R * lo * np.cos(la)
+        y = EARTH_R * la
+        arg = x[..., None] * kx + y[..., None] * ky + ph
+        h = np.sum(amp * (1 + np.sin(arg)), axis=-1) * 0.5
+        return h
+
+    def height(self, lat: ArrayLike, lon: ArrayLike) -> Array:
+        """Height above MSL (m): relief over land, 0 over water."""
+        h = self.relief(lat, lon)
+        return np.where(land_mask(lat, lon), h, 0.0)
+
+
+@dataclass
+class Geoid:
+    """Geoid undulation ``N`` (m) so that ``h_ellipsoid = h_msl + N``.
+
+    ``Geoid("zero")`` (allowed for simulated data), ``Geoid("constant", value=N)`` or
+    ``Geoid("function", function=callable(lat, lon) -> N)``.
+    """
+
+    kind: str = "zero"
+    value: float = 0.0
+    function: Callable[[Array, Array], Array] | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("zero", "constant", "function"):
+            raise InputError("geoid", self.kind, ("zero", "constant", "function"))
+        if self.kind == "function" and self.function is None:
+            raise InputError("geoid.function", None, "a callable N(lat_deg, lon_deg) in metres")
+
+    def undulation(self, lat: ArrayLike, lon: ArrayLike) -> Array:
+        shape = np.broadcast(np.asarray(lat), np.asarray(lon)).shape
+        if self.kind == "zero":
+            return np.zeros(shape)
+        if self.kind == "constant":
+            return np.full(shape, self.value)
+        assert self.function is not None
+        return np.asarray(self.function(np.asarray(lat, float), np.asarray(lon, float)), dtype=float)
+
+
+@dataclass
+class LocalSurface:
+    """Result of :func:`fit_local_surface` per point (arrays ``(N,)``).
+
+    ``height`` m above MSL; ``dh_dlat``, ``dh_dlon`` in m per degree; ``sigma`` m (1 sigma of the
+    height: the DEM quality sigma combined with the fit's residual RMS); ``valid`` False where the
+    point is not covered by a tile.
+    """
+
+    height: Array
+    dh_dlat: Array
+    dh_dlon: Array
+    sigma: Array
+    valid: NDArray[np.bool_]
+
+
+_METHODS = {"bilinear": (1, 2), "biquadratic": (2, 4), "bicubic": (3, 6)}
+
+
+def _basis(u: Array, v: Array, degree: int) -> tuple[Array, Array, Array]:
+    """Tensor-product monomials u^i v^j (i, j <= degree) and their u- and v-derivatives."""
+    p = np.arange(degree + 1)
+    ui, vj = u[..., None] ** p, v[..., None] ** p
+    dui = np.where(p > 0, p * u[..., None] ** np.maximum(p - 1, 0), 0.0)
+    dvj = np.where(p > 0, p * v[..., None] ** np.maximum(p - 1, 0), 0.0)
+    b = (ui[..., :, None] * vj[..., None, :]).reshape(*u.shape, -1)
+    bu = (dui[..., :, None] * vj[..., None, :]).reshape(*u.shape, -1)
+    bv = (ui[..., :, None] * dvj[..., None, :]).reshape(*u.shape, -1)
+    return b, bu, bv
+
+
+def fit_grid_surface(
+    heights: Array, row: Array, col: Array, method: str = "bicubic"
+) -> tuple[Array, Array, Array, Array]:
+    """Fit eq. 8 on a regular grid at fractional (row, col) positions.
+
+    ``heights (R, C)``; returns height, dh/drow, dh/dcol (per posting) and the fit's residual RMS,
+    each ``(N,)``. The window is the ``n x n`` postings around the point (n = 2, 4, 6 for
+    bilinear, biquadratic, bicubic); points too close to the edge use the nearest full window.
+    """
+    if method not in _METHODS:
+        raise InputError("dem method", method, tuple(_METHODS))
+    degree, n = _METHODS[method]
+    r = np.asarray(row, dtype=float)
+    c = np.asarray(col, dtype=float)
+    r0 = np.clip(np.floor(r).astype(int) - (n // 2 - 1), 0, heights.shape[0] - n)
+    c0 = np.clip(np.floor(c).astype(int) - (n // 2 - 1), 0, heights.shape[1] - n)
+    off = np.arange(n)
+    rr = r0[:, None, None] + off[None, :, None]
+    cc = c0[:, None, None] + off[None, None, :]
+    z = heights[rr, cc].reshape(r.size, n * n)
+    # local coordinates centred on the window, in postings, scaled to about [-1, 1]
+    half = (n - 1) / 2.0
+    gu, gv = np.meshgrid(off - half, off - half, indexing="ij")
+    b, _, _ = _basis(gu.ravel() / max(half, 0.5), gv.ravel() / max(half, 0.5), degree)
+    coef, *_ = np.linalg.lstsq(b, z.T, rcond=None)  # same design for every window
+    resid = z.T - b @ coef
+    dof = max(n * n - b.shape[1], 1)
+    rms = np.sqrt(np.sum(resid**2, axis=0) / dof) if n * n > b.shape[1] else np.zeros(r.size)
+    u = (r - r0 - half) / max(half, 0.5)
+    v = (c - c0 - half) / max(half, 0.5)
+    bp, bu, bv = _basis(u, v, degree)
+    h = np.sum(bp * coef.T, axis=-1)
+    dh_dr = np.sum(bu * coef.T, axis=-1) / max(half, 0.5)
+    dh_dc = np.sum(bv * coef.T, axis=-1) / max(half, 0.5)
+    return h, dh_dr, dh_dc, rms
+
+
+@dataclass
+class DemTiles:
+    """Square DEM tiles at 3-arcsecond postings.
+
+    ``lat0, lon0 (T,)`` deg of posting ``[0, 0]`` (south-west corner); ``heights (T, n, n)`` m
+    above MSL (row = latitude index northward, column = longitude eastward); ``flags (T, n, n)``
+    (1 land, 2 water, 3 boundary); ``quality (T,)`` identifiers (see :data:`QUALITY_SIGMA_M`).
+    """
+
+    lat0: Array
+    lon0: Array
+    heights: Array
+    flags: NDArray[np.uint8]
+    quality: NDArray[np.int64]
+    posting_deg: float = POSTING_DEG
+
+    def __post_init__(self) -> None:
+        self.lat0 = np.asarray(self.lat0, dtype=float)
+        self.lon0 = np.asarray(self.lon0, dtype=float)
+        self.heights = np.asarray(self.heights, dtype=float)
+        self.flags = np.asarray(self.flags, dtype=np.uint8)
+        self.quality = np.asarray(self.quality, dtype=np.int64)
+        t = self.lat0.size
+        if self.heights.ndim != 3 or self.heights.shape[0] != t or self.heights.shape[1] != self.heights.shape[2]:
+            raise InputError("dem.heights", self.heights.shape, f"shape ({t}, n, n)")
+        if self.flags.shape != self.heights.shape:
+            raise InputError("dem.flags", self.flags.shape, f"shape {self.heights.shape}")
+        if self.lon0.shape != (t,) or self.quality.shape != (t,):
+            raise InputError("dem.lon0/quality", (self.lon0.shape, self.quality.shape), f"shape ({t},)")
+        bad = set(np.unique(self.quality).tolist()) - set(QUALITY_SIGMA_M)
+        if bad:
+            raise InputError("dem.quality", sorted(bad)[0], tuple(str(q) for q in QUALITY_SIGMA_M))
+
+    @property
+    def size(self) -> int:
+        return int(self.heights.shape[1])
+
+    @classmethod
+    def around(
+        cls,
+        lat: ArrayLike,
+        lon: ArrayLike,
+        terrain: SyntheticTerrain,
+        rng: np.random.Generator,
+        size: int = 32,
+        dted1_fraction: float = 0.6,
+    ) -> "DemTiles":
+        """Tiles of ``size x size`` postings centred near each (lat, lon), heights = terrain + error."""
+        la = np.atleast_1d(np.asarray(lat, dtype=float))
+        lo = np.atleast_1d(np.asarray(lon, dtype=float))
+        p = POSTING_DEG
+        lat0 = np.round((la - size / 2 * p) / p) * p
+        lon0 = np.round((lo - size / 2 * p) / p) * p
+        g = np.arange(size) * p
+        glat = lat0[:, None, None] + g[None, :, None] + 0 * g[None, None, :]
+        glon = lon0[:, None, None] + 0 * g[None, :, None] + g[None, None, :]
+        true_h = terrain.relief(glat, glon)
+        land = land_mask(glat, glon)
+        true_h = np.where(land, true_h, 0.0)
+        flags = np.where(land, FLAG_LAND, FLAG_WATER).astype(np.uint8)
+        # boundary: a land posting next to water or vice versa
+        pad = np.pad(land, ((0, 0), (1, 1), (1, 1)), mode="edge")
+        nb = pad[:, :-2, 1:-1] ^ land | pad[:, 2:, 1:-1] ^ land | pad[:, 1:-1, :-2] ^ land | pad[:, 1:-1, 2:] ^ land
+        flags[nb] = FLAG_BOUNDARY
+        quality = np.where(rng.random(la.size) < dted1_fraction, 1, 2)
+        sig = np.array([QUALITY_SIGMA_M[q] for q in quality])
+        err = sig[:, None, None] * (rng.standard_normal((la.size, 1, 1)) + 0.1 * rng.standard_normal(true_h.shape))
+        return cls(lat0, lon0, true_h + err, flags, quality)
+
+    def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3) -> NDArray[np.int64]:
+        """Index of a tile containing each point at least ``margin`` postings from its edge (-1 if none)."""
+        la = np.atleast_1d(np.asarray(lat, dtype=float))
+        lo = np.atleast_1d(np.asarray(lon, dtype=float))
+        r = (la[:, None] - self.lat0[None, :]) / self.posting_deg
+        c = (((lo[:, None] - self.lon0[None, :]) + 180.0) % 360.0 - 180.0) / self.posting_deg
+        inside = (r >= margin) & (r <= self.size - 1 - margin) & (c >= margin) & (c <= self.size - 1 - margin)
+        # prefer the tile whose centre is nearest
+        d = (r - self.size / 2) ** 2 + (c - self.size / 2) ** 2
+        d = np.where(inside, d, np.inf)
+        best = np.argmin(d, axis=1)
+        return np.where(np.isfinite(d[np.arange(la.size), best]), best, -1)
+
+    def surface(self, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic") -> LocalSurface:
+        """Local surface fit (eq. 8) at points; see :func:`fit_local_surface`."""
+        return fit_local_surface(self, lat, lon, method)
+
+    # ------------------------------------------------------------------ I/O
+    def save(self, path: str | os.PathLike[str]) -> None:
+        with atomic_h5(path, "dem") as f:
+            g = f.create_group("tiles")
+            g.attrs["posting_deg"] = self.posting_deg
+            g.attrs["size"] = self.size
+            g.attrs["height_reference"] = "mean sea level"
+            write_dataset(g, "lat0", self.lat0, units="deg", description="latitude of posting [0, 0] (south-west)")
+            write_dataset(g, "lon0", self.lon0, units="deg", description="longitude of posting [0, 0]")
+            g.create_dataset("heights", data=self.heights.astype(np.float32), compression="gzip", shuffle=True)
+            g["heights"].attrs["units"] = "m above MSL"
+            g.create_dataset("flags", data=self.flags, compression="gzip")
+            g["flags"].attrs["meaning"] = "1 land, 2 water, 3 boundary"
+            write_dataset(g, "quality", self.quality, units="1", meaning="1: DTED-1 30 m; 2: 60 m; 3: 120 m (1 sigma)")
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> "DemTiles":
+        with open_h5(path, "dem") as f:
+            if "tiles" not in f:
+                raise FileFormatError(path, "missing group /tiles")
+            g = f["tiles"]
+            lat0 = read_dataset(g, "lat0", (None,))
+            t = lat0.size
+            n = int(read_attr(g, "size"))
+            return cls(
+                lat0,
+                read_dataset(g, "lon0", (t,)),
+                read_dataset(g, "heights", (t, n, n)),
+                read_dataset(g, "flags", (t, n, n), dtype=np.uint8),
+                read_dataset(g, "quality", (t,), dtype=np.int64),
+                float(read_attr(g, "posting_deg")),
+            )
+
+
+def fit_local_surface(dem: DemTiles, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic") -> LocalSurface:
+    """Eq. 8 at points (deg): height above MSL, gradient (m/deg) and 1-sigma (m)."""
+    la = np.atleast_1d(np.asarray(lat, dtype=float))
+    lo = np.atleast_1d(np.asarray(lon, dtype=float))
+    n = la.size
+    out = LocalSurface(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool))
+    tile = dem.tile_of(la, lo)
+    for t in np.unique(tile[tile >= 0]):
+        sel = np.flatnonzero(tile == t)
+        r = (la[sel] - dem.lat0[t]) / dem.posting_deg
+        c = (((lo[sel] - dem.lon0[t]) + 180.0) % 360.0 - 180.0) / dem.posting_deg
+        h, dr, dc, rms = fit_grid_surface(dem.heights[t], r, c, method)
+        out.height[sel] = h
+        out.dh_dlat[sel] = dr / dem.posting_deg
+        out.dh_dlon[sel] = dc / dem.posting_deg
+        out.sigma[sel] = np.sqrt(QUALITY_SIGMA_M[int(dem.quality[t])] ** 2 + rms**2)
+        out.valid[sel] = True
+    return out
