@@ -99,6 +99,75 @@ def sensitivity(
 
 @app.command()
 @handle_errors
+def simulate(
+    scenario: str = typer.Option("pass", "--scenario", help="pass (one adjustment pass) or month (GCP passes for calibration)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed: the same seed gives the same files."),
+    out: Path = typer.Option(..., "--out", help="Output directory (created; replaced if it is an earlier scenario)."),
+    path: int = typer.Option(37, "--path", help="WRS-2 path (1..233) of the pass / reference path of the month."),
+    tie_points: int = typer.Option(1000, "--tie-points", help="Tie points per pass (pass scenario)."),
+    check_points: int = typer.Option(100, "--check-points", help="Independent check points per pass."),
+    gcps: int = typer.Option(120, "--gcps", help="GCPs in the database."),
+    days: int = typer.Option(30, "--days", help="Length of the month scenario (days)."),
+    duration: float = typer.Option(2700.0, "--duration", help="Pass duration (s)."),
+    gcp_blunder_rate: float = typer.Option(0.05, "--gcp-blunder-rate", help="Fraction of GCP observations that are blunders."),
+    tie_blunder_rate: float = typer.Option(0.0, "--tie-blunder-rate", help="Fraction of tie-point observations that are blunders."),
+    nav_sigma: float = typer.Option(50.0, "--nav-sigma-m", help="Ephemeris offset 1 sigma per axis (m)."),
+    misalignment: float = typer.Option(60.0, "--misalignment-arcsec", help="Camera misalignment 1 sigma (arcsec)."),
+    noise_free: bool = typer.Option(False, "--noise-free", help="No measurement noise and no blunders."),
+    chips: bool = typer.Option(False, "--chips", help="Store nine 64x64 image chips per GCP."),
+    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Simulate a scenario directory: passes, GCP database, DEM, supplied and true camera models."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from misrgraph.simulate import ScenarioConfig, run_simulate
+
+    fields = dict(scenario=scenario, seed=seed, path=path, n_tie_points=tie_points, n_check_points=check_points,
+                  n_gcps=gcps, month_days=days, duration_s=duration, gcp_blunder_rate=gcp_blunder_rate,
+                  tie_blunder_rate=tie_blunder_rate, nav_sigma_m=nav_sigma, camera_misalignment_arcsec=misalignment,
+                  noise_free=noise_free, with_chips=chips)
+    if config is not None:
+        try:
+            fields.update(json.loads(config.read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            _fail(f"--config: cannot read {config}: {exc}")
+    cfg = ScenarioConfig.from_dict(fields)
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err_console,
+                  disable=as_json) as bar:
+        task = bar.add_task("simulating", total=None)
+
+        def progress(desc: str, k: int, n: int) -> None:
+            bar.update(task, description=desc, completed=k, total=max(n, 1))
+
+        summary = run_simulate(cfg, out, progress=progress)
+    if as_json:
+        _print_json({k: v for k, v in summary.items() if k != "pass_summaries"})
+        return
+    console.print(f"[bold]{cfg.scenario}[/] scenario (seed {cfg.seed}) written to {out}: {summary['passes']} passes, "
+                  f"{summary['observations']} observations, {summary['gcps_seen']} GCPs seen "
+                  f"({summary['gcps_seen_in_3_or_more_passes']} in 3 or more passes)")
+
+
+@app.command()
+@handle_errors
+def info(file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
+         as_json: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+    """Validate a misrgraph HDF5 file and print what it holds."""
+    from misrgraph.info import run_info
+
+    res = run_info(file)
+    if as_json:
+        _print_json(res)
+        return
+    table = Table(title=str(file), show_header=False)
+    for k, v in res.items():
+        table.add_row(k, json.dumps(v) if isinstance(v, (dict, list)) else str(v))
+    console.print(table)
+
+
+@app.command()
+@handle_errors
 def demo(out: Path = typer.Option(Path("demo-output"), "--out", help="Directory for the demo's products.")) -> None:
     """Run every stage that exists on the built-in simulated scenario and print a summary table."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn

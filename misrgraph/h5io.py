@@ -71,6 +71,8 @@ def open_h5(path: str | os.PathLike[str], kind: str | None = None) -> Iterator[h
         if kind is not None and got_kind != kind:
             raise FileFormatError(p, f"misrgraph_kind is {got_kind!r}; expected {kind!r}")
         version = f.attrs.get("format_version")
+        if isinstance(version, np.generic):
+            version = version.item()
         want = FORMAT_VERSIONS.get(got_kind)
         if want is None:
             raise FileFormatError(p, f"unknown misrgraph_kind {got_kind!r}; expected one of {sorted(FORMAT_VERSIONS)}")

@@ -34,3 +34,23 @@ def reference_pass(nominal_camera: CameraModel) -> PassGeometry:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def small_pass_dir(tmp_path_factory):
+    """A reduced 'pass' scenario (seed 11): 150 tie points, 20 check points, 15-minute pass."""
+    from misrgraph.simulate import ScenarioConfig, run_simulate
+
+    out = tmp_path_factory.mktemp("scen") / "pass"
+    cfg = ScenarioConfig(scenario="pass", seed=11, n_tie_points=150, n_check_points=20, duration_s=900.0,
+                         start_lat_deg=55.0, tie_blunder_rate=0.02)
+    run_simulate(cfg, out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def small_pass(small_pass_dir):
+    from misrgraph.simulate import load_scenario
+
+    sc = load_scenario(small_pass_dir)
+    return sc, sc.load_pass(0)

@@ -1,0 +1,54 @@
+"""``misrgraph info``: validate a misrgraph HDF5 file and summarise what it holds."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from misrgraph.h5io import open_h5, read_attr
+
+__all__ = ["run_info"]
+
+
+def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Kind, format version and counts of a file, after fully loading (validating) it."""
+    with open_h5(path) as f:
+        kind = str(read_attr(f, "misrgraph_kind"))
+        version = int(read_attr(f, "format_version"))
+    out: dict[str, Any] = {"file": str(path), "kind": kind, "format_version": version}
+    if kind == "orbit_pass":
+        from misrgraph.passdata import KIND_NAMES, OrbitPass
+
+        p = OrbitPass.load(path)
+        t0, t1 = p.span
+        out.update({
+            "pass_id": p.pass_id, "path": p.path, "orbit": p.orbit, "epoch_utc": p.ephemeris.epoch_utc,
+            "time_span_s": [t0, t1], "duration_s": t1 - t0, "ephemeris_samples": int(p.ephemeris.t.size),
+            "landmarks": {KIND_NAMES[k]: int(np.sum(p.landmarks.kind == k)) for k in KIND_NAMES},
+            "observations": len(p.observations), "temperature_c": p.temperature_c, "has_truth": p.truth is not None,
+        })
+    elif kind == "camera_model":
+        from misrgraph.camera import CameraModel
+
+        m = CameraModel.load(path)
+        out.update({"cameras": 9, "bands": 4, "temperature_c": m.temperature_c, "provenance": m.provenance})
+    elif kind == "gcp_database":
+        from misrgraph.gcp import GcpDatabase
+
+        g = GcpDatabase.load(path)
+        regions, counts = np.unique(g.region, return_counts=True)
+        out.update({"gcps": len(g), "regions": {str(r): int(c) for r, c in zip(regions, counts)},
+                    "has_chips": g.chips is not None, "has_truth": g.truth_ecef is not None})
+    elif kind == "dem":
+        from misrgraph.dem import DemTiles
+
+        d = DemTiles.load(path)
+        out.update({"tiles": int(d.lat0.size), "postings_per_side": d.size, "posting_arcsec": d.posting_deg * 3600,
+                    "dted1_fraction": float(np.mean(d.quality == 1)) if d.lat0.size else 0.0})
+    else:
+        from misrgraph.results import summarise_result_file
+
+        out.update(summarise_result_file(path, kind))
+    return out

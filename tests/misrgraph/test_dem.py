@@ -1,0 +1,140 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from misrgraph.dem import (
+    FLAG_BOUNDARY,
+    FLAG_LAND,
+    FLAG_WATER,
+    POSTING_DEG,
+    DemTiles,
+    Geoid,
+    SyntheticTerrain,
+    fit_grid_surface,
+    fit_local_surface,
+)
+from misrgraph.errors import FileFormatError, InputError
+
+
+def _grid(fun, n=20):
+    r, c = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    return fun(r, c)
+
+
+@pytest.mark.parametrize(
+    "method, fun, dfun",
+    [
+        ("bilinear", lambda r, c: 3 + 2 * r - c + 0.5 * r * c, lambda r, c: (2 + 0.5 * c, -1 + 0.5 * r)),
+        ("biquadratic", lambda r, c: 1 + r * r - 0.3 * c * c + r * c, lambda r, c: (2 * r + c, -0.6 * c + r)),
+        ("bicubic", lambda r, c: 0.01 * r**3 - 0.02 * c**3 + r * c * c, lambda r, c: (0.03 * r * r + c * c, -0.06 * c * c + 2 * r * c)),
+    ],
+)
+def test_fits_reproduce_their_polynomial_class(method, fun, dfun, rng):
+    z = _grid(fun)
+    r = rng.uniform(3, 16, 30)
+    c = rng.uniform(3, 16, 30)
+    h, dr, dc, rms = fit_grid_surface(z, r, c, method)
+    np.testing.assert_allclose(h, fun(r, c), atol=1e-8)
+    er, ec = dfun(r, c)
+    np.testing.assert_allclose(dr, er, atol=1e-7)
+    np.testing.assert_allclose(dc, ec, atol=1e-7)
+    if method == "biquadratic":
+        assert np.all(rms < 1e-8)
+
+
+def test_gradient_matches_numerical_derivative(rng):
+    z = _grid(lambda r, c: 100 * np.sin(r / 3) * np.cos(c / 4))
+    r, c = rng.uniform(4, 15, 10), rng.uniform(4, 15, 10)
+    for method in ("bilinear", "biquadratic", "bicubic"):
+        h, dr, dc, _ = fit_grid_surface(z, r, c, method)
+        eps = 1e-5
+        hr = fit_grid_surface(z, r + eps, c, method)[0]
+        hc = fit_grid_surface(z, r, c + eps, method)[0]
+        # bilinear/biquadratic windows may switch at integer positions; ours are random reals
+        np.testing.assert_allclose(dr, (hr - h) / eps, atol=1e-3)
+        np.testing.assert_allclose(dc, (hc - h) / eps, atol=1e-3)
+
+
+def test_real_terrain_held_out_postings():
+    """Jacksboro fault DEM (matplotlib sample data, real 3-arcsec postings in Tennessee): fit on
+    every second posting, predict the postings in between. Errors are small compared with the
+    terrain's variation between neighbouring postings, the bicubic beats the bilinear, and the
+    reported interpolation sigma (lower-order residual RMS) is conservative but of the same order
+    as the true error."""
+    import matplotlib.cbook as cbook
+
+    z = np.asarray(cbook.get_sample_data("jacksboro_fault_dem.npz")["elevation"], dtype=float)
+    coarse = z[::2, ::2]
+    rr, cc = np.meshgrid(np.arange(3, coarse.shape[0] - 4), np.arange(3, coarse.shape[1] - 4), indexing="ij")
+    r = rr.ravel() + 0.5
+    c = cc.ravel() + 0.5
+    truth = z[2 * rr.ravel() + 1, 2 * cc.ravel() + 1]
+    neighbour_step = np.sqrt(np.mean(np.diff(coarse, axis=0) ** 2))
+    errs = {}
+    for method in ("bilinear", "biquadratic", "bicubic"):
+        h, _, _, rms = fit_grid_surface(coarse, r, c, method)
+        errs[method] = np.sqrt(np.mean((h - truth) ** 2))
+        assert errs[method] < 0.5 * neighbour_step
+        assert 0.3 < errs[method] / np.sqrt(np.mean(rms**2)) < 1.2
+    assert errs["bicubic"] < errs["bilinear"]
+
+
+def test_tiles_surface_and_sigma(rng):
+    terrain = SyntheticTerrain(seed=1)
+    lat, lon = np.array([40.0, -20.0]), np.array([-105.0, 25.0])
+    dem = DemTiles.around(lat, lon, terrain, rng, size=32)
+    assert set(np.unique(dem.flags)) <= {FLAG_LAND, FLAG_WATER, FLAG_BOUNDARY}
+    s = fit_local_surface(dem, lat + 1e-4, lon - 2e-4)
+    assert s.valid.all()
+    assert np.all(s.sigma >= 30.0)
+    true = terrain.height(lat + 1e-4, lon - 2e-4)
+    # error = tile bias (sigma from quality) + small noise: within 5 sigma
+    assert np.all(np.abs(s.height - true) < 5 * s.sigma)
+    out = fit_local_surface(dem, np.array([0.0]), np.array([0.0]))
+    assert not out.valid[0] and np.isnan(out.height[0])
+
+
+def test_dem_error_statistics_match_quality_sigma():
+    rng = np.random.default_rng(7)
+    terrain = SyntheticTerrain(seed=2)
+    n = 400
+    lat = rng.uniform(30, 45, n)
+    lon = rng.uniform(-110, -90, n)
+    dem = DemTiles.around(lat, lon, terrain, rng, size=8)
+    true = terrain.height(dem.lat0 + 4 * POSTING_DEG, dem.lon0 + 4 * POSTING_DEG)
+    err = dem.heights[:, 4, 4] - true
+    for q, sig in ((1, 30.0), (2, 60.0)):
+        e = err[dem.quality == q] / (sig * np.sqrt(1.01))
+        k = e.size
+        # chi-square of the normalised errors within 4 standard deviations of its mean
+        assert abs(np.sum(e**2) - k) < 4 * np.sqrt(2 * k)
+    assert abs(np.mean(dem.quality == 1) - 0.6) < 4 * np.sqrt(0.24 / n)
+
+
+def test_dem_save_load(tmp_path, rng):
+    dem = DemTiles.around([10.0], [20.0], SyntheticTerrain(), rng, size=8)
+    dem.save(tmp_path / "d.h5")
+    back = DemTiles.load(tmp_path / "d.h5")
+    np.testing.assert_allclose(back.heights, dem.heights, atol=1e-3)  # stored as float32
+    np.testing.assert_array_equal(back.flags, dem.flags)
+    with pytest.raises(FileFormatError):
+        DemTiles.load(tmp_path / "missing.h5")
+
+
+def test_geoid_options():
+    assert Geoid("zero").undulation(10.0, 20.0) == 0.0
+    assert Geoid("constant", value=-30.0).undulation(np.zeros(3), np.zeros(3)).tolist() == [-30.0] * 3
+    with pytest.raises(InputError, match="geoid"):
+        Geoid("egm2008")
+    with pytest.raises(InputError, match="geoid.function"):
+        Geoid("function")
+
+
+def test_synthetic_terrain_is_realistic():
+    t = SyntheticTerrain(seed=3)
+    lat, lon = np.meshgrid(np.linspace(38, 39, 200), np.linspace(-106, -105, 200), indexing="ij")
+    h = t.relief(lat, lon)
+    assert 300 < np.ptp(h) < 5000
+    slope = np.degrees(np.arctan(np.hypot(*np.gradient(h, 556.0))))
+    assert 1.0 < np.percentile(slope, 95) < 35.0
