@@ -35,6 +35,8 @@ __all__ = [
     "line_fraction",
     "detector_vector",
     "skew",
+    "geodetic_from_ecef",
+    "geodetic_jacobians",
 ]
 
 Array = NDArray[np.float64]
@@ -184,3 +186,41 @@ def skew(v: ArrayLike) -> Array:
     v = np.asarray(v, dtype=float)
     z = np.zeros_like(v[..., 0])
     return _stack([[z, -v[..., 2], v[..., 1]], [v[..., 2], z, -v[..., 0]], [-v[..., 1], v[..., 0], z]])
+
+
+WGS84_A = 6378137.0
+WGS84_E2 = (1.0 / 298.257223563) * (2.0 - 1.0 / 298.257223563)
+
+
+def geodetic_from_ecef(xyz: ArrayLike, iterations: int = 6) -> tuple[Array, Array, Array]:
+    """WGS84 geodetic latitude, longitude (rad) and height (m) from ECEF (m), numpy only.
+
+    Fixed-point iteration on latitude; six iterations are exact to < 1e-12 rad within 1000 km
+    of the surface (checked against pyproj in the tests).
+    """
+    p = np.asarray(xyz, dtype=float)
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    rho = np.hypot(x, y)
+    lon = np.arctan2(y, x)
+    lat = np.arctan2(z, rho * (1 - WGS84_E2))
+    for _ in range(iterations):
+        s = np.sin(lat)
+        n = WGS84_A / np.sqrt(1 - WGS84_E2 * s * s)
+        h = rho / np.cos(lat) - n
+        lat = np.arctan2(z, rho * (1 - WGS84_E2 * n / (n + h)))
+    s = np.sin(lat)
+    n = WGS84_A / np.sqrt(1 - WGS84_E2 * s * s)
+    h = rho / np.cos(lat) - n
+    return lat, lon, h
+
+
+def geodetic_jacobians(lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> tuple[Array, Array, Array]:
+    """Gradients (w.r.t. ECEF, ``(..., 3)``) of latitude (rad/m), longitude (rad/m) and height (m/m)."""
+    la, lo, hh = (np.asarray(a, dtype=float) for a in (lat, lon, h))
+    s, c = np.sin(la), np.cos(la)
+    n = WGS84_A / np.sqrt(1 - WGS84_E2 * s * s)
+    m = WGS84_A * (1 - WGS84_E2) / (1 - WGS84_E2 * s * s) ** 1.5
+    east = np.stack([-np.sin(lo), np.cos(lo), np.zeros_like(lo)], -1)
+    north = np.stack([-s * np.cos(lo), -s * np.sin(lo), c], -1)
+    up = np.stack([c * np.cos(lo), c * np.sin(lo), s], -1)
+    return north / (m + hh)[..., None], east / ((n + hh) * c)[..., None], up

@@ -144,8 +144,19 @@ class LocalSurface:
 #: method -> (degree of the tensor-product polynomial, window size in postings). Measured on the
 #: real Jacksboro 3-arcsec DEM (fit on every second posting, predict the ones between): RMS error
 #: bilinear 8.4 m, biquadratic 4x4 6.3 m, bicubic 4x4 6.3 m, bicubic least squares on 6x6 12.4 m
-#: (over-smooths) -- so the bicubic is the 4x4 interpolant.
+#: (over-smooths) -- so the bicubic is a 4x4 interpolant. Of those, cubic convolution (Keys,
+#: a = -0.5) is used because it is C1-continuous across postings (a Lagrange window that shifts
+#: at each posting is not even continuous there, which stalls Levenberg-Marquardt); it reproduces
+#: polynomials up to degree 2 and equals the 4-point Lagrange value at posting midpoints.
 _METHODS = {"bilinear": (1, 2), "biquadratic": (2, 4), "bicubic": (3, 4)}
+
+
+def _keys_weights(t: Array) -> tuple[Array, Array]:
+    """Cubic-convolution weights (a = -0.5) of postings -1, 0, 1, 2 at fraction t, and d/dt."""
+    t2, t3 = t * t, t * t * t
+    w = np.stack([-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1, -1.5 * t3 + 2 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2], -1)
+    dw = np.stack([-1.5 * t2 + 2 * t - 0.5, 4.5 * t2 - 5 * t, -4.5 * t2 + 4 * t + 0.5, 1.5 * t2 - t], -1)
+    return w, dw
 
 
 def _basis(u: Array, v: Array, degree: int) -> tuple[Array, Array, Array]:
@@ -177,6 +188,8 @@ def fit_grid_surface(
     degree, n = _METHODS[method]
     r = np.asarray(row, dtype=float)
     c = np.asarray(col, dtype=float)
+    if method == "bicubic":
+        return _cubic_convolution(heights, r, c)
     r0 = np.clip(np.floor(r).astype(int) - (n // 2 - 1), 0, heights.shape[0] - n)
     c0 = np.clip(np.floor(c).astype(int) - (n // 2 - 1), 0, heights.shape[1] - n)
     off = np.arange(n)
@@ -203,6 +216,26 @@ def fit_grid_surface(
     h = np.sum(bp * coef.T, axis=-1)
     dh_dr = np.sum(bu * coef.T, axis=-1) / max(half, 0.5)
     dh_dc = np.sum(bv * coef.T, axis=-1) / max(half, 0.5)
+    return h, dh_dr, dh_dc, rms
+
+
+def _cubic_convolution(heights: Array, r: Array, c: Array) -> tuple[Array, Array, Array, Array]:
+    """C1 bicubic (cubic convolution) value and gradient; RMS from a biquadratic fit of the window."""
+    ir = np.clip(np.floor(r).astype(int), 1, heights.shape[0] - 3)
+    ic = np.clip(np.floor(c).astype(int), 1, heights.shape[1] - 3)
+    tr, tc = r - ir, c - ic
+    off = np.arange(-1, 3)
+    z = heights[(ir[:, None, None] + off[None, :, None]), (ic[:, None, None] + off[None, None, :])]
+    wr, dwr = _keys_weights(tr)
+    wc, dwc = _keys_weights(tc)
+    h = np.einsum("ni,nij,nj->n", wr, z, wc)
+    dh_dr = np.einsum("ni,nij,nj->n", dwr, z, wc)
+    dh_dc = np.einsum("ni,nij,nj->n", wr, z, dwc)
+    gu, gv = np.meshgrid(off - 0.5, off - 0.5, indexing="ij")
+    lower = _basis(gu.ravel() / 1.5, gv.ravel() / 1.5, 2)[0]
+    zz = z.reshape(r.size, 16).T
+    lc, *_ = np.linalg.lstsq(lower, zz, rcond=None)
+    rms = np.sqrt(np.sum((zz - lower @ lc) ** 2, axis=0) / (16 - lower.shape[1]))
     return h, dh_dr, dh_dc, rms
 
 

@@ -54,3 +54,16 @@ def small_pass(small_pass_dir):
 
     sc = load_scenario(small_pass_dir)
     return sc, sc.load_pass(0)
+
+
+@pytest.fixture(scope="session")
+def exact_pass(tmp_path_factory):
+    """Noise-free pass, no camera residual, knots on the graph's grid: the truth is a zero of
+    every collinearity residual."""
+    from misrgraph.simulate import ScenarioConfig, load_scenario, run_simulate
+
+    out = tmp_path_factory.mktemp("scen") / "exact"
+    run_simulate(ScenarioConfig(scenario="pass", seed=21, n_tie_points=40, n_check_points=0, duration_s=900.0,
+                                start_lat_deg=55.0, noise_free=True, camera_residual_px=0.0), out)
+    sc = load_scenario(out)
+    return sc, sc.load_pass(0)

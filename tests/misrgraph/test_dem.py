@@ -27,7 +27,8 @@ def _grid(fun, n=20):
     [
         ("bilinear", lambda r, c: 3 + 2 * r - c + 0.5 * r * c, lambda r, c: (2 + 0.5 * c, -1 + 0.5 * r)),
         ("biquadratic", lambda r, c: 1 + r * r - 0.3 * c * c + r * c, lambda r, c: (2 * r + c, -0.6 * c + r)),
-        ("bicubic", lambda r, c: 0.01 * r**3 - 0.02 * c**3 + r * c * c, lambda r, c: (0.03 * r * r + c * c, -0.06 * c * c + 2 * r * c)),
+        # cubic convolution (Keys, a = -0.5) is exact up to degree 2
+        ("bicubic", lambda r, c: 2 + 0.3 * r * r - 0.2 * c * c + r * c - c, lambda r, c: (0.6 * r + c, -0.4 * c + r - 1)),
     ],
 )
 def test_fits_reproduce_their_polynomial_class(method, fun, dfun, rng):
@@ -54,6 +55,17 @@ def test_gradient_matches_numerical_derivative(rng):
         # bilinear/biquadratic windows may switch at integer positions; ours are random reals
         np.testing.assert_allclose(dr, (hr - h) / eps, atol=1e-3)
         np.testing.assert_allclose(dc, (hc - h) / eps, atol=1e-3)
+
+
+def test_bicubic_is_continuous_across_postings():
+    z = _grid(lambda r, c: 100 * np.sin(r / 2.3) * np.cos(c / 3.1) + 7 * r)
+    for x in (5.0, 8.0, 11.0):
+        eps = 1e-9
+        a = fit_grid_surface(z, np.array([x - eps, 6.3]), np.array([6.3, x - eps]), "bicubic")
+        b = fit_grid_surface(z, np.array([x + eps, 6.3]), np.array([6.3, x + eps]), "bicubic")
+        np.testing.assert_allclose(a[0], b[0], atol=1e-6)  # value
+        np.testing.assert_allclose(a[1], b[1], atol=1e-6)  # gradient (C1)
+        np.testing.assert_allclose(a[2], b[2], atol=1e-6)
 
 
 def test_real_terrain_held_out_postings():

@@ -1,0 +1,87 @@
+"""DEM height factor (eq. 31): ``h_DEM(lat(P), lon(P)) + N - H(P) = 0``.
+
+``h_DEM`` is the local surface fitted to the DEM postings around the landmark (eq. 8; height
+above MSL, gradient in m per degree), ``N`` the geoid undulation (m) and ``H`` the ellipsoidal
+height of the landmark ``P`` (ECEF m, eq. 9). Residual in metres; noise is the surface's 1 sigma.
+
+The surface is supplied as a callable ``surface(lat_deg, lon_deg) -> (h, dh_dlat, dh_dlon)``
+(numpy arrays) so this module stays independent of how the DEM is stored; the landmark's
+latitude/longitude follow it, so the fit is re-evaluated at every linearisation.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.geometry import geodetic_from_ecef, geodetic_jacobians
+
+__all__ = ["dem_residual", "DemBatch", "Surface"]
+
+Array = NDArray[np.float64]
+Surface = Callable[[Array, Array], tuple[Array, Array, Array]]
+_DEG = 180.0 / np.pi
+
+
+def dem_residual(landmark: Array, surface: Surface, jacobians: bool = True) -> tuple[Array, Array | None]:
+    """Residual ``(N,)`` m and Jacobian ``(N, 1, 3)`` w.r.t. the ECEF landmark ``(N, 3)``.
+
+    ``surface`` returns the ellipsoidal surface height (MSL height + geoid) and its gradient.
+    """
+    lat, lon, h = geodetic_from_ecef(landmark)
+    hs, dlat, dlon = surface(np.degrees(lat), np.degrees(lon))
+    r = np.asarray(hs, dtype=float) - h
+    if not jacobians:
+        return r, None
+    glat, glon, gh = geodetic_jacobians(lat, lon, h)
+    j = (np.asarray(dlat)[:, None] * _DEG) * glat + (np.asarray(dlon)[:, None] * _DEG) * glon - gh
+    return r, j[:, None, :]
+
+
+class DemBatch:
+    """One DEM factor per landmark, evaluated together (same cache protocol as CollinearityBatch)."""
+
+    def __init__(self, keys: NDArray[np.int64], sigma_m: Array, surface: Surface) -> None:
+        self.keys = np.asarray(keys, np.int64)
+        self.sigma_m = np.asarray(sigma_m, float)
+        self.surface = surface
+        self._cache: tuple[Array, Array | None] | None = None
+
+    def __len__(self) -> int:
+        return int(self.keys.size)
+
+    def _landmarks(self, values: gtsam.Values) -> Array:
+        return np.stack([values.atVector(int(k)) for k in self.keys]) if len(self) else np.zeros((0, 3))
+
+    def residuals(self, values: gtsam.Values, jacobians: bool = False) -> tuple[Array, Array | None]:
+        return dem_residual(self._landmarks(values), self.surface, jacobians)
+
+    def evaluate(self, values: gtsam.Values, jacobians: bool = True) -> None:
+        self._cache = self.residuals(values, jacobians)
+
+    def clear(self) -> None:
+        self._cache = None
+
+    def factors(self) -> list[gtsam.CustomFactor]:
+        return [gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, float(s)), [int(k)], self._callback(i))
+                for i, (k, s) in enumerate(zip(self.keys, self.sigma_m))]
+
+    def _callback(self, i: int):
+        def error(this: gtsam.CustomFactor, values: gtsam.Values, H: Any) -> Array:
+            if self._cache is not None and (H is None or self._cache[1] is not None):
+                r, j = self._cache[0][i:i + 1], (self._cache[1][i] if self._cache[1] is not None else None)
+            else:
+                rr, jj = dem_residual(np.asarray(values.atVector(int(self.keys[i])))[None, :], self.surface, H is not None)
+                r, j = rr, (jj[0] if jj is not None else None)
+            if r.shape != (1,) or not np.all(np.isfinite(r)):
+                from factors.collinearity import FactorShapeError
+
+                raise FactorShapeError(f"DEM factor {i}: residual {r!r} is not a finite (1,) vector")
+            if H is not None:
+                H[0] = np.asarray(j).reshape(1, 3)
+            return r
+
+        return error

@@ -1,0 +1,64 @@
+"""Key letters of every variable in the graph -- defined here and nowhere else (DESIGN.md section 4).
+
+===========  ======  =============================================  ==========================
+variable     letter  index                                          type
+===========  ======  =============================================  ==========================
+tie point    ``l``   ``pass * 10**6 + row``                         Vector3, ECEF m
+GCP          ``g``   GCP database row (shared by every pass)        Vector3, ECEF m
+roll knot    ``r``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
+pitch knot   ``p``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
+yaw knot     ``y``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
+ephemeris    ``e``   ``pass * 10**3 + segment``                     Vector6 (a m/s, b m)
+camera       ``c``   ``camera * 10 + (band + 1 if per band else 0)`` Vector of chosen corrections
+instrument   ``w``   0                                              Vector3 (wx, wy, wz) rad
+===========  ======  =============================================  ==========================
+
+All variables are plain vectors (retraction is addition), stored in ``gtsam.Values`` as dynamic
+vectors and read with ``Values.atVector``.
+"""
+
+from __future__ import annotations
+
+import gtsam
+
+__all__ = [
+    "LANDMARK", "GCP", "KNOT", "EPHEMERIS", "CAMERA", "OMEGA",
+    "landmark_key", "gcp_key", "knot_key", "ephemeris_key", "camera_key", "omega_key", "describe",
+]
+
+LANDMARK = "l"
+GCP = "g"
+KNOT = ("r", "p", "y")  # roll, pitch, yaw
+EPHEMERIS = "e"
+CAMERA = "c"
+OMEGA = "w"
+
+
+def landmark_key(pass_index: int, row: int) -> int:
+    return gtsam.symbol(LANDMARK, pass_index * 10**6 + row)
+
+
+def gcp_key(gcp_row: int) -> int:
+    return gtsam.symbol(GCP, gcp_row)
+
+
+def knot_key(angle: int, pass_index: int, knot: int) -> int:
+    return gtsam.symbol(KNOT[angle], pass_index * 10**5 + knot)
+
+
+def ephemeris_key(pass_index: int, segment: int) -> int:
+    return gtsam.symbol(EPHEMERIS, pass_index * 10**3 + segment)
+
+
+def camera_key(camera: int, band: int | None = None) -> int:
+    return gtsam.symbol(CAMERA, camera * 10 + (0 if band is None else band + 1))
+
+
+def omega_key() -> int:
+    return gtsam.symbol(OMEGA, 0)
+
+
+def describe(key: int) -> str:
+    """Human-readable name of a key, e.g. ``'p3'`` -> pitch knot."""
+    s = gtsam.Symbol(key)
+    return f"{chr(s.chr())}{s.index()}"

@@ -1,0 +1,34 @@
+"""Prior factors: GCP position (eq. 32) and a-priori values of knots, ephemeris and camera.
+
+These are GTSAM's own C++ ``PriorFactorVector`` (no Python callback). The GCP prior's noise is
+30 m per ENU axis rotated to ECEF as a full covariance: ``C = R diag(s^2) R^T`` with ``R`` the
+ENU basis at the GCP.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike
+
+__all__ = ["gcp_prior", "vector_prior", "enu_covariance"]
+
+
+def enu_covariance(lat_rad: float, lon_rad: float, sigma_enu: ArrayLike) -> np.ndarray:
+    """ECEF covariance (3, 3) from 1-sigma per ENU axis at geodetic (lat, lon)."""
+    sl, cl, so, co = np.sin(lat_rad), np.cos(lat_rad), np.sin(lon_rad), np.cos(lon_rad)
+    r = np.array([[-so, -sl * co, cl * co], [co, -sl * so, cl * so], [0.0, cl, sl]])
+    s = np.broadcast_to(np.asarray(sigma_enu, dtype=float), (3,))
+    return r @ np.diag(s**2) @ r.T
+
+
+def gcp_prior(key: int, position_ecef: ArrayLike, covariance: ArrayLike) -> gtsam.PriorFactorVector:
+    """Eq. 32: ``P_GCP - P = 0`` with a full ECEF covariance (m^2)."""
+    return gtsam.PriorFactorVector(key, np.asarray(position_ecef, dtype=float),
+                                   gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)))
+
+
+def vector_prior(key: int, mean: ArrayLike, sigmas: ArrayLike) -> gtsam.PriorFactorVector:
+    """Independent Gaussian prior on a vector variable (knot, ephemeris segment, camera)."""
+    m = np.asarray(mean, dtype=float)
+    return gtsam.PriorFactorVector(key, m, gtsam.noiseModel.Diagonal.Sigmas(np.broadcast_to(np.asarray(sigmas, float), m.shape).copy()))

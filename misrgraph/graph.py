@@ -1,0 +1,277 @@
+"""Graph builder: one orbit pass (+ camera model, DEM, GCPs) -> variables, factors, initial values.
+
+Variables (keys in :mod:`factors.keys`): a landmark per tie point and GCP, attitude knots per
+angle (spacing per angle, knots removed by eqs. 28-29), one ephemeris-error ``Vector6`` per
+segment, and optionally camera corrections. Factors: collinearity (one ``CustomFactor`` per
+landmark holding all its views, or per observation), DEM height for tie points, GCP priors
+(eq. 32), and priors on knots, ephemeris and camera from the navigation / calibration accuracy.
+Check points (kind 2) are never put in the graph.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from factors import keys as K
+from factors.collinearity import CollinearityBatch, CollinearityConstants
+from factors.dem_height import DemBatch
+from factors.priors import gcp_prior, vector_prior
+from misrgraph.camera import CameraModel
+from misrgraph.config import Config
+from misrgraph.constants import ARCSEC, CAMERAS
+from misrgraph.dem import DemTiles, Geoid, fit_local_surface
+from misrgraph.errormodels import AttitudeErrorModel, EphemerisErrorModel, interval_counts, knots_to_remove
+from misrgraph.errors import DegenerateProblemError, InputError
+from misrgraph.frames import ecef_to_geodetic
+from misrgraph.gcp import GcpDatabase
+from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
+
+__all__ = ["GraphConfig", "PassGraph", "Problem", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor"]
+
+log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+
+#: For the simulator's smooth attitude process (periods log-uniform in 200-2000 s) the rate's
+#: 1 sigma is sigma * sqrt(E[(2 pi / P)^2]) = 0.0146 sigma per second.
+rate_prior_factor = 2 * np.pi * np.sqrt((1 / (2 * 200.0**2) - 1 / (2 * 2000.0**2)) / np.log(10.0))
+
+
+@dataclass(frozen=True)
+class GraphConfig(Config):
+    """How a pass becomes a graph (units in the names)."""
+
+    knot_spacing_s: tuple = (120.0, 60.0, 120.0)
+    threshold1: int = 20
+    threshold2: int = 3
+    ephemeris_segments: int = 1
+    attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
+    ephemeris_b_sigma_m: float = 50.0
+    ephemeris_a_sigma_mps: tuple = (0.05, 0.01, 0.01)
+    estimate_camera: bool = True
+    camera_prior_px: float = 0.0625
+    use_dem: bool = True
+    dem_method: str = "bicubic"
+    group_by: str = "landmark"
+    robust: str = "none"
+    robust_k: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.group_by not in ("landmark", "observation"):
+            raise InputError("group_by", self.group_by, ("landmark", "observation"))
+        if self.robust not in ("none", "huber", "cauchy"):
+            raise InputError("robust", self.robust, ("none", "huber", "cauchy"))
+        if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
+            raise InputError("knot_spacing_s", self.knot_spacing_s, "three positive spacings (roll, pitch, yaw) in s")
+
+
+@dataclass
+class Problem:
+    """A nonlinear least-squares problem ready for the solver core."""
+
+    graph: gtsam.NonlinearFactorGraph
+    initial: gtsam.Values
+    batches: list
+    eliminate_first: list[int]
+    dims: dict[int, int]
+
+    @property
+    def other_keys(self) -> list[int]:
+        first = set(self.eliminate_first)
+        return sorted(k for k in self.dims if k not in first)
+
+
+@dataclass
+class PassGraph:
+    """The graph of one pass plus what is needed to interpret the solution."""
+
+    problem: Problem
+    pass_index: int
+    attitude_model: AttitudeErrorModel
+    removed_knots: list[NDArray[np.int64]]
+    ephemeris_model: EphemerisErrorModel
+    landmark_rows: NDArray[np.int64]
+    landmark_keys: NDArray[np.int64]
+    obs_index: NDArray[np.int64]
+    collinearity: CollinearityBatch
+    camera_keys: dict[int, int] = field(default_factory=dict)
+
+    def knot_keys(self, angle: int) -> list[int]:
+        return [K.knot_key(angle, self.pass_index, i) for i in range(self.attitude_model.knot_times[angle].size)]
+
+    def ephemeris_keys(self) -> list[int]:
+        return [K.ephemeris_key(self.pass_index, s) for s in range(self.ephemeris_model.n_segments)]
+
+
+def camera_parameter_matrix(camera: CameraModel, cam: NDArray[np.int64], band: NDArray[np.int64]) -> Array:
+    """Per-observation 10-vector (delta, beta, eps, f, alpha_0..5) of the supplied model."""
+    return np.concatenate([camera.delta[cam, None], camera.beta[cam, None], camera.epsilon[cam, None],
+                           camera.focal_length[cam, band][:, None], camera.alpha[cam, band]], axis=1)
+
+
+def dem_surface(dem: DemTiles, geoid: Geoid, method: str):
+    """Callable ``(lat, lon) -> (h_ellipsoid, dh/dlat, dh/dlon)`` for the DEM factor."""
+
+    def surface(lat: Array, lon: Array) -> tuple[Array, Array, Array]:
+        s = fit_local_surface(dem, lat, lon, method)
+        if not s.valid.all():
+            bad = np.flatnonzero(~s.valid)[0]
+            raise DegenerateProblemError(f"landmark at lat {lat[bad]:.5f}, lon {lon[bad]:.5f} left the DEM tiles")
+        return s.height + geoid.undulation(lat, lon), s.dh_dlat, s.dh_dlon
+
+    return surface
+
+
+def build_pass_graph(
+    orbit_pass: OrbitPass,
+    camera: CameraModel,
+    dem: DemTiles | None,
+    gcps: GcpDatabase | None,
+    cfg: GraphConfig = GraphConfig(),
+    pass_index: int = 0,
+    geoid: Geoid | None = None,
+    exclude_observations: NDArray[np.bool_] | None = None,
+) -> PassGraph:
+    """Build the graph of DESIGN.md section 4 for one pass (see the module docstring)."""
+    geoid = geoid or Geoid("zero")
+    obs = orbit_pass.observations
+    kinds = orbit_pass.landmarks.kind
+    use = kinds[obs.landmark] != KIND_CHECK
+    if exclude_observations is not None:
+        use &= ~exclude_observations
+    idx = np.flatnonzero(use)
+    if idx.size == 0:
+        raise DegenerateProblemError(f"pass {orbit_pass.pass_id}: no tie-point or GCP observations to adjust")
+    cams_used = np.unique(obs.camera[idx])
+    if cams_used.size < 2:
+        raise DegenerateProblemError(
+            f"pass {orbit_pass.pass_id}: observations from a single camera ({CAMERAS[cams_used[0]]}); "
+            "multi-angle adjustment needs at least two cameras")
+    cam, band = obs.camera[idx], obs.band[idx]
+    t_obs = orbit_pass.observation_times()[idx]
+    t_lo, t_hi = orbit_pass.span
+    geo = orbit_pass.geometry(camera)
+    nav = geo.nav_state(t_obs)
+    # --- ephemeris and attitude error models (structure only; values are variables)
+    eph = EphemerisErrorModel.zeros(t_lo, t_hi, cfg.ephemeris_segments)
+    seg, design = eph.design(t_obs)
+    att = AttitudeErrorModel.zeros(t_lo, t_hi, cfg.knot_spacing_s)
+    removed = []
+    for a in range(3):
+        counts = interval_counts(att.knot_times[a], t_obs, cam)
+        removed.append(knots_to_remove(counts, cfg.threshold1, cfg.threshold2))
+    att_kept = att.without(removed)
+    hermite = np.empty((idx.size, 3, 4))
+    knot_keys = np.empty((idx.size, 3, 2), np.int64)
+    for a in range(3):
+        i, w = att_kept.bracket(a, t_obs)
+        hermite[:, a] = w
+        knot_keys[:, a, 0] = [K.knot_key(a, pass_index, int(j)) for j in i]
+        knot_keys[:, a, 1] = [K.knot_key(a, pass_index, int(j) + 1) for j in i]
+    # --- landmarks
+    lm_rows = np.unique(obs.landmark[idx])
+    lm_key_of = {}
+    for row in lm_rows:
+        if kinds[row] == KIND_GCP:
+            lm_key_of[row] = K.gcp_key(int(orbit_pass.landmarks.gcp_index[row]))
+        else:
+            lm_key_of[row] = K.landmark_key(pass_index, int(row))
+    obs_lm_key = np.array([lm_key_of[r] for r in obs.landmark[idx]], np.int64)
+    # --- constants and batch
+    const = CollinearityConstants(
+        nav.eci_to_ecef, nav.position, nav.t_go, design, nav.angles, hermite,
+        camera.k[cam, band], obs.line[idx] - obs.exposure[idx], obs.sample[idx] - camera.cy[cam, band],
+        camera.focal_plane_dy_ds(cam, band, obs.sample[idx]), camera.dx,
+    )
+    keys = {"landmark": obs_lm_key, "ephemeris": np.array([K.ephemeris_key(pass_index, int(s)) for s in seg]),
+            "knots": knot_keys}
+    camera_keys: dict[int, int] = {}
+    if cfg.estimate_camera:
+        camera_keys = {int(c): K.camera_key(int(c)) for c in cams_used}
+        keys["camera"] = np.array([camera_keys[int(c)] for c in cam], np.int64)
+    group = obs.landmark[idx] if cfg.group_by == "landmark" else np.arange(idx.size)
+    robust = None if cfg.robust == "none" else (cfg.robust, cfg.robust_k)
+    coll = CollinearityBatch(const, camera_parameter_matrix(camera, cam, band), camera.omega, obs.sigma_px[idx],
+                             group, keys, (0, 1, 2), robust)
+    graph = gtsam.NonlinearFactorGraph()
+    for f in coll.factors():
+        graph.add(f)
+    values = gtsam.Values()
+    dims: dict[int, int] = {}
+
+    def add(key: int, value: Array) -> None:
+        values.insert(int(key), np.asarray(value, dtype=float))
+        dims[int(key)] = int(np.size(value))
+
+    # initial landmark positions: mean of each view's ray cast onto the DEM (supplied navigation)
+    surface = dem_surface(dem, geoid, cfg.dem_method) if dem is not None else None
+    init = _initial_landmarks(orbit_pass, geo, idx, lm_rows, dem, geoid, cfg.dem_method)
+    batches: list = [coll]
+    dem_keys, dem_sig = [], []
+    gcp_ecef = gcps.ecef() if gcps is not None else None
+    gcp_cov = gcps.covariance_ecef() if gcps is not None else None
+    for row in lm_rows:
+        key = lm_key_of[row]
+        if kinds[row] == KIND_GCP:
+            if gcp_ecef is None or gcp_cov is None:
+                raise InputError("gcps", None, "the GCP database (the pass has GCP observations)")
+            gi = int(orbit_pass.landmarks.gcp_index[row])
+            add(key, gcp_ecef[gi])
+            graph.add(gcp_prior(key, gcp_ecef[gi], gcp_cov[gi]))
+        else:
+            add(key, init[row])
+            if cfg.use_dem and dem is not None:
+                lat, lon, _ = ecef_to_geodetic(init[row])
+                s = fit_local_surface(dem, lat, lon, cfg.dem_method)
+                if s.valid[0]:
+                    dem_keys.append(key)
+                    dem_sig.append(float(s.sigma[0]))
+    if dem_keys:
+        assert surface is not None
+        dem_batch = DemBatch(np.array(dem_keys), np.array(dem_sig), surface)
+        for f in dem_batch.factors():
+            graph.add(f)
+        batches.append(dem_batch)
+    # navigation variables and priors
+    att_sig = np.asarray(cfg.attitude_sigma_arcsec) * ARCSEC
+    for a in range(3):
+        for j in range(att_kept.knot_times[a].size):
+            k = K.knot_key(a, pass_index, j)
+            add(k, np.zeros(2))
+            graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * rate_prior_factor]))
+    eph_sig = np.r_[np.asarray(cfg.ephemeris_a_sigma_mps, float), np.full(3, cfg.ephemeris_b_sigma_m)]
+    for s in range(eph.n_segments):
+        k = K.ephemeris_key(pass_index, s)
+        add(k, np.zeros(6))
+        graph.add(vector_prior(k, np.zeros(6), eph_sig))
+    for c, k in camera_keys.items():
+        ifov = float(camera.ifov_cross_rad(c, 2, 751.5))
+        add(k, np.zeros(3))
+        graph.add(vector_prior(k, np.zeros(3), np.full(3, cfg.camera_prior_px * ifov)))
+    problem = Problem(graph, values, batches, [int(lm_key_of[r]) for r in lm_rows], dims)
+    log.info("pass %s: %d observations, %d landmarks, knots kept %s (removed %s)", orbit_pass.pass_id, idx.size,
+             lm_rows.size, [t.size for t in att_kept.knot_times], [r.size for r in removed])
+    return PassGraph(problem, pass_index, att_kept, removed, eph, lm_rows,
+                     np.array([lm_key_of[r] for r in lm_rows], np.int64), idx, coll, camera_keys)
+
+
+def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, method) -> dict[int, Array]:
+    """Mean over views of each view's ray cast onto the DEM surface (or the ellipsoid)."""
+    obs = orbit_pass.observations
+    if dem is not None:
+        def surface(lat: Array, lon: Array) -> Array:
+            s = fit_local_surface(dem, lat, lon, method)
+            return np.where(s.valid, s.height, 0.0) + geoid.undulation(lat, lon)
+    else:
+        surface = None
+    g = geo.pixel_to_ground(obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx],
+                            surface=surface, exposure=obs.exposure[idx])
+    out = {}
+    lm = obs.landmark[idx]
+    for row in lm_rows:
+        out[int(row)] = np.median(g[lm == row], axis=0)
+    return out

@@ -1,0 +1,258 @@
+"""The solver core: Levenberg-Marquardt driven from Python over GTSAM's sparse elimination.
+
+Why (DESIGN.md section 4, measured trap): when GTSAM's C++ optimisers call a Python
+``CustomFactor`` each call receives a copy of the whole ``Values`` (1.56 s for one LM iteration
+of a 2000-landmark graph here), while ``graph.linearize(values)`` called from Python does not
+copy. So the core:
+
+1. evaluates every Python factor family at once, vectorised (``batch.evaluate``), and caches
+   residuals/Jacobians; the ``CustomFactor`` callbacks then only slice the cache;
+2. calls ``graph.linearize(values)`` once per iteration (one C++ call, Python callbacks ~20 us each);
+3. adds the LM damping ``sqrt(lambda) I`` per variable and eliminates with GTSAM
+   (``GaussianFactorGraph.optimize(ordering)``, landmarks first -- the classic Schur order --,
+   the ordering computed once and reused);
+4. accepts/rejects the step and updates lambda exactly as ``gtsam.LevenbergMarquardtOptimizer``
+   does (same initial lambda, factor 10, same convergence test), so both reach the same optimum.
+
+Marginal covariances (eq. 34 with lambda -> 0 at convergence) come from the undamped linearised
+system by a Schur complement on the landmark blocks: ``S = H_cc - sum H_cl H_ll^-1 H_lc``,
+``Sigma_cc = S^-1`` and ``Sigma_ll = H_ll^-1 + H_ll^-1 H_lc Sigma_cc H_cl H_ll^-1`` -- equal to
+``gtsam.Marginals`` (tested) and much faster than its per-key queries.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from misrgraph.config import Config
+from misrgraph.errors import ConvergenceError, DegenerateProblemError
+from misrgraph.graph import Problem
+
+__all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "marginal_covariances", "solve_gtsam_lm", "Marginals"]
+
+log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SolverParams(Config):
+    """Levenberg-Marquardt settings, with the meaning and defaults of ``gtsam.LevenbergMarquardtParams``."""
+
+    max_iterations: int = 100
+    lambda_initial: float = 1e-5
+    lambda_factor: float = 10.0
+    lambda_upper: float = 1e10
+    relative_error_tol: float = 1e-5
+    absolute_error_tol: float = 1e-5
+
+
+@dataclass
+class SolveResult:
+    values: gtsam.Values
+    iterations: int
+    converged: bool
+    final_error: float
+    history: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+    linearize_seconds: float = 0.0
+    n_linearize: int = 0
+
+
+def _with_cache(problem: Problem, values: gtsam.Values, jacobians: bool, fn: Callable[[], object]):
+    try:
+        for b in problem.batches:
+            b.evaluate(values, jacobians)
+        return fn()
+    finally:
+        for b in problem.batches:
+            b.clear()
+
+
+def error(problem: Problem, values: gtsam.Values) -> float:
+    """Total error ``0.5 sum ||whitened residual||^2`` (robust losses included)."""
+    return float(_with_cache(problem, values, False, lambda: problem.graph.error(values)))
+
+
+def linearize(problem: Problem, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
+    """The whitened linear system at ``values``, Python factors evaluated in one vectorised pass."""
+    return _with_cache(problem, values, True, lambda: problem.graph.linearize(values))
+
+
+def _ordering(problem: Problem) -> gtsam.Ordering:
+    return gtsam.Ordering([int(k) for k in problem.eliminate_first] + problem.other_keys)
+
+
+def _damped(lin: gtsam.GaussianFactorGraph, problem: Problem, lam: float) -> gtsam.GaussianFactorGraph:
+    g = lin.clone()
+    s = np.sqrt(lam)
+    for k, d in problem.dims.items():
+        g.add(gtsam.JacobianFactor(int(k), s * np.eye(d), np.zeros(d), gtsam.noiseModel.Unit.Create(d)))
+    return g
+
+
+def solve(
+    problem: Problem,
+    params: SolverParams = SolverParams(),
+    initial: gtsam.Values | None = None,
+    progress: Callable[[int, float, float], None] | None = None,
+) -> SolveResult:
+    """Minimise the problem's error with Levenberg-Marquardt (see the module docstring)."""
+    t_start = time.perf_counter()
+    values = gtsam.Values(initial if initial is not None else problem.initial)
+    ordering = _ordering(problem)
+    err = error(problem, values)
+    if not np.isfinite(err):
+        raise DegenerateProblemError(f"initial error is not finite ({err})")
+    history = [err]
+    lam = params.lambda_initial
+    converged = False
+    it = 0
+    lin_time = 0.0
+    n_lin = 0
+    for it in range(1, params.max_iterations + 1):
+        t0 = time.perf_counter()
+        lin = linearize(problem, values)
+        lin_time += time.perf_counter() - t0
+        n_lin += 1
+        while True:
+            try:
+                delta = _damped(lin, problem, lam).optimize(ordering)
+            except RuntimeError as exc:  # indeterminant system
+                raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
+            trial = values.retract(delta)
+            new_err = error(problem, trial)
+            if np.isfinite(new_err) and new_err < err:
+                lam = max(lam / params.lambda_factor, 1e-20)
+                break
+            lam *= params.lambda_factor
+            if lam > params.lambda_upper:
+                new_err = err
+                trial = values
+                break
+        decrease = err - new_err
+        values = trial
+        history.append(new_err)
+        if progress:
+            progress(it, new_err, lam)
+        log.debug("LM iteration %d: error %.9g (decrease %.3g), lambda %.1e", it, new_err, decrease, lam)
+        if lam > params.lambda_upper or decrease <= params.absolute_error_tol or decrease <= params.relative_error_tol * err:
+            err = new_err
+            converged = lam <= params.lambda_upper or decrease <= params.absolute_error_tol
+            break
+        err = new_err
+    return SolveResult(values, it, converged, err, history, time.perf_counter() - t_start, lin_time, n_lin)
+
+
+def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> SolveResult:
+    """Reference: the same graph given to ``gtsam.LevenbergMarquardtOptimizer`` (live callbacks)."""
+    for b in problem.batches:
+        b.clear()
+    p = gtsam.LevenbergMarquardtParams()
+    p.setMaxIterations(params.max_iterations)
+    p.setlambdaInitial(params.lambda_initial)
+    p.setlambdaFactor(params.lambda_factor)
+    p.setlambdaUpperBound(params.lambda_upper)
+    p.setRelativeErrorTol(params.relative_error_tol)
+    p.setAbsoluteErrorTol(params.absolute_error_tol)
+    p.setOrdering(_ordering(problem))
+    t0 = time.perf_counter()
+    opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.initial, p)
+    values = opt.optimize()
+    return SolveResult(values, opt.iterations(), True, float(problem.graph.error(values)), [], time.perf_counter() - t0)
+
+
+@dataclass
+class Marginals:
+    """Marginal covariances of every variable (dict key -> (d, d)) and the joint of the
+    non-landmark variables (``joint``, ordered as ``joint_keys``)."""
+
+    cov: dict[int, Array]
+    joint: Array
+    joint_keys: list[int]
+    joint_offsets: dict[int, int]
+
+    def __getitem__(self, key: int) -> Array:
+        return self.cov[int(key)]
+
+    def joint_of(self, keys: list[int]) -> Array:
+        """Joint covariance of several non-landmark variables."""
+        idx = np.concatenate([np.arange(self.joint_offsets[k], self.joint_offsets[k] + self.cov[k].shape[0]) for k in keys])
+        return self.joint[np.ix_(idx, idx)]
+
+
+def marginal_covariances(problem: Problem, values: gtsam.Values, lin: gtsam.GaussianFactorGraph | None = None) -> Marginals:
+    """Marginal covariances by a Schur complement on the landmarks (see the module docstring)."""
+    lin = lin if lin is not None else linearize(problem, values)
+    lm_set = set(int(k) for k in problem.eliminate_first)
+    other = problem.other_keys
+    off: dict[int, int] = {}
+    n_c = 0
+    for k in other:
+        off[k] = n_c
+        n_c += problem.dims[k]
+    lm_index = {k: i for i, k in enumerate(problem.eliminate_first)}
+    n_l = len(lm_index)
+    h_ll = np.zeros((n_l, 3, 3))
+    h_lc = np.zeros((n_l, 3, n_c))
+    h_cc = np.zeros((n_c, n_c))
+    for i in range(lin.size()):
+        f = lin.at(i)
+        if f is None:
+            continue
+        a, _ = f.jacobian()
+        keys = [int(k) for k in f.keys()]
+        cols = []
+        c0 = 0
+        for k in keys:
+            d = problem.dims[k]
+            cols.append((k, c0, d))
+            c0 += d
+        lms = [(k, c, d) for k, c, d in cols if k in lm_set]
+        if len(lms) > 1:
+            raise DegenerateProblemError("marginals: a factor couples two landmarks; use gtsam.Marginals instead")
+        oth = [(k, c, d) for k, c, d in cols if k not in lm_set]
+        if oth:
+            a_c = np.zeros((a.shape[0], n_c))
+            for k, c, d in oth:
+                a_c[:, off[k]:off[k] + d] = a[:, c:c + d]
+            nz = np.flatnonzero(np.any(a_c != 0, axis=0))
+            h_cc[np.ix_(nz, nz)] += a_c[:, nz].T @ a_c[:, nz]
+        if lms:
+            k, c, d = lms[0]
+            j = lm_index[k]
+            a_l = a[:, c:c + 3]
+            h_ll[j] += a_l.T @ a_l
+            if oth:
+                h_lc[j] += a_l.T @ a_c
+    try:
+        h_ll_inv = np.linalg.inv(h_ll) if n_l else h_ll
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateProblemError("a landmark is not determined (singular 3x3 information block)") from exc
+    g = h_ll_inv @ h_lc if n_l else np.zeros((0, 3, n_c))  # (L, 3, n_c)
+    s = h_cc - h_lc.reshape(3 * n_l, n_c).T @ g.reshape(3 * n_l, n_c) if n_l else h_cc
+    try:
+        chol = np.linalg.cholesky(0.5 * (s + s.T))
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)") from exc
+    inv_l = np.linalg.inv(chol)
+    sigma_cc = inv_l.T @ inv_l
+    cov: dict[int, Array] = {k: sigma_cc[off[k]:off[k] + problem.dims[k], off[k]:off[k] + problem.dims[k]].copy() for k in other}
+    if n_l:
+        gs = (g.reshape(3 * n_l, n_c) @ sigma_cc).reshape(n_l, 3, n_c)
+        sl = h_ll_inv + np.einsum("lib,ljb->lij", gs, g)
+        for k, j in lm_index.items():
+            cov[k] = sl[j]
+    return Marginals(cov, sigma_cc, other, off)
+
+
+def check_converged(result: SolveResult) -> None:
+    """Raise :class:`ConvergenceError` if the solver stopped without converging."""
+    if not result.converged:
+        raise ConvergenceError(f"Levenberg-Marquardt did not converge in {result.iterations} iterations (error {result.final_error:.6g})")
