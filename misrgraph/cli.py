@@ -21,7 +21,7 @@ from misrgraph.errors import MisrGraphError
 
 __all__ = ["app", "main"]
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help="In-flight geometric calibration of MISR as a GTSAM factor graph.")
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_show_locals=False, help="In-flight geometric calibration of MISR as a GTSAM factor graph.")
 console = Console()
 err_console = Console(stderr=True)
 
@@ -164,6 +164,39 @@ def info(file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
     for k, v in res.items():
         table.add_row(k, json.dumps(v) if isinstance(v, (dict, list)) else str(v))
     console.print(table)
+
+
+bench_app = typer.Typer(help="Speed and memory, as ratios against a baseline run in the same process.", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("solver")
+@handle_errors
+def bench_solver(
+    tie_points: int = typer.Option(1000, "--tie-points", help="Tie points in the simulated pass."),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep/reuse simulated scenarios here."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Solver core vs gtsam.LevenbergMarquardtOptimizer on the same graph (per linearisation, per iteration)."""
+    from misrgraph.bench import run_bench_solver
+
+    if tie_points < 10:
+        _fail(f"--tie-points: got {tie_points}; expected at least 10")
+    with err_console.status("simulating and solving (gtsam LM is the slow part)..."):
+        res = run_bench_solver(tie_points, seed, workdir)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title=f"bench solver: {res['variables']} variables, {res['factors']} factors, {res['observations']} observations")
+    for col in ("solver", "seconds", "iterations", "s / iteration", "final cost"):
+        t.add_column(col)
+    for name in ("core", "gtsam_lm"):
+        r = res[name]
+        t.add_row(name, f"{r['seconds']:.2f}", str(r["iterations"]), f"{r['seconds_per_iteration']:.3f}", f"{r['final_cost']:.6f}")
+    console.print(t)
+    console.print(f"gtsam_lm / core = {res['ratio_gtsam_lm_over_core']:.1f}x; linearisation (s): "
+                  + ", ".join(f"{k} {v:.3f}" for k, v in res["linearize_seconds"].items()))
 
 
 @app.command()

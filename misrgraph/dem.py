@@ -189,7 +189,7 @@ def fit_grid_surface(
     r = np.asarray(row, dtype=float)
     c = np.asarray(col, dtype=float)
     if method == "bicubic":
-        return _cubic_convolution(heights, r, c)
+        return _cubic_convolution(heights, np.atleast_1d(r), np.atleast_1d(c))
     r0 = np.clip(np.floor(r).astype(int) - (n // 2 - 1), 0, heights.shape[0] - n)
     c0 = np.clip(np.floor(c).astype(int) - (n // 2 - 1), 0, heights.shape[1] - n)
     off = np.arange(n)
@@ -219,24 +219,33 @@ def fit_grid_surface(
     return h, dh_dr, dh_dc, rms
 
 
-def _cubic_convolution(heights: Array, r: Array, c: Array) -> tuple[Array, Array, Array, Array]:
-    """C1 bicubic (cubic convolution) value and gradient; RMS from a biquadratic fit of the window."""
-    ir = np.clip(np.floor(r).astype(int), 1, heights.shape[0] - 3)
-    ic = np.clip(np.floor(c).astype(int), 1, heights.shape[1] - 3)
-    tr, tc = r - ir, c - ic
-    off = np.arange(-1, 3)
-    z = heights[(ir[:, None, None] + off[None, :, None]), (ic[:, None, None] + off[None, None, :])]
+_GU, _GV = np.meshgrid(np.arange(-1, 3) - 0.5, np.arange(-1, 3) - 0.5, indexing="ij")
+_QUAD16 = _basis(_GU.ravel() / 1.5, _GV.ravel() / 1.5, 2)[0]
+#: residual projector of the biquadratic least-squares fit on a 4 x 4 window: r = (I - B B^+) z
+_QUAD16_RESID = np.eye(16) - _QUAD16 @ np.linalg.pinv(_QUAD16)
+
+
+def _cubic_convolution_windows(z: Array, tr: Array, tc: Array) -> tuple[Array, Array, Array, Array]:
+    """Value, d/drow, d/dcol and roughness RMS from 4 x 4 windows ``z (N, 4, 4)`` at fractions."""
     wr, dwr = _keys_weights(tr)
     wc, dwc = _keys_weights(tc)
     h = np.einsum("ni,nij,nj->n", wr, z, wc)
     dh_dr = np.einsum("ni,nij,nj->n", dwr, z, wc)
     dh_dc = np.einsum("ni,nij,nj->n", wr, z, dwc)
-    gu, gv = np.meshgrid(off - 0.5, off - 0.5, indexing="ij")
-    lower = _basis(gu.ravel() / 1.5, gv.ravel() / 1.5, 2)[0]
-    zz = z.reshape(r.size, 16).T
-    lc, *_ = np.linalg.lstsq(lower, zz, rcond=None)
-    rms = np.sqrt(np.sum((zz - lower @ lc) ** 2, axis=0) / (16 - lower.shape[1]))
+    resid = z.reshape(-1, 16) @ _QUAD16_RESID.T
+    rms = np.sqrt(np.sum(resid**2, axis=1) / (16 - _QUAD16.shape[1]))
     return h, dh_dr, dh_dc, rms
+
+
+def _cubic_convolution(heights: Array, r: Array, c: Array, tile: NDArray[np.int64] | None = None) -> tuple[Array, Array, Array, Array]:
+    """C1 bicubic (cubic convolution) on ``heights (R, C)`` or, with ``tile``, ``heights (T, R, C)``."""
+    hh = heights if tile is not None else heights[None]
+    t = tile if tile is not None else np.zeros(np.size(r), np.int64)
+    ir = np.clip(np.floor(r).astype(int), 1, hh.shape[1] - 3)
+    ic = np.clip(np.floor(c).astype(int), 1, hh.shape[2] - 3)
+    off = np.arange(-1, 3)
+    z = hh[t[:, None, None], (ir[:, None, None] + off[None, :, None]), (ic[:, None, None] + off[None, None, :])]
+    return _cubic_convolution_windows(z, r - ir, c - ic)
 
 
 @dataclass
@@ -309,17 +318,29 @@ class DemTiles:
         return cls(lat0, lon0, true_h + err, flags, quality)
 
     def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3) -> NDArray[np.int64]:
-        """Index of a tile containing each point at least ``margin`` postings from its edge (-1 if none)."""
+        """Index of a tile containing each point at least ``margin`` postings from its edge (-1 if none);
+        among several, the tile whose centre is nearest."""
         la = np.atleast_1d(np.asarray(lat, dtype=float))
         lo = np.atleast_1d(np.asarray(lon, dtype=float))
-        r = (la[:, None] - self.lat0[None, :]) / self.posting_deg
-        c = (((lo[:, None] - self.lon0[None, :]) + 180.0) % 360.0 - 180.0) / self.posting_deg
+        out = -np.ones(la.size, np.int64)
+        if self.lat0.size == 0 or la.size == 0:
+            return out
+        if not hasattr(self, "_tree"):
+            from scipy.spatial import cKDTree
+
+            half = self.size / 2 * self.posting_deg
+            self._centres = np.stack([self.lat0 + half, self.lon0 + half], -1)
+            self._tree = cKDTree(self._centres)
+        k = min(8, self.lat0.size)
+        _, cand = self._tree.query(np.stack([la, lo], -1), k=k)
+        cand = cand.reshape(la.size, k)
+        r = (la[:, None] - self.lat0[cand]) / self.posting_deg
+        c = (((lo[:, None] - self.lon0[cand]) + 180.0) % 360.0 - 180.0) / self.posting_deg
         inside = (r >= margin) & (r <= self.size - 1 - margin) & (c >= margin) & (c <= self.size - 1 - margin)
-        # prefer the tile whose centre is nearest
-        d = (r - self.size / 2) ** 2 + (c - self.size / 2) ** 2
-        d = np.where(inside, d, np.inf)
-        best = np.argmin(d, axis=1)
-        return np.where(np.isfinite(d[np.arange(la.size), best]), best, -1)
+        first = np.argmax(inside, axis=1)  # candidates come nearest first
+        ok = inside[np.arange(la.size), first]
+        out[ok] = cand[np.arange(la.size), first][ok]
+        return out
 
     def surface(self, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic") -> LocalSurface:
         """Local surface fit (eq. 8) at points; see :func:`fit_local_surface`."""
@@ -366,14 +387,25 @@ def fit_local_surface(dem: DemTiles, lat: ArrayLike, lon: ArrayLike, method: str
     n = la.size
     out = LocalSurface(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool))
     tile = dem.tile_of(la, lo)
-    for t in np.unique(tile[tile >= 0]):
-        sel = np.flatnonzero(tile == t)
-        r = (la[sel] - dem.lat0[t]) / dem.posting_deg
-        c = (((lo[sel] - dem.lon0[t]) + 180.0) % 360.0 - 180.0) / dem.posting_deg
-        h, dr, dc, rms = fit_grid_surface(dem.heights[t], r, c, method)
-        out.height[sel] = h
-        out.dh_dlat[sel] = dr / dem.posting_deg
-        out.dh_dlon[sel] = dc / dem.posting_deg
-        out.sigma[sel] = np.sqrt(QUALITY_SIGMA_M[int(dem.quality[t])] ** 2 + rms**2)
-        out.valid[sel] = True
+    sel = np.flatnonzero(tile >= 0)
+    if sel.size == 0:
+        return out
+    t = tile[sel]
+    r = (la[sel] - dem.lat0[t]) / dem.posting_deg
+    c = (((lo[sel] - dem.lon0[t]) + 180.0) % 360.0 - 180.0) / dem.posting_deg
+    if method == "bicubic":
+        h, dr, dc, rms = _cubic_convolution(dem.heights, r, c, t)
+    else:
+        h, dr, dc, rms = (np.empty(sel.size) for _ in range(4))
+        for tt in np.unique(t):
+            m = t == tt
+            h[m], dr[m], dc[m], rms[m] = fit_grid_surface(dem.heights[tt], r[m], c[m], method)
+    sig_q = np.zeros(max(QUALITY_SIGMA_M) + 1)
+    for q, v in QUALITY_SIGMA_M.items():
+        sig_q[q] = v
+    out.height[sel] = h
+    out.dh_dlat[sel] = dr / dem.posting_deg
+    out.dh_dlon[sel] = dc / dem.posting_deg
+    out.sigma[sel] = np.sqrt(sig_q[dem.quality[t]] ** 2 + rms**2)
+    out.valid[sel] = True
     return out

@@ -402,7 +402,8 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         supplied.provenance = {"source": "calibrated model (truth + residual error)", "residual_px": str(cfg.camera_residual_px)}
         plan = [(0, cfg.path, cfg.epoch_date, cfg.start_lat_deg, cfg.duration_s)]
         n_tie, n_check = cfg.n_tie_points, cfg.n_check_points
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent if out_dir.parent.exists() else None))
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
         (tmp / "passes").mkdir()
         all_lm = []
