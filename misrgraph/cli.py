@@ -166,6 +166,64 @@ def info(file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
     console.print(table)
 
 
+@app.command()
+@handle_errors
+def adjust(
+    scenario_dir: Path = typer.Argument(..., help="Scenario directory (misrgraph simulate --scenario pass)."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model HDF5 (default: the scenario's, e.g. one written by calibrate)."),
+    pass_file: Optional[Path] = typer.Option(None, "--pass", help="Pass file (default: the first in SCENARIO_DIR/passes)."),
+    gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (default SCENARIO_DIR/gcp.h5)."),
+    dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (default SCENARIO_DIR/dem.h5)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write RESULT.h5 (error models, landmarks, covariances, residuals)."),
+    pitch_spacing: float = typer.Option(60.0, "--pitch-knots-s", help="Pitch knot spacing (s)."),
+    rollyaw_spacing: float = typer.Option(120.0, "--roll-yaw-knots-s", help="Roll and yaw knot spacing (s)."),
+    threshold1: int = typer.Option(20, "--threshold1", help="Eq. 28: minimum tie-point observations per knot interval."),
+    threshold2: int = typer.Option(3, "--threshold2", help="Eq. 29: minimum cameras per knot interval."),
+    knot_rule: str = typer.Option("support", "--knot-rule", help="Eqs. 28-29 on each knot's support (default) or, literally, on [t_i, t_i+1) ('interval')."),
+    no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
+    robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
+    from misrgraph.adjust import AdjustConfig, run_adjust
+
+    cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
+                                      threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
+                                      use_dem=not no_dem, robust=robust))
+    with err_console.status("adjusting...") as st:
+        summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
+                             progress=lambda s: st.update(s))
+    if as_json:
+        _print_json(summary)
+        return
+    _print_adjust_summary(summary)
+
+
+def _print_adjust_summary(s: dict) -> None:
+    console.print(f"pass {s['pass_id']}: {s['observations']} observations, {s['landmarks']} landmarks, "
+                  f"{s['iterations']} iterations, cost {s['final_cost']:.1f}, {s['seconds']:.1f} s")
+    console.print("knots kept/removed: " + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in s["knots"].items()))
+    console.print(f"rejected observations: {len(s['rejected_observations'])}")
+    for d in s.get("diagnostics", []):
+        console.print(f"[yellow]note:[/] {d}")
+    if "checkpoint_geolocation_m" in s:
+        t = Table(title="check points: ground error (m) with supplied -> corrected navigation")
+        for col in ("camera", "before mean", "before std", "after mean", "after std", "ratio", "co-reg vs An (px)"):
+            t.add_column(col, justify="right")
+        for cam, v in s["checkpoint_geolocation_m"].items():
+            t.add_row(cam, f"{v['before']['mean']:.1f}", f"{v['before']['std']:.1f}", f"{v['after']['mean']:.1f}",
+                      f"{v['after']['std']:.1f}", f"{v['ratio_before_over_after']:.1f}",
+                      f"{s['coregistration_px'].get(cam, float('nan')):.3f}")
+        console.print(t)
+        att, obs = s["attitude_rms_arcsec"], s["attitude_rms_arcsec_observed"]
+        console.print("attitude RMS error (arcsec) where observed / whole pass: "
+                      + ", ".join(f"{k} {obs[k]:.2f}/{v:.2f}" for k, v in att.items())
+                      + f" ({100 * s['observed_fraction_of_pass']:.0f} % of the pass observed); "
+                      f"ephemeris RMS error {s['ephemeris_rms_m']:.1f} m")
+        n = s["nees"]
+        console.print(f"NEES / dim: knots {n['knots']:.2f}, landmarks {n['landmarks']:.2f}, whole state {n['state']:.2f} (1 = honest)")
+
+
 bench_app = typer.Typer(help="Speed and memory, as ratios against a baseline run in the same process.", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 

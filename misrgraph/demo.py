@@ -38,7 +38,7 @@ def _stage_round_trip(out: Path, state: dict[str, Any]) -> str:
         line = np.floor(rng.uniform(0.4, 0.6, 50) * n)
         s = rng.uniform(0, 1503, 50)
         g = geo.pixel_to_ground(c, 2, line, s)
-        ln, sm, vis, _ = geo.ground_to_pixel(c, 2, g)
+        ln, sm, vis, _, _ = geo.ground_to_pixel(c, 2, g)
         worst = max(worst, float(np.max(np.hypot(ln - line, sm - s))))
     return f"pixel -> ground -> pixel round trip, 9 cameras x 50 pixels: worst {worst:.1e} px"
 

@@ -166,18 +166,31 @@ def interval_counts(knot_times: ArrayLike, obs_times: ArrayLike, obs_camera: Arr
     return counts
 
 
-def knots_to_remove(counts: ArrayLike, threshold1: int, threshold2: int) -> NDArray[np.int64]:
+def knots_to_remove(counts: ArrayLike, threshold1: int, threshold2: int, rule: str = "interval") -> NDArray[np.int64]:
     """Knots to remove by eqs. 28-29 from the per-interval, per-camera counts ``(M - 1, 9)``.
 
-    Knot ``i`` (interval ``[t_i, t_{i+1})``) is removed when the tie points seen in the interval,
-    summed over cameras, number fewer than ``threshold1`` (eq. 28) or when fewer than
-    ``threshold2`` cameras see any (eq. 29). The first and last knots are always kept so the
-    spline still spans the pass (their values are held by their priors).
+    ``rule="interval"`` is the seed's literal rule: knot ``i`` is judged on ``[t_i, t_{i+1})``.
+    ``rule="support"`` judges it on its whole support ``[t_{i-1}, t_{i+1})`` -- the two segments
+    its value and rate shape. A knot is removed when the tie-point observations counted there,
+    summed over cameras, are fewer than ``threshold1`` (eq. 28) or when fewer than ``threshold2``
+    cameras see any (eq. 29). The first and last knots are always kept so the spline still spans
+    the pass (their values are held by their priors).
+
+    With ``rule="support"`` and ``threshold1 = threshold2 = 1`` only knots with no data at all
+    in their support go, so every merged segment is free of data and no observation is fitted by
+    a spline coarser than its own (see docs/conventions.md for the measured consequence).
     """
     c = np.asarray(counts)
     if c.ndim != 2:
         raise InputError("counts", c.shape, "an (intervals, cameras) array")
-    fail = (c.sum(axis=1) < threshold1) | ((c > 0).sum(axis=1) < threshold2)
+    if rule not in ("interval", "support"):
+        raise InputError("knot removal rule", rule, ("interval", "support"))
+    m = c.shape[0] + 1
+    judged = c.copy()
+    if rule == "support":
+        judged = np.zeros_like(c)
+        judged[1:] = c[1:] + c[:-1]  # knot i (1..M-2) sees intervals i-1 and i
+    fail = (judged.sum(axis=1) < threshold1) | ((judged > 0).sum(axis=1) < threshold2)
     fail[0] = False
     idx = np.flatnonzero(fail)
-    return idx[idx > 0]
+    return idx[(idx > 0) & (idx < m - 1)]

@@ -38,7 +38,9 @@ class ImagePoints(NamedTuple):
     """Result of :meth:`PassGeometry.ground_to_pixel`, each ``(N,)``.
 
     ``line`` = ``exposure + frac`` (eq. 2's line coordinate), ``sample``, ``visible`` (bool) and
-    ``exposure`` = the integer exposure (time) index ``L``. For the A cameras the along-track
+    ``exposure`` = the integer exposure (time) index ``L`` and ``crossing_line`` = the continuous
+    ``(t* - t0) / dt_line`` at which the point crosses the band's array centre (a smooth measure of
+    the along-track image position, used for co-registration). For the A cameras the along-track
     image moves ~1.1 detector pitches per line, so ``|frac|`` can slightly exceed 0.5 and
     ``INT(line + 0.5)`` can differ from ``exposure``: pass ``exposure`` back to
     :meth:`PassGeometry.pixel_to_ground` to reproduce the ground point exactly.
@@ -48,6 +50,7 @@ class ImagePoints(NamedTuple):
     sample: NDArray[np.float64]
     visible: NDArray[np.bool_]
     exposure: NDArray[np.float64]
+    crossing_line: NDArray[np.float64]
 
 
 @dataclass
@@ -255,12 +258,14 @@ class PassGeometry:
         line = np.full(n, np.nan)
         sample = np.full(n, np.nan)
         exposure = np.full(n, np.nan)
+        crossing = np.full(n, np.nan)
         if idx.size:
             f_t = lambda tt, ii: self._along_cross(c[ii], b[ii], g[ii], tt)[0] + k[ii]
             t_star = _illinois(f_t, grid[j[idx]], grid[j[idx] + 1], tol=1e-7, index=idx)
             assert self.t0 is not None
             dt = self.camera.line_time
             t0 = self.t0[c[idx], b[idx]]
+            crossing[idx] = (t_star - t0) / dt
             big_l = np.floor((t_star - t0) / dt + 0.5)
             tl = t0 + big_l * dt
             inside = (tl >= t_lo) & (tl <= t_hi) & (big_l >= 0)
@@ -270,9 +275,8 @@ class PassGeometry:
             exposure[idx] = np.where(inside, big_l, np.nan)
             sample[idx] = np.where(inside, self.camera.sample_from_focal_plane_y(c[idx], b[idx], yl), np.nan)
         visible = np.isfinite(line) & np.isfinite(sample) & (sample >= -0.5) & (sample <= N_PIXELS - 0.5)
-        return ImagePoints(
-            np.where(visible, line, np.nan), np.where(visible, sample, np.nan), visible, np.where(visible, exposure, np.nan)
-        )
+        nan = lambda a: np.where(visible, a, np.nan)
+        return ImagePoints(nan(line), nan(sample), visible, nan(exposure), nan(crossing))
 
     # ------------------------------------------------------------------ local frames
     def track_frame(self, ground: ArrayLike, t: ArrayLike) -> tuple[Array, Array, Array]:

@@ -48,6 +48,7 @@ class GraphConfig(Config):
     knot_spacing_s: tuple = (120.0, 60.0, 120.0)
     threshold1: int = 20
     threshold2: int = 3
+    knot_rule: str = "support"
     ephemeris_segments: int = 1
     attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
     ephemeris_b_sigma_m: float = 50.0
@@ -65,6 +66,8 @@ class GraphConfig(Config):
             raise InputError("group_by", self.group_by, ("landmark", "observation"))
         if self.robust not in ("none", "huber", "cauchy"):
             raise InputError("robust", self.robust, ("none", "huber", "cauchy"))
+        if self.knot_rule not in ("interval", "support"):
+            raise InputError("knot_rule", self.knot_rule, ("interval", "support"))
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
             raise InputError("knot_spacing_s", self.knot_spacing_s, "three positive spacings (roll, pitch, yaw) in s")
 
@@ -163,7 +166,7 @@ def build_pass_graph(
     removed = []
     for a in range(3):
         counts = interval_counts(att.knot_times[a], t_obs, cam)
-        removed.append(knots_to_remove(counts, cfg.threshold1, cfg.threshold2))
+        removed.append(knots_to_remove(counts, cfg.threshold1, cfg.threshold2, cfg.knot_rule))
     att_kept = att.without(removed)
     hermite = np.empty((idx.size, 3, 4))
     knot_keys = np.empty((idx.size, 3, 2), np.int64)

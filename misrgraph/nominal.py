@@ -115,7 +115,7 @@ def derive_camera_model(ref_lat_deg: float = REFERENCE_LAT_DEG, path: int = 37, 
         def an_sample_offset(dlt: float) -> float:
             model.delta[ci] = dlt
             g, _ = boresight_ground(ci)
-            _, s, vis, _ = geo.ground_to_pixel(an, red, g[None, :])
+            _, s, vis, _, _ = geo.ground_to_pixel(an, red, g[None, :])
             if not vis[0]:
                 raise ConvergenceError(f"An does not see the boresight point of {cam} during the derivation pass")
             return float(s[0] - model.cy[an, red])

@@ -192,7 +192,7 @@ def _observe(
     cams_seen = np.zeros(len(ecef), dtype=int)
     per_cam = []
     for c in range(len(CAMERAS)):
-        ln, sm, vis, ex = geo.ground_to_pixel(c, RED, ecef)
+        ln, sm, vis, ex, _ = geo.ground_to_pixel(c, RED, ecef)
         dropout = rng.random(len(ecef)) >= cfg.view_probability
         vis = vis & ~(dropout & (kinds == KIND_TIE))
         per_cam.append((c, ln, sm, vis, ex))
@@ -239,7 +239,7 @@ def simulate_pass(
     lms: list[_Landmark] = []
     # GCPs seen by the nadir camera during the pass
     if len(gcps) and gcps.truth_ecef is not None:
-        _, _, vis, _ = geo.ground_to_pixel(CAMERAS.index("An"), RED, gcps.truth_ecef)
+        _, _, vis, _, _ = geo.ground_to_pixel(CAMERAS.index("An"), RED, gcps.truth_ecef)
         for gi in np.flatnonzero(vis):
             lms.append(_Landmark(gcps.truth_ecef[gi], KIND_GCP, int(gcps.id[gi]), int(gi)))
     # tie and check points over textured land, inside the common swath

@@ -35,7 +35,8 @@ from misrgraph.config import Config
 from misrgraph.errors import ConvergenceError, DegenerateProblemError
 from misrgraph.graph import Problem
 
-__all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "marginal_covariances", "solve_gtsam_lm", "Marginals"]
+__all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "marginal_covariances", "solve_gtsam_lm",
+           "Marginals", "information_norm", "check_converged"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -250,6 +251,19 @@ def marginal_covariances(problem: Problem, values: gtsam.Values, lin: gtsam.Gaus
         for k, j in lm_index.items():
             cov[k] = sl[j]
     return Marginals(cov, sigma_cc, other, off)
+
+
+def information_norm(problem: Problem, lin: gtsam.GaussianFactorGraph, delta: dict[int, Array]) -> float:
+    """``e^T H e = sum_f ||A_f e_f||^2`` for a state error ``e`` (dict key -> vector): the joint
+    NEES of the whole state when ``e`` is estimate minus truth and ``H`` the information at the
+    solution (whose inverse is the covariance)."""
+    total = 0.0
+    for i in range(lin.size()):
+        f = lin.at(i)
+        a, _ = f.jacobian()
+        e = np.concatenate([np.asarray(delta[int(k)], float) for k in f.keys()])
+        total += float(np.sum((a @ e) ** 2))
+    return total
 
 
 def check_converged(result: SolveResult) -> None:

@@ -101,6 +101,20 @@ def test_interval_counts_and_knot_removal_eq28_29():
     assert 0 not in knots_to_remove(c0, 10, 3)
 
 
+def test_support_rule_judges_both_segments_of_a_knot():
+    # interval counts: 0: 30, 1: 0, 2: 0, 3: 25, 4: 0 (all with >= 3 cameras where non-zero)
+    c = np.zeros((5, 9), int)
+    c[0, :5] = 6
+    c[3, :5] = 5
+    # literal rule: knots 1, 2, 4 fail (their own interval is empty); 4 is the last interval's knot
+    np.testing.assert_array_equal(knots_to_remove(c, 1, 1, "interval"), [1, 2, 4])
+    # support rule: knot 1 sees intervals 0+1 (data), knot 2 sees 1+2 (empty), knot 3 sees 2+3,
+    # knot 4 sees 3+4 -> only knot 2 goes, so the merged segment [t_1, t_3) holds no data
+    np.testing.assert_array_equal(knots_to_remove(c, 1, 1, "support"), [2])
+    with pytest.raises(InputError, match="rule"):
+        knots_to_remove(c, 1, 1, "both")
+
+
 def test_spline_spans_neighbours_after_removal(spline):
     m = spline.without([np.array([], int), np.array([3, 4]), np.array([])])
     kt = m.knot_times[1]

@@ -33,7 +33,7 @@ def test_pixel_ground_pixel_round_trip(reference_pass, c, b, u, frac, s):
     lo, hi = _line_range(reference_pass, c, b)
     line = np.floor(lo + u * (hi - lo)) + frac
     g = reference_pass.pixel_to_ground(c, b, line, s)
-    ln, sm, vis, exp = reference_pass.ground_to_pixel(c, b, g)
+    ln, sm, vis, exp, _ = reference_pass.ground_to_pixel(c, b, g)
     assert vis[0]
     assert abs(ln[0] - line) < 1e-3
     assert abs(sm[0] - s) < 1e-3
@@ -50,7 +50,7 @@ def test_round_trip_vectorised_all_cameras_bands(reference_pass, rng):
     g = reference_pass.pixel_to_ground(c, b, line, s, height=350.0)
     lat, lon, h = ecef_to_geodetic(g)
     np.testing.assert_allclose(h, 350.0, atol=1e-3)
-    ln, sm, vis, _ = reference_pass.ground_to_pixel(c, b, g)
+    ln, sm, vis, _, _ = reference_pass.ground_to_pixel(c, b, g)
     assert vis.all()
     assert np.max(np.abs(ln - line)) < 1e-3
     assert np.max(np.abs(sm - s)) < 1e-3
@@ -66,7 +66,7 @@ def test_ground_pixel_ground_round_trip_any_point(reference_pass, rng):
     g = geodetic_to_ecef(lat0 + rng.uniform(-1, 1, n), lon0 + rng.uniform(-1.5, 1.5, n), rng.uniform(0, 2000, n))
     for c in range(9):
         for b in range(4):
-            ln, sm, vis, exp = reference_pass.ground_to_pixel(c, b, g)
+            ln, sm, vis, exp, _ = reference_pass.ground_to_pixel(c, b, g)
             assert vis.mean() > 0.5
             back = reference_pass.pixel_to_ground(c, b, ln[vis], sm[vis], height=ecef_to_geodetic(g[vis])[2], exposure=exp[vis])
             assert np.max(np.linalg.norm(back - g[vis], axis=1)) < 1e-3
@@ -78,7 +78,7 @@ def test_oblique_cameras_see_a_point_in_several_lines(reference_pass):
     df = CAMERAS.index("Df")
     line = np.floor(0.5 * reference_pass.lines_in_pass(df, 2)) + 0.45
     g = reference_pass.pixel_to_ground(df, 2, line, 700.0)
-    ln, sm, vis, exp = reference_pass.ground_to_pixel(df, 2, g)
+    ln, sm, vis, exp, _ = reference_pass.ground_to_pixel(df, 2, g)
     assert vis[0] and abs(ln[0] - line) > 0.5
     back = reference_pass.pixel_to_ground(df, 2, ln, sm, exposure=exp)
     assert np.linalg.norm(back - g) < 1e-3
@@ -118,7 +118,7 @@ def test_ray_casting_onto_a_height_field(reference_pass, rng):
     g = reference_pass.pixel_to_ground(c, b, line, s, surface=surface)
     lat, lon, h = ecef_to_geodetic(g)
     np.testing.assert_allclose(h, surface(lat, lon), atol=1e-3)
-    ln, sm, vis, exp = reference_pass.ground_to_pixel(c, b, g)
+    ln, sm, vis, exp, _ = reference_pass.ground_to_pixel(c, b, g)
     assert vis.all()
     back = reference_pass.pixel_to_ground(c, b, ln, sm, surface=surface, exposure=exp)
     assert np.max(np.linalg.norm(back - g, axis=1)) < 1e-3
@@ -131,7 +131,7 @@ def test_invisible_points(reference_pass):
     lat, lon, _ = ecef_to_geodetic(sub)
     far = geodetic_to_ecef(-lat, lon + 180.0, 0.0)
     side = geodetic_to_ecef(lat, lon + 15.0, 0.0)
-    ln, sm, vis, _ = reference_pass.ground_to_pixel(4, 2, np.stack([far, side]))
+    ln, sm, vis, _, _ = reference_pass.ground_to_pixel(4, 2, np.stack([far, side]))
     assert not vis.any() and np.isnan(ln).all()
 
 

@@ -52,7 +52,7 @@ def test_observation_noise_matches_sigma(small_pass):
     resid_l, resid_s, sig = [], [], []
     for c in range(len(CAMERAS)):
         m = (o.camera == c) & ~p.truth.blunder
-        ln, sm, vis, ex = geo.ground_to_pixel(c, 2, truth[o.landmark[m]])
+        ln, sm, vis, ex, _ = geo.ground_to_pixel(c, 2, truth[o.landmark[m]])
         same = ex == o.exposure[m]  # noise never changes the exposure index
         assert same.all()
         resid_l.append(o.line[m] - ln)
