@@ -36,10 +36,15 @@ from numpy.typing import NDArray
 from factors.geometry import attitude_matrix_derivatives, drot_x, drot_y, drot_z, rot_x, rot_y, rot_z
 from factors.layout import BlockLayout
 
-__all__ = ["CAMERA_PARAMS", "CollinearityConstants", "collinearity_residual", "CollinearityBatch", "FactorShapeError"]
+__all__ = ["CAMERA_PARAMS", "CAMERA_PARAM_SCALE", "CollinearityConstants", "collinearity_residual", "CollinearityBatch",
+           "FactorShapeError"]
 
 Array = NDArray[np.float64]
 CAMERA_PARAMS = ("delta", "beta", "epsilon", "f", "alpha0", "alpha1", "alpha2", "alpha3", "alpha4", "alpha5")
+#: Unit of each camera-correction variable in SI: angles in rad, f in mm, alpha_i in units of
+#: the field-angle term at the swath edge (|s - c_y| = 752 px), so all columns are well scaled
+#: (alpha_5 in SI is ~1e-18 and made GTSAM's elimination report an indeterminate system).
+CAMERA_PARAM_SCALE = np.array([1.0, 1.0, 1.0, 1e-3] + [752.0 ** -i for i in range(6)])
 
 
 class FactorShapeError(ValueError):
@@ -170,7 +175,8 @@ class CollinearityBatch:
     ----------
     const: per-observation constants.
     camera_supplied: ``(N, 10)`` supplied camera parameters per observation; the camera variable
-        (if any) holds *corrections* to the entries ``camera_select``.
+        (if any) holds *corrections* to the entries ``camera_select``, in the units of
+        :data:`CAMERA_PARAM_SCALE`.
     omega_supplied: ``(3,)`` supplied instrument angles; the omega variable holds corrections.
     sigma_px: ``(N,)`` 1-sigma per coordinate.
     group: ``(N,)`` factor index of each observation (one factor per landmark, or per observation).
@@ -209,6 +215,7 @@ class CollinearityBatch:
             np.asarray(keys["omega"], np.int64)[order] if keys.get("omega") is not None else none,
         ]
         self.camera_select = tuple(int(i) for i in camera_select)
+        self.camera_scale = CAMERA_PARAM_SCALE[list(self.camera_select)]
         self.slot_dims = [3, 6, 2, 2, 2, 2, 2, 2, len(self.camera_select), 3]
         self.layout = BlockLayout(self.group, self.slot_keys, self.slot_dims, rows=2)
         self.robust = robust
@@ -242,7 +249,7 @@ class CollinearityBatch:
         knots = np.stack([np.concatenate([col(2 + 2 * a, 2), col(3 + 2 * a, 2)], axis=-1) for a in range(3)], axis=1)
         cam = self.camera_supplied[sl].copy()
         if np.any(self.slot_keys[8][sl] >= 0):
-            cam[:, list(self.camera_select)] += col(8, len(self.camera_select))
+            cam[:, list(self.camera_select)] += col(8, len(self.camera_select)) * self.camera_scale
         om = np.broadcast_to(self.omega_supplied, (n, 3)).copy()
         if np.any(self.slot_keys[9][sl] >= 0):
             om += col(9, 3)
@@ -251,7 +258,7 @@ class CollinearityBatch:
     def _blocks(self, j: dict[str, Array]) -> list[Array]:
         jk = j["knots"]
         return [j["landmark"], j["theta"], jk[:, :, 0, :2], jk[:, :, 0, 2:], jk[:, :, 1, :2], jk[:, :, 1, 2:],
-                jk[:, :, 2, :2], jk[:, :, 2, 2:], j["camera"][:, :, list(self.camera_select)], j["omega"]]
+                jk[:, :, 2, :2], jk[:, :, 2, 2:], j["camera"][:, :, list(self.camera_select)] * self.camera_scale, j["omega"]]
 
     def residuals(self, values: gtsam.Values, jacobians: bool = False) -> tuple[Array, dict[str, Array] | None]:
         """Residuals (N, 2) in the batch's (sorted) observation order, and Jacobians if asked."""

@@ -224,6 +224,50 @@ def _print_adjust_summary(s: dict) -> None:
         console.print(f"NEES / dim: knots {n['knots']:.2f}, landmarks {n['landmarks']:.2f}, whole state {n['state']:.2f} (1 = honest)")
 
 
+@app.command()
+@handle_errors
+def calibrate(
+    scenario_dir: Path = typer.Argument(..., help="Scenario directory (misrgraph simulate --scenario month)."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Supplied (pre-flight) model; default SCENARIO_DIR/camera_model.h5."),
+    gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database; default SCENARIO_DIR/gcp.h5."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write the recalibrated camera model (HDF5, with covariance)."),
+    params: str = typer.Option("delta,beta,epsilon", "--params", help="Comma list from: delta, beta, epsilon, f, alpha0..alpha5, omega."),
+    per_band: bool = typer.Option(False, "--per-band", help="Separate corrections per camera and band."),
+    max_passes: Optional[int] = typer.Option(None, "--max-passes", help="Use only the first N passes."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Camera calibration by space resection over GCP passes (per-pass navigation errors as nuisance)."""
+    from factors.collinearity import CAMERA_PARAMS
+    from misrgraph.calibrate import CalibrateConfig, run_calibrate
+
+    names = [p.strip() for p in params.split(",") if p.strip()]
+    omega = "omega" in names
+    names = [p for p in names if p != "omega"]
+    bad = [p for p in names if p not in CAMERA_PARAMS]
+    if bad or not names:
+        _fail(f"--params: got {bad[0] if bad else params!r}; expected a comma list of {', '.join(CAMERA_PARAMS)}, omega")
+    cfg = CalibrateConfig.from_dict(dict(params=tuple(names), per_band=per_band, estimate_omega=omega))
+    with err_console.status("calibrating...") as st:
+        s = run_calibrate(scenario_dir, camera_model, gcp_file, out, cfg, max_passes, progress=lambda m: st.update(m))
+    if as_json:
+        _print_json({k: v for k, v in s.items() if k != "rejected"})
+        return
+    t = Table(title=f"camera calibration: {s['passes']} passes, {s['iterations']} iterations, {s['rejected_observations']} observations rejected")
+    t.add_column("camera")
+    t.add_column("corrections (arcsec for angles) +- sigma")
+    t.add_column("pointing error (px)", justify="right")
+    t.add_column("sigma (px)", justify="right")
+    for cam, v in s["cameras"].items():
+        par = ", ".join(f"{k} {v_['value'] / 4.8481e-6:.1f}+-{v_['sigma'] / 4.8481e-6:.1f}" if k in ("delta", "beta", "epsilon")
+                        else f"{k} {v_['value']:.3g}+-{v_['sigma']:.2g}" for k, v_ in v["params"].items())
+        t.add_row(cam, par, f"{v.get('pointing_error_px', float('nan')):.3f}", f"{v['sigma_px']:.3f}")
+    console.print(t)
+    if "max_pointing_error_px" in s:
+        console.print(f"max pointing error {s['max_pointing_error_px']:.3f} px (requirement 0.125); NEES/dim {s['nees']:.2f}")
+    for pd in s["poorly_determined"]:
+        console.print(f"[yellow]poorly determined:[/] {pd['parameter']} (posterior sigma {pd['ratio']:.0%} of its prior)")
+
+
 bench_app = typer.Typer(help="Speed and memory, as ratios against a baseline run in the same process.", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors import keys as K
-from factors.collinearity import CollinearityBatch, CollinearityConstants
+from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS, CollinearityBatch, CollinearityConstants
 from factors.dem_height import DemBatch
 from factors.priors import gcp_prior, vector_prior
 from misrgraph.camera import CameraModel
@@ -31,7 +31,8 @@ from misrgraph.frames import ecef_to_geodetic
 from misrgraph.gcp import GcpDatabase
 from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
 
-__all__ = ["GraphConfig", "PassGraph", "Problem", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor"]
+__all__ = ["GraphConfig", "PassGraph", "Problem", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor",
+           "CAMERA_PRIOR_SIGMA", "merge_problems"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -39,6 +40,12 @@ Array = NDArray[np.float64]
 #: For the simulator's smooth attitude process (periods log-uniform in 200-2000 s) the rate's
 #: 1 sigma is sigma * sqrt(E[(2 pi / P)^2]) = 0.0146 sigma per second.
 rate_prior_factor = 2 * np.pi * np.sqrt((1 / (2 * 200.0**2) - 1 / (2 * 2000.0**2)) / np.log(10.0))
+
+
+#: Default a-priori 1 sigma of each camera parameter correction when calibrating (pre-flight
+#: knowledge after launch and gravity release): angles 0.1 deg, f 0.2 mm, alpha_i ~ 1e-3 of the
+#: field-angle polynomial at the swath edge (|s - c_y| = 752 px).
+CAMERA_PRIOR_SIGMA = dict(zip(CAMERA_PARAMS, (1.745e-3, 1.745e-3, 1.745e-3, 2e-4) + tuple(1e-3 / 752.0**i for i in range(6))))
 
 
 @dataclass(frozen=True)
@@ -54,7 +61,12 @@ class GraphConfig(Config):
     ephemeris_b_sigma_m: float = 50.0
     ephemeris_a_sigma_mps: tuple = (0.05, 0.01, 0.01)
     estimate_camera: bool = True
+    camera_params: tuple = ("delta", "beta", "epsilon")
+    camera_per_band: bool = False
     camera_prior_px: float = 0.0625
+    camera_prior_calibration: bool = False
+    estimate_omega: bool = False
+    omega_prior_rad: float = 1.745e-3
     use_dem: bool = True
     dem_method: str = "bicubic"
     group_by: str = "landmark"
@@ -66,6 +78,9 @@ class GraphConfig(Config):
             raise InputError("group_by", self.group_by, ("landmark", "observation"))
         if self.robust not in ("none", "huber", "cauchy"):
             raise InputError("robust", self.robust, ("none", "huber", "cauchy"))
+        bad = [p for p in self.camera_params if p not in CAMERA_PARAMS]
+        if bad or not self.camera_params:
+            raise InputError("camera_params", bad or self.camera_params, CAMERA_PARAMS)
         if self.knot_rule not in ("interval", "support"):
             raise InputError("knot_rule", self.knot_rule, ("interval", "support"))
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
@@ -81,11 +96,14 @@ class Problem:
     batches: list
     eliminate_first: list[int]
     dims: dict[int, int]
+    eliminate_last: list[int] = field(default_factory=list)
 
     @property
     def other_keys(self) -> list[int]:
+        """Non-landmark keys: those not eliminated first, in insertion order, ``eliminate_last`` at the end."""
         first = set(self.eliminate_first)
-        return sorted(k for k in self.dims if k not in first)
+        last = set(self.eliminate_last)
+        return [k for k in self.dims if k not in first and k not in last] + [k for k in self.eliminate_last if k in self.dims]
 
 
 @dataclass
@@ -138,8 +156,17 @@ def build_pass_graph(
     pass_index: int = 0,
     geoid: Geoid | None = None,
     exclude_observations: NDArray[np.bool_] | None = None,
+    shared: set[int] | None = None,
+    camera_for_pass: CameraModel | None = None,
 ) -> PassGraph:
-    """Build the graph of DESIGN.md section 4 for one pass (see the module docstring)."""
+    """Build the graph of DESIGN.md section 4 for one pass (see the module docstring).
+
+    ``shared`` holds keys (GCPs, cameras, omega) whose value and prior another pass of the same
+    problem already added: they are referenced, not added again. ``camera_for_pass`` is the
+    supplied model at this pass's temperature when it differs from ``camera``.
+    """
+    shared = shared if shared is not None else set()
+    camera = camera_for_pass or camera
     geoid = geoid or Geoid("zero")
     obs = orbit_pass.observations
     kinds = orbit_pass.landmarks.kind
@@ -194,21 +221,33 @@ def build_pass_graph(
             "knots": knot_keys}
     camera_keys: dict[int, int] = {}
     if cfg.estimate_camera:
-        camera_keys = {int(c): K.camera_key(int(c)) for c in cams_used}
-        keys["camera"] = np.array([camera_keys[int(c)] for c in cam], np.int64)
+        if cfg.camera_per_band:
+            pairs = np.unique(np.stack([cam, band], 1), axis=0)
+            camera_keys = {int(c) * 10 + int(b): K.camera_key(int(c), int(b)) for c, b in pairs}
+            keys["camera"] = np.array([camera_keys[int(c) * 10 + int(b)] for c, b in zip(cam, band)], np.int64)
+        else:
+            camera_keys = {int(c): K.camera_key(int(c)) for c in cams_used}
+            keys["camera"] = np.array([camera_keys[int(c)] for c in cam], np.int64)
+    if cfg.estimate_omega:
+        keys["omega"] = np.full(idx.size, K.omega_key(), np.int64)
+    select = tuple(CAMERA_PARAMS.index(p) for p in cfg.camera_params)
     group = obs.landmark[idx] if cfg.group_by == "landmark" else np.arange(idx.size)
     robust = None if cfg.robust == "none" else (cfg.robust, cfg.robust_k)
     coll = CollinearityBatch(const, camera_parameter_matrix(camera, cam, band), camera.omega, obs.sigma_px[idx],
-                             group, keys, (0, 1, 2), robust)
+                             group, keys, select, robust)
     graph = gtsam.NonlinearFactorGraph()
     for f in coll.factors():
         graph.add(f)
     values = gtsam.Values()
     dims: dict[int, int] = {}
 
-    def add(key: int, value: Array) -> None:
-        values.insert(int(key), np.asarray(value, dtype=float))
+    def add(key: int, value: Array) -> bool:
+        """Add a variable unless another pass of the problem owns it; True when added here."""
         dims[int(key)] = int(np.size(value))
+        if int(key) in shared:
+            return False
+        values.insert(int(key), np.asarray(value, dtype=float))
+        return True
 
     # initial landmark positions: mean of each view's ray cast onto the DEM (supplied navigation)
     surface = dem_surface(dem, geoid, cfg.dem_method) if dem is not None else None
@@ -223,8 +262,8 @@ def build_pass_graph(
             if gcp_ecef is None or gcp_cov is None:
                 raise InputError("gcps", None, "the GCP database (the pass has GCP observations)")
             gi = int(orbit_pass.landmarks.gcp_index[row])
-            add(key, gcp_ecef[gi])
-            graph.add(gcp_prior(key, gcp_ecef[gi], gcp_cov[gi]))
+            if add(key, gcp_ecef[gi]):
+                graph.add(gcp_prior(key, gcp_ecef[gi], gcp_cov[gi]))
         else:
             add(key, init[row])
             if cfg.use_dem and dem is not None:
@@ -251,15 +290,50 @@ def build_pass_graph(
         k = K.ephemeris_key(pass_index, s)
         add(k, np.zeros(6))
         graph.add(vector_prior(k, np.zeros(6), eph_sig))
-    for c, k in camera_keys.items():
-        ifov = float(camera.ifov_cross_rad(c, 2, 751.5))
-        add(k, np.zeros(3))
-        graph.add(vector_prior(k, np.zeros(3), np.full(3, cfg.camera_prior_px * ifov)))
-    problem = Problem(graph, values, batches, [int(lm_key_of[r]) for r in lm_rows], dims)
+    for ck, k in camera_keys.items():
+        c = ck // 10 if cfg.camera_per_band else ck
+        scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in cfg.camera_params]]
+        if cfg.camera_prior_calibration:
+            sig = np.array([CAMERA_PRIOR_SIGMA[p] for p in cfg.camera_params]) / scale
+        else:
+            ifov = float(camera.ifov_cross_rad(c, 2, 751.5))
+            # a calibrated model: angles known to camera_prior_px pixels, the rest to 1 % of the pre-flight sigma
+            sig = np.array([cfg.camera_prior_px * ifov if p in ("delta", "beta", "epsilon") else 1e-2 * CAMERA_PRIOR_SIGMA[p]
+                            for p in cfg.camera_params]) / scale
+        if add(k, np.zeros(len(cfg.camera_params))):
+            graph.add(vector_prior(k, np.zeros(len(cfg.camera_params)), sig))
+    if cfg.estimate_omega and add(K.omega_key(), np.zeros(3)):
+        graph.add(vector_prior(K.omega_key(), np.zeros(3), np.full(3, cfg.omega_prior_rad)))
+    last = list(camera_keys.values()) + ([K.omega_key()] if cfg.estimate_omega else [])
+    problem = Problem(graph, values, batches, [int(lm_key_of[r]) for r in lm_rows], dims, last)
     log.info("pass %s: %d observations, %d landmarks, knots kept %s (removed %s)", orbit_pass.pass_id, idx.size,
              lm_rows.size, [t.size for t in att_kept.knot_times], [r.size for r in removed])
     return PassGraph(problem, pass_index, att_kept, removed, eph, lm_rows,
                      np.array([lm_key_of[r] for r in lm_rows], np.int64), idx, coll, camera_keys)
+
+
+def merge_problems(problems: list[Problem]) -> Problem:
+    """One problem from several passes' problems built with a common ``shared`` key set:
+    landmarks first, then every pass's navigation variables pass by pass, shared cameras last."""
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    dims: dict[int, int] = {}
+    batches: list = []
+    first: list[int] = []
+    last: list[int] = []
+    for p in problems:
+        graph.push_back(p.graph)
+        values.insert(p.initial)
+        batches += p.batches
+        for k in p.eliminate_first:
+            if k not in dims:
+                first.append(k)
+        for k, d in p.dims.items():
+            dims.setdefault(k, d)
+        for k in p.eliminate_last:
+            if k not in last:
+                last.append(k)
+    return Problem(graph, values, batches, first, dims, last)
 
 
 def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, method) -> dict[int, Array]:

@@ -67,3 +67,13 @@ def exact_pass(tmp_path_factory):
                                 start_lat_deg=55.0, noise_free=True, camera_residual_px=0.0), out)
     sc = load_scenario(out)
     return sc, sc.load_pass(0)
+
+
+@pytest.fixture(scope="session")
+def small_month_dir(tmp_path_factory):
+    """A reduced 'month' scenario: 30 GCPs over 16 days (about 40 GCP passes)."""
+    from misrgraph.simulate import ScenarioConfig, run_simulate
+
+    out = tmp_path_factory.mktemp("scen") / "month"
+    run_simulate(ScenarioConfig(scenario="month", seed=31, n_gcps=30, month_days=16), out)
+    return out
