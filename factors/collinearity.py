@@ -315,8 +315,10 @@ class CollinearityBatch:
 
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H: Any) -> Array:
             r, blocks = self.factor_rows(f, values, H is not None)
-            if r.shape != (m,) or not np.all(np.isfinite(r)):
-                raise FactorShapeError(f"collinearity factor {f}: residual shape {r.shape}, expected ({m},), or non-finite")
+            if r.shape != (m,):
+                raise FactorShapeError(f"collinearity factor {f}: residual shape {r.shape}, expected ({m},)")
+            if H is not None and not np.all(np.isfinite(r)):
+                raise FactorShapeError(f"collinearity factor {f}: non-finite residual at the linearisation point")
             if H is not None:
                 assert blocks is not None
                 for i, (blk, d) in enumerate(zip(blocks, dims)):

@@ -1,5 +1,8 @@
 """DEM height factor (eq. 31): ``h_DEM(lat(P), lon(P)) + N - H(P) = 0``.
 
+A surface that returns NaN (a landmark off the DEM) gives a non-finite error, which the solver
+treats as a rejected step; linearising there is an error.
+
 ``h_DEM`` is the local surface fitted to the DEM postings around the landmark (eq. 8; height
 above MSL, gradient in m per degree), ``N`` the geoid undulation (m) and ``H`` the ellipsoidal
 height of the landmark ``P`` (ECEF m, eq. 9). Residual in metres; noise is the surface's 1 sigma.
@@ -76,10 +79,12 @@ class DemBatch:
             else:
                 rr, jj = dem_residual(np.asarray(values.atVector(int(self.keys[i])))[None, :], self.surface, H is not None)
                 r, j = rr, (jj[0] if jj is not None else None)
-            if r.shape != (1,) or not np.all(np.isfinite(r)):
-                from factors.collinearity import FactorShapeError
+            from factors.collinearity import FactorShapeError
 
-                raise FactorShapeError(f"DEM factor {i}: residual {r!r} is not a finite (1,) vector")
+            if r.shape != (1,):
+                raise FactorShapeError(f"DEM factor {i}: residual shape {r.shape}, expected (1,)")
+            if H is not None and not np.all(np.isfinite(r)):
+                raise FactorShapeError(f"DEM factor {i}: the landmark is off the DEM tiles at the linearisation point")
             if H is not None:
                 H[0] = np.asarray(j).reshape(1, 3)
             return r

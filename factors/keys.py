@@ -3,7 +3,7 @@
 ===========  ======  =============================================  ==========================
 variable     letter  index                                          type
 ===========  ======  =============================================  ==========================
-tie point    ``l``   ``pass * 10**6 + row``                         Vector3, ECEF m
+tie point    ``l``   ``path * 10**6 + feature id`` (shared by repeats) Vector3, ECEF m
 GCP          ``g``   GCP database row (shared by every pass)        Vector3, ECEF m
 roll knot    ``r``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
 pitch knot   ``p``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
@@ -34,8 +34,9 @@ CAMERA = "c"
 OMEGA = "w"
 
 
-def landmark_key(pass_index: int, row: int) -> int:
-    return gtsam.symbol(LANDMARK, pass_index * 10**6 + row)
+def landmark_key(path: int, feature_id: int) -> int:
+    """Tie point: features keep their id on repeat passes of the same WRS path, so they are shared."""
+    return gtsam.symbol(LANDMARK, path * 10**6 + feature_id)
 
 
 def gcp_key(gcp_row: int) -> int:

@@ -48,7 +48,7 @@ from misrgraph.h5io import atomic_h5, write_dataset
 from misrgraph.passdata import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.solver import Marginals, SolverParams, information_norm, linearize, marginal_covariances, solve
 
-__all__ = ["AdjustConfig", "AdjustResult", "run_adjust", "adjust_pass", "corrected_geometry", "score_pass"]
+__all__ = ["AdjustConfig", "AdjustResult", "run_adjust", "adjust_pass", "corrected_geometry", "score_pass", "find_blunders"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -131,21 +131,9 @@ def adjust_pass(
     t0 = time.perf_counter()
     params = SolverParams(max_iterations=cfg.max_iterations)
     obs = orbit_pass.observations
-    rejected = np.zeros(len(obs), bool)
-    norm = np.zeros(len(obs))
-    if cfg.robust != "none":
-        if progress:
-            progress("robust solve")
-        pg_r = build_pass_graph(orbit_pass, camera, dem, gcps,
-                                cfg.graph_config(group_by="observation", robust=cfg.robust, robust_k=cfg.robust_k))
-        res_r = solve(pg_r.problem, params)
-        r, _ = pg_r.collinearity.residuals(res_r.values)
-        whit = np.linalg.norm(r / pg_r.collinearity.sigma_px[:, None], axis=1)
-        idx = pg_r.obs_index[pg_r.collinearity.order]
-        norm[idx] = whit
-        rejected[idx] = whit > cfg.reject_sigma
-        log.info("robust solve: %d iterations; %d observations rejected (> %.1f sigma)", res_r.iterations,
-                 int(rejected.sum()), cfg.reject_sigma)
+    if progress and cfg.robust != "none":
+        progress("robust solve")
+    rejected, norm = find_blunders(orbit_pass, camera, dem, gcps, cfg)
     if progress:
         progress("least-squares solve")
     pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
@@ -162,6 +150,28 @@ def adjust_pass(
                         res.history, time.perf_counter() - t0)
 
 
+def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | None, gcps: GcpDatabase | None,
+                  cfg: AdjustConfig) -> tuple[NDArray[np.bool_], Array]:
+    """Robust (per-observation) solve of one pass; observations whose whitened residual norm
+    exceeds ``reject_sigma`` are blunders. Returns (rejected mask, normalised residual) per observation."""
+    obs = orbit_pass.observations
+    rejected = np.zeros(len(obs), bool)
+    norm = np.zeros(len(obs))
+    if cfg.robust == "none":
+        return rejected, norm
+    pg_r = build_pass_graph(orbit_pass, camera, dem, gcps,
+                            cfg.graph_config(group_by="observation", robust=cfg.robust, robust_k=cfg.robust_k))
+    res_r = solve(pg_r.problem, SolverParams(max_iterations=cfg.max_iterations))
+    r, _ = pg_r.collinearity.residuals(res_r.values)
+    whit = np.linalg.norm(r / pg_r.collinearity.sigma_px[:, None], axis=1)
+    idx = pg_r.obs_index[pg_r.collinearity.order]
+    norm[idx] = whit
+    rejected[idx] = whit > cfg.reject_sigma
+    log.info("robust solve: %d iterations; %d observations rejected (> %.1f sigma)", res_r.iterations,
+             int(rejected.sum()), cfg.reject_sigma)
+    return rejected, norm
+
+
 # ---------------------------------------------------------------------------- scoring
 def _horizontal_error(est: Array, truth: Array) -> Array:
     lat, lon, _ = ecef_to_geodetic(truth)
@@ -169,8 +179,9 @@ def _horizontal_error(est: Array, truth: Array) -> Array:
     return np.hypot(enu[:, 0], enu[:, 1])
 
 
-def score_pass(orbit_pass: OrbitPass, res: AdjustResult, supplied_camera: CameraModel) -> dict[str, Any]:
-    """Accuracy against the simulator's truth (see the module docstring)."""
+def score_pass(orbit_pass: OrbitPass, res: AdjustResult, supplied_camera: CameraModel, whole_state: bool = True) -> dict[str, Any]:
+    """Accuracy against the simulator's truth (see the module docstring). ``whole_state``: also the
+    joint NEES of the pass's whole state (only meaningful when the pass is the whole problem)."""
     truth = orbit_pass.truth
     if truth is None:
         return {}
@@ -242,7 +253,24 @@ def score_pass(orbit_pass: OrbitPass, res: AdjustResult, supplied_camera: Camera
     for key, row in zip(pg.landmark_keys, pg.landmark_rows):
         d = res.values.atVector(int(key)) - truth.landmark_ecef[row]
         lm_nees.append(d @ np.linalg.solve(res.marginals[int(key)], d))
-    # the whole state jointly: e^T H e with H the information matrix at the solution
+    out["nees"] = {"knots": nees_knots, "landmarks": float(np.mean(lm_nees) / 3.0),
+                   "knots_dim": int(e.size), "landmarks_dim": int(3 * len(lm_nees))}
+    if whole_state:
+        out["nees"].update(_state_nees(orbit_pass, res, supplied_camera))
+    blunders = truth.blunder
+    if blunders.any() or res.rejected.size:
+        rej = np.zeros(blunders.size, bool)
+        rej[res.rejected] = True
+        out["blunders"] = {"injected": int(blunders.sum()), "rejected": int(rej.sum()),
+                           "rejected_that_were_blunders": int((rej & blunders).sum())}
+    return out
+
+
+def _state_nees(orbit_pass: OrbitPass, res: AdjustResult, supplied_camera: CameraModel) -> dict[str, Any]:
+    """The whole state jointly: e^T H e / dim with H the information matrix at the solution."""
+    truth = orbit_pass.truth
+    assert truth is not None
+    pg = res.pass_graph
     delta: dict[int, Array] = {}
     for a in range(3):
         kt = res.attitude.knot_times[a]
@@ -258,15 +286,7 @@ def score_pass(orbit_pass: OrbitPass, res: AdjustResult, supplied_camera: Camera
         delta[int(key)] = res.values.atVector(int(key)) - truth.landmark_ecef[row]
     state_dim = sum(pg.problem.dims.values())
     nees_state = information_norm(pg.problem, linearize(pg.problem, res.values), delta) / state_dim
-    out["nees"] = {"knots": nees_knots, "landmarks": float(np.mean(lm_nees) / 3.0), "state": nees_state,
-                   "knots_dim": int(e.size), "landmarks_dim": int(3 * len(lm_nees)), "state_dim": int(state_dim)}
-    blunders = truth.blunder
-    if blunders.any() or res.rejected.size:
-        rej = np.zeros(blunders.size, bool)
-        rej[res.rejected] = True
-        out["blunders"] = {"injected": int(blunders.sum()), "rejected": int(rej.sum()),
-                           "rejected_that_were_blunders": int((rej & blunders).sum())}
-    return out
+    return {"state": nees_state, "state_dim": int(state_dim)}
 
 
 def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array, h: Array, true_geo: PassGeometry,

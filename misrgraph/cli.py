@@ -100,7 +100,8 @@ def sensitivity(
 @app.command()
 @handle_errors
 def simulate(
-    scenario: str = typer.Option("pass", "--scenario", help="pass (one adjustment pass) or month (GCP passes for calibration)."),
+    scenario: str = typer.Option("pass", "--scenario", help="pass (one adjustment pass), month (GCP passes for calibration) or path (repeat passes of one path seeing the same features)."),
+    passes: int = typer.Option(10, "--passes", help="Repeat passes of the path scenario (16 days apart)."),
     seed: int = typer.Option(0, "--seed", help="Random seed: the same seed gives the same files."),
     out: Path = typer.Option(..., "--out", help="Output directory (created; replaced if it is an earlier scenario)."),
     path: int = typer.Option(37, "--path", help="WRS-2 path (1..233) of the pass / reference path of the month."),
@@ -123,7 +124,7 @@ def simulate(
 
     from misrgraph.simulate import ScenarioConfig, run_simulate
 
-    fields = dict(scenario=scenario, seed=seed, path=path, n_tie_points=tie_points, n_check_points=check_points,
+    fields = dict(scenario=scenario, seed=seed, path=path, n_passes=passes, n_tie_points=tie_points, n_check_points=check_points,
                   n_gcps=gcps, month_days=days, duration_s=duration, gcp_blunder_rate=gcp_blunder_rate,
                   tie_blunder_rate=tie_blunder_rate, nav_sigma_m=nav_sigma, camera_misalignment_arcsec=misalignment,
                   noise_free=noise_free, with_chips=chips)
@@ -266,6 +267,41 @@ def calibrate(
         console.print(f"max pointing error {s['max_pointing_error_px']:.3f} px (requirement 0.125); NEES/dim {s['nees']:.2f}")
     for pd in s["poorly_determined"]:
         console.print(f"[yellow]poorly determined:[/] {pd['parameter']} (posterior sigma {pd['ratio']:.0%} of its prior)")
+
+
+@app.command()
+@handle_errors
+def update(
+    state: Path = typer.Argument(..., help="State directory (created on first use)."),
+    passes: list[Path] = typer.Argument(..., help="New pass files (HDF5) to add, in order."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model (needed when creating the state)."),
+    gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (needed when creating the state)."),
+    dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (recommended when creating the state)."),
+    compare_batch: bool = typer.Option(False, "--compare-batch", help="Also re-solve all passes in batch and report the cost ratio and the difference in sigma."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON."),
+) -> None:
+    """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
+    from misrgraph.incremental import run_update
+
+    with err_console.status("updating...") as st:
+        out = run_update(state, [str(p) for p in passes], camera_model, gcp_file, dem_file,
+                         compare_batch=compare_batch, progress=lambda m: st.update(m))
+    if as_json:
+        _print_json(out)
+        return
+    console.print(f"state {out['state']}: {out['passes_in_state']} passes")
+    for u in out["updates"]:
+        if u["status"] != "added":
+            console.print(f"{u['pass_id']}: {u['status']}")
+            continue
+        line = (f"{u['pass_id']}: added in {u['update_seconds']:.2f} s ({u['relinearization_rounds']} re-linearisation rounds)")
+        if "batch" in u:
+            b = u["batch"]
+            line += f"; batch re-solve {b['seconds']:.2f} s (update/batch {b['ratio_update_over_batch']:.2f}), max difference {b['max_difference_in_sigma']:.1e} sigma"
+        console.print(line)
+        if "nees" in u:
+            console.print(f"   NEES/dim knots {u['nees']['knots']:.2f}, landmarks {u['nees']['landmarks']:.2f}; "
+                          "attitude RMS where observed (arcsec) " + ", ".join(f"{k} {v:.1f}" for k, v in u["attitude_rms_arcsec_observed"].items()))
 
 
 bench_app = typer.Typer(help="Speed and memory, as ratios against a baseline run in the same process.", no_args_is_help=True)

@@ -138,10 +138,8 @@ def dem_surface(dem: DemTiles, geoid: Geoid, method: str):
     """Callable ``(lat, lon) -> (h_ellipsoid, dh/dlat, dh/dlon)`` for the DEM factor."""
 
     def surface(lat: Array, lon: Array) -> tuple[Array, Array, Array]:
+        """NaN where a landmark is off the DEM tiles (an LM trial step then has an infinite cost)."""
         s = fit_local_surface(dem, lat, lon, method)
-        if not s.valid.all():
-            bad = np.flatnonzero(~s.valid)[0]
-            raise DegenerateProblemError(f"landmark at lat {lat[bad]:.5f}, lon {lon[bad]:.5f} left the DEM tiles")
         return s.height + geoid.undulation(lat, lon), s.dh_dlat, s.dh_dlon
 
     return surface
@@ -209,7 +207,7 @@ def build_pass_graph(
         if kinds[row] == KIND_GCP:
             lm_key_of[row] = K.gcp_key(int(orbit_pass.landmarks.gcp_index[row]))
         else:
-            lm_key_of[row] = K.landmark_key(pass_index, int(row))
+            lm_key_of[row] = K.landmark_key(orbit_pass.path, int(orbit_pass.landmarks.id[row]))
     obs_lm_key = np.array([lm_key_of[r] for r in obs.landmark[idx]], np.int64)
     # --- constants and batch
     const = CollinearityConstants(
@@ -265,8 +263,8 @@ def build_pass_graph(
             if add(key, gcp_ecef[gi]):
                 graph.add(gcp_prior(key, gcp_ecef[gi], gcp_cov[gi]))
         else:
-            add(key, init[row])
-            if cfg.use_dem and dem is not None:
+            owned_here = add(key, init[row])
+            if owned_here and cfg.use_dem and dem is not None:
                 lat, lon, _ = ecef_to_geodetic(init[row])
                 s = fit_local_surface(dem, lat, lon, cfg.dem_method)
                 if s.valid[0]:

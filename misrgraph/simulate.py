@@ -71,6 +71,8 @@ class ScenarioConfig(Config):
 
     scenario: str = "pass"
     seed: int = 0
+    n_passes: int = 10
+    repeat_visibility: float = 0.8
     path: int = 37
     epoch_date: str = "2001-06-15"
     start_lat_deg: float = 72.0
@@ -103,8 +105,10 @@ class ScenarioConfig(Config):
     with_chips: bool = False
 
     def __post_init__(self) -> None:
-        if self.scenario not in ("pass", "month"):
-            raise InputError("scenario", self.scenario, ("pass", "month"))
+        if self.scenario not in ("pass", "month", "path"):
+            raise InputError("scenario", self.scenario, ("pass", "month", "path"))
+        if self.n_passes < 1:
+            raise InputError("n_passes", self.n_passes, "an integer >= 1")
         if not (1 <= self.path <= REPEAT_PATHS):
             raise InputError("path", self.path, f"an integer in 1..{REPEAT_PATHS}")
         for name in ("tie_sigma_px", "gcp_sigma_px", "nav_sigma_m", "gcp_sigma_m", "duration_s"):
@@ -224,8 +228,15 @@ def simulate_pass(
     n_tie: int,
     n_check: int,
     temperature_c: float = 5.0,
+    features: list[_Landmark] | None = None,
+    feature_fraction: float = 1.0,
 ) -> OrbitPass:
-    """Simulate one pass: navigation errors, landmarks, observations with noise and blunders."""
+    """Simulate one pass: navigation errors, landmarks, observations with noise and blunders.
+
+    With ``features`` (tie/check points of an earlier pass of the same path) no new features are
+    drawn: each given feature is kept with probability ``feature_fraction`` (clouds) and keeps
+    its id, so repeat passes observe the same ground points.
+    """
     t_lo, t_hi = eph.span
     ang, rate = _true_attitude(eph.t)
     e_att = draw_attitude_error(rng, cfg, t_lo, t_hi)
@@ -245,6 +256,9 @@ def simulate_pass(
     # tie and check points over textured land, inside the common swath
     an = CAMERAS.index("An")
     n_lines = geo.lines_in_pass(an, RED)
+    if features is not None:
+        lms += [f for f in features if rng.random() < feature_fraction]
+        n_tie = n_check = 0
     for kind, count in ((KIND_TIE, n_tie), (KIND_CHECK, n_check)):
         got, tries = 0, 0
         while got < count and tries < 30:
@@ -260,7 +274,7 @@ def simulate_pass(
             g = geo.pixel_to_ground(an, RED, line[ok], samp[ok], surface=surface)
             take = min(count - got, len(g))
             for p in g[:take]:
-                lms.append(_Landmark(p, kind, len(lms), -1))
+                lms.append(_Landmark(p, kind, 1 + max((lm.ident for lm in lms if lm.kind != KIND_GCP), default=-1), -1))
             got += take
     if not lms:
         ecef = np.zeros((0, 3))
@@ -400,8 +414,15 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         ifov = np.array([nominal.ifov_cross_rad(c, RED, 751.5) for c in range(len(CAMERAS))])
         supplied = draw_camera_misalignment(rng, truth_cam, ifov * cfg.camera_residual_px)
         supplied.provenance = {"source": "calibrated model (truth + residual error)", "residual_px": str(cfg.camera_residual_px)}
-        plan = [(0, cfg.path, cfg.epoch_date, cfg.start_lat_deg, cfg.duration_s)]
         n_tie, n_check = cfg.n_tie_points, cfg.n_check_points
+        if cfg.scenario == "path":
+            import datetime as _dt
+
+            d0 = _dt.date.fromisoformat(cfg.epoch_date)
+            plan = [(233 * k, cfg.path, (d0 + _dt.timedelta(days=16 * k)).isoformat(), cfg.start_lat_deg, cfg.duration_s)
+                    for k in range(cfg.n_passes)]
+        else:
+            plan = [(0, cfg.path, cfg.epoch_date, cfg.start_lat_deg, cfg.duration_s)]
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
@@ -410,13 +431,19 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         n_obs = 0
         seen_count = np.zeros(len(gcps), int)
         summaries = []
+        path_features: list[_Landmark] | None = None
         for k, (orbit, path, date, start_lat, duration) in enumerate(plan):
             if progress:
                 progress(f"pass {k + 1}/{len(plan)}", k, len(plan))
             eph = terra_like_orbit(epoch_date=date, path=path, start_lat_deg=start_lat, duration_s=duration)
             temp = 5.0 + 3.0 * np.sin(2 * np.pi * orbit / 437.0) + 0.5 * rng.standard_normal()
             p = simulate_pass(rng, cfg, eph, truth_cam, terrain, geoid, gcps, f"P{path:03d}_O{orbit:04d}", path, orbit,
-                              n_tie, n_check, float(temp))
+                              n_tie, n_check, float(temp), features=path_features,
+                              feature_fraction=cfg.repeat_visibility if path_features is not None else 1.0)
+            if cfg.scenario == "path" and path_features is None:
+                assert p.truth is not None
+                path_features = [_Landmark(p.truth.landmark_ecef[i], int(p.landmarks.kind[i]), int(p.landmarks.id[i]), -1)
+                                 for i in range(len(p.landmarks)) if p.landmarks.kind[i] != KIND_GCP]
             if cfg.scenario == "month" and not np.any(p.landmarks.kind == KIND_GCP):
                 continue
             p.save(tmp / "passes" / f"{p.pass_id}.h5")
