@@ -304,6 +304,21 @@ def update(
                           "attitude RMS where observed (arcsec) " + ", ".join(f"{k} {v:.1f}" for k, v in u["attitude_rms_arcsec_observed"].items()))
 
 
+@app.command()
+@handle_errors
+def view(
+    result: Path = typer.Argument(..., help="RESULT.h5 from adjust, or a camera model written by calibrate."),
+    save: Optional[Path] = typer.Option(None, "--save", help="Write a .rrd recording."),
+    spawn: bool = typer.Option(False, "--spawn", help="Open the rerun viewer."),
+    exaggeration: float = typer.Option(200.0, "--exaggeration", help="Scale of the 3-sigma landmark ellipsoids."),
+) -> None:
+    """Inspect covariances and residuals in the rerun viewer (entity paths: see misrgraph.viewer)."""
+    from misrgraph.viewer import run_view
+
+    out = run_view(result, save, spawn, exaggeration)
+    console.print(f"logged {len(out['entities'])} entities ({out['kind']})" + (f" to {out['rrd']}" if out["rrd"] else ""))
+
+
 bench_app = typer.Typer(help="Speed and memory, as ratios against a baseline run in the same process.", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 
