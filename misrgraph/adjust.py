@@ -60,8 +60,8 @@ class AdjustConfig(Config):
     """Adjustment settings; ``graph`` fields are those of :class:`GraphConfig`."""
 
     knot_spacing_s: tuple = (120.0, 60.0, 120.0)
-    threshold1: int = 20
-    threshold2: int = 3
+    threshold1: int = 1
+    threshold2: int = 1
     knot_rule: str = "support"
     ephemeris_segments: int = 1
     camera_prior_px: float = 0.0625

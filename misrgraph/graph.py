@@ -53,8 +53,8 @@ class GraphConfig(Config):
     """How a pass becomes a graph (units in the names)."""
 
     knot_spacing_s: tuple = (120.0, 60.0, 120.0)
-    threshold1: int = 20
-    threshold2: int = 3
+    threshold1: int = 1
+    threshold2: int = 1
     knot_rule: str = "support"
     ephemeris_segments: int = 1
     attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)

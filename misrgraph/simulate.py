@@ -103,6 +103,7 @@ class ScenarioConfig(Config):
     dted1_fraction: float = 0.6
     noise_free: bool = False
     with_chips: bool = False
+    camera_truth: str = ""
 
     def __post_init__(self) -> None:
         if self.scenario not in ("pass", "month", "path"):
@@ -405,6 +406,9 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     gcps = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips)
     truth_cam = draw_camera_misalignment(rng, nominal, cfg.camera_misalignment_arcsec * ARCSEC)
     truth_cam.provenance = {"source": "simulator truth", "seed": str(cfg.seed)}
+    if cfg.camera_truth:
+        # the same instrument as another scenario (e.g. the month a calibration came from)
+        truth_cam = CameraModel.load(cfg.camera_truth)
     if cfg.scenario == "month":
         supplied = nominal.copy()
         supplied.provenance = {"source": "pre-flight nominal model (misrgraph.nominal)"}

@@ -1,0 +1,16 @@
+from __future__ import annotations
+
+from typer.testing import CliRunner
+
+from misrgraph.cli import app
+from misrgraph.demo import STAGES
+
+
+def test_small_demo_runs_every_stage(tmp_path):
+    res = CliRunner().invoke(app, ["demo", "--small", "--out", str(tmp_path / "d")])
+    assert res.exit_code == 0, res.output
+    for name, _ in STAGES:
+        assert name.split()[0] in res.stdout
+    for f in ("camera_calibrated.h5", "pass_result.h5", "pass_result.rrd", "calibration.rrd",
+              "plots/attitude_error.png", "plots/calibration_pointing.png", "state/state.json"):
+        assert (tmp_path / "d" / f).exists(), f
