@@ -221,12 +221,13 @@ def _view_calibration(rec, rr, f: h5py.File, counts: dict[str, int]) -> None:
 
 
 def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None = None, spawn: bool = False,
-             exaggeration: float = DEFAULT_EXAGGERATION) -> dict[str, Any]:
-    """Log a result file to rerun; save a ``.rrd`` and/or spawn the viewer. Returns the logged entities."""
+             exaggeration: float = DEFAULT_EXAGGERATION, notebook: bool = False) -> dict[str, Any]:
+    """Log a result file to rerun; save a ``.rrd``, spawn the viewer and/or show it inline in a
+    Jupyter notebook (``notebook=True``). Returns the logged entities."""
     import rerun as rr
     import rerun.blueprint as rrb
 
-    if save is None and not spawn:
+    if save is None and not spawn and not notebook:
         raise InputError("--save/--spawn", None, "a .rrd file to write, or --spawn to open the viewer")
     if exaggeration <= 0:
         raise InputError("--exaggeration", exaggeration, "a positive factor")
@@ -262,7 +263,10 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
                                                              for c in CAMERAS[:3]])))
         rec.send_blueprint(bp)
         rec.flush()
-        rec.disconnect()
+        if notebook:
+            rr.notebook_show(recording=rec, blueprint=bp, width=1000, height=600)
+        else:
+            rec.disconnect()
         if tmp is not None:
             os.replace(tmp, save)
     return {"kind": kind, "entities": counts, "instances": instances, "rrd": str(save) if save else None,
