@@ -111,13 +111,23 @@ def collinearity_residual(
     ang = c.angles_meas - np.sum(c.hermite * knots, axis=-1)
     r_os, d_roll, d_pitch, d_yaw = attitude_matrix_derivatives(ang[:, 0], ang[:, 1], ang[:, 2])
     v_s = np.einsum("nji,nj->ni", r_os, u)
-    delta, beta, eps, f = camera[:, 0], camera[:, 1], camera[:, 2], camera[:, 3]
+    f = camera[:, 3]
     alpha = camera[:, 4:10]
-    rx, ry, rz = rot_x(om[:, 0]), rot_y(om[:, 1]), rot_z(om[:, 2])
-    t_si = rz @ ry @ rx
-    rzd, ryb, rze = rot_z(delta), rot_y(beta), rot_z(eps)
-    t_ic = rzd @ ryb
-    m = t_si @ t_ic @ rze
+    # the rotation chain depends only on (delta, beta, eps, omega): a handful of distinct cameras
+    angles6 = np.concatenate([camera[:, :3], om], axis=1)
+    # rows hashed to one float (irrational weights), verified exactly below
+    h = angles6 @ np.array([1.0, 1.6180339887, 2.7182818284, 3.1415926535, 1.4142135623, 1.7320508075])
+    _, first, inv = np.unique(h, return_index=True, return_inverse=True)
+    inv = inv.ravel()
+    uniq = angles6[first]
+    if not np.array_equal(uniq[inv], angles6):  # pragma: no cover - a hash collision
+        uniq, inv = angles6, np.arange(n)
+    u_delta, u_beta, u_eps = uniq[:, 0], uniq[:, 1], uniq[:, 2]
+    u_rx, u_ry, u_rz = rot_x(uniq[:, 3]), rot_y(uniq[:, 4]), rot_z(uniq[:, 5])
+    u_tsi = u_rz @ u_ry @ u_rx
+    u_rzd, u_ryb, u_rze = rot_z(u_delta), rot_y(u_beta), rot_z(u_eps)
+    u_tic = u_rzd @ u_ryb
+    m = (u_tsi @ u_tic @ u_rze)[inv]
     v = np.einsum("nji,nj->ni", m, v_s)
     vx, vy, vz = v[:, 0], v[:, 1], v[:, 2]
     so = c.sample_offset
@@ -142,17 +152,18 @@ def collinearity_residual(
         dr_da = np.einsum("nij,nj->ni", jm, np.einsum("nji,nj->ni", d, u))
         j_knots[:, :, a, :] = -dr_da[:, :, None] * c.hermite[:, a, None, :]
     j_cam = np.zeros((n, 2, 10))
-    dms = (t_si @ drot_z(delta) @ ryb @ rze, t_si @ rzd @ drot_y(beta) @ rze, t_si @ t_ic @ drot_z(eps))
+    dms = (u_tsi @ drot_z(u_delta) @ u_ryb @ u_rze, u_tsi @ u_rzd @ drot_y(u_beta) @ u_rze, u_tsi @ u_tic @ drot_z(u_eps))
     for i, dm in enumerate(dms):
-        j_cam[:, :, i] = np.einsum("nij,nj->ni", jv, np.einsum("nji,nj->ni", dm, v_s))
+        j_cam[:, :, i] = np.einsum("nij,nj->ni", jv, np.einsum("nji,nj->ni", dm[inv], v_s))
     j_cam[:, 0, 3] = vx / (vz * c.dx)
     j_cam[:, 1, 3] = (vy / vz - poly) / c.cross_scale
     j_cam[:, 1, 4:10] = -(f / c.cross_scale)[:, None] * powers
-    rest = t_ic @ rze
-    dws = (rz @ ry @ drot_x(om[:, 0]) @ rest, rz @ drot_y(om[:, 1]) @ rx @ rest, drot_z(om[:, 2]) @ ry @ rx @ rest)
+    rest = u_tic @ u_rze
+    dws = (u_rz @ u_ry @ drot_x(uniq[:, 3]) @ rest, u_rz @ drot_y(uniq[:, 4]) @ u_rx @ rest,
+           drot_z(uniq[:, 5]) @ u_ry @ u_rx @ rest)
     j_om = np.zeros((n, 2, 3))
     for i, dm in enumerate(dws):
-        j_om[:, :, i] = np.einsum("nij,nj->ni", jv, np.einsum("nji,nj->ni", dm, v_s))
+        j_om[:, :, i] = np.einsum("nij,nj->ni", jv, np.einsum("nji,nj->ni", dm[inv], v_s))
     return r, {"landmark": j_land, "theta": j_theta, "knots": j_knots, "camera": j_cam, "omega": j_om}
 
 

@@ -70,6 +70,7 @@ class AdjustConfig(Config):
     robust_k: float = 3.0
     reject_sigma: float = 5.0
     max_iterations: int = 100
+    backend: str = "schur"
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
         base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=self.threshold1, threshold2=self.threshold2,
@@ -137,7 +138,7 @@ def adjust_pass(
     if progress:
         progress("least-squares solve")
     pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
-    res = solve(pg.problem, params)
+    res = solve(pg.problem, params.replace(backend=cfg.backend))
     if progress:
         progress("marginal covariances")
     marg = marginal_covariances(pg.problem, res.values)

@@ -18,7 +18,7 @@ from misrgraph.graph import GraphConfig, build_pass_graph
 from misrgraph.simulate import ScenarioConfig, load_scenario, run_simulate
 from misrgraph.solver import SolverParams, linearize, solve, solve_gtsam_lm
 
-__all__ = ["run_bench_solver", "standard_pass"]
+__all__ = ["run_bench_solver", "run_bench_sba", "run_bench_scaling", "run_bench_incremental", "standard_pass"]
 
 log = logging.getLogger(__name__)
 
@@ -85,3 +85,141 @@ def run_bench_solver(tie_points: int = 1000, seed: int = 0, workdir: str | Path 
     if tmp is not None:
         tmp.cleanup()
     return out
+
+
+def _knot_keys(pg) -> list[int]:
+    return [k for a in range(3) for k in pg.knot_keys(a)]
+
+
+def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | None = None,
+                  skip_gtsam: bool = False, skip_ceres: bool = False) -> dict[str, Any]:
+    """Wall time to convergence, with marginals of all knots, on the standard pass (issue 8).
+
+    Same graph (least squares, DEM on), same criterion (relative cost decrease < 1e-5) for:
+    misrgraph's core (Schur backend, and GTSAM-elimination backend), gtsam.LevenbergMarquardtOptimizer,
+    scipy.optimize.least_squares (TRF, sparse Jacobian) and Ceres via pyceres (Python cost functions).
+    """
+    from misrgraph.alternatives import solve_ceres, solve_scipy
+    from misrgraph.flat import FlatProblem, knot_marginals_sparse
+    from misrgraph.solver import marginal_covariances
+
+    tmp = None
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-")
+        workdir = tmp.name
+    sc, p = standard_pass(tie_points, seed, Path(workdir))
+    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig())
+    prob = pg.problem
+    knots = _knot_keys(pg)
+    flat = FlatProblem(prob)
+    results: dict[str, Any] = {}
+
+    t0 = time.perf_counter()
+    core = solve(prob, SolverParams(backend="schur"))
+    knot_marginals_sparse(flat, flat.from_values(core.values), knots)
+    results["misrgraph"] = {"seconds": time.perf_counter() - t0, "final_cost": core.final_error, "iterations": core.iterations,
+                            "backend": "schur"}
+    t0 = time.perf_counter()
+    core_g = solve(prob, SolverParams(backend="gtsam"))
+    marginal_covariances(prob, core_g.values)
+    results["misrgraph_gtsam_elimination"] = {"seconds": time.perf_counter() - t0, "final_cost": core_g.final_error,
+                                              "iterations": core_g.iterations, "backend": "gtsam"}
+    if not skip_gtsam:
+        ref = solve_gtsam_lm(prob, SolverParams())
+        t0 = time.perf_counter()
+        for b in prob.batches:
+            b.evaluate(ref.values, True)
+        import gtsam
+
+        m = gtsam.Marginals(prob.graph, ref.values)
+        for k in knots:
+            m.marginalCovariance(k)
+        for b in prob.batches:
+            b.clear()
+        results["gtsam_lm"] = {"seconds": ref.seconds + time.perf_counter() - t0, "final_cost": ref.final_error,
+                               "iterations": ref.iterations}
+    t0 = time.perf_counter()
+    s = solve_scipy(flat)
+    knot_marginals_sparse(flat, s["x"], knots)
+    results["scipy"] = {"seconds": time.perf_counter() - t0, "final_cost": s["cost"], "iterations": s["iterations"]}
+    if not skip_ceres:
+        try:
+            c = solve_ceres(flat)
+            t0 = time.perf_counter()
+            knot_marginals_sparse(flat, c["x"], knots)
+            results["ceres"] = {"seconds": c["seconds"] + time.perf_counter() - t0, "final_cost": c["cost"],
+                                "iterations": c["iterations"]}
+        except ImportError:
+            results["ceres"] = {"skipped": "pyceres is not installed (pip install 'misrgraph[bench]')"}
+    base = results["misrgraph"]["seconds"]
+    ratios = {f"{k}_over_misrgraph": v["seconds"] / base for k, v in results.items() if k != "misrgraph" and "seconds" in v}
+    out = {"tie_points": tie_points, "variables": len(prob.dims), "factors": int(prob.graph.size()),
+           "observations": len(pg.collinearity), "results": results, "ratios": ratios,
+           "relative_cost_vs_misrgraph": {k: (v["final_cost"] - results["misrgraph"]["final_cost"]) / results["misrgraph"]["final_cost"]
+                                          for k, v in results.items() if "final_cost" in v}}
+    if tmp is not None:
+        tmp.cleanup()
+    return out
+
+
+def run_bench_scaling(sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000), seed: int = 0,
+                      workdir: str | Path | None = None) -> dict[str, Any]:
+    """Time per pass (solve + knot marginals, Schur backend) against tie points, fitted exponent, memory."""
+    import resource
+    import tracemalloc
+
+    from misrgraph.flat import FlatProblem, knot_marginals_sparse
+
+    tmp = None
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-")
+        workdir = tmp.name
+    rows = []
+    for n in sizes:
+        sc, p = standard_pass(n, seed, Path(workdir))
+        pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig())
+        tracemalloc.start()
+        t0 = time.perf_counter()
+        res = solve(pg.problem, SolverParams(backend="schur"))
+        flat = FlatProblem(pg.problem)
+        knot_marginals_sparse(flat, flat.from_values(res.values), _knot_keys(pg))
+        dt = time.perf_counter() - t0
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        rows.append({"tie_points": n, "observations": len(pg.collinearity), "seconds": dt, "iterations": res.iterations,
+                     "seconds_per_iteration": dt / max(res.iterations, 1), "peak_python_mb": peak / 2**20})
+    x = np.log([r["observations"] for r in rows])
+    y = np.log([r["seconds_per_iteration"] for r in rows])
+    slope = float(np.polyfit(x, y, 1)[0]) if len(rows) > 1 else float("nan")
+    yt = np.log([r["seconds"] for r in rows])
+    slope_total = float(np.polyfit(np.log([r["tie_points"] for r in rows]), yt, 1)[0]) if len(rows) > 1 else float("nan")
+    if tmp is not None:
+        tmp.cleanup()
+    return {"rows": rows, "exponent_per_iteration_vs_observations": slope, "exponent_total_vs_tie_points": slope_total,
+            "process_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0,
+                          workdir: str | Path | None = None) -> dict[str, Any]:
+    """Cost of adding the k-th pass with iSAM2 against a batch re-solve of all k passes."""
+    from misrgraph.incremental import IncrementalSolver, batch_solution
+
+    tmp = None
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-")
+        workdir = tmp.name
+    out = Path(workdir) / f"path_{passes}_{tie_points}_{seed}"
+    if not (out / "scenario.json").exists():
+        run_simulate(ScenarioConfig(scenario="path", seed=seed, n_passes=passes, n_tie_points=tie_points,
+                                    n_check_points=0, duration_s=900.0, start_lat_deg=55.0), out)
+    sc = load_scenario(out)
+    solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem)
+    rows = []
+    for k in range(len(sc.pass_files)):
+        inc = solver.add_passes([sc.load_pass(k)])
+        _, res, batch = batch_solution(solver, SolverParams())
+        rows.append({"pass": k + 1, "incremental_seconds": inc, "batch_seconds": batch, "ratio": inc / batch,
+                     "relinearization_rounds": solver.last_rounds})
+    if tmp is not None:
+        tmp.cleanup()
+    return {"rows": rows, "ratio_last": rows[-1]["ratio"]}

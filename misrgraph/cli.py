@@ -365,6 +365,91 @@ def bench_solver(
                   + ", ".join(f"{k} {v:.3f}" for k, v in res["linearize_seconds"].items()))
 
 
+@bench_app.command("sba")
+@handle_errors
+def bench_sba(
+    tie_points: int = typer.Option(2000, "--tie-points"),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep/reuse simulated scenarios here."),
+    skip_gtsam: bool = typer.Option(False, "--skip-gtsam-lm", help="Leave out gtsam.LevenbergMarquardtOptimizer (slow)."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """misrgraph vs gtsam LM vs scipy least_squares vs Ceres (pyceres), same problem and criterion."""
+    from misrgraph.bench import run_bench_sba
+
+    with err_console.status("simulating and solving with every alternative..."):
+        res = run_bench_sba(tie_points, seed, workdir, skip_gtsam=skip_gtsam)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title=f"bench sba: {res['tie_points']} tie points, {res['observations']} observations, {res['variables']} variables")
+    for col in ("solver", "seconds (incl. knot marginals)", "iterations", "final cost", "time / misrgraph"):
+        t.add_column(col)
+    for name, r in res["results"].items():
+        if "seconds" not in r:
+            t.add_row(name, r.get("skipped", ""), "", "", "")
+            continue
+        ratio = res["ratios"].get(f"{name}_over_misrgraph", 1.0)
+        t.add_row(name, f"{r['seconds']:.2f}", str(r["iterations"]), f"{r['final_cost']:.3f}", f"{ratio:.2f}")
+    console.print(t)
+
+
+@bench_app.command("scaling")
+@handle_errors
+def bench_scaling(
+    sizes: str = typer.Option("250,500,1000,2000,4000", "--sizes", help="Comma list of tie-point counts."),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir"),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Time per pass against tie points, with a fitted exponent, and peak memory."""
+    from misrgraph.bench import run_bench_scaling
+
+    try:
+        ns = tuple(int(x) for x in sizes.split(","))
+    except ValueError:
+        _fail(f"--sizes: got {sizes!r}; expected comma-separated integers such as 250,500,1000")
+    with err_console.status("simulating and solving..."):
+        res = run_bench_scaling(ns, seed, workdir)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title="bench scaling (Schur backend, with knot marginals)")
+    for col in ("tie points", "observations", "seconds", "iterations", "s / iteration", "peak Python MB"):
+        t.add_column(col)
+    for r in res["rows"]:
+        t.add_row(str(r["tie_points"]), str(r["observations"]), f"{r['seconds']:.2f}", str(r["iterations"]),
+                  f"{r['seconds_per_iteration']:.3f}", f"{r['peak_python_mb']:.0f}")
+    console.print(t)
+    console.print(f"fitted exponent: per iteration vs observations {res['exponent_per_iteration_vs_observations']:.2f}, "
+                  f"total vs tie points {res['exponent_total_vs_tie_points']:.2f}; peak RSS {res['process_peak_rss_mb']:.0f} MB")
+
+
+@bench_app.command("incremental")
+@handle_errors
+def bench_incremental(
+    passes: int = typer.Option(10, "--passes"),
+    tie_points: int = typer.Option(150, "--tie-points"),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir"),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Cost of adding the k-th pass with iSAM2 against a batch re-solve of all k passes."""
+    from misrgraph.bench import run_bench_incremental
+
+    with err_console.status("simulating and solving..."):
+        res = run_bench_incremental(passes, tie_points, seed, workdir)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title="bench incremental")
+    for col in ("pass k", "iSAM2 update (s)", "batch re-solve of k passes (s)", "ratio"):
+        t.add_column(col)
+    for r in res["rows"]:
+        t.add_row(str(r["pass"]), f"{r['incremental_seconds']:.2f}", f"{r['batch_seconds']:.2f}", f"{r['ratio']:.2f}")
+    console.print(t)
+
+
 @app.command()
 @handle_errors
 def demo(

@@ -52,6 +52,13 @@ class SolverParams(Config):
     lambda_upper: float = 1e10
     relative_error_tol: float = 1e-5
     absolute_error_tol: float = 1e-5
+    backend: str = "gtsam"
+
+    def __post_init__(self) -> None:
+        if self.backend not in ("gtsam", "schur"):
+            from misrgraph.errors import InputError
+
+            raise InputError("backend", self.backend, ("gtsam", "schur"))
 
 
 @dataclass
@@ -104,7 +111,20 @@ def solve(
     initial: gtsam.Values | None = None,
     progress: Callable[[int, float, float], None] | None = None,
 ) -> SolveResult:
-    """Minimise the problem's error with Levenberg-Marquardt (see the module docstring)."""
+    """Minimise the problem's error with Levenberg-Marquardt (see the module docstring).
+
+    ``params.backend`` chooses the linear solver of each step: ``"gtsam"`` (GTSAM's sparse
+    elimination of the linearised factor graph, any problem) or ``"schur"`` (the vectorised flat
+    problem with a numpy Schur complement on the 3x3 landmark blocks; single-pass least squares,
+    see :mod:`misrgraph.flat`). Both apply the same damping, acceptance and convergence rules.
+    """
+    if params.backend == "schur":
+        from misrgraph.flat import NotFlat
+
+        try:
+            return _solve_schur(problem, params, initial, progress)
+        except NotFlat as exc:
+            log.info("schur backend not applicable (%s); using GTSAM elimination", exc)
     t_start = time.perf_counter()
     values = gtsam.Values(initial if initial is not None else problem.initial)
     ordering = _ordering(problem)
@@ -149,6 +169,83 @@ def solve(
             break
         err = new_err
     return SolveResult(values, it, converged, err, history, time.perf_counter() - t_start, lin_time, n_lin)
+
+
+@dataclass
+class _SchurSystem:
+    """Undamped normal equations of the flat problem at one linearisation point."""
+
+    blocks: Array  # (L, 3, 3) landmark blocks H_ll
+    hlc: Array  # (L, 3, n_c) landmark-to-navigation coupling
+    hcc: Array  # (n_c, n_c)
+    g: Array  # J^T r
+
+
+def _schur_system(flat, x: Array, n_l: int) -> _SchurSystem:
+    blk, hlc, hcc, g, _ = flat.normal_equations(x)
+    return _SchurSystem(blk, hlc, hcc, g)
+
+
+def _schur_step(sys: _SchurSystem, lam: float, n_l: int) -> Array:
+    """Solve ``(H + lam I) d = -g`` by the Schur complement on the 3x3 landmark blocks."""
+    blk = sys.blocks.copy()
+    blk[:, [0, 1, 2], [0, 1, 2]] += lam
+    inv = np.linalg.inv(blk)
+    nl3, n_c = sys.hlc.shape[0], sys.hcc.shape[0]
+    gl, gc = sys.g[:n_l].reshape(nl3, 3), sys.g[n_l:]
+    ig = inv @ sys.hlc  # (L, 3, n_c)
+    s = sys.hcc + lam * np.eye(n_c) - sys.hlc.reshape(3 * nl3, n_c).T @ ig.reshape(3 * nl3, n_c)
+    il = np.einsum("lij,lj->li", inv, gl)
+    dc = np.linalg.solve(s, -gc + sys.hlc.reshape(3 * nl3, n_c).T @ il.ravel())
+    dl = -il - np.einsum("lic,c->li", ig, dc)
+    return np.concatenate([dl.ravel(), dc])
+
+
+def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
+                 progress: Callable[[int, float, float], None] | None) -> SolveResult:
+    from misrgraph.flat import FlatProblem
+
+    t_start = time.perf_counter()
+    flat = FlatProblem(problem)
+    n_l = 3 * len(problem.eliminate_first)
+    x = flat.from_values(initial if initial is not None else problem.initial)
+    err = flat.cost(x)
+    if not np.isfinite(err):
+        raise DegenerateProblemError(f"initial error is not finite ({err})")
+    history = [err]
+    lam = params.lambda_initial
+    converged = False
+    it = 0
+    lin_time = 0.0
+    for it in range(1, params.max_iterations + 1):
+        t0 = time.perf_counter()
+        system = _schur_system(flat, x, n_l)
+        lin_time += time.perf_counter() - t0
+        while True:
+            try:
+                step = _schur_step(system, lam, n_l)
+            except np.linalg.LinAlgError as exc:
+                raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
+            trial = x + step
+            new_err = flat.cost(trial)
+            if np.isfinite(new_err) and new_err < err:
+                lam = max(lam / params.lambda_factor, 1e-20)
+                break
+            lam *= params.lambda_factor
+            if lam > params.lambda_upper:
+                new_err, trial = err, x
+                break
+        decrease = err - new_err
+        x = trial
+        history.append(new_err)
+        if progress:
+            progress(it, new_err, lam)
+        if lam > params.lambda_upper or decrease <= params.absolute_error_tol or decrease <= params.relative_error_tol * err:
+            converged = lam <= params.lambda_upper or decrease <= params.absolute_error_tol
+            err = new_err
+            break
+        err = new_err
+    return SolveResult(flat.to_values(x), it, converged, err, history, time.perf_counter() - t_start, lin_time, it)
 
 
 def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> SolveResult:
