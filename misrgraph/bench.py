@@ -18,7 +18,8 @@ from misrgraph.graph import GraphConfig, build_pass_graph
 from misrgraph.simulate import ScenarioConfig, load_scenario, run_simulate
 from misrgraph.solver import SolverParams, linearize, solve, solve_gtsam_lm
 
-__all__ = ["run_bench_solver", "run_bench_sba", "run_bench_scaling", "run_bench_incremental", "standard_pass"]
+__all__ = ["run_bench_solver", "run_bench_sba", "run_bench_scaling", "run_bench_incremental", "run_bench_nees",
+           "standard_pass"]
 
 log = logging.getLogger(__name__)
 
@@ -223,3 +224,52 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
     if tmp is not None:
         tmp.cleanup()
     return {"rows": rows, "ratio_last": rows[-1]["ratio"]}
+
+
+def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
+                   workdir: str | Path | None = None) -> dict[str, Any]:
+    """NEES over seeded runs at reduced size, against its two-sided 95 % chi-square band.
+
+    ``calibration``: reduced months (24 GCPs, 16 days), NEES of the 27 camera corrections.
+    ``adjust``: 10-minute passes (80 tie points), NEES of the knots (joint) and of the whole state.
+    """
+    from scipy import stats
+
+    from misrgraph.adjust import run_adjust
+    from misrgraph.calibrate import run_calibrate
+    from misrgraph.errors import InputError
+
+    if study not in ("calibration", "adjust"):
+        raise InputError("study", study, ("calibration", "adjust"))
+    tmp = None
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-")
+        workdir = tmp.name
+    totals: dict[str, list[float]] = {}
+    per_run = []
+    for i in range(runs):
+        out = Path(workdir) / f"nees_{study}_{seed + i}"
+        if study == "calibration":
+            if not (out / "scenario.json").exists():
+                run_simulate(ScenarioConfig(scenario="month", seed=seed + i, n_gcps=24, month_days=16), out)
+            s = run_calibrate(out)
+            vals = {"camera": (s["nees"], s["nees_dim"])}
+            per_run.append({"seed": seed + i, "nees": s["nees"], "max_pointing_error_px": s["max_pointing_error_px"]})
+        else:
+            if not (out / "scenario.json").exists():
+                run_simulate(ScenarioConfig(scenario="pass", seed=seed + i, n_tie_points=80, n_check_points=0,
+                                            duration_s=600.0, start_lat_deg=50.0), out)
+            s = run_adjust(out)
+            vals = {k: (s["nees"][k], s["nees"][f"{k}_dim"]) for k in ("knots", "state", "landmarks")}
+            per_run.append({"seed": seed + i, **{k: v[0] for k, v in vals.items()}})
+        for k, (v, d) in vals.items():
+            t = totals.setdefault(k, [0.0, 0])
+            t[0] += v * d
+            t[1] += d
+    summary = {}
+    for k, (chi2, dof) in totals.items():
+        lo, hi = stats.chi2.ppf([0.025, 0.975], dof)
+        summary[k] = {"nees_per_dim": chi2 / dof, "band": [lo / dof, hi / dof], "inside": bool(lo < chi2 < hi), "dof": int(dof)}
+    if tmp is not None:
+        tmp.cleanup()
+    return {"study": study, "runs": runs, "summary": summary, "per_run": per_run}

@@ -94,7 +94,8 @@ class CalibrationResult:
 
 
 def _build(passes: list[OrbitPass], camera: CameraModel, gcps: GcpDatabase, cfg: GraphConfig,
-           exclude: list[NDArray[np.bool_]] | None, progress: Callable[[str], None] | None) -> tuple[Problem, list[PassGraph]]:
+           exclude: list[NDArray[np.bool_]] | None, progress: Callable[[str], None] | None,
+           table: Any = None) -> tuple[Problem, list[PassGraph]]:
     shared: set[int] = set()
     graphs = []
     for i, p in enumerate(passes):
@@ -102,7 +103,7 @@ def _build(passes: list[OrbitPass], camera: CameraModel, gcps: GcpDatabase, cfg:
             progress(f"graph: pass {i + 1}/{len(passes)}")
         pg = build_pass_graph(p, camera, None, gcps, cfg, pass_index=i, shared=shared,
                               exclude_observations=exclude[i] if exclude else None,
-                              camera_for_pass=camera.at_temperature(p.temperature_c))
+                              camera_for_pass=table.at_temperature(p.temperature_c) if table is not None else None)
         shared |= set(pg.problem.initial.keys()) & (set(pg.problem.eliminate_first) | set(pg.problem.eliminate_last))
         graphs.append(pg)
     return merge_problems([g.problem for g in graphs]), graphs
@@ -156,8 +157,14 @@ def calibrate_passes(
     gcps: GcpDatabase,
     cfg: CalibrateConfig = CalibrateConfig(),
     progress: Callable[[str], None] | None = None,
+    table: Any = None,
 ) -> CalibrationResult:
-    """Space resection of the camera model over GCP passes (see the module docstring)."""
+    """Space resection of the camera model over GCP passes (see the module docstring).
+
+    With ``table`` (a :class:`~misrgraph.camera.TabulatedCameraModel`) every pass uses the model
+    interpolated at its own temperature; the estimated corrections are common to all temperatures
+    and are reported relative to ``camera`` (the model at the median pass temperature).
+    """
     if not passes:
         raise DegenerateProblemError("no passes to calibrate from")
     t0 = time.perf_counter()
@@ -169,7 +176,7 @@ def calibrate_passes(
     rejected: list[tuple[int, int, float]] = []
     if cfg.robust != "none":
         prob, graphs = _build(passes, camera, gcps, cfg.graph_config(group_by="observation", robust=cfg.robust,
-                                                                      robust_k=cfg.robust_k), None, progress)
+                                                                      robust_k=cfg.robust_k), None, progress, table)
         if progress:
             progress("robust solve")
         res = solve(prob, params)
@@ -180,7 +187,7 @@ def calibrate_passes(
             bad = w > cfg.reject_sigma
             exclude[i][idx[bad]] = True
             rejected += [(i, int(j), float(x)) for j, x in zip(idx[bad], w[bad])]
-    prob, graphs = _build(passes, camera, gcps, cfg.graph_config(), exclude, progress)
+    prob, graphs = _build(passes, camera, gcps, cfg.graph_config(), exclude, progress, table)
     if progress:
         progress("least-squares solve")
     res = solve(prob, params)
@@ -300,7 +307,11 @@ def run_calibrate(
     if max_passes is not None:
         files = files[:max_passes]
     cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
-    supplied = CameraModel.load(cam_path)
+    from misrgraph.camera import TabulatedCameraModel
+
+    table = TabulatedCameraModel.load_any(cam_path)
+    supplied = table if isinstance(table, CameraModel) else table.at_temperature(float(np.median(
+        [OrbitPass.load(f).temperature_c for f in files[:50]])))
     gcps = GcpDatabase.load(gcp_file or d / "gcp.h5")
     passes = []
     for i, f in enumerate(files):
@@ -309,7 +320,7 @@ def run_calibrate(
         passes.append(OrbitPass.load(f))
     truth_path = d / "camera_truth.h5"
     truth = CameraModel.load(truth_path) if truth_path.exists() else None
-    res = calibrate_passes(passes, supplied, gcps, cfg, progress)
+    res = calibrate_passes(passes, supplied, gcps, cfg, progress, table=None if isinstance(table, CameraModel) else table)
     summary = summarise(res, cfg, supplied, truth)
     if out is not None:
         with atomic_h5(out, "camera_model") as f:

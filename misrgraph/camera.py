@@ -12,9 +12,8 @@ cross-track focal-plane coordinate in metres.
 The parameters are data: :class:`CameraModel` is a dataclass that saves to and loads from HDF5
 (kind ``camera_model``). Camera arrays are indexed in the order of
 :data:`misrgraph.constants.CAMERAS`, band arrays in the order of :data:`~misrgraph.constants.BANDS`.
-A model may be tabulated at several temperatures (``temperatures_c``), in which case every
-per-camera array carries a leading temperature axis and :meth:`CameraModel.at_temperature`
-interpolates linearly.
+A model tabulated at several temperatures is a :class:`TabulatedCameraModel`, whose
+``at_temperature`` interpolates linearly; a plain model's ``at_temperature`` returns itself.
 """
 
 from __future__ import annotations
@@ -32,7 +31,7 @@ from misrgraph.constants import BANDS, CAMERAS, LINE_TIME_S, N_PIXELS, PITCH_ALO
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.h5io import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
 
-__all__ = ["CameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "validate_pixel_inputs"]
+__all__ = ["CameraModel", "TabulatedCameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "validate_pixel_inputs"]
 
 Array = NDArray[np.float64]
 N_ALPHA = 6
@@ -231,3 +230,59 @@ def validate_pixel_inputs(camera: str, band: str, sample: float | None = None) -
     if sample is not None and not (0 <= float(sample) <= N_PIXELS - 1):
         raise InputError("pixel", sample, f"a sample number in 0..{N_PIXELS - 1}")
     return c, b
+
+
+class TabulatedCameraModel:
+    """A camera model tabulated at several temperatures, linearly interpolated in between.
+
+    The seed's parameters are thermally sensitive (Table 1: f and alpha measured at three
+    temperatures; delta, beta thermal). ``at_temperature(T)`` interpolates every parameter array
+    linearly between the two nearest tabulated temperatures (clamped at the ends of the table) and
+    returns a plain :class:`CameraModel`; calibration and adjustment use the model at each pass's
+    temperature. Saved as a ``camera_model`` file whose ``/camera_model`` group is the model at
+    the first temperature plus a ``/temperature_table/<i>`` group per tabulated temperature.
+    """
+
+    def __init__(self, models: list[CameraModel]) -> None:
+        if len(models) < 2:
+            raise InputError("temperature table", len(models), "at least two models at different temperatures")
+        temps = np.array([m.temperature_c for m in models])
+        order = np.argsort(temps)
+        if np.any(np.diff(temps[order]) <= 0):
+            raise InputError("temperature table", temps.tolist(), "distinct temperatures")
+        self.models = [models[i] for i in order]
+        self.temperatures_c = temps[order]
+
+    @property
+    def line_time(self) -> float:
+        return self.models[0].line_time
+
+    def at_temperature(self, temperature_c: float) -> CameraModel:
+        t = float(np.clip(temperature_c, self.temperatures_c[0], self.temperatures_c[-1]))
+        i = int(np.clip(np.searchsorted(self.temperatures_c, t) - 1, 0, len(self.models) - 2))
+        a, b = self.models[i], self.models[i + 1]
+        w = (t - self.temperatures_c[i]) / (self.temperatures_c[i + 1] - self.temperatures_c[i])
+        out = a.copy()
+        for name in CameraModel._SHAPES:
+            setattr(out, name, (1 - w) * getattr(a, name) + w * getattr(b, name))
+        out.temperature_c = t
+        out.provenance = dict(a.provenance, interpolated_at_c=f"{t:.3f}")
+        return out
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        with atomic_h5(path, "camera_model") as f:
+            self.models[0].write_group(f.create_group("camera_model"))
+            g = f.create_group("temperature_table")
+            for i, m in enumerate(self.models):
+                m.write_group(g.create_group(str(i)))
+
+    @staticmethod
+    def load_any(path: str | os.PathLike[str]) -> "CameraModel | TabulatedCameraModel":
+        """A plain model, or a tabulated one when the file has ``/temperature_table``."""
+        with open_h5(path, "camera_model") as f:
+            if "temperature_table" in f:
+                g = f["temperature_table"]
+                return TabulatedCameraModel([CameraModel.read_group(g[k]) for k in sorted(g, key=int)])
+            if "camera_model" not in f:
+                raise FileFormatError(path, "missing group /camera_model")
+            return CameraModel.read_group(f["camera_model"])

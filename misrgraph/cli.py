@@ -450,6 +450,30 @@ def bench_incremental(
     console.print(t)
 
 
+@bench_app.command("nees")
+@handle_errors
+def bench_nees(
+    study: str = typer.Option("calibration", "--study", help="calibration or adjust."),
+    runs: int = typer.Option(20, "--runs", help="Seeded runs."),
+    seed: int = typer.Option(1000, "--seed", help="First seed."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir"),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Covariance honesty: NEES over seeded runs against its 95 % chi-square band (reduced sizes)."""
+    from misrgraph.bench import run_bench_nees
+
+    if runs < 1:
+        _fail(f"--runs: got {runs}; expected at least 1")
+    with err_console.status(f"{runs} seeded {study} runs..."):
+        res = run_bench_nees(study, runs, seed, workdir)
+    if as_json:
+        _print_json(res)
+        return
+    for k, v in res["summary"].items():
+        console.print(f"{study} {k}: NEES/dim {v['nees_per_dim']:.3f}, 95 % band [{v['band'][0]:.3f}, {v['band'][1]:.3f}] "
+                      f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}")
+
+
 @app.command()
 @handle_errors
 def demo(

@@ -304,7 +304,8 @@ class DemTiles:
         g = np.arange(size) * p
         glat = lat0[:, None, None] + g[None, :, None] + 0 * g[None, None, :]
         glon = lon0[:, None, None] + 0 * g[None, :, None] + g[None, None, :]
-        true_h = terrain.relief(glat, glon)
+        # in chunks of tiles: the wave sum is (tiles, n, n, waves) in memory
+        true_h = np.concatenate([terrain.relief(glat[i:i + 128], glon[i:i + 128]) for i in range(0, la.size, 128)])
         land = land_mask(glat, glon)
         true_h = np.where(land, true_h, 0.0)
         flags = np.where(land, FLAG_LAND, FLAG_WATER).astype(np.uint8)

@@ -10,7 +10,10 @@ copy. So the core:
 2. calls ``graph.linearize(values)`` once per iteration (one C++ call, Python callbacks ~20 us each);
 3. adds the LM damping ``sqrt(lambda) I`` per variable and eliminates with GTSAM
    (``GaussianFactorGraph.optimize(ordering)``, landmarks first -- the classic Schur order --,
-   the ordering computed once and reused);
+   the ordering computed once and reused); or, with ``backend="schur"``, accumulates the normal
+   equations directly from the per-observation blocks (:mod:`misrgraph.flat`) and solves them by a
+   numpy Schur complement on the 3x3 landmark blocks -- no Python callback at all, 1.9x faster
+   than GTSAM's elimination at 2000 tie points, identical iterates;
 4. accepts/rejects the step and updates lambda exactly as ``gtsam.LevenbergMarquardtOptimizer``
    does (same initial lambda, factor 10, same convergence test), so both reach the same optimum.
 
@@ -125,10 +128,29 @@ def solve(
             return _solve_schur(problem, params, initial, progress)
         except NotFlat as exc:
             log.info("schur backend not applicable (%s); using GTSAM elimination", exc)
-    t_start = time.perf_counter()
     values = gtsam.Values(initial if initial is not None else problem.initial)
     ordering = _ordering(problem)
-    err = error(problem, values)
+
+    def step(x: gtsam.Values, lin: gtsam.GaussianFactorGraph, lam: float) -> gtsam.Values:
+        try:
+            return x.retract(_damped(lin, problem, lam).optimize(ordering))
+        except RuntimeError as exc:  # indeterminant system
+            raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
+
+    return _levenberg_marquardt(values, lambda x: error(problem, x), lambda x: linearize(problem, x), step, params,
+                                progress, lambda x: x)
+
+
+def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at: Callable[[object], object],
+                         step: Callable[[object, object, float], object], params: SolverParams,
+                         progress: Callable[[int, float, float], None] | None,
+                         to_values: Callable[[object], gtsam.Values]) -> SolveResult:
+    """The LM loop shared by both backends, with ``gtsam.LevenbergMarquardtOptimizer``'s rules:
+    lambda divided by ``lambda_factor`` after an accepted step, multiplied after a rejected one;
+    stop when the decrease is below the absolute or relative tolerance or lambda exceeds its bound."""
+    t_start = time.perf_counter()
+    x = x0
+    err = cost(x)
     if not np.isfinite(err):
         raise DegenerateProblemError(f"initial error is not finite ({err})")
     history = [err]
@@ -136,39 +158,32 @@ def solve(
     converged = False
     it = 0
     lin_time = 0.0
-    n_lin = 0
     for it in range(1, params.max_iterations + 1):
         t0 = time.perf_counter()
-        lin = linearize(problem, values)
+        system = system_at(x)
         lin_time += time.perf_counter() - t0
-        n_lin += 1
         while True:
-            try:
-                delta = _damped(lin, problem, lam).optimize(ordering)
-            except RuntimeError as exc:  # indeterminant system
-                raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
-            trial = values.retract(delta)
-            new_err = error(problem, trial)
+            trial = step(x, system, lam)
+            new_err = cost(trial)
             if np.isfinite(new_err) and new_err < err:
                 lam = max(lam / params.lambda_factor, 1e-20)
                 break
             lam *= params.lambda_factor
             if lam > params.lambda_upper:
-                new_err = err
-                trial = values
+                new_err, trial = err, x
                 break
         decrease = err - new_err
-        values = trial
+        x = trial
         history.append(new_err)
         if progress:
             progress(it, new_err, lam)
         log.debug("LM iteration %d: error %.9g (decrease %.3g), lambda %.1e", it, new_err, decrease, lam)
         if lam > params.lambda_upper or decrease <= params.absolute_error_tol or decrease <= params.relative_error_tol * err:
-            err = new_err
             converged = lam <= params.lambda_upper or decrease <= params.absolute_error_tol
+            err = new_err
             break
         err = new_err
-    return SolveResult(values, it, converged, err, history, time.perf_counter() - t_start, lin_time, n_lin)
+    return SolveResult(to_values(x), it, converged, err, history, time.perf_counter() - t_start, lin_time, it)
 
 
 @dataclass
@@ -205,47 +220,18 @@ def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values |
                  progress: Callable[[int, float, float], None] | None) -> SolveResult:
     from misrgraph.flat import FlatProblem
 
-    t_start = time.perf_counter()
     flat = FlatProblem(problem)
     n_l = 3 * len(problem.eliminate_first)
-    x = flat.from_values(initial if initial is not None else problem.initial)
-    err = flat.cost(x)
-    if not np.isfinite(err):
-        raise DegenerateProblemError(f"initial error is not finite ({err})")
-    history = [err]
-    lam = params.lambda_initial
-    converged = False
-    it = 0
-    lin_time = 0.0
-    for it in range(1, params.max_iterations + 1):
-        t0 = time.perf_counter()
-        system = _schur_system(flat, x, n_l)
-        lin_time += time.perf_counter() - t0
-        while True:
-            try:
-                step = _schur_step(system, lam, n_l)
-            except np.linalg.LinAlgError as exc:
-                raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
-            trial = x + step
-            new_err = flat.cost(trial)
-            if np.isfinite(new_err) and new_err < err:
-                lam = max(lam / params.lambda_factor, 1e-20)
-                break
-            lam *= params.lambda_factor
-            if lam > params.lambda_upper:
-                new_err, trial = err, x
-                break
-        decrease = err - new_err
-        x = trial
-        history.append(new_err)
-        if progress:
-            progress(it, new_err, lam)
-        if lam > params.lambda_upper or decrease <= params.absolute_error_tol or decrease <= params.relative_error_tol * err:
-            converged = lam <= params.lambda_upper or decrease <= params.absolute_error_tol
-            err = new_err
-            break
-        err = new_err
-    return SolveResult(flat.to_values(x), it, converged, err, history, time.perf_counter() - t_start, lin_time, it)
+
+    def step(x: Array, system: _SchurSystem, lam: float) -> Array:
+        try:
+            return x + _schur_step(system, lam, n_l)
+        except np.linalg.LinAlgError as exc:
+            raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
+
+    x0 = flat.from_values(initial if initial is not None else problem.initial)
+    return _levenberg_marquardt(x0, flat.cost, lambda x: _schur_system(flat, x, n_l), step, params, progress,
+                                flat.to_values)
 
 
 def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> SolveResult:

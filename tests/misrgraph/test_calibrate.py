@@ -104,3 +104,18 @@ def test_cli_json_and_bad_params(small_month_dir):
     assert set(s["cameras"]["Df"]["params"]["beta"]) == {"value", "sigma"}
     r = CliRunner().invoke(app, ["calibrate", str(small_month_dir), "--params", "delta,gamma"])
     assert r.exit_code == 2 and "--params" in r.output
+
+
+def test_calibration_at_each_pass_temperature(month, tmp_path):
+    """A tabulated supplied model: each pass uses the model at its temperature. With a table whose
+    thermal slope is known, the corrections reproduce the plain calibration at the reference."""
+    from misrgraph.camera import TabulatedCameraModel
+
+    sc, passes = month
+    cold, warm = sc.camera_model.copy(), sc.camera_model.copy()
+    cold.temperature_c, warm.temperature_c = 0.0, 10.0
+    table = TabulatedCameraModel([cold, warm])  # no thermal change: must equal the plain result
+    a = calibrate_passes(passes[:12], sc.camera_model, sc.gcps, CalibrateConfig(robust="none"))
+    b = calibrate_passes(passes[:12], table.at_temperature(5.0), sc.gcps, CalibrateConfig(robust="none"), table=table)
+    np.testing.assert_allclose(b.values, a.values, rtol=1e-6, atol=1e-12)
+    assert {p.temperature_c for p in passes[:12]} != {passes[0].temperature_c}  # passes carry temperatures

@@ -86,3 +86,23 @@ def test_missing_field_and_wrong_kind(nominal_camera, tmp_path):
         CameraModel.load(path)
     with pytest.raises(FileFormatError, match="does not exist"):
         CameraModel.load(tmp_path / "nope.h5")
+
+
+def test_tabulated_model_interpolates_linearly_and_round_trips(nominal_camera, tmp_path):
+    from misrgraph.camera import TabulatedCameraModel
+
+    cold, warm = nominal_camera.copy(), nominal_camera.copy()
+    cold.temperature_c, warm.temperature_c = -5.0, 15.0
+    warm.focal_length += 20e-6
+    warm.beta += 1e-5
+    table = TabulatedCameraModel([warm, cold])  # any order
+    mid = table.at_temperature(0.0)  # a quarter of the way from -5 to 15
+    np.testing.assert_allclose(mid.focal_length, cold.focal_length + 5e-6, atol=1e-15)
+    np.testing.assert_allclose(mid.beta, cold.beta + 2.5e-6, atol=1e-15)
+    np.testing.assert_allclose(table.at_temperature(40.0).beta, warm.beta)  # clamped
+    table.save(tmp_path / "t.h5")
+    back = TabulatedCameraModel.load_any(tmp_path / "t.h5")
+    np.testing.assert_allclose(back.at_temperature(0.0).beta, mid.beta)
+    assert isinstance(TabulatedCameraModel.load_any(tmp_path / "t.h5"), TabulatedCameraModel)
+    with pytest.raises(InputError, match="temperature table"):
+        TabulatedCameraModel([cold])
