@@ -37,9 +37,9 @@ from misrgraph import __version__
 from misrgraph.camera import CameraModel
 from misrgraph.config import Config
 from misrgraph.constants import ANGLES, ARCSEC, BANDS, CAMERAS
-from misrgraph.dem import DemTiles, Geoid
+from misrgraph.dem import DemTiles
 from misrgraph.errormodels import AttitudeErrorModel, EphemerisErrorModel
-from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError
+from misrgraph.errors import FileFormatError, InputError
 from misrgraph.frames import ecef_to_geodetic, enu_basis
 from misrgraph.gcp import GcpDatabase
 from misrgraph.geolocation import PassGeometry

@@ -232,7 +232,6 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
     chol = np.linalg.cholesky(0.5 * (res.covariance + res.covariance.T))
     samples = [_apply(supplied, _cams(res, cfg), cfg, res.values + chol @ rng.standard_normal(res.values.size)) for _ in range(draws)]
     cams_out: dict[str, Any] = {}
-    n = len(cfg.params)
     poorly = []
     for i, label in enumerate(res.labels):
         if sig[i] > cfg.poorly_determined_ratio * res.prior_sigma[i]:
@@ -310,14 +309,14 @@ def run_calibrate(
     from misrgraph.camera import TabulatedCameraModel
 
     table = TabulatedCameraModel.load_any(cam_path)
-    supplied = table if isinstance(table, CameraModel) else table.at_temperature(float(np.median(
-        [OrbitPass.load(f).temperature_c for f in files[:50]])))
     gcps = GcpDatabase.load(gcp_file or d / "gcp.h5")
     passes = []
     for i, f in enumerate(files):
         if progress and i % 25 == 0:
             progress(f"reading pass {i + 1}/{len(files)}")
         passes.append(OrbitPass.load(f))
+    supplied = table if isinstance(table, CameraModel) else table.at_temperature(
+        float(np.median([p.temperature_c for p in passes])))
     truth_path = d / "camera_truth.h5"
     truth = CameraModel.load(truth_path) if truth_path.exists() else None
     res = calibrate_passes(passes, supplied, gcps, cfg, progress, table=None if isinstance(table, CameraModel) else table)

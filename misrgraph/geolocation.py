@@ -243,7 +243,6 @@ class PassGeometry:
         k = self.camera.k[c, b]
         t_lo, t_hi = self.ephemeris.span
         grid = np.append(np.arange(t_lo, t_hi, coarse_step_s), t_hi)
-        ng = grid.size
         nav = self.nav_state(grid)
         x, _, depth = self._project(c[:, None], b[:, None], g[:, None, :], nav)
         h = x + k[:, None]

@@ -29,7 +29,7 @@ from misrgraph.errormodels import AttitudeErrorModel, EphemerisErrorModel, inter
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.frames import ecef_to_geodetic
 from misrgraph.gcp import GcpDatabase
-from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
+from misrgraph.passdata import KIND_CHECK, KIND_GCP, OrbitPass
 
 __all__ = ["GraphConfig", "PassGraph", "Problem", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor",
            "CAMERA_PRIOR_SIGMA", "merge_problems"]

@@ -31,7 +31,7 @@ import os
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -43,7 +43,7 @@ from factors import keys as K
 from misrgraph import __version__
 from misrgraph.adjust import AdjustConfig, AdjustResult, _estimated_models, find_blunders, score_pass
 from misrgraph.camera import CameraModel
-from misrgraph.constants import ANGLES, ARCSEC, CAMERAS
+from misrgraph.constants import ANGLES, ARCSEC
 from misrgraph.dem import DemTiles
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.gcp import GcpDatabase

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from misrgraph import __version__
 from misrgraph.camera import CameraModel
 from misrgraph.config import Config
-from misrgraph.constants import ANGLES, ARCSEC, BANDS, CAMERAS, NODAL_PERIOD_S, REPEAT_PATHS
+from misrgraph.constants import ARCSEC, BANDS, CAMERAS, NODAL_PERIOD_S, REPEAT_PATHS
 from misrgraph.dem import DemTiles, Geoid, SyntheticTerrain, land_mask
 from misrgraph.errormodels import AttitudeErrorModel, EphemerisErrorModel, uniform_knots
 from misrgraph.errors import InputError

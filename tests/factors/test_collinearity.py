@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from factors import keys as K
-from factors.collinearity import CollinearityBatch, FactorShapeError, collinearity_residual
+from factors.collinearity import FactorShapeError, collinearity_residual
 from misrgraph.constants import CAMERAS
 from misrgraph.graph import GraphConfig, build_pass_graph
 

@@ -10,7 +10,7 @@ import pytest
 from scipy import stats
 from typer.testing import CliRunner
 
-from misrgraph.adjust import AdjustConfig, adjust_pass, run_adjust, score_pass
+from misrgraph.adjust import AdjustConfig, adjust_pass, run_adjust
 from misrgraph.cli import app
 from misrgraph.constants import CAMERAS
 from misrgraph.passdata import KIND_GCP, KIND_TIE, OrbitPass
