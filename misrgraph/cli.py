@@ -286,23 +286,32 @@ def calibrate(
 @handle_errors
 def update(
     state: Path = typer.Argument(..., help="State directory (created on first use)."),
-    passes: list[Path] = typer.Argument(..., help="New pass files (HDF5) to add, in order."),
+    passes: Optional[list[Path]] = typer.Argument(None, help="New pass files (HDF5) to add, in order."),
     camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model (needed when creating the state)."),
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (needed when creating the state)."),
     dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (recommended when creating the state)."),
     compare_batch: bool = typer.Option(False, "--compare-batch", help="Also re-solve all passes in batch and report the cost ratio and the difference in sigma."),
+    report: Optional[str] = typer.Option(None, "--report", help="Also report error models, marginals and scores of this earlier pass id."),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON."),
 ) -> None:
     """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
+    import numpy as np
+
     from misrgraph.incremental import run_update
 
     with err_console.status("updating...") as st:
-        out = run_update(state, [str(p) for p in passes], camera_model, gcp_file, dem_file,
-                         compare_batch=compare_batch, progress=lambda m: st.update(m))
+        if not passes and report is None:
+            _fail("PASSES: give new pass files to add, or --report PASS_ID for an earlier pass")
+        out = run_update(state, [str(p) for p in passes or []], camera_model, gcp_file, dem_file,
+                         compare_batch=compare_batch, progress=lambda m: st.update(m), report=report)
     if as_json:
         _print_json(out)
         return
     console.print(f"state {out['state']}: {out['passes_in_state']} passes")
+    if "report" in out:
+        r = out["report"]
+        console.print(f"{r['pass_id']}: knots kept/removed " + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in r["knots"].items())
+                      + "; mean knot sigma (arcsec) " + ", ".join(f"{a} {np.mean(v):.2f}" for a, v in r["attitude_knot_sigma_arcsec"].items()))
     for u in out["updates"]:
         if u["status"] != "added":
             console.print(f"{u['pass_id']}: {u['status']}")

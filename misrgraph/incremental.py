@@ -300,12 +300,15 @@ def run_update(
     compare_batch: bool = False,
     progress: Callable[[str], None] | None = None,
     crash_before_commit: bool = False,
+    report: str | None = None,
 ) -> dict[str, Any]:
     """Add passes to a persistent state and re-solve incrementally; summary of each new pass.
 
     The first call creates the state and needs ``camera_model`` and ``gcp_file`` (and optionally
-    ``dem_file``); later calls reuse what the state names. ``crash_before_commit`` (tests only)
-    raises after the work is done but before ``state.json`` is replaced.
+    ``dem_file``); later calls reuse what the state names. ``report`` names an earlier pass whose
+    error models, marginals and scores (from the current estimate) are returned under
+    ``"report"``. ``crash_before_commit`` (tests only) raises after the work is done but before
+    ``state.json`` is replaced.
     """
     d = Path(state_dir)
     state = load_state(d)
@@ -378,6 +381,21 @@ def run_update(
         os.replace(tmp, copy)
         added.append({"pass_id": p.pass_id, "file": f"passes/{p.pass_id}.h5",
                       "rejected_indices": [int(i) for i in np.flatnonzero(rejected)]})
+    out: dict[str, Any] = {}
+    if report is not None:
+        ids = [p.pass_id for p in solver.passes]
+        if report not in ids:
+            raise InputError("--report", report, ids or "a pass id already in the state")
+        i = ids.index(report)
+        res = solver.pass_result(i)
+        rep = {"pass_id": report, "knots": {a: {"kept": int(res.attitude.knot_times[j].size),
+                                                "removed": int(res.pass_graph.removed_knots[j].size)} for j, a in enumerate(ANGLES)},
+               "ephemeris": {"params": res.ephemeris.params.tolist(),
+                             "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in res.pass_graph.ephemeris_keys()]},
+               "attitude_knot_sigma_arcsec": {a: [float(np.sqrt(res.marginals[k][0, 0]) / ARCSEC) for k in res.pass_graph.knot_keys(j)]
+                                              for j, a in enumerate(ANGLES)}}
+        rep.update(score_pass(solver.passes[i], res, camera, whole_state=False))
+        out["report"] = rep
     if added:
         _save_estimate(d / "estimate.tmp.h5", solver.estimate)
         if crash_before_commit:
@@ -385,4 +403,4 @@ def run_update(
         os.replace(d / "estimate.tmp.h5", d / "estimate.h5")
         meta["passes"] = meta["passes"] + added
         _write_json_atomic(d / "state.json", meta)
-    return {"state": str(d), "passes_in_state": len(meta["passes"]), "updates": summaries}
+    return {"state": str(d), "passes_in_state": len(meta["passes"]), "updates": summaries, **out}

@@ -73,3 +73,12 @@ def test_update_cli(path_dir, tmp_path):
     assert u["batch"]["max_difference_in_sigma"] < 0.01
     res = CliRunner().invoke(app, ["update", str(tmp_path / "t"), str(sc.pass_files[0])])
     assert res.exit_code == 2 and "--camera-model/--gcps" in res.output
+    # an earlier pass on request, after a restart, with its marginals
+    pid = u["pass_id"]
+    res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), "--report", pid, "--json"])
+    assert res.exit_code == 0, res.output
+    r = json.loads(res.stdout)["report"]
+    assert r["pass_id"] == pid and all(len(v) > 0 for v in r["attitude_knot_sigma_arcsec"].values())
+    assert "nees" in r and "checkpoint_geolocation_m" in r
+    res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), "--report", "P999_O9999"])
+    assert res.exit_code == 2 and "--report" in res.output
