@@ -33,7 +33,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.geometry import attitude_matrix_derivatives, drot_x, drot_y, drot_z, rot_x, rot_y, rot_z
+from factors.geometry import attitude_matrix, attitude_matrix_derivatives, drot_x, drot_y, drot_z, rot_x, rot_y, rot_z
 from factors.layout import BlockLayout
 
 __all__ = ["CAMERA_PARAMS", "CAMERA_PARAM_SCALE", "CollinearityConstants", "collinearity_residual", "CollinearityBatch",
@@ -109,7 +109,10 @@ def collinearity_residual(
     g_eci = np.einsum("nji,nj->ni", c.eci_to_ecef, landmark)
     u = np.einsum("nji,nj->ni", c.t_go, g_eci - c.p_meas) + np.einsum("nij,nj->ni", c.eph_design, theta)
     ang = c.angles_meas - np.sum(c.hermite * knots, axis=-1)
-    r_os, d_roll, d_pitch, d_yaw = attitude_matrix_derivatives(ang[:, 0], ang[:, 1], ang[:, 2])
+    if jacobians:
+        r_os, d_roll, d_pitch, d_yaw = attitude_matrix_derivatives(ang[:, 0], ang[:, 1], ang[:, 2])
+    else:
+        r_os = attitude_matrix(ang[:, 0], ang[:, 1], ang[:, 2])
     v_s = np.einsum("nji,nj->ni", r_os, u)
     f = camera[:, 3]
     alpha = camera[:, 4:10]

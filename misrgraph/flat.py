@@ -164,12 +164,13 @@ class FlatProblem:
         r = self.residual(x)
         return float(0.5 * r @ r)
 
-    def normal_equations(self, x: Array) -> tuple[Array, Array, Array, Array, float]:
+    def normal_equations(self, x: Array, use_numba: bool = True) -> tuple[Array, Array, Array, Array, float]:
         """``J^T J`` and ``J^T r`` accumulated from the per-observation blocks, in Schur form.
 
         Returns ``(H_ll (L,3,3), H_lc (L,3,n_c) dense, H_cc (n_c,n_c), g (n,), cost)`` with the
         landmarks first (L = number of landmarks, n_c the other unknowns). Each observation touches
-        one landmark, so ``H_ll`` is block diagonal; scatter-adds use ``np.bincount``.
+        one landmark, so ``H_ll`` is block diagonal. The sums run in a numba kernel when numba is
+        installed (:mod:`misrgraph._kernels`), else with batched matmul and ``np.bincount``.
         """
         b = self.coll
         n_l = 3 * len(self.problem.eliminate_first)
@@ -185,19 +186,27 @@ class FlatProblem:
         used = cc >= 0
         bc = np.where(used[:, None, :], bc, 0.0)
         cc = np.where(used, cc, 0)
-        blt, bct = np.swapaxes(bl, 1, 2), np.swapaxes(bc, 1, 2)
-        idx9 = (lm[:, None, None] * 9 + np.arange(3)[None, :, None] * 3 + np.arange(3)[None, None, :]).ravel()
-        blk = np.bincount(idx9, weights=(blt @ bl).ravel(), minlength=nl3 * 9).reshape(nl3, 3, 3)
-        hlc = np.bincount(((lm[:, None, None] * 3 + np.arange(3)[None, :, None]) * n_c + cc[:, None, :]).ravel(),
-                          weights=(blt @ bc).ravel(), minlength=nl3 * 3 * n_c).reshape(nl3, 3, n_c)
-        grouped = np.add.reduceat((bct @ bc)[self._grp_order], self._grp_starts, axis=0)
-        gc_ = np.where(self._grp_cols >= 0, self._grp_cols, 0)
-        hcc = np.bincount((gc_[:, :, None] * n_c + gc_[:, None, :]).ravel(), weights=grouped.ravel(),
-                          minlength=n_c * n_c).reshape(n_c, n_c)
+        from misrgraph._kernels import accumulate
+
+        fast = accumulate(bl, bc, r, lm, self._nav_cols, nl3, n_c) if use_numba else None
         g = np.zeros(self.n)
-        gl = (blt @ r[:, :, None])[:, :, 0]
-        g[:n_l] += np.bincount((lm[:, None] * 3 + np.arange(3)).ravel(), weights=gl.ravel(), minlength=n_l)
-        g[n_l:] += np.bincount(cc.ravel(), weights=(bct @ r[:, :, None]).ravel(), minlength=n_c)
+        if fast is not None:
+            blk, hlc, hcc, gl, gcv = fast
+            g[:n_l] = gl.ravel()
+            g[n_l:] = gcv
+        else:
+            blt, bct = np.swapaxes(bl, 1, 2), np.swapaxes(bc, 1, 2)
+            idx9 = (lm[:, None, None] * 9 + np.arange(3)[None, :, None] * 3 + np.arange(3)[None, None, :]).ravel()
+            blk = np.bincount(idx9, weights=(blt @ bl).ravel(), minlength=nl3 * 9).reshape(nl3, 3, 3)
+            hlc = np.bincount(((lm[:, None, None] * 3 + np.arange(3)[None, :, None]) * n_c + cc[:, None, :]).ravel(),
+                              weights=(blt @ bc).ravel(), minlength=nl3 * 3 * n_c).reshape(nl3, 3, n_c)
+            grouped = np.add.reduceat((bct @ bc)[self._grp_order], self._grp_starts, axis=0)
+            gc_ = np.where(self._grp_cols >= 0, self._grp_cols, 0)
+            hcc = np.bincount((gc_[:, :, None] * n_c + gc_[:, None, :]).ravel(), weights=grouped.ravel(),
+                              minlength=n_c * n_c).reshape(n_c, n_c)
+            gl = (blt @ r[:, :, None])[:, :, 0]
+            g[:n_l] += np.bincount((lm[:, None] * 3 + np.arange(3)).ravel(), weights=gl.ravel(), minlength=n_l)
+            g[n_l:] += np.bincount(cc.ravel(), weights=(bct @ r[:, :, None]).ravel(), minlength=n_c)
         cost = float(0.5 * np.sum(r * r))
         if self.dem is not None:
             gk = np.stack([x[self.offset[int(k)]: self.offset[int(k)] + 3] for k in self.dem.keys])

@@ -94,6 +94,20 @@ def test_flat_problem_matches_the_graph_and_its_jacobian(noisy_graph):
     assert cost == pytest.approx(flat.cost(x), rel=1e-12)
 
 
+def test_numba_and_numpy_normal_equations_agree(noisy_graph):
+    from misrgraph._kernels import HAVE_NUMBA
+    from misrgraph.flat import FlatProblem
+
+    flat = FlatProblem(noisy_graph.problem)
+    x = flat.initial()
+    a = flat.normal_equations(x, use_numba=False)
+    b = flat.normal_equations(x, use_numba=True)
+    assert HAVE_NUMBA  # a dependency; the numpy path is the fallback
+    for u, v in zip(a[:4], b[:4]):
+        np.testing.assert_allclose(u, v, rtol=1e-10, atol=1e-10 * np.abs(u).max())
+    assert a[4] == pytest.approx(b[4], rel=1e-12)
+
+
 def test_schur_backend_equals_gtsam_elimination(noisy_graph):
     prob = noisy_graph.problem
     a = solve(prob, TIGHT.replace(backend="gtsam"))
