@@ -55,17 +55,20 @@ Array = NDArray[np.float64]
 RED = BANDS.index("red")
 
 
+_GRAPH_DEFAULTS = GraphConfig()
+
+
 @dataclass(frozen=True)
 class AdjustConfig(Config):
-    """Adjustment settings; ``graph`` fields are those of :class:`GraphConfig`."""
+    """Adjustment settings; the graph fields take their defaults from :class:`GraphConfig`."""
 
-    knot_spacing_s: tuple = (120.0, 60.0, 120.0)
-    threshold1: int = 1
-    threshold2: int = 1
-    knot_rule: str = "support"
-    ephemeris_segments: int = 1
-    camera_prior_px: float = 0.0625
-    use_dem: bool = True
+    knot_spacing_s: tuple = _GRAPH_DEFAULTS.knot_spacing_s
+    threshold1: int = _GRAPH_DEFAULTS.threshold1
+    threshold2: int = _GRAPH_DEFAULTS.threshold2
+    knot_rule: str = _GRAPH_DEFAULTS.knot_rule
+    ephemeris_segments: int = _GRAPH_DEFAULTS.ephemeris_segments
+    camera_prior_px: float = _GRAPH_DEFAULTS.camera_prior_px
+    use_dem: bool = _GRAPH_DEFAULTS.use_dem
     robust: str = "cauchy"
     robust_k: float = 3.0
     reject_sigma: float = 5.0
