@@ -251,7 +251,9 @@ def build_pass_graph(
     surface = dem_surface(dem, geoid, cfg.dem_method) if dem is not None else None
     init = _initial_landmarks(orbit_pass, geo, idx, lm_rows, dem, geoid, cfg.dem_method)
     batches: list = [coll]
-    dem_keys, dem_sig = [], []
+    dem_keys: list[int] = []
+    dem_sig: list[float] = []
+    dem_rows: list[int] = []
     gcp_ecef = gcps.ecef() if gcps is not None else None
     gcp_cov = gcps.covariance_ecef() if gcps is not None else None
     for row in lm_rows:
@@ -262,14 +264,14 @@ def build_pass_graph(
             gi = int(orbit_pass.landmarks.gcp_index[row])
             if add(key, gcp_ecef[gi]):
                 graph.add(gcp_prior(key, gcp_ecef[gi], gcp_cov[gi]))
-        else:
-            owned_here = add(key, init[row])
-            if owned_here and cfg.use_dem and dem is not None:
-                lat, lon, _ = ecef_to_geodetic(init[row])
-                s = fit_local_surface(dem, lat, lon, cfg.dem_method)
-                if s.valid[0]:
-                    dem_keys.append(key)
-                    dem_sig.append(float(s.sigma[0]))
+        elif add(key, init[row]):
+            dem_rows.append(row)
+    if cfg.use_dem and dem is not None and dem_rows:
+        # one vectorised surface fit for every tie point this pass owns (sigma of its DEM factor)
+        lat, lon, _ = ecef_to_geodetic(np.stack([init[r] for r in dem_rows]))
+        s = fit_local_surface(dem, lat, lon, cfg.dem_method)
+        dem_keys = [lm_key_of[r] for r, ok in zip(dem_rows, s.valid) if ok]
+        dem_sig = [float(x) for x, ok in zip(s.sigma, s.valid) if ok]
     if dem_keys:
         assert surface is not None
         dem_batch = DemBatch(np.array(dem_keys), np.array(dem_sig), surface)
@@ -335,7 +337,7 @@ def merge_problems(problems: list[Problem]) -> Problem:
 
 
 def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, method) -> dict[int, Array]:
-    """Mean over views of each view's ray cast onto the DEM surface (or the ellipsoid)."""
+    """Median over views of each view's ray cast onto the DEM surface (or the ellipsoid)."""
     obs = orbit_pass.observations
     if dem is not None:
         def surface(lat: Array, lon: Array) -> Array:
@@ -345,8 +347,8 @@ def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, met
         surface = None
     g = geo.pixel_to_ground(obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx],
                             surface=surface, exposure=obs.exposure[idx])
-    out = {}
     lm = obs.landmark[idx]
-    for row in lm_rows:
-        out[int(row)] = np.median(g[lm == row], axis=0)
-    return out
+    order = np.argsort(lm, kind="stable")
+    rows, starts = np.unique(lm[order], return_index=True)
+    groups = np.split(g[order], starts[1:])
+    return {int(r): np.median(grp, axis=0) for r, grp in zip(rows, groups)}
