@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from factors.geometry import geodetic_from_ecef, geodetic_jacobians
 
-__all__ = ["dem_residual", "DemBatch", "Surface"]
+__all__ = ["dem_residual", "dem_residual_hessian", "DemBatch", "Surface"]
 
 Array = NDArray[np.float64]
 Surface = Callable[[Array, Array], tuple[Array, Array, Array]]
@@ -42,6 +42,26 @@ def dem_residual(landmark: Array, surface: Surface, jacobians: bool = True) -> t
     glat, glon, gh = geodetic_jacobians(lat, lon, h)
     j = (np.asarray(dlat)[:, None] * _DEG) * glat + (np.asarray(dlon)[:, None] * _DEG) * glon - gh
     return r, j[:, None, :]
+
+
+def dem_residual_hessian(landmark: Array, surface: Surface, step_m: float = 1.0) -> Array:
+    """Hessian ``d^2 r / dP^2`` ``(N, 3, 3)`` in m^-1 of the residual of :func:`dem_residual`.
+
+    Central differences of the analytic gradient with a ``step_m`` (m) step along each ECEF axis,
+    symmetrised. The local surface is piecewise cubic between DEM postings (~90 m apart), so a 1 m
+    step is exact inside a cell up to rounding. Used for the second-order term ``r * d^2 r`` that
+    Gauss-Newton neglects (the DEM curvature the solver core adds near convergence).
+    """
+    p = np.asarray(landmark, dtype=float)
+    out = np.empty((p.shape[0], 3, 3))
+    for a in range(3):
+        e = np.zeros(3)
+        e[a] = step_m
+        _, jp = dem_residual(p + e, surface, True)
+        _, jm = dem_residual(p - e, surface, True)
+        assert jp is not None and jm is not None
+        out[:, a, :] = (jp[:, 0, :] - jm[:, 0, :]) / (2.0 * step_m)
+    return 0.5 * (out + np.swapaxes(out, 1, 2))
 
 
 class DemBatch:

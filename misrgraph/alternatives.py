@@ -12,7 +12,7 @@ Both stop on the same criterion as the core: relative decrease of the cost below
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, Callable
 
 import gtsam
 import numpy as np
@@ -26,19 +26,35 @@ __all__ = ["solve_scipy", "solve_ceres"]
 Array = NDArray[np.float64]
 
 
-def solve_scipy(flat: FlatProblem, ftol: float = 1e-5, max_nfev: int = 200) -> dict[str, Any]:
-    """``scipy.optimize.least_squares`` (trust region reflective, sparse Jacobian, LSMR)."""
+def solve_scipy(flat: FlatProblem, ftol: float = 1e-5, max_nfev: int = 200,
+                on_cost: Callable[[float], None] | None = None) -> dict[str, Any]:
+    """``scipy.optimize.least_squares`` (trust region reflective, sparse Jacobian, LSMR).
+
+    ``on_cost(cost)`` is called with the cost of every evaluated point (for time-to-cost traces;
+    it may raise to stop the run).
+    """
     from scipy.optimize import least_squares
 
+    def fun(x: Array) -> Array:
+        r = flat.residual(x)
+        if on_cost is not None:
+            on_cost(0.5 * float(r @ r))
+        return r
+
     t0 = time.perf_counter()
-    res = least_squares(flat.residual, flat.initial(), jac=flat.jacobian, method="trf", ftol=ftol, xtol=1e-15, gtol=1e-15,
+    res = least_squares(fun, flat.initial(), jac=flat.jacobian, method="trf", ftol=ftol, xtol=1e-15, gtol=1e-15,
                         x_scale="jac", max_nfev=max_nfev, tr_solver="lsmr")
     return {"x": res.x, "cost": float(res.cost), "iterations": int(res.njev), "seconds": time.perf_counter() - t0,
             "status": int(res.status)}
 
 
-def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100) -> dict[str, Any]:
-    """Ceres (pyceres) with Python cost functions: one per collinearity group, per DEM factor, per prior."""
+def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100,
+                on_cost: Callable[[float], None] | None = None, max_seconds: float | None = None) -> dict[str, Any]:
+    """Ceres (pyceres) with Python cost functions: one per collinearity group, per DEM factor, per prior.
+
+    ``on_cost(cost)`` is called after every iteration with the current cost; ``max_seconds``
+    bounds Ceres' solver time.
+    """
     import pyceres
 
     problem = flat.problem
@@ -113,6 +129,17 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
     opts.parameter_tolerance = 1e-20
     opts.max_num_iterations = max_iterations
     opts.num_threads = 1
+    if max_seconds is not None:
+        opts.max_solver_time_in_seconds = float(max_seconds)
+    if on_cost is not None:
+
+        class Callback(pyceres.IterationCallback):
+            def __call__(self, it):  # noqa: D102 - Ceres API
+                on_cost(float(it.cost))
+                return pyceres.CallbackReturnType.SOLVER_CONTINUE
+
+        callback = Callback()
+        opts.callbacks = [callback]
     summary = pyceres.SolverSummary()
     t0 = time.perf_counter()
     pyceres.solve(opts, prob, summary)

@@ -18,7 +18,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from factors.collinearity import CollinearityBatch, collinearity_residual
-from factors.dem_height import DemBatch, dem_residual
+from factors.dem_height import DemBatch, dem_residual, dem_residual_hessian
 from misrgraph.graph import Problem
 
 __all__ = ["FlatProblem", "NotFlat", "knot_marginals_sparse"]
@@ -92,6 +92,10 @@ class FlatProblem:
         self._nav_cols = nav_cols
         self.m_coll = 2 * len(b)
         self.m_dem = len(self.dem) if self.dem is not None else 0
+        # columns of each DEM factor's landmark (landmarks come first: landmark index = column // 3)
+        dem_keys = self.dem.keys if self.dem is not None else np.zeros(0, np.int64)
+        self._dem_cols = np.array([self.offset[int(k)] for k in dem_keys], np.int64)[:, None] + np.arange(3)
+        self._dem_lm = self._dem_cols[:, 0] // 3
         self.m = self.m_coll + self.m_dem + sum(p.mean.size for p in self.priors)
 
     def initial(self) -> Array:
@@ -119,8 +123,7 @@ class FlatProblem:
         r, _ = collinearity_residual(*self._gather(x), b.const, jacobians=False)
         parts = [(r / b.sigma_px[:, None]).ravel()]
         if self.dem is not None:
-            g = np.stack([x[self.offset[int(k)]: self.offset[int(k)] + 3] for k in self.dem.keys])
-            rd, _ = dem_residual(g, self.dem.surface, False)
+            rd, _ = dem_residual(x[self._dem_cols], self.dem.surface, False)
             parts.append(rd / self.dem.sigma_m)
         for p in self.priors:
             o = self.offset[p.key]
@@ -144,11 +147,9 @@ class FlatProblem:
             vals.append((blk * w)[used].ravel())
         row0 = self.m_coll
         if self.dem is not None:
-            g = np.stack([x[self.offset[int(k)]: self.offset[int(k)] + 3] for k in self.dem.keys])
-            _, jd = dem_residual(g, self.dem.surface, True)
-            o = np.array([self.offset[int(k)] for k in self.dem.keys])
+            _, jd = dem_residual(x[self._dem_cols], self.dem.surface, True)
             rows.append(np.repeat(row0 + np.arange(len(self.dem)), 3))
-            cols.append((o[:, None] + np.arange(3)).ravel())
+            cols.append(self._dem_cols.ravel())
             vals.append((jd[:, 0, :] / self.dem.sigma_m[:, None]).ravel())
             row0 += len(self.dem)
         for p in self.priors:
@@ -164,13 +165,20 @@ class FlatProblem:
         r = self.residual(x)
         return float(0.5 * r @ r)
 
-    def normal_equations(self, x: Array, use_numba: bool = True) -> tuple[Array, Array, Array, Array, float]:
+    def normal_equations(self, x: Array, use_numba: bool = True,
+                         second_order: bool = False) -> tuple[Array, Array, Array, Array, float]:
         """``J^T J`` and ``J^T r`` accumulated from the per-observation blocks, in Schur form.
 
         Returns ``(H_ll (L,3,3), H_lc (L,3,n_c) dense, H_cc (n_c,n_c), g (n,), cost)`` with the
         landmarks first (L = number of landmarks, n_c the other unknowns). Each observation touches
         one landmark, so ``H_ll`` is block diagonal. The sums run in a numba kernel when numba is
         installed (:mod:`misrgraph._kernels`), else with batched matmul and ``np.bincount``.
+
+        ``second_order=True`` adds the term Gauss-Newton neglects for the DEM factors,
+        ``sum_i (r_i / sigma_i^2) d^2 r_i / dP^2`` (3x3 per landmark, see
+        :func:`dem_curvature`), i.e. the exact Hessian of the DEM part of the cost, wherever the
+        landmark's block stays positive definite with it. Marginals must use the default
+        (``J^T J``, what ``gtsam.Marginals`` returns).
         """
         b = self.coll
         n_l = 3 * len(self.problem.eliminate_first)
@@ -209,13 +217,12 @@ class FlatProblem:
             g[n_l:] += np.bincount(cc.ravel(), weights=(bct @ r[:, :, None]).ravel(), minlength=n_c)
         cost = float(0.5 * np.sum(r * r))
         if self.dem is not None:
-            gk = np.stack([x[self.offset[int(k)]: self.offset[int(k)] + 3] for k in self.dem.keys])
-            rd, jd = dem_residual(gk, self.dem.surface, True)
+            rd, jd = dem_residual(x[self._dem_cols], self.dem.surface, True)
             rd = rd / self.dem.sigma_m
             jd = jd[:, 0, :] / self.dem.sigma_m[:, None]
-            li = np.array([self.offset[int(k)] // 3 for k in self.dem.keys])
+            li = self._dem_lm
             np.add.at(blk, li, np.einsum("ni,nj->nij", jd, jd))
-            np.add.at(g, (li[:, None] * 3 + np.arange(3)).ravel(), (jd * rd[:, None]).ravel())
+            np.add.at(g, self._dem_cols.ravel(), (jd * rd[:, None]).ravel())
             cost += float(0.5 * np.sum(rd * rd))
         for p in self.priors:
             o = self.offset[p.key]
@@ -228,7 +235,24 @@ class FlatProblem:
                 blk[o // 3] += hp
             else:
                 hcc[o - n_l:o - n_l + d, o - n_l:o - n_l + d] += hp
+        if second_order and self.dem is not None and len(self.dem):
+            li, corr = self.dem_curvature(x)
+            per_lm = np.zeros_like(blk)
+            np.add.at(per_lm, li, corr)
+            u = np.unique(li)
+            new = blk[u] + per_lm[u]
+            ok = np.linalg.eigvalsh(new)[:, 0] > 0.0
+            blk[u[ok]] = new[ok]
         return blk, hlc, hcc, g, cost
+
+    def dem_curvature(self, x: Array) -> tuple[NDArray[np.int64], Array]:
+        """The DEM factors' second-order term: landmark index ``(N,)`` and
+        ``(r_i / sigma_i^2) d^2 r_i / dP^2`` ``(N, 3, 3)`` (whitened cost units per m^2)."""
+        assert self.dem is not None
+        p = x[self._dem_cols]
+        rd, _ = dem_residual(p, self.dem.surface, False)
+        hess = dem_residual_hessian(p, self.dem.surface)
+        return self._dem_lm, (rd / self.dem.sigma_m**2)[:, None, None] * hess
 
     def to_values(self, x: Array) -> gtsam.Values:
         v = gtsam.Values()

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from factors.dem_height import dem_residual
+from factors.dem_height import dem_residual, dem_residual_hessian
 from factors.geometry import geodetic_from_ecef
 from misrgraph.frames import ecef_to_geodetic, geodetic_to_ecef
 
@@ -40,3 +40,24 @@ def test_zero_on_the_surface_and_jacobian(rng):
     flat = lambda la, lo: (np.zeros_like(la), np.zeros_like(la), np.zeros_like(la))
     r0, j0 = dem_residual(p, flat)
     assert np.linalg.norm(j0[0, 0]) == pytest.approx(1.0, rel=1e-9)
+
+
+def test_residual_hessian_matches_second_differences(rng):
+    lat, lon = rng.uniform(-60, 60, 30), rng.uniform(-170, 170, 30)
+    h, _, _ = _surface(lat, lon)
+    p = geodetic_to_ecef(lat, lon, h + rng.normal(0, 40, 30))
+    hess = dem_residual_hessian(p, _surface)
+    np.testing.assert_allclose(hess, np.swapaxes(hess, 1, 2), atol=1e-15)
+    # independent: second differences of the residual itself (no Jacobian involved)
+    s = 2.0
+    for a in range(3):
+        for b in range(3):
+            ea, eb = np.eye(3)[a] * s, np.eye(3)[b] * s
+            f = lambda q: dem_residual(q, _surface, False)[0]
+            num = (f(p + ea + eb) - f(p + ea - eb) - f(p - ea + eb) + f(p - ea - eb)) / (4 * s * s)
+            # curvature here is ~1e-6 / m; the residual is good to ~1e-9 m, so its second
+            # differences over 2 m to ~1e-10 / m
+            np.testing.assert_allclose(hess[:, a, b], num, rtol=1e-4, atol=1e-9)
+    # a plane has (almost) no curvature: only the ellipsoid's ~1/R terms remain
+    plane = lambda la, lo: (np.zeros_like(la), np.zeros_like(la), np.zeros_like(la))
+    assert np.abs(dem_residual_hessian(p, plane)).max() < 1e-6

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from misrgraph.errors import DegenerateProblemError
+from misrgraph.flat import FlatProblem
 from misrgraph.graph import GraphConfig, build_pass_graph
 from misrgraph.passdata import Observations, OrbitPass
 from misrgraph.solver import SolverParams, marginal_covariances, solve, solve_gtsam_lm
@@ -111,8 +112,66 @@ def test_numba_and_numpy_normal_equations_agree(noisy_graph):
 def test_schur_backend_equals_gtsam_elimination(noisy_graph):
     prob = noisy_graph.problem
     a = solve(prob, TIGHT.replace(backend="gtsam"))
-    b = solve(prob, TIGHT.replace(backend="schur"))
+    # the same Gauss-Newton steps: the Schur backend's second-order DEM term off
+    b = solve(prob, TIGHT.replace(backend="schur", dem_second_order=False))
     assert b.final_error == pytest.approx(a.final_error, rel=1e-8)
     m = marginal_covariances(prob, a.values)
     worst = max(float(np.max(np.abs(a.values.atVector(k) - b.values.atVector(k)) / np.sqrt(np.diag(m[k])))) for k in prob.dims)
     assert worst < 1e-3
+
+
+def test_second_order_dem_term_is_the_exact_hessian_of_the_dem_cost(noisy_graph, small_pass):
+    from factors.dem_height import dem_residual
+    from misrgraph.frames import ecef_to_geodetic
+
+    dem = small_pass[0].dem
+    flat = FlatProblem(noisy_graph.problem)
+    x = flat.initial()
+    gn = flat.normal_equations(x)[0]
+    full = flat.normal_equations(x, second_order=True)[0]
+    changed = np.flatnonzero(np.any(np.abs(full - gn) > 0, axis=(1, 2)))
+    assert changed.size > 0.5 * len(flat.dem)  # applied wherever the block stays positive definite
+    # the surface is C1, piecewise cubic between postings (~90 m): keep landmarks more than 3 m
+    # from a posting line, so that both difference stencils stay inside one cubic piece
+    lat, lon, _ = ecef_to_geodetic(x[flat._dem_cols])
+    t = dem.tile_of(lat, lon)
+    fr = (lat - dem.lat0[t]) / dem.posting_deg % 1.0
+    fc = (lon - dem.lon0[t]) / dem.posting_deg % 1.0
+    away = np.minimum(np.minimum(fr, 1 - fr), np.minimum(fc, 1 - fc)) * 90.0 * np.cos(np.radians(lat)) > 3.0
+    # independent: second differences of the DEM part of the cost, 0.5 (r / sigma)^2, per landmark
+    rows = np.flatnonzero(np.isin(flat._dem_lm, changed) & away)[:30]
+    assert rows.size == 30
+    p = x[flat._dem_cols[rows]]
+    sig = flat.dem.sigma_m[rows]
+
+    def cost(q):
+        return 0.5 * (dem_residual(q, flat.dem.surface, False)[0] / sig) ** 2
+
+    _, jd = dem_residual(p, flat.dem.surface, True)
+    jd = jd[:, 0, :] / sig[:, None]
+    s = 0.5  # m; the surface is piecewise cubic over ~90 m cells
+    num = np.empty((rows.size, 3, 3))
+    for a in range(3):
+        for b in range(3):
+            ea, eb = np.eye(3)[a] * s, np.eye(3)[b] * s
+            num[:, a, b] = (cost(p + ea + eb) - cost(p + ea - eb) - cost(p - ea + eb) + cost(p - ea - eb)) / (4 * s * s)
+    mine = full[flat._dem_lm[rows]] - gn[flat._dem_lm[rows]] + np.einsum("ni,nj->nij", jd, jd)
+    np.testing.assert_allclose(mine, num, rtol=1e-3, atol=1e-3 * np.abs(num).max())
+
+
+def test_second_order_dem_term_reaches_a_stationary_point(noisy_graph):
+    prob = noisy_graph.problem
+    gn = solve(prob, TIGHT.replace(backend="schur", dem_second_order=False))
+    so = solve(prob, TIGHT.replace(backend="schur"))
+    assert so.converged
+    assert so.final_error <= gn.final_error * (1 + 1e-12)
+    # first-order optimality from the sparse Jacobian (not the normal-equation code): the
+    # Gauss-Newton decrement g^T (J^T J)^-1 g, the cost decrease a further step would promise
+    import scipy.sparse.linalg as spla
+
+    flat = FlatProblem(prob)
+    x = flat.from_values(so.values)
+    j, r = flat.jacobian(x), flat.residual(x)
+    g = j.T @ r
+    dec = float(g @ spla.spsolve((j.T @ j).tocsc(), g))
+    assert dec < 1e-6 * so.final_error
