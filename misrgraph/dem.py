@@ -248,6 +248,46 @@ def _cubic_convolution(heights: Array, r: Array, c: Array, tile: NDArray[np.int6
     return _cubic_convolution_windows(z, r - ir, c - ic)
 
 
+def _hash_uniform(i: NDArray[np.int64], j: NDArray[np.int64], seed: int) -> Array:
+    """Uniform (0, 1) numbers that are a fixed function of integer grid indices and a seed
+    (splitmix64 mixing), so every tile holding a posting gives it the same random error."""
+    with np.errstate(over="ignore"):
+        z = (np.asarray(i, np.int64).astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+             ^ np.asarray(j, np.int64).astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F)
+             ^ np.uint64(seed & 0xFFFFFFFFFFFFFFFF))
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        z = z ^ (z >> np.uint64(31))
+    return ((z >> np.uint64(11)).astype(np.float64) + 0.5) / float(2**53)
+
+
+def _hash_normal(i: NDArray[np.int64], j: NDArray[np.int64], seed: int) -> Array:
+    """Standard normal numbers as a fixed function of grid indices (Box-Muller on two hashes)."""
+    u1 = _hash_uniform(i, j, seed)
+    u2 = _hash_uniform(i, j, seed ^ 0x5DEECE66D)
+    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2 * np.pi * u2)
+
+
+#: lattice spacing (postings, ~4.6 km) of the simulated DEM's correlated error
+ERROR_CORRELATION_POSTINGS = 50
+
+
+def _value_noise(i: NDArray[np.int64], j: NDArray[np.int64], seed: int, spacing: int) -> Array:
+    """Unit-variance, C1 random field on the posting grid: independent N(0, 1) values on a lattice
+    every ``spacing`` postings, blended with smoothstep weights ``w`` and divided by
+    ``sqrt(sum w^2)`` (so the variance is 1 everywhere). Points two lattice cells apart are
+    independent."""
+    fi = np.asarray(i, float) / spacing
+    fj = np.asarray(j, float) / spacing
+    a, b = np.floor(fi).astype(np.int64), np.floor(fj).astype(np.int64)
+    si, sj = fi - a, fj - b
+    si, sj = si * si * (3 - 2 * si), sj * sj * (3 - 2 * sj)
+    w = [(1 - si) * (1 - sj), si * (1 - sj), (1 - si) * sj, si * sj]
+    z = [_hash_normal(a + da, b + db, seed) for da, db in ((0, 0), (1, 0), (0, 1), (1, 1))]
+    num = sum(wk * zk for wk, zk in zip(w, z))
+    return num / np.sqrt(sum(wk * wk for wk in w))
+
+
 @dataclass
 class DemTiles:
     """Square DEM tiles at 3-arcsecond postings.
@@ -294,18 +334,46 @@ class DemTiles:
         rng: np.random.Generator,
         size: int = 32,
         dted1_fraction: float = 0.6,
+        margin: int = 3,
+        pad: int = 8,
     ) -> "DemTiles":
-        """Tiles of ``size x size`` postings centred near each (lat, lon), heights = terrain + error."""
+        """Tiles of ``size x size`` postings covering each (lat, lon) and the ``pad`` postings
+        around it (room for the adjustment to move a landmark), at least ``margin`` postings
+        inside a tile, heights = terrain + error: one DEM, stored in tiles.
+
+        The tiles sit on a fixed grid (origins every ``size - 2 margin - 1`` postings), so repeat
+        passes over one feature share its tile, and where tiles overlap they hold the same heights:
+        the error is a function of position, not of the tile -- a smooth unit-variance field
+        correlated over ~5 km (:func:`_value_noise`; errors of landmarks 10 km apart are
+        independent, as the DEM factor assumes) plus 0.1 white noise per posting, scaled by the
+        1-sigma of the quality class of the 1-degree cell (DTED-1 with probability
+        ``dted1_fraction``). A DEM
+        whose value depended on which of two overlapping tiles was picked would be discontinuous
+        (seen: re-linearisation cycling in repeat-path scenarios).
+        """
         la = np.atleast_1d(np.asarray(lat, dtype=float))
         lo = np.atleast_1d(np.asarray(lon, dtype=float))
         p = POSTING_DEG
-        lat0 = np.round((la - size / 2 * p) / p) * p
-        lon0 = np.round((lo - size / 2 * p) / p) * p
-        g = np.arange(size) * p
-        glat = lat0[:, None, None] + g[None, :, None] + 0 * g[None, None, :]
-        glon = lon0[:, None, None] + 0 * g[None, :, None] + g[None, None, :]
+        step = size - 2 * margin - 1
+        if step < 1:
+            raise InputError("dem tile size", size, f"at least {2 * margin + 2} postings")
+        off = np.array([-pad, 0, pad])
+        ri = np.floor(la / p)[:, None] + off  # (N, 3) rows of the point and its padded corners
+        rj = np.floor(lo / p)[:, None] + off
+        ti = np.floor((ri - margin) / step).astype(np.int64)
+        tj = np.floor((rj - margin) / step).astype(np.int64)
+        pairs = np.stack(np.broadcast_arrays(ti[:, :, None], tj[:, None, :]), -1).reshape(-1, 2)
+        cells = np.unique(pairs, axis=0) if la.size else np.zeros((0, 2), np.int64)
+        i0 = cells[:, 0] * step
+        j0 = cells[:, 1] * step
+        lat0, lon0 = i0 * p, j0 * p
+        g = np.arange(size)
+        gi = i0[:, None, None] + g[None, :, None] + 0 * g[None, None, :]
+        gj = j0[:, None, None] + 0 * g[None, :, None] + g[None, None, :]
+        glat, glon = gi * p, gj * p
         # in chunks of tiles: the wave sum is (tiles, n, n, waves) in memory
-        true_h = np.concatenate([terrain.relief(glat[i:i + 128], glon[i:i + 128]) for i in range(0, la.size, 128)])
+        true_h = np.concatenate([terrain.relief(glat[i:i + 128], glon[i:i + 128]) for i in range(0, len(cells), 128)]) \
+            if len(cells) else np.zeros((0, size, size))
         land = land_mask(glat, glon)
         true_h = np.where(land, true_h, 0.0)
         flags = np.where(land, FLAG_LAND, FLAG_WATER).astype(np.uint8)
@@ -313,9 +381,20 @@ class DemTiles:
         pad = np.pad(land, ((0, 0), (1, 1), (1, 1)), mode="edge")
         nb = pad[:, :-2, 1:-1] ^ land | pad[:, 2:, 1:-1] ^ land | pad[:, 1:-1, :-2] ^ land | pad[:, 1:-1, 2:] ^ land
         flags[nb] = FLAG_BOUNDARY
-        quality = np.where(rng.random(la.size) < dted1_fraction, 1, 2)
-        sig = np.array([QUALITY_SIGMA_M[q] for q in quality])
-        err = sig[:, None, None] * (rng.standard_normal((la.size, 1, 1)) + 0.1 * rng.standard_normal(true_h.shape))
+        seed = int(rng.integers(0, 2**62))
+
+        def cell_quality(glat_: Array, glon_: Array) -> NDArray[np.int64]:
+            u = _hash_uniform(np.floor(glat_).astype(np.int64), np.floor(glon_).astype(np.int64), seed)
+            return np.where(u < dted1_fraction, 1, 2)
+
+        def error(gi_: NDArray[np.int64], gj_: NDArray[np.int64]) -> Array:
+            sig_q = np.where(cell_quality(gi_ * p, gj_ * p) == 1, QUALITY_SIGMA_M[1], QUALITY_SIGMA_M[2])
+            return sig_q * (_value_noise(gi_, gj_, seed + 1, ERROR_CORRELATION_POSTINGS)
+                            + 0.1 * _hash_normal(gi_, gj_, seed + 2))
+
+        err = np.concatenate([error(gi[i:i + 128], gj[i:i + 128]) for i in range(0, len(cells), 128)]) \
+            if len(cells) else np.zeros((0, size, size))
+        quality = cell_quality(lat0 + size / 2 * p, lon0 + size / 2 * p)
         return cls(lat0, lon0, true_h + err, flags, quality)
 
     def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3) -> NDArray[np.int64]:

@@ -6,7 +6,15 @@ copy of the whole ``Values``, DESIGN.md section 4). Instead every factor enters 
 estimate -- and this module re-linearises by iSAM2's own rule: after each update, every factor
 one of whose variables moved by more than ``relinearize_fraction`` of that variable's prior sigma
 since the factor was linearised is re-linearised at the new estimate and swapped in through
-``removeFactorIndices``. Rounds repeat until nothing moves past the threshold.
+``removeFactorIndices``. Rounds repeat until nothing moves past the threshold or -- the batch
+LM's own convergence test -- an update changes the nonlinear cost by less than
+``relative_error_tol`` (1e-5) of it.
+
+Measured on a 10-pass repeat path (``misrgraph bench incremental``): one round follows each new
+pass, and the estimate agrees with a tightly converged batch re-solve to 0.004 sigma -- closer
+than the batch LM at its own 1e-5 criterion (0.05 sigma). Before the simulator's DEM became one
+continuous field, overlapping tiles with independent errors made the DEM cost discontinuous and
+the rounds cycled between two states 10 m apart.
 
 Shared variables: the camera corrections and GCPs (one key each for every pass), and the tie
 points of repeat passes of the same path (keyed by path and feature id).
@@ -50,7 +58,7 @@ from misrgraph.gcp import GcpDatabase
 from misrgraph.graph import PassGraph, Problem, build_pass_graph, merge_problems, rate_prior_factor
 from misrgraph.h5io import atomic_h5, open_h5, read_dataset, write_dataset
 from misrgraph.passdata import OrbitPass
-from misrgraph.solver import Marginals, SolverParams, linearize, solve
+from misrgraph.solver import Marginals, SolverParams, solve
 
 __all__ = ["IncrementalSolver", "run_update", "load_state", "batch_solution"]
 
@@ -64,13 +72,12 @@ class _Record:
     position: int  # factor position within its pass problem's graph
     keys: list[int]
     isam_index: int
-    lin_point: dict[int, Array]
 
 
-def _sigma_of(key: int, cfg: AdjustConfig, n: int) -> Array:
+def _sigma_of(key: int, cfg: AdjustConfig, n: int, g=None) -> Array:
     """A-priori 1 sigma per component of a variable, from its key letter (for the relinearisation rule)."""
     c = chr(gtsam.Symbol(key).chr())
-    g = cfg.graph_config()
+    g = g if g is not None else cfg.graph_config()
     if c in K.KNOT:
         s = np.asarray(g.attitude_sigma_arcsec)[K.KNOT.index(c)] * ARCSEC
         return np.array([s, s * rate_prior_factor])
@@ -85,10 +92,11 @@ class IncrementalSolver:
     """iSAM2 over linearised factors with our own re-linearisation rule (module docstring)."""
 
     def __init__(self, camera: CameraModel, gcps: GcpDatabase, dem: DemTiles | None, cfg: AdjustConfig = AdjustConfig(),
-                 relinearize_fraction: float = 1e-4, max_rounds: int = 20) -> None:
+                 relinearize_fraction: float = 1e-4, max_rounds: int = 20, relative_error_tol: float = 1e-5) -> None:
         self.camera, self.gcps, self.dem, self.cfg = camera, gcps, dem, cfg
         self.relinearize_fraction = relinearize_fraction
         self.max_rounds = max_rounds
+        self.relative_error_tol = relative_error_tol
         p = gtsam.ISAM2Params()
         p.setRelinearizeThreshold(1e12)  # our containers are re-linearised by this class
         self.isam = gtsam.ISAM2(p)
@@ -96,6 +104,15 @@ class IncrementalSolver:
         self.passes: list[OrbitPass] = []
         self.exclusions: list[NDArray[np.bool_]] = []
         self.records: list[_Record] = []
+        # linearisation points of the records, flattened (see _relinearize)
+        self._key_slot: dict[int, int] = {}
+        self._key_order: list[int] = []
+        self._flat: tuple | None = None
+        self._lin: Array | None = None
+        self._n_pointed = 0
+        self._new_points: dict[int, dict[int, Array]] = {}
+        self._flats: dict[int, Any] = {}
+        self.last_costs: list[float] = []
         self.owned: set[int] = set()
         self.sigma: dict[int, Array] = {}
         self.estimate = gtsam.Values()
@@ -107,15 +124,28 @@ class IncrementalSolver:
                               shared=self.owned, exclude_observations=exclude)
         for k in pg.problem.initial.keys():
             self.owned.add(int(k))
+        gcfg = self.cfg.graph_config()
         for k, d in pg.problem.dims.items():
-            self.sigma.setdefault(k, _sigma_of(k, self.cfg, d))
+            if k not in self.sigma:
+                self.sigma[k] = _sigma_of(k, self.cfg, d, gcfg)
         return pg
 
     def _containers(self, prob: Problem, values: gtsam.Values, positions: list[int]) -> tuple[gtsam.NonlinearFactorGraph, list[dict[int, Array]]]:
-        lin = linearize(prob, values)
+        """The factors at ``positions`` of a pass problem as ``LinearContainerFactor`` s at ``values``
+        (the Python factor families evaluated in one vectorised pass; only these factors linearised)."""
+        sub = gtsam.NonlinearFactorGraph()
+        for i in positions:
+            sub.add(prob.graph.at(i))
+        for b in prob.batches:
+            b.evaluate(values, True)
+        try:
+            lin = sub.linearize(values)
+        finally:
+            for b in prob.batches:
+                b.clear()
         out = gtsam.NonlinearFactorGraph()
         points = []
-        for i in positions:
+        for i in range(len(positions)):
             gf = lin.at(i)
             lp = gtsam.Values()
             pt = {}
@@ -153,44 +183,120 @@ class IncrementalSolver:
             for i in range(n):
                 batch.add(g.at(i))
                 pending.append((pg.pass_index, i, [int(k) for k in g.at(i).keys()], pts[i]))
+        cost_at = self.nonlinear_cost(at)
         res = self.isam.update(batch, new_values)
         for (pi, pos, keys, pt), fi in zip(pending, res.getNewFactorsIndices()):
-            self.records.append(_Record(pi, pos, keys, int(fi), pt))
+            self._new_points[len(self.records)] = pt
+            self.records.append(_Record(pi, pos, keys, int(fi)))
         self.estimate = self.isam.calculateEstimate()
-        self._relinearize()
+        self._relinearize(cost_at)
         return time.perf_counter() - t0
 
-    def _relinearize(self) -> None:
+    def nonlinear_cost(self, values: gtsam.Values) -> float:
+        """``0.5 sum ||whitened residual||^2`` of every pass's factors at ``values`` (vectorised)."""
+        from misrgraph.flat import FlatProblem, NotFlat
+        from misrgraph.solver import error
+
+        total = 0.0
+        for i, pg in enumerate(self.graphs):
+            if i not in self._flats:
+                try:
+                    self._flats[i] = FlatProblem(pg.problem)
+                except NotFlat:
+                    self._flats[i] = None
+            f = self._flats[i]
+            total += f.cost(f.from_values(values)) if f is not None else error(pg.problem, values)
+        return total
+
+    def _entries(self) -> tuple[NDArray[np.int64], NDArray[np.int64], Array]:
+        """Every record's variables flattened: (record of each entry, key slot, 1/sigma); extended
+        with the records added since the last call."""
+        n_done = self._flat[3] if self._flat is not None else 0
+        if self._flat is None or n_done != len(self.records):
+            rec, kidx, inv = [], [], []
+            for i in range(n_done, len(self.records)):
+                for k in self.records[i].keys:
+                    if k not in self._key_slot:
+                        self._key_slot[k] = len(self._key_order)
+                        self._key_order.append(k)
+                    d = self.sigma[k].size
+                    rec.append(np.full(d, i))
+                    kidx.append(np.full(d, self._key_slot[k]))
+                    inv.append(self._inv_threshold(k))
+            old = self._flat if self._flat is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), 0)
+            self._flat = (np.concatenate([old[0]] + rec), np.concatenate([old[1]] + kidx),
+                          np.concatenate([old[2]] + inv), len(self.records))
+        return self._flat[0], self._flat[1], self._flat[2]
+
+    def _inv_threshold(self, key: int) -> Array:
+        """1 / (the movement that makes a factor on ``key`` stale), per component."""
+        return 1.0 / (self.relinearize_fraction * self.sigma[key])
+
+    def _key_values(self) -> Array:
+        """(number of keys, max dim) current estimate per key slot, NaN padded."""
+        dmax = max((self.sigma[k].size for k in self._key_order), default=1)
+        out = np.full((len(self._key_order), dmax), np.nan)
+        for i, k in enumerate(self._key_order):
+            v = self.estimate.atVector(k)
+            out[i, :v.size] = v
+        return out
+
+    def _relinearize(self, cost_before: float) -> None:
+        """Re-linearisation rounds (module docstring), with the staleness test vectorised: each
+        record's linearisation point is kept per entry in one flat array.
+
+        Rounds stop when nothing is stale, or -- the batch solver's criterion -- when the last
+        update changed the nonlinear cost by less than ``relative_error_tol`` of it: the update
+        from linearisations at ``cost_before`` already sits at the optimum to that precision."""
         self.last_rounds = 0
+        prev, cur_cost = cost_before, self.nonlinear_cost(self.estimate)
+        self.last_costs = [prev, cur_cost]
+        rec, kidx, inv = self._entries()
+        # component of each entry within its variable
+        comp = np.zeros(rec.size, np.int64)
+        if rec.size:
+            start = np.r_[0, np.flatnonzero((np.diff(rec) != 0) | (np.diff(kidx) != 0)) + 1]
+            comp = np.arange(rec.size) - np.repeat(start, np.diff(np.r_[start, rec.size]))
+        if self._lin is None or self._lin.size != rec.size:
+            old = self._lin if self._lin is not None else np.zeros(0)
+            lin = np.empty(rec.size)
+            lin[:old.size] = old
+            lin[old.size:] = np.concatenate([np.concatenate([self._new_points[i][k] for k in self.records[i].keys])
+                                             for i in range(self._n_pointed, len(self.records))]) \
+                if len(self.records) > self._n_pointed else np.zeros(0)
+            self._lin = lin
+            self._n_pointed = len(self.records)
+            self._new_points = {}
         for _ in range(self.max_rounds):
-            stale = []
-            for r in self.records:
-                far = False
-                for k in r.keys:
-                    d = np.abs(self.estimate.atVector(k) - r.lin_point[k]) / self.sigma[k]
-                    if np.max(d) > self.relinearize_fraction:
-                        far = True
-                        break
-                if far:
-                    stale.append(r)
-            if not stale:
+            cur = self._key_values()[kidx, comp]
+            moved = np.abs(cur - self._lin) * inv > 1.0
+            stale_ids = np.unique(rec[moved])
+            if log.isEnabledFor(logging.DEBUG):
+                letters = sorted({chr(gtsam.Symbol(self._key_order[i]).chr()) for i in np.unique(kidx[moved])})
+                log.debug("re-linearisation round %d: %d stale factors, moved: %s", self.last_rounds + 1,
+                          stale_ids.size, "".join(letters))
+            if stale_ids.size == 0 or abs(prev - cur_cost) <= self.relative_error_tol * prev:
                 return
             self.last_rounds += 1
             by_pass: dict[int, list[_Record]] = {}
-            for r in stale:
+            for i in stale_ids:
+                r = self.records[int(i)]
                 by_pass.setdefault(r.pass_index, []).append(r)
             graph = gtsam.NonlinearFactorGraph()
             swap = []
             for pi, recs in by_pass.items():
-                g, pts = self._containers(self.graphs[pi].problem, self.estimate, [r.position for r in recs])
+                g, _ = self._containers(self.graphs[pi].problem, self.estimate, [r.position for r in recs])
                 for i, r in enumerate(recs):
                     graph.add(g.at(i))
-                    swap.append((r, pts[i]))
-            res = self.isam.update(graph, gtsam.Values(), [r.isam_index for r, _ in swap])
-            for (r, pt), fi in zip(swap, res.getNewFactorsIndices()):
+                    swap.append(r)
+            res = self.isam.update(graph, gtsam.Values(), [r.isam_index for r in swap])
+            for r, fi in zip(swap, res.getNewFactorsIndices()):
                 r.isam_index = int(fi)
-                r.lin_point = pt
+            sel = np.isin(rec, stale_ids)
+            self._lin[sel] = cur[sel]  # those records are now linearised at the current estimate
             self.estimate = self.isam.calculateEstimate()
+            prev, cur_cost = cur_cost, self.nonlinear_cost(self.estimate)
+            self.last_costs.append(cur_cost)
         log.warning("re-linearisation did not settle in %d rounds", self.max_rounds)
 
     # ------------------------------------------------------------------ results

