@@ -368,34 +368,35 @@ class DemTiles:
         j0 = cells[:, 1] * step
         lat0, lon0 = i0 * p, j0 * p
         g = np.arange(size)
-        gi = i0[:, None, None] + g[None, :, None] + 0 * g[None, None, :]
-        gj = j0[:, None, None] + 0 * g[None, :, None] + g[None, None, :]
-        glat, glon = gi * p, gj * p
-        # in chunks of tiles: the wave sum is (tiles, n, n, waves) in memory
-        true_h = np.concatenate([terrain.relief(glat[i:i + 128], glon[i:i + 128]) for i in range(0, len(cells), 128)]) \
-            if len(cells) else np.zeros((0, size, size))
-        land = land_mask(glat, glon)
-        true_h = np.where(land, true_h, 0.0)
-        flags = np.where(land, FLAG_LAND, FLAG_WATER).astype(np.uint8)
-        # boundary: a land posting next to water or vice versa
-        pad = np.pad(land, ((0, 0), (1, 1), (1, 1)), mode="edge")
-        nb = pad[:, :-2, 1:-1] ^ land | pad[:, 2:, 1:-1] ^ land | pad[:, 1:-1, :-2] ^ land | pad[:, 1:-1, 2:] ^ land
-        flags[nb] = FLAG_BOUNDARY
         seed = int(rng.integers(0, 2**62))
 
         def cell_quality(glat_: Array, glon_: Array) -> NDArray[np.int64]:
             u = _hash_uniform(np.floor(glat_).astype(np.int64), np.floor(glon_).astype(np.int64), seed)
             return np.where(u < dted1_fraction, 1, 2)
 
-        def error(gi_: NDArray[np.int64], gj_: NDArray[np.int64]) -> Array:
-            sig_q = np.where(cell_quality(gi_ * p, gj_ * p) == 1, QUALITY_SIGMA_M[1], QUALITY_SIGMA_M[2])
-            return sig_q * (_value_noise(gi_, gj_, seed + 1, ERROR_CORRELATION_POSTINGS)
-                            + 0.1 * _hash_normal(gi_, gj_, seed + 2))
+        def chunk(c0: NDArray[np.int64], c1: NDArray[np.int64]) -> tuple[Array, NDArray[np.uint8]]:
+            """Heights and flags of the tiles with origin postings (c0, c1)."""
+            gi = c0[:, None, None] + g[None, :, None] + 0 * g[None, None, :]
+            gj = c1[:, None, None] + 0 * g[None, :, None] + g[None, None, :]
+            glat, glon = gi * p, gj * p
+            land = land_mask(glat, glon)
+            true_h = np.where(land, terrain.relief(glat, glon), 0.0)
+            flags = np.where(land, FLAG_LAND, FLAG_WATER).astype(np.uint8)
+            # boundary: a land posting next to water or vice versa
+            pd = np.pad(land, ((0, 0), (1, 1), (1, 1)), mode="edge")
+            nb = pd[:, :-2, 1:-1] ^ land | pd[:, 2:, 1:-1] ^ land | pd[:, 1:-1, :-2] ^ land | pd[:, 1:-1, 2:] ^ land
+            flags[nb] = FLAG_BOUNDARY
+            sig_q = np.where(cell_quality(glat, glon) == 1, QUALITY_SIGMA_M[1], QUALITY_SIGMA_M[2])
+            err = sig_q * (_value_noise(gi, gj, seed + 1, ERROR_CORRELATION_POSTINGS) + 0.1 * _hash_normal(gi, gj, seed + 2))
+            return true_h + err, flags
 
-        err = np.concatenate([error(gi[i:i + 128], gj[i:i + 128]) for i in range(0, len(cells), 128)]) \
-            if len(cells) else np.zeros((0, size, size))
+        # in chunks of tiles: the terrain's wave sum is (tiles, n, n, waves) in memory
+        heights = np.zeros((len(cells), size, size))
+        flags = np.zeros((len(cells), size, size), np.uint8)
+        for c in range(0, len(cells), 128):
+            heights[c:c + 128], flags[c:c + 128] = chunk(i0[c:c + 128], j0[c:c + 128])
         quality = cell_quality(lat0 + size / 2 * p, lon0 + size / 2 * p)
-        return cls(lat0, lon0, true_h + err, flags, quality)
+        return cls(lat0, lon0, heights, flags, quality)
 
     def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3) -> NDArray[np.int64]:
         """Index of a tile containing each point at least ``margin`` postings from its edge (-1 if none);

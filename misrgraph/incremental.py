@@ -55,7 +55,7 @@ from misrgraph.constants import ANGLES, ARCSEC
 from misrgraph.dem import DemTiles
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.gcp import GcpDatabase
-from misrgraph.graph import PassGraph, Problem, build_pass_graph, merge_problems, rate_prior_factor
+from misrgraph.graph import GraphConfig, PassGraph, Problem, build_pass_graph, merge_problems, rate_prior_factor
 from misrgraph.h5io import atomic_h5, open_h5, read_dataset, write_dataset
 from misrgraph.passdata import OrbitPass
 from misrgraph.solver import Marginals, SolverParams, solve
@@ -74,7 +74,7 @@ class _Record:
     isam_index: int
 
 
-def _sigma_of(key: int, cfg: AdjustConfig, n: int, g=None) -> Array:
+def _sigma_of(key: int, cfg: AdjustConfig, n: int, g: GraphConfig | None = None) -> Array:
     """A-priori 1 sigma per component of a variable, from its key letter (for the relinearisation rule)."""
     c = chr(gtsam.Symbol(key).chr())
     g = g if g is not None else cfg.graph_config()
