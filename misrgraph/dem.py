@@ -139,6 +139,8 @@ class LocalSurface:
     dh_dlon: Array
     sigma: Array
     valid: NDArray[np.bool_]
+    #: index of the tile each point was read from (-1 where not covered)
+    tile: NDArray[np.int64] | None = None
 
 
 #: method -> (degree of the tensor-product polynomial, window size in postings). Measured on the
@@ -398,13 +400,32 @@ class DemTiles:
         quality = cell_quality(lat0 + size / 2 * p, lon0 + size / 2 * p)
         return cls(lat0, lon0, heights, flags, quality)
 
-    def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3) -> NDArray[np.int64]:
+    def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3,
+                hint: NDArray[np.int64] | None = None) -> NDArray[np.int64]:
         """Index of a tile containing each point at least ``margin`` postings from its edge (-1 if none);
-        among several, the tile whose centre is nearest."""
+        among several, the tile whose centre is nearest.
+
+        ``hint (N,)``: tiles from an earlier call for the same points (an iterative solver moving
+        landmarks by metres); a hinted tile that still contains its point is kept, and only the
+        others are searched. Overlapping tiles hold the same DEM (:meth:`around`), so the heights
+        read are the same either way.
+        """
         la = np.atleast_1d(np.asarray(lat, dtype=float))
         lo = np.atleast_1d(np.asarray(lon, dtype=float))
         out = -np.ones(la.size, np.int64)
         if self.lat0.size == 0 or la.size == 0:
+            return out
+        if hint is not None and np.shape(hint) == la.shape:
+            h = np.asarray(hint, np.int64)
+            ok = h >= 0
+            hh = np.where(ok, h, 0)
+            r = (la - self.lat0[hh]) / self.posting_deg
+            c = (((lo - self.lon0[hh]) + 180.0) % 360.0 - 180.0) / self.posting_deg
+            ok &= (r >= margin) & (r <= self.size - 1 - margin) & (c >= margin) & (c <= self.size - 1 - margin)
+            out[ok] = h[ok]
+            rest = np.flatnonzero(~ok)
+            if rest.size:
+                out[rest] = self.tile_of(la[rest], lo[rest], margin)
             return out
         if not hasattr(self, "_tree"):
             from scipy.spatial import cKDTree
@@ -461,13 +482,16 @@ class DemTiles:
             )
 
 
-def fit_local_surface(dem: DemTiles, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic") -> LocalSurface:
-    """Eq. 8 at points (deg): height above MSL, gradient (m/deg) and 1-sigma (m)."""
+def fit_local_surface(dem: DemTiles, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic",
+                      hint: NDArray[np.int64] | None = None) -> LocalSurface:
+    """Eq. 8 at points (deg): height above MSL, gradient (m/deg) and 1-sigma (m); ``hint``: the
+    ``tile`` of an earlier result for the same points (see :meth:`DemTiles.tile_of`)."""
     la = np.atleast_1d(np.asarray(lat, dtype=float))
     lo = np.atleast_1d(np.asarray(lon, dtype=float))
     n = la.size
     out = LocalSurface(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool))
-    tile = dem.tile_of(la, lo)
+    tile = dem.tile_of(la, lo, hint=hint)
+    out.tile = tile
     sel = np.flatnonzero(tile >= 0)
     if sel.size == 0:
         return out

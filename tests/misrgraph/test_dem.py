@@ -199,3 +199,21 @@ def test_tiles_are_one_continuous_dem(rng):
     slope = np.hypot(s.dh_dlat / 111e3, s.dh_dlon / (111e3 * np.cos(np.radians(40.0))))
     jump = np.abs(np.diff(s.height))[pair]
     assert np.all(jump <= 2 * slope[:-1][pair] * step_m[pair] + 1e-6)
+
+
+def test_tile_hint_reads_the_same_dem(rng):
+    terrain = SyntheticTerrain(seed=4)
+    lat = rng.uniform(40.0, 40.5, 60)
+    lon = rng.uniform(-105.5, -105.0, 60)
+    dem = DemTiles.around(lat, lon, terrain, rng, size=32)
+    first = fit_local_surface(dem, lat, lon)
+    # the points move by up to ~10 postings: some hinted tiles still hold them, some not
+    la2 = lat + rng.normal(0, 5 * POSTING_DEG, 60)
+    lo2 = lon + rng.normal(0, 5 * POSTING_DEG, 60)
+    hinted = fit_local_surface(dem, la2, lo2, hint=first.tile)
+    fresh = fit_local_surface(dem, la2, lo2)
+    np.testing.assert_array_equal(hinted.valid, fresh.valid)
+    v = fresh.valid
+    assert v.sum() > 40
+    np.testing.assert_allclose(hinted.height[v], fresh.height[v], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(hinted.dh_dlat[v], fresh.dh_dlat[v], rtol=1e-12, atol=1e-9)
