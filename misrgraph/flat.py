@@ -176,7 +176,7 @@ class FlatProblem:
 
         ``second_order=True`` adds the term Gauss-Newton neglects for the DEM factors,
         ``sum_i (r_i / sigma_i^2) d^2 r_i / dP^2`` (3x3 per landmark, see
-        :func:`dem_curvature`), i.e. the exact Hessian of the DEM part of the cost, wherever the
+        :meth:`dem_curvature`), i.e. the exact Hessian of the DEM part of the cost, wherever the
         landmark's block stays positive definite with it. Marginals must use the default
         (``J^T J``, what ``gtsam.Marginals`` returns).
         """
@@ -252,7 +252,9 @@ class FlatProblem:
         p = x[self._dem_cols]
         rd, _ = dem_residual(p, self.dem.surface, False)
         hess = dem_residual_hessian(p, self.dem.surface)
-        return self._dem_lm, (rd / self.dem.sigma_m**2)[:, None, None] * hess
+        corr = (rd / self.dem.sigma_m**2)[:, None, None] * hess
+        corr[~np.all(np.isfinite(corr), axis=(1, 2))] = 0.0  # within 1 m of a DEM edge: Gauss-Newton there
+        return self._dem_lm, corr
 
     def to_values(self, x: Array) -> gtsam.Values:
         v = gtsam.Values()
