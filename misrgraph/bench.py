@@ -157,6 +157,14 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
     tight = SolverParams(relative_error_tol=1e-10, absolute_error_tol=1e-10, max_iterations=200)
     runs: dict[str, dict[str, Any]] = {}
 
+    def finish(name: str, tr: _Trace, marginals: Callable[[], object] | None) -> None:
+        """Record a run: its trace, its seconds, and the seconds of its knot marginals."""
+        total = tr.seconds()
+        t0 = time.perf_counter()
+        if marginals is not None:
+            marginals()
+        runs[name] = {"trace": tr, "run_seconds": total, "marginal_seconds": time.perf_counter() - t0}
+
     def core(name: str, params: SolverParams) -> None:
         tr = _Trace(budget_s)
         tr.add(flat.cost(flat.initial()), False)
@@ -167,13 +175,12 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
         finally:
             for b in prob.batches:
                 b.clear()
-        total = tr.seconds()
-        t0 = time.perf_counter()
-        if res is not None and params.backend == "schur":
-            knot_marginals_sparse(flat, flat.from_values(res.values), knots)
-        elif res is not None:
-            marginal_covariances(prob, res.values)
-        runs[name] = {"trace": tr, "run_seconds": total, "marginal_seconds": time.perf_counter() - t0}
+        if res is None:
+            finish(name, tr, None)
+        elif params.backend == "schur":
+            finish(name, tr, lambda: knot_marginals_sparse(flat, flat.from_values(res.values), knots))
+        else:
+            finish(name, tr, lambda: marginal_covariances(prob, res.values))
 
     core("misrgraph", tight.replace(backend="schur"))
     core("misrgraph_gauss_newton", tight.replace(backend="schur", dem_second_order=False))
@@ -181,17 +188,12 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
     if not skip_gtsam:
         import gtsam
 
-        from misrgraph.solver import _ordering
+        from misrgraph.solver import gtsam_lm_params
 
         for b in prob.batches:
             b.clear()
-        lp = gtsam.LevenbergMarquardtParams()
-        lp.setlambdaInitial(tight.lambda_initial)
-        lp.setRelativeErrorTol(tight.relative_error_tol)
-        lp.setAbsoluteErrorTol(tight.absolute_error_tol)
-        lp.setOrdering(_ordering(prob))
         tr = _Trace(budget_s)
-        opt = gtsam.LevenbergMarquardtOptimizer(prob.graph, prob.initial, lp)
+        opt = gtsam.LevenbergMarquardtOptimizer(prob.graph, prob.initial, gtsam_lm_params(prob, tight))
         tr.add(opt.error(), False)
         prev, it = opt.error(), 0
         while it < tight.max_iterations and tr.seconds() < budget_s:
@@ -202,22 +204,18 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
             if prev - err <= tight.relative_error_tol * prev:
                 break
             prev = err
-        total = tr.seconds()
-        t0 = time.perf_counter()
-        m = gtsam.Marginals(prob.graph, opt.values())
-        for k in knots:
-            m.marginalCovariance(k)
-        runs["gtsam_lm"] = {"trace": tr, "run_seconds": total, "marginal_seconds": time.perf_counter() - t0}
+        def gtsam_marginals() -> None:
+            m = gtsam.Marginals(prob.graph, opt.values())
+            for k in knots:
+                m.marginalCovariance(k)
+
+        finish("gtsam_lm", tr, gtsam_marginals)
     tr = _Trace(budget_s)
     try:
         x_s = solve_scipy(flat, ftol=1e-10, max_nfev=1000, on_cost=tr.add)["x"]
     except _Budget:
         x_s = None
-    total = tr.seconds()
-    t0 = time.perf_counter()
-    if x_s is not None:
-        knot_marginals_sparse(flat, x_s, knots)
-    runs["scipy"] = {"trace": tr, "run_seconds": total, "marginal_seconds": time.perf_counter() - t0}
+    finish("scipy", tr, None if x_s is None else lambda: knot_marginals_sparse(flat, x_s, knots))
     if not skip_ceres:
         try:
             import pyceres  # noqa: F401
@@ -228,10 +226,7 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
             tr.add(flat.cost(flat.initial()), False)
             c = solve_ceres(flat, ftol=1e-10, max_iterations=200, on_cost=lambda cost: tr.add(cost, False),
                             max_seconds=budget_s)
-            total = tr.seconds()
-            t0 = time.perf_counter()
-            knot_marginals_sparse(flat, c["x"], knots)
-            runs["ceres"] = {"trace": tr, "run_seconds": total, "marginal_seconds": time.perf_counter() - t0}
+            finish("ceres", tr, lambda: knot_marginals_sparse(flat, c["x"], knots))
     best = min(r["trace"].points[-1][1] for r in runs.values() if "trace" in r)
     target = best * (1.0 + target_rel)
     results: dict[str, Any] = {}

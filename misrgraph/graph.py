@@ -137,19 +137,16 @@ def camera_parameter_matrix(camera: CameraModel, cam: NDArray[np.int64], band: N
 def dem_surface(dem: DemTiles, geoid: Geoid, method: str):
     """Callable ``(lat, lon) -> (h_ellipsoid, dh/dlat, dh/dlon)`` for the DEM factor.
 
-    It remembers the tiles of its last call and passes them as the hint of the next call with as
-    many points (the solver evaluates the same landmarks again and again), which skips most tile
+    It passes the tiles of its last call as the hint of the next (the solver evaluates the same
+    landmarks again and again; a hint of another length is ignored), which skips most tile
     searches; the heights do not depend on it.
     """
-    last: dict[int, NDArray[np.int64]] = {}
+    last: list[NDArray[np.int64] | None] = [None]
 
     def surface(lat: Array, lon: Array) -> tuple[Array, Array, Array]:
         """NaN where a landmark is off the DEM tiles (an LM trial step then has an infinite cost)."""
-        n = int(np.size(lat))
-        s = fit_local_surface(dem, lat, lon, method, hint=last.get(n))
-        if s.tile is not None:
-            last.clear()
-            last[n] = s.tile
+        s = fit_local_surface(dem, lat, lon, method, hint=last[0])
+        last[0] = s.tile
         return s.height + geoid.undulation(lat, lon), s.dh_dlat, s.dh_dlon
 
     return surface

@@ -104,13 +104,15 @@ class IncrementalSolver:
         self.passes: list[OrbitPass] = []
         self.exclusions: list[NDArray[np.bool_]] = []
         self.records: list[_Record] = []
-        # linearisation points of the records, flattened (see _relinearize)
+        # every record's variables, one entry per component (see _append_records, _relinearize):
+        # record index, key slot, component, 1 / staleness threshold, linearisation point
         self._key_slot: dict[int, int] = {}
         self._key_order: list[int] = []
-        self._flat: tuple | None = None
-        self._lin: Array | None = None
-        self._n_pointed = 0
-        self._new_points: dict[int, dict[int, Array]] = {}
+        self._rec = np.zeros(0, np.int64)
+        self._kidx = np.zeros(0, np.int64)
+        self._comp = np.zeros(0, np.int64)
+        self._inv = np.zeros(0)
+        self._lin = np.zeros(0)
         self._flats: dict[int, Any] = {}
         self.last_costs: list[float] = []
         self.owned: set[int] = set()
@@ -185,9 +187,7 @@ class IncrementalSolver:
                 pending.append((pg.pass_index, i, [int(k) for k in g.at(i).keys()], pts[i]))
         cost_at = self.nonlinear_cost(at)
         res = self.isam.update(batch, new_values)
-        for (pi, pos, keys, pt), fi in zip(pending, res.getNewFactorsIndices()):
-            self._new_points[len(self.records)] = pt
-            self.records.append(_Record(pi, pos, keys, int(fi)))
+        self._append_records(pending, res.getNewFactorsIndices())
         self.estimate = self.isam.calculateEstimate()
         self._relinearize(cost_at)
         return time.perf_counter() - t0
@@ -208,25 +208,27 @@ class IncrementalSolver:
             total += f.cost(f.from_values(values)) if f is not None else error(pg.problem, values)
         return total
 
-    def _entries(self) -> tuple[NDArray[np.int64], NDArray[np.int64], Array]:
-        """Every record's variables flattened: (record of each entry, key slot, 1/sigma); extended
-        with the records added since the last call."""
-        n_done = self._flat[3] if self._flat is not None else 0
-        if self._flat is None or n_done != len(self.records):
-            rec, kidx, inv = [], [], []
-            for i in range(n_done, len(self.records)):
-                for k in self.records[i].keys:
-                    if k not in self._key_slot:
-                        self._key_slot[k] = len(self._key_order)
-                        self._key_order.append(k)
-                    d = self.sigma[k].size
-                    rec.append(np.full(d, i))
-                    kidx.append(np.full(d, self._key_slot[k]))
-                    inv.append(self._inv_threshold(k))
-            old = self._flat if self._flat is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), 0)
-            self._flat = (np.concatenate([old[0]] + rec), np.concatenate([old[1]] + kidx),
-                          np.concatenate([old[2]] + inv), len(self.records))
-        return self._flat[0], self._flat[1], self._flat[2]
+    def _append_records(self, pending: list[tuple[int, int, list[int], dict[int, Array]]], isam_indices) -> None:
+        """Add records (pass, position, keys, linearisation point) and their flat entries."""
+        rec, kidx, comp, inv, lin = [], [], [], [], []
+        for (pi, pos, keys, pt), fi in zip(pending, isam_indices):
+            i = len(self.records)
+            self.records.append(_Record(pi, pos, keys, int(fi)))
+            for k in keys:
+                if k not in self._key_slot:
+                    self._key_slot[k] = len(self._key_order)
+                    self._key_order.append(k)
+                d = self.sigma[k].size
+                rec.append(np.full(d, i))
+                kidx.append(np.full(d, self._key_slot[k]))
+                comp.append(np.arange(d))
+                inv.append(self._inv_threshold(k))
+                lin.append(pt[k])
+        self._rec = np.concatenate([self._rec] + rec)
+        self._kidx = np.concatenate([self._kidx] + kidx)
+        self._comp = np.concatenate([self._comp] + comp)
+        self._inv = np.concatenate([self._inv] + inv)
+        self._lin = np.concatenate([self._lin] + lin)
 
     def _inv_threshold(self, key: int) -> Array:
         """1 / (the movement that makes a factor on ``key`` stale), per component."""
@@ -251,25 +253,10 @@ class IncrementalSolver:
         self.last_rounds = 0
         prev, cur_cost = cost_before, self.nonlinear_cost(self.estimate)
         self.last_costs = [prev, cur_cost]
-        rec, kidx, inv = self._entries()
-        # component of each entry within its variable
-        comp = np.zeros(rec.size, np.int64)
-        if rec.size:
-            start = np.r_[0, np.flatnonzero((np.diff(rec) != 0) | (np.diff(kidx) != 0)) + 1]
-            comp = np.arange(rec.size) - np.repeat(start, np.diff(np.r_[start, rec.size]))
-        if self._lin is None or self._lin.size != rec.size:
-            old = self._lin if self._lin is not None else np.zeros(0)
-            lin = np.empty(rec.size)
-            lin[:old.size] = old
-            lin[old.size:] = np.concatenate([np.concatenate([self._new_points[i][k] for k in self.records[i].keys])
-                                             for i in range(self._n_pointed, len(self.records))]) \
-                if len(self.records) > self._n_pointed else np.zeros(0)
-            self._lin = lin
-            self._n_pointed = len(self.records)
-            self._new_points = {}
+        rec, kidx = self._rec, self._kidx
         for _ in range(self.max_rounds):
-            cur = self._key_values()[kidx, comp]
-            moved = np.abs(cur - self._lin) * inv > 1.0
+            cur = self._key_values()[kidx, self._comp]
+            moved = np.abs(cur - self._lin) * self._inv > 1.0
             stale_ids = np.unique(rec[moved])
             if log.isEnabledFor(logging.DEBUG):
                 letters = sorted({chr(gtsam.Symbol(self._key_order[i]).chr()) for i in np.unique(kidx[moved])})

@@ -41,6 +41,7 @@ from misrgraph.errors import ConvergenceError, DegenerateProblemError
 from misrgraph.graph import Problem
 
 __all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "marginal_covariances", "solve_gtsam_lm",
+           "gtsam_lm_params",
            "Marginals", "information_norm", "check_converged"]
 
 log = logging.getLogger(__name__)
@@ -249,10 +250,8 @@ def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values |
                                 progress, flat.to_values)
 
 
-def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> SolveResult:
-    """Reference: the same graph given to ``gtsam.LevenbergMarquardtOptimizer`` (live callbacks)."""
-    for b in problem.batches:
-        b.clear()
+def gtsam_lm_params(problem: Problem, params: SolverParams = SolverParams()) -> gtsam.LevenbergMarquardtParams:
+    """``params`` as ``gtsam.LevenbergMarquardtParams``, with the core's landmarks-first ordering."""
     p = gtsam.LevenbergMarquardtParams()
     p.setMaxIterations(params.max_iterations)
     p.setlambdaInitial(params.lambda_initial)
@@ -261,6 +260,14 @@ def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> S
     p.setRelativeErrorTol(params.relative_error_tol)
     p.setAbsoluteErrorTol(params.absolute_error_tol)
     p.setOrdering(_ordering(problem))
+    return p
+
+
+def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> SolveResult:
+    """Reference: the same graph given to ``gtsam.LevenbergMarquardtOptimizer`` (live callbacks)."""
+    for b in problem.batches:
+        b.clear()
+    p = gtsam_lm_params(problem, params)
     t0 = time.perf_counter()
     opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.initial, p)
     values = opt.optimize()
