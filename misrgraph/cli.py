@@ -292,6 +292,9 @@ def update(
     dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (recommended when creating the state)."),
     compare_batch: bool = typer.Option(False, "--compare-batch", help="Also re-solve all passes in batch and report the cost ratio and the difference in sigma."),
     report: Optional[str] = typer.Option(None, "--report", help="Also report error models, marginals and scores of this earlier pass id."),
+    linearization_tol: Optional[float] = typer.Option(None, "--linearization-tol", min=1e-6,
+                                                      help="Re-linearise until the linear model's error is at most this many sigma "
+                                                           "(smaller: closer to the optimum, slower) [default: misrgraph.incremental.DEFAULT_LINEARIZATION_TOL]."),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON."),
 ) -> None:
     """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
@@ -303,7 +306,8 @@ def update(
         if not passes and report is None:
             _fail("PASSES: give new pass files to add, or --report PASS_ID for an earlier pass")
         out = run_update(state, [str(p) for p in passes or []], camera_model, gcp_file, dem_file,
-                         compare_batch=compare_batch, progress=lambda m: st.update(m), report=report)
+                         compare_batch=compare_batch, progress=lambda m: st.update(m), report=report,
+                         linearization_tol=linearization_tol)  # None: the library default
     if as_json:
         _print_json(out)
         return
@@ -465,21 +469,24 @@ def bench_incremental(
     tie_points: int = typer.Option(150, "--tie-points"),
     seed: int = typer.Option(0, "--seed"),
     workdir: Optional[Path] = typer.Option(None, "--workdir"),
+    linearization_tol: Optional[float] = typer.Option(None, "--linearization-tol", min=1e-6,
+                                                      help="iSAM2 re-linearisation tolerance in sigma [default: the library's]."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Cost of adding the k-th pass with iSAM2 against a batch re-solve of all k passes."""
     from misrgraph.bench import run_bench_incremental
 
     with err_console.status("simulating and solving..."):
-        res = run_bench_incremental(passes, tie_points, seed, workdir)
+        res = run_bench_incremental(passes, tie_points, seed, workdir, linearization_tol)
     if as_json:
         _print_json(res)
         return
     t = Table(title="bench incremental")
-    for col in ("pass k", "iSAM2 update (s)", "batch re-solve of k passes (s)", "ratio"):
+    for col in ("pass k", "iSAM2 update (s)", "batch re-solve of k passes (s)", "ratio", "rounds", "staleness (sigma)"):
         t.add_column(col)
     for r in res["rows"]:
-        t.add_row(str(r["pass"]), f"{r['incremental_seconds']:.2f}", f"{r['batch_seconds']:.2f}", f"{r['ratio']:.2f}")
+        t.add_row(str(r["pass"]), f"{r['incremental_seconds']:.2f}", f"{r['batch_seconds']:.2f}", f"{r['ratio']:.2f}",
+                  str(r["relinearization_rounds"]), f"{r['linearization_error_sigma']:.3f}")
     console.print(t)
     acc = res["max_difference_in_sigma_vs_tight_batch"]
     console.print(f"after the last pass, largest difference from a tightly converged batch: iSAM2 "

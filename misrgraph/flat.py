@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from factors.collinearity import CollinearityBatch, collinearity_residual
 from factors.dem_height import DemBatch, dem_residual, dem_residual_hessian
+from misrgraph.errors import InputError
 from misrgraph.graph import Problem
 
 __all__ = ["FlatProblem", "NotFlat", "knot_marginals_sparse"]
@@ -98,6 +99,11 @@ class FlatProblem:
         self._dem_lm = self._dem_cols[:, 0] // 3
         self.m = self.m_coll + self.m_dem + sum(p.mean.size for p in self.priors)
 
+    @staticmethod
+    def family_of(batch: object) -> str:
+        """The :meth:`family_rows` name of a factor batch (``"other"`` for anything else)."""
+        return "collinearity" if isinstance(batch, CollinearityBatch) else "dem" if isinstance(batch, DemBatch) else "other"
+
     def initial(self) -> Array:
         return self.from_values(self.problem.initial)
 
@@ -119,47 +125,64 @@ class FlatProblem:
         return land, theta, knots, cam, om
 
     def residual(self, x: Array) -> Array:
-        b = self.coll
-        r, _ = collinearity_residual(*self._gather(x), b.const, jacobians=False)
-        parts = [(r / b.sigma_px[:, None]).ravel()]
-        if self.dem is not None:
-            rd, _ = dem_residual(x[self._dem_cols], self.dem.surface, False)
-            parts.append(rd / self.dem.sigma_m)
-        for p in self.priors:
-            o = self.offset[p.key]
-            parts.append(p.r @ (x[o:o + p.mean.size] - p.mean))
-        return np.concatenate(parts)
+        """Whitened residual ``(m,)``: collinearity rows, then DEM rows, then prior rows."""
+        return np.concatenate([self.family_rows(x, f, False)[0] for f in ("collinearity", "dem", "priors")])
 
     def jacobian(self, x: Array) -> sp.csr_matrix:
-        b = self.coll
-        _, j = collinearity_residual(*self._gather(x), b.const, jacobians=True)
-        blocks = b._blocks(j)
-        rows, cols, vals = [], [], []
-        n = len(b)
-        rr = (2 * np.arange(n))[:, None, None] + np.arange(2)[None, :, None]
-        w = 1.0 / b.sigma_px[:, None, None]
-        for s, blk in enumerate(blocks):
-            c = self._slot_cols[s]
-            used = c[:, 0] >= 0
-            d = blk.shape[-1]
-            rows.append(np.broadcast_to(rr, (n, 2, d))[used].ravel())
-            cols.append(np.broadcast_to(c[:, None, :], (n, 2, d))[used].ravel())
-            vals.append((blk * w)[used].ravel())
-        row0 = self.m_coll
-        if self.dem is not None:
-            _, jd = dem_residual(x[self._dem_cols], self.dem.surface, True)
-            rows.append(np.repeat(row0 + np.arange(len(self.dem)), 3))
-            cols.append(self._dem_cols.ravel())
-            vals.append((jd[:, 0, :] / self.dem.sigma_m[:, None]).ravel())
-            row0 += len(self.dem)
-        for p in self.priors:
-            d = p.mean.size
-            o = self.offset[p.key]
-            rows.append(np.repeat(row0 + np.arange(d), d))
-            cols.append(np.tile(o + np.arange(d), d))
-            vals.append(p.r.ravel())
-            row0 += d
-        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(self.m, self.n))
+        """Whitened Jacobian ``(m, n)``, rows as in :meth:`residual`."""
+        return sp.vstack([self.family_rows(x, f, True)[1] for f in ("collinearity", "dem", "priors")], format="csr")
+
+    def family_rows(self, x: Array, family: str, jacobian: bool) -> tuple[Array, sp.csr_matrix | None]:
+        """One factor family's block of rows of :meth:`residual` (and :meth:`jacobian` when asked):
+        ``family`` is ``"collinearity"`` (``m_coll`` rows), ``"dem"`` (``m_dem``) or ``"priors"``."""
+        rows: list[Array] = []
+        cols: list[Array] = []
+        vals: list[Array] = []
+        if family == "collinearity":
+            b = self.coll
+            r, j = collinearity_residual(*self._gather(x), b.const, jacobians=jacobian)
+            r = (r / b.sigma_px[:, None]).ravel()
+            if j is not None:
+                n = len(b)
+                rr = (2 * np.arange(n))[:, None, None] + np.arange(2)[None, :, None]
+                w = 1.0 / b.sigma_px[:, None, None]
+                for s, blk in enumerate(b._blocks(j)):
+                    c = self._slot_cols[s]
+                    used = c[:, 0] >= 0
+                    d = blk.shape[-1]
+                    rows.append(np.broadcast_to(rr, (n, 2, d))[used].ravel())
+                    cols.append(np.broadcast_to(c[:, None, :], (n, 2, d))[used].ravel())
+                    vals.append((blk * w)[used].ravel())
+            m = self.m_coll
+        elif family == "dem":
+            m = self.m_dem
+            r = np.zeros(0)
+            if self.dem is not None:
+                rd, jd = dem_residual(x[self._dem_cols], self.dem.surface, jacobian)
+                r = rd / self.dem.sigma_m
+                if jd is not None:
+                    rows.append(np.repeat(np.arange(m), 3))
+                    cols.append(self._dem_cols.ravel())
+                    vals.append((jd[:, 0, :] / self.dem.sigma_m[:, None]).ravel())
+        elif family == "priors":
+            parts, row0 = [], 0
+            for p in self.priors:
+                d = p.mean.size
+                o = self.offset[p.key]
+                parts.append(p.r @ (x[o:o + d] - p.mean))
+                if jacobian:
+                    rows.append(np.repeat(row0 + np.arange(d), d))
+                    cols.append(np.tile(o + np.arange(d), d))
+                    vals.append(p.r.ravel())
+                row0 += d
+            r = np.concatenate(parts) if parts else np.zeros(0)
+            m = row0
+        else:
+            raise InputError("family", family, ("collinearity", "dem", "priors"))
+        if not jacobian:
+            return r, None
+        cat = (lambda a, t: np.concatenate(a) if a else np.zeros(0, t))
+        return r, sp.csr_matrix((cat(vals, float), (cat(rows, np.int64), cat(cols, np.int64))), shape=(m, self.n))
 
     def cost(self, x: Array) -> float:
         r = self.residual(x)

@@ -3,18 +3,27 @@
 The Python factors are never handed to ``ISAM2`` directly (each of its callbacks would receive a
 copy of the whole ``Values``, DESIGN.md section 4). Instead every factor enters iSAM2 as a
 ``gtsam.LinearContainerFactor`` -- the factor linearised in one vectorised pass at the current
-estimate -- and this module re-linearises by iSAM2's own rule: after each update, every factor
-one of whose variables moved by more than ``relinearize_fraction`` of that variable's prior sigma
-since the factor was linearised is re-linearised at the new estimate and swapped in through
-``removeFactorIndices``. Rounds repeat until nothing moves past the threshold or -- the batch
-LM's own convergence test -- an update changes the nonlinear cost by less than
-``relative_error_tol`` (1e-5) of it.
+estimate -- and this module decides what to re-linearise, swapping factors in through
+``removeFactorIndices``.
 
-Measured on a 10-pass repeat path (``misrgraph bench incremental``): one round follows each new
-pass, and the estimate agrees with a tightly converged batch re-solve to 0.004 sigma -- closer
-than the batch LM at its own 1e-5 criterion (0.05 sigma). Before the simulator's DEM became one
-continuous field, overlapping tiles with independent errors made the DEM cost discontinuous and
-the rounds cycled between two states 10 m apart.
+The rule measures staleness directly instead of iSAM2's variable-motion threshold. A mirror of
+the linear model iSAM2 holds is kept as flat affine rows ``J x + c`` per pass (whitened). At the
+new estimate ``x`` each factor's staleness is
+
+* ``||e_i||^2`` with ``e_i = r_i(x) - (J_i x + c_i)``: re-linearising the factor would shift the
+  least-squares solution by ``(J^T J)^-1 J^T e`` to first order, whose Mahalanobis norm is at
+  most ``||e||``;
+* plus, for a DEM factor, ``g_i^T H_l^-1 g_i`` with ``g_i = J_i(x)^T r_i(x) - J_i^T (J_i x + c_i)``
+  the change of its gradient and ``H_l`` its landmark's information: a stale Jacobian times a
+  residual of order 1 sigma. The DEM surface curves at the scale of its postings, so this term
+  matters there; collinearity is nearly linear over the moves of one update (its term is left
+  out, as is the correlation between landmarks, so the measure is a proxy, not a bound).
+
+Rounds re-linearise the factors with the largest staleness (until the rest holds a quarter of the
+budget) and stop once the total is at most ``linearization_tol**2``. Measured on the 10-pass
+repeat path (``misrgraph bench incremental``), the final error against a tightly converged batch
+is 0.8-2 times the tolerance; the default 0.04 leaves 0.03 sigma, against 0.06 sigma for the
+batch LM at its own default criterion, with one round per pass after the first.
 
 Shared variables: the camera corrections and GCPs (one key each for every pass), and the tie
 points of repeat passes of the same path (keyed by path and feature id).
@@ -45,22 +54,23 @@ from typing import Any, Callable
 
 import gtsam
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from factors import keys as K
 from misrgraph import __version__
 from misrgraph.adjust import AdjustConfig, AdjustResult, _estimated_models, find_blunders, score_pass
 from misrgraph.camera import CameraModel
 from misrgraph.constants import ANGLES, ARCSEC
 from misrgraph.dem import DemTiles
 from misrgraph.errors import FileFormatError, InputError
+from misrgraph.flat import FlatProblem, NotFlat
 from misrgraph.gcp import GcpDatabase
-from misrgraph.graph import GraphConfig, PassGraph, Problem, build_pass_graph, merge_problems, rate_prior_factor
+from misrgraph.graph import PassGraph, build_pass_graph, merge_problems
 from misrgraph.h5io import atomic_h5, open_h5, read_dataset, write_dataset
 from misrgraph.passdata import OrbitPass
 from misrgraph.solver import Marginals, SolverParams, solve
 
-__all__ = ["IncrementalSolver", "run_update", "load_state", "batch_solution"]
+__all__ = ["IncrementalSolver", "run_update", "load_state", "batch_solution", "DEFAULT_LINEARIZATION_TOL"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -70,33 +80,63 @@ Array = NDArray[np.float64]
 class _Record:
     pass_index: int
     position: int  # factor position within its pass problem's graph
-    keys: list[int]
     isam_index: int
 
 
-def _sigma_of(key: int, cfg: AdjustConfig, n: int, g: GraphConfig | None = None) -> Array:
-    """A-priori 1 sigma per component of a variable, from its key letter (for the relinearisation rule)."""
-    c = chr(gtsam.Symbol(key).chr())
-    g = g if g is not None else cfg.graph_config()
-    if c in K.KNOT:
-        s = np.asarray(g.attitude_sigma_arcsec)[K.KNOT.index(c)] * ARCSEC
-        return np.array([s, s * rate_prior_factor])
-    if c == K.EPHEMERIS:
-        return np.r_[np.asarray(g.ephemeris_a_sigma_mps, float), np.full(3, g.ephemeris_b_sigma_m)]
-    if c in (K.LANDMARK, K.GCP):
-        return np.full(3, 30.0)
-    return np.full(n, 1e-5)
+#: Default re-linearisation tolerance (sigma units, module docstring): on the 10-pass benchmark
+#: path it leaves the estimate 0.03 sigma from the optimum, closer than the batch LM at its own
+#: default criterion (0.06 sigma).
+DEFAULT_LINEARIZATION_TOL = 0.04
+
+#: The factor families whose residuals are nonlinear (priors are linear and never go stale).
+_NONLINEAR = ("collinearity", "dem")
+
+
+@dataclass
+class _PassModel:
+    """The linear model iSAM2 holds for one pass's nonlinear factors, as flat affine rows.
+
+    Per family, ``J[f] @ x + c[f]`` (whitened, for the pass's flat vector ``x``) is the residual
+    the factors' ``LinearContainerFactor`` s predict: a row linearised at ``x0`` keeps
+    ``J = dr/dx (x0)`` and ``c = r(x0) - J x0``, so rows linearised at different points live side
+    by side. ``position[f]`` / ``record[f]``: each row's factor, as graph position and record index.
+    """
+
+    flat: FlatProblem
+    J: dict[str, sp.csr_matrix]
+    c: dict[str, Array]
+    position: dict[str, NDArray[np.int64]]
+    record: dict[str, NDArray[np.int64]]
+
+
+def _row_positions(flat: FlatProblem) -> dict[str, NDArray[np.int64]]:
+    """Graph position of the factor behind each collinearity and DEM row of a pass's flat residual.
+
+    Rows are the collinearity observations (2 each, in the batch's order), then the DEM factors;
+    in the graph the collinearity factors come first among the custom factors, then the DEM
+    factors (:func:`misrgraph.graph.build_pass_graph`)."""
+    g = flat.problem.graph
+    custom = np.array([i for i in range(g.size()) if isinstance(g.at(i), gtsam.CustomFactor)], np.int64)
+    lay = flat.coll.layout
+    per_obs = np.repeat(np.arange(lay.n_factors), lay.obs_stop - lay.obs_start)
+    return {"collinearity": np.repeat(custom[per_obs], 2), "dem": custom[lay.n_factors:lay.n_factors + flat.m_dem]}
 
 
 class IncrementalSolver:
-    """iSAM2 over linearised factors with our own re-linearisation rule (module docstring)."""
+    """iSAM2 over linearised factors with our own re-linearisation rule (module docstring).
+
+    ``linearization_tol`` (sigma units): rounds stop once the square root of the summed staleness
+    of all factors is at most this -- a proxy for the distance (in sigma) between the estimate and
+    the optimum. ``last_linearization_error`` holds that figure after the last update.
+    """
 
     def __init__(self, camera: CameraModel, gcps: GcpDatabase, dem: DemTiles | None, cfg: AdjustConfig = AdjustConfig(),
-                 relinearize_fraction: float = 1e-4, max_rounds: int = 20, relative_error_tol: float = 1e-5) -> None:
+                 linearization_tol: float = DEFAULT_LINEARIZATION_TOL, max_rounds: int = 20) -> None:
+        if not linearization_tol > 0:
+            raise InputError("linearization_tol", linearization_tol, "a positive number (sigma units)")
         self.camera, self.gcps, self.dem, self.cfg = camera, gcps, dem, cfg
-        self.relinearize_fraction = relinearize_fraction
+        self.linearization_tol = float(linearization_tol)
         self.max_rounds = max_rounds
-        self.relative_error_tol = relative_error_tol
         p = gtsam.ISAM2Params()
         p.setRelinearizeThreshold(1e12)  # our containers are re-linearised by this class
         self.isam = gtsam.ISAM2(p)
@@ -104,19 +144,10 @@ class IncrementalSolver:
         self.passes: list[OrbitPass] = []
         self.exclusions: list[NDArray[np.bool_]] = []
         self.records: list[_Record] = []
-        # every record's variables, one entry per component (see _append_records, _relinearize):
-        # record index, key slot, component, 1 / staleness threshold, linearisation point
-        self._key_slot: dict[int, int] = {}
-        self._key_order: list[int] = []
-        self._rec = np.zeros(0, np.int64)
-        self._kidx = np.zeros(0, np.int64)
-        self._comp = np.zeros(0, np.int64)
-        self._inv = np.zeros(0)
-        self._lin = np.zeros(0)
-        self._flats: dict[int, Any] = {}
+        self._models: list[_PassModel] = []
         self.last_costs: list[float] = []
+        self.last_linearization_error = 0.0
         self.owned: set[int] = set()
-        self.sigma: dict[int, Array] = {}
         self.estimate = gtsam.Values()
         self.last_rounds = 0
 
@@ -126,38 +157,52 @@ class IncrementalSolver:
                               shared=self.owned, exclude_observations=exclude)
         for k in pg.problem.initial.keys():
             self.owned.add(int(k))
-        gcfg = self.cfg.graph_config()
-        for k, d in pg.problem.dims.items():
-            if k not in self.sigma:
-                self.sigma[k] = _sigma_of(k, self.cfg, d, gcfg)
         return pg
 
-    def _containers(self, prob: Problem, values: gtsam.Values, positions: list[int]) -> tuple[gtsam.NonlinearFactorGraph, list[dict[int, Array]]]:
-        """The factors at ``positions`` of a pass problem as ``LinearContainerFactor`` s at ``values``
-        (the Python factor families evaluated in one vectorised pass; only these factors linearised)."""
+    def _linearize(self, pass_index: int, values: gtsam.Values, positions: NDArray[np.int64]) -> gtsam.NonlinearFactorGraph:
+        """The factors at ``positions`` of a pass as ``LinearContainerFactor`` s at ``values`` (the
+        Python factor families evaluated in one vectorised pass; only these factors linearised),
+        and the same rows of the pass's flat linear model refreshed at ``values``."""
+        prob = self.graphs[pass_index].problem
         sub = gtsam.NonlinearFactorGraph()
         for i in positions:
-            sub.add(prob.graph.at(i))
-        for b in prob.batches:
+            sub.add(prob.graph.at(int(i)))
+        # evaluate (vectorised) only the families these positions belong to; the rest are not called
+        m = self._models[pass_index]
+        fresh = {f: np.isin(m.position[f], positions) for f in _NONLINEAR}
+        used = [b for b in prob.batches if FlatProblem.family_of(b) not in fresh or fresh[FlatProblem.family_of(b)].any()]
+        for b in used:
             b.evaluate(values, True)
         try:
             lin = sub.linearize(values)
         finally:
-            for b in prob.batches:
+            for b in used:
                 b.clear()
         out = gtsam.NonlinearFactorGraph()
-        points = []
         for i in range(len(positions)):
             gf = lin.at(i)
             lp = gtsam.Values()
-            pt = {}
             for k in gf.keys():
-                v = values.atVector(int(k))
-                lp.insert(int(k), v)
-                pt[int(k)] = np.asarray(v)
+                lp.insert(int(k), values.atVector(int(k)))
             out.add(gtsam.LinearContainerFactor(gf, lp))
-            points.append(pt)
-        return out, points
+        x = m.flat.from_values(values)
+        for f, rows in fresh.items():
+            if not rows.any():
+                continue
+            r, J = m.flat.family_rows(x, f, True)
+            assert J is not None
+            m.J[f] = (sp.diags((~rows).astype(float)) @ m.J[f] + sp.diags(rows.astype(float)) @ J).tocsr()
+            m.c[f] = np.where(rows, r - J @ x, m.c[f])
+        return out
+
+    def _new_model(self, pg: PassGraph, first_record: int) -> _PassModel:
+        try:
+            flat = FlatProblem(pg.problem)
+        except NotFlat as exc:  # pass graphs are plain least squares (blunders are screened before)
+            raise InputError("pass graph", str(exc), "plain least-squares collinearity, DEM and prior factors") from exc
+        pos = _row_positions(flat)
+        return _PassModel(flat, {f: sp.csr_matrix((p.size, flat.n)) for f, p in pos.items()},
+                          {f: np.zeros(p.size) for f, p in pos.items()}, pos, {f: first_record + p for f, p in pos.items()})
 
     def add_passes(self, passes: list[OrbitPass], exclusions: list[NDArray[np.bool_]] | None = None,
                    initial: gtsam.Values | None = None) -> float:
@@ -165,7 +210,7 @@ class IncrementalSolver:
         t0 = time.perf_counter()
         new_values = gtsam.Values()
         batch = gtsam.NonlinearFactorGraph()
-        pending: list[tuple[int, int, list[int], dict[int, Array]]] = []
+        first = len(self.graphs)
         for j, p in enumerate(passes):
             idx = len(self.graphs)
             exclude = exclusions[j] if exclusions is not None else np.zeros(len(p.observations), bool)
@@ -179,112 +224,104 @@ class IncrementalSolver:
         # linearise every new pass at the current estimate plus the new variables' initial values
         at = gtsam.Values(self.estimate)
         at.insert(new_values)
-        for pg in self.graphs[len(self.graphs) - len(passes):]:
-            n = int(pg.problem.graph.size())
-            g, pts = self._containers(pg.problem, at, list(range(n)))
+        pending: list[tuple[int, int]] = []
+        for pi in range(first, len(self.graphs)):
+            n = int(self.graphs[pi].problem.graph.size())
+            self._models.append(self._new_model(self.graphs[pi], len(self.records) + len(pending)))
+            g = self._linearize(pi, at, np.arange(n))
             for i in range(n):
                 batch.add(g.at(i))
-                pending.append((pg.pass_index, i, [int(k) for k in g.at(i).keys()], pts[i]))
-        cost_at = self.nonlinear_cost(at)
+                pending.append((pi, i))
         res = self.isam.update(batch, new_values)
-        self._append_records(pending, res.getNewFactorsIndices())
+        self.records.extend(_Record(pi, pos, int(fi)) for (pi, pos), fi in zip(pending, res.getNewFactorsIndices()))
         self.estimate = self.isam.calculateEstimate()
-        self._relinearize(cost_at)
+        self._relinearize()
         return time.perf_counter() - t0
+
+    def linearization_errors(self, values: gtsam.Values) -> tuple[Array, float]:
+        """Staleness of every record's factor at ``values`` and the nonlinear cost ``0.5 ||r(x)||^2``.
+
+        Staleness (whitened, squared; a vector over records) is ``||e_i||^2`` with
+        ``e_i = r_i(x) - (J_i x + c_i)`` the error of the factor's linear model, plus for a DEM
+        factor the step its stale gradient would cause on its landmark alone,
+        ``g_i^T H_l^-1 g_i`` with ``g_i = J_i(x)^T r_i(x) - J_i^T (J_i x + c_i)`` and ``H_l`` the
+        landmark's information from every factor on it (module docstring)."""
+        e2 = np.zeros(len(self.records))
+        cost = 0.0
+        dem_terms = []
+        info_keys, info_blocks = [], []
+        for m in self._models:
+            x = m.flat.from_values(values)
+            for f in _NONLINEAR + ("priors",):
+                r, J1 = m.flat.family_rows(x, f, f == "dem")
+                cost += 0.5 * float(r @ r)
+                if f not in m.J:
+                    continue
+                p = m.J[f] @ x + m.c[f]
+                e2 += np.bincount(m.record[f], weights=(r - p) ** 2, minlength=e2.size)
+                if f == "dem" and r.size:
+                    assert J1 is not None
+                    cols = m.flat._dem_cols
+                    rows = np.arange(r.size)[:, None]
+                    j0, j1 = m.J[f][rows, cols].toarray(), J1[rows, cols].toarray()
+                    dem_terms.append((m.record[f], m.flat.dem.keys, j1 * r[:, None] - j0 * p[:, None]))
+                    info_keys.append(m.flat.dem.keys)
+                    info_blocks.append(j0)
+            # each collinearity row's landmark block (the landmark's information from its views)
+            lm_cols = np.repeat(m.flat._slot_cols[0], 2, axis=0)
+            info_keys.append(np.repeat(m.flat.coll.slot_keys[0], 2))
+            info_blocks.append(m.J["collinearity"][np.arange(lm_cols.shape[0])[:, None], lm_cols].toarray())
+        if dem_terms:
+            keys, inv = np.unique(np.concatenate(info_keys), return_inverse=True)
+            blocks = np.concatenate(info_blocks)
+            H = np.zeros((keys.size, 3, 3))
+            np.add.at(H, inv.ravel(), blocks[:, :, None] * blocks[:, None, :])
+            for rec, k, g in dem_terms:
+                h = H[np.searchsorted(keys, k)]
+                e2[rec] += np.einsum("ni,ni->n", g, np.linalg.solve(h, g[:, :, None])[:, :, 0])
+        return e2, cost
 
     def nonlinear_cost(self, values: gtsam.Values) -> float:
         """``0.5 sum ||whitened residual||^2`` of every pass's factors at ``values`` (vectorised)."""
-        from misrgraph.flat import FlatProblem, NotFlat
-        from misrgraph.solver import error
+        return self.linearization_errors(values)[1]
 
-        total = 0.0
-        for i, pg in enumerate(self.graphs):
-            if i not in self._flats:
-                try:
-                    self._flats[i] = FlatProblem(pg.problem)
-                except NotFlat:
-                    self._flats[i] = None
-            f = self._flats[i]
-            total += f.cost(f.from_values(values)) if f is not None else error(pg.problem, values)
-        return total
-
-    def _append_records(self, pending: list[tuple[int, int, list[int], dict[int, Array]]], isam_indices) -> None:
-        """Add records (pass, position, keys, linearisation point) and their flat entries."""
-        rec, kidx, comp, inv, lin = [], [], [], [], []
-        for (pi, pos, keys, pt), fi in zip(pending, isam_indices):
-            i = len(self.records)
-            self.records.append(_Record(pi, pos, keys, int(fi)))
-            for k in keys:
-                if k not in self._key_slot:
-                    self._key_slot[k] = len(self._key_order)
-                    self._key_order.append(k)
-                d = self.sigma[k].size
-                rec.append(np.full(d, i))
-                kidx.append(np.full(d, self._key_slot[k]))
-                comp.append(np.arange(d))
-                inv.append(self._inv_threshold(k))
-                lin.append(pt[k])
-        self._rec = np.concatenate([self._rec] + rec)
-        self._kidx = np.concatenate([self._kidx] + kidx)
-        self._comp = np.concatenate([self._comp] + comp)
-        self._inv = np.concatenate([self._inv] + inv)
-        self._lin = np.concatenate([self._lin] + lin)
-
-    def _inv_threshold(self, key: int) -> Array:
-        """1 / (the movement that makes a factor on ``key`` stale), per component."""
-        return 1.0 / (self.relinearize_fraction * self.sigma[key])
-
-    def _key_values(self) -> Array:
-        """(number of keys, max dim) current estimate per key slot, NaN padded."""
-        dmax = max((self.sigma[k].size for k in self._key_order), default=1)
-        out = np.full((len(self._key_order), dmax), np.nan)
-        for i, k in enumerate(self._key_order):
-            v = self.estimate.atVector(k)
-            out[i, :v.size] = v
-        return out
-
-    def _relinearize(self, cost_before: float) -> None:
-        """Re-linearisation rounds (module docstring), with the staleness test vectorised: each
-        record's linearisation point is kept per entry in one flat array.
-
-        Rounds stop when nothing is stale, or -- the batch solver's criterion -- when the last
-        update changed the nonlinear cost by less than ``relative_error_tol`` of it: the update
-        from linearisations at ``cost_before`` already sits at the optimum to that precision."""
+    def _relinearize(self) -> None:
+        """Re-linearisation rounds (module docstring): re-linearise the stalest factors until the
+        total staleness is at most ``linearization_tol**2`` (or ``max_rounds`` is reached)."""
         self.last_rounds = 0
-        prev, cur_cost = cost_before, self.nonlinear_cost(self.estimate)
-        self.last_costs = [prev, cur_cost]
-        rec, kidx = self._rec, self._kidx
-        for _ in range(self.max_rounds):
-            cur = self._key_values()[kidx, self._comp]
-            moved = np.abs(cur - self._lin) * self._inv > 1.0
-            stale_ids = np.unique(rec[moved])
-            if log.isEnabledFor(logging.DEBUG):
-                letters = sorted({chr(gtsam.Symbol(self._key_order[i]).chr()) for i in np.unique(kidx[moved])})
-                log.debug("re-linearisation round %d: %d stale factors, moved: %s", self.last_rounds + 1,
-                          stale_ids.size, "".join(letters))
-            if stale_ids.size == 0 or abs(prev - cur_cost) <= self.relative_error_tol * prev:
+        self.last_costs = []
+        tol2 = self.linearization_tol ** 2
+        while True:
+            e2, cost = self.linearization_errors(self.estimate)
+            self.last_costs.append(cost)
+            total = float(e2.sum())
+            self.last_linearization_error = float(np.sqrt(total))
+            log.debug("round %d: cost %.6f, linearisation error %.3g sigma", self.last_rounds, cost, np.sqrt(total))
+            if total <= tol2:
+                return
+            if self.last_rounds == self.max_rounds:
+                log.warning("re-linearisation did not settle in %d rounds (linearisation error %.3g sigma > %.3g)",
+                            self.max_rounds, np.sqrt(total), self.linearization_tol)
                 return
             self.last_rounds += 1
-            by_pass: dict[int, list[_Record]] = {}
-            for i in stale_ids:
-                r = self.records[int(i)]
-                by_pass.setdefault(r.pass_index, []).append(r)
+            order = np.argsort(e2)[::-1]
+            rest = total - np.cumsum(e2[order])
+            stale = order[: int(np.argmax(rest <= 0.25 * tol2)) + 1]
+            by_pass: dict[int, list[int]] = {}
+            for i in stale:
+                by_pass.setdefault(self.records[int(i)].pass_index, []).append(int(i))
             graph = gtsam.NonlinearFactorGraph()
-            swap = []
-            for pi, recs in by_pass.items():
-                g, _ = self._containers(self.graphs[pi].problem, self.estimate, [r.position for r in recs])
+            swap: list[_Record] = []
+            for pi, ids in by_pass.items():
+                recs = [self.records[i] for i in ids]
+                g = self._linearize(pi, self.estimate, np.array([r.position for r in recs], np.int64))
                 for i, r in enumerate(recs):
                     graph.add(g.at(i))
                     swap.append(r)
             res = self.isam.update(graph, gtsam.Values(), [r.isam_index for r in swap])
             for r, fi in zip(swap, res.getNewFactorsIndices()):
                 r.isam_index = int(fi)
-            sel = np.isin(rec, stale_ids)
-            self._lin[sel] = cur[sel]  # those records are now linearised at the current estimate
             self.estimate = self.isam.calculateEstimate()
-            prev, cur_cost = cur_cost, self.nonlinear_cost(self.estimate)
-            self.last_costs.append(cur_cost)
-        log.warning("re-linearisation did not settle in %d rounds", self.max_rounds)
 
     # ------------------------------------------------------------------ results
     def pass_result(self, index: int, seconds: float = 0.0) -> AdjustResult:
@@ -394,6 +431,7 @@ def run_update(
     progress: Callable[[str], None] | None = None,
     crash_before_commit: bool = False,
     report: str | None = None,
+    linearization_tol: float | None = None,
 ) -> dict[str, Any]:
     """Add passes to a persistent state and re-solve incrementally; summary of each new pass.
 
@@ -401,7 +439,8 @@ def run_update(
     ``dem_file``); later calls reuse what the state names. ``report`` names an earlier pass whose
     error models, marginals and scores (from the current estimate) are returned under
     ``"report"``. ``crash_before_commit`` (tests only) raises after the work is done but before
-    ``state.json`` is replaced.
+    ``state.json`` is replaced. ``linearization_tol`` (sigma units, default
+    :data:`DEFAULT_LINEARIZATION_TOL`): see :class:`IncrementalSolver`.
     """
     d = Path(state_dir)
     state = load_state(d)
@@ -419,7 +458,7 @@ def run_update(
     camera = CameraModel.load(meta["camera_model"])
     gcps = GcpDatabase.load(meta["gcps"])
     dem = DemTiles.load(meta["dem"]) if meta.get("dem") else None
-    solver = IncrementalSolver(camera, gcps, dem, cfg)
+    solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol)
     # replay the state (warm start from the saved estimate), in one update
     old = [OrbitPass.load(d / p["file"]) for p in meta["passes"]]
     if old:
@@ -448,6 +487,7 @@ def run_update(
         res = solver.pass_result(idx, seconds)
         res.rejected_norm = norms[res.rejected]
         s = {"pass_id": p.pass_id, "status": "added", "update_seconds": seconds, "relinearization_rounds": solver.last_rounds,
+             "linearization_error_sigma": solver.last_linearization_error,
              "passes_in_state": len(solver.passes), "knots": {a: {"kept": int(res.attitude.knot_times[i].size),
                                                                   "removed": int(res.pass_graph.removed_knots[i].size)}
                                                               for i, a in enumerate(ANGLES)},
