@@ -282,7 +282,11 @@ class CollinearityBatch:
     # ------------------------------------------------------------------ cache for the solver core
     def evaluate(self, values: gtsam.Values, jacobians: bool = True) -> None:
         """Evaluate every observation at ``values`` and cache the result for the factors."""
-        r, j = self.residuals(values, jacobians)
+        self.cache(*self.residuals(values, jacobians))
+
+    def cache(self, r: Array, j: dict[str, Array] | None) -> None:
+        """Cache an evaluation already made: :func:`collinearity_residual`'s output for every
+        observation, in the batch's order (as :meth:`residuals` returns it)."""
         self._cache = (r.ravel(), self.layout.assemble(self._blocks(j)) if j is not None else None)
 
     def clear(self) -> None:

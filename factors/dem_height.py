@@ -83,7 +83,11 @@ class DemBatch:
         return dem_residual(self._landmarks(values), self.surface, jacobians)
 
     def evaluate(self, values: gtsam.Values, jacobians: bool = True) -> None:
-        self._cache = self.residuals(values, jacobians)
+        self.cache(*self.residuals(values, jacobians))
+
+    def cache(self, r: Array, j: Array | None) -> None:
+        """Cache an evaluation already made: :func:`dem_residual`'s output for every landmark."""
+        self._cache = (r, j)
 
     def clear(self) -> None:
         self._cache = None

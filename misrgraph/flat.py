@@ -11,6 +11,7 @@ single-pass least-squares adjustment); :class:`FlatProblem` raises :class:`NotFl
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -40,6 +41,9 @@ class _Prior:
 
 class FlatProblem:
     """A Problem as ``x -> r(x)`` (whitened) and a sparse ``J(x)``."""
+
+    #: The factor families, in the order of their rows in :meth:`residual` and :meth:`jacobian`.
+    FAMILIES = ("collinearity", "dem", "priors")
 
     def __init__(self, problem: Problem) -> None:
         self.problem = problem
@@ -126,21 +130,34 @@ class FlatProblem:
 
     def residual(self, x: Array) -> Array:
         """Whitened residual ``(m,)``: collinearity rows, then DEM rows, then prior rows."""
-        return np.concatenate([self.family_rows(x, f, False)[0] for f in ("collinearity", "dem", "priors")])
+        return np.concatenate([self.family_rows(x, f, False)[0] for f in self.FAMILIES])
 
     def jacobian(self, x: Array) -> sp.csr_matrix:
         """Whitened Jacobian ``(m, n)``, rows as in :meth:`residual`."""
-        return sp.vstack([self.family_rows(x, f, True)[1] for f in ("collinearity", "dem", "priors")], format="csr")
+        return sp.vstack([self.family_rows(x, f, True)[1] for f in self.FAMILIES], format="csr")
 
-    def family_rows(self, x: Array, family: str, jacobian: bool) -> tuple[Array, sp.csr_matrix | None]:
+    def raw(self, x: Array, family: str, jacobian: bool) -> tuple[Array, Any]:
+        """The pure function behind a nonlinear family at ``x``, unwhitened, as the factor batches
+        cache it: ``collinearity_residual`` (``(N, 2)`` px, Jacobian dict) or ``dem_residual``
+        (``(L,)`` m, ``(L, 1, 3)``); ``dem`` requires a DEM batch."""
+        if family == "collinearity":
+            return collinearity_residual(*self._gather(x), self.coll.const, jacobians=jacobian)
+        if family == "dem" and self.dem is not None:
+            return dem_residual(x[self._dem_cols], self.dem.surface, jacobian)
+        raise InputError("family", family, "collinearity, or dem when the problem has DEM factors")
+
+    def family_rows(self, x: Array, family: str, jacobian: bool, raw: tuple[Array, Any] | None = None) -> tuple[Array, sp.csr_matrix | None]:
         """One factor family's block of rows of :meth:`residual` (and :meth:`jacobian` when asked):
-        ``family`` is ``"collinearity"`` (``m_coll`` rows), ``"dem"`` (``m_dem``) or ``"priors"``."""
+        ``family`` is ``"collinearity"`` (``m_coll`` rows), ``"dem"`` (``m_dem``) or ``"priors"``.
+        ``raw``: :meth:`raw` of this family at ``x`` (with Jacobians if asked), when already made."""
+        if family not in self.FAMILIES:
+            raise InputError("family", family, self.FAMILIES)
         rows: list[Array] = []
         cols: list[Array] = []
         vals: list[Array] = []
         if family == "collinearity":
             b = self.coll
-            r, j = collinearity_residual(*self._gather(x), b.const, jacobians=jacobian)
+            r, j = raw if raw is not None else self.raw(x, family, jacobian)
             r = (r / b.sigma_px[:, None]).ravel()
             if j is not None:
                 n = len(b)
@@ -158,13 +175,13 @@ class FlatProblem:
             m = self.m_dem
             r = np.zeros(0)
             if self.dem is not None:
-                rd, jd = dem_residual(x[self._dem_cols], self.dem.surface, jacobian)
+                rd, jd = raw if raw is not None else self.raw(x, family, jacobian)
                 r = rd / self.dem.sigma_m
                 if jd is not None:
                     rows.append(np.repeat(np.arange(m), 3))
                     cols.append(self._dem_cols.ravel())
                     vals.append((jd[:, 0, :] / self.dem.sigma_m[:, None]).ravel())
-        elif family == "priors":
+        else:
             parts, row0 = [], 0
             for p in self.priors:
                 d = p.mean.size
@@ -177,8 +194,6 @@ class FlatProblem:
                 row0 += d
             r = np.concatenate(parts) if parts else np.zeros(0)
             m = row0
-        else:
-            raise InputError("family", family, ("collinearity", "dem", "priors"))
         if not jacobian:
             return r, None
         cat = (lambda a, t: np.concatenate(a) if a else np.zeros(0, t))

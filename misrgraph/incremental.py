@@ -89,7 +89,7 @@ class _Record:
 DEFAULT_LINEARIZATION_TOL = 0.04
 
 #: The factor families whose residuals are nonlinear (priors are linear and never go stale).
-_NONLINEAR = ("collinearity", "dem")
+_NONLINEAR = tuple(f for f in FlatProblem.FAMILIES if f != "priors")
 
 
 @dataclass
@@ -127,7 +127,9 @@ class IncrementalSolver:
 
     ``linearization_tol`` (sigma units): rounds stop once the square root of the summed staleness
     of all factors is at most this -- a proxy for the distance (in sigma) between the estimate and
-    the optimum. ``last_linearization_error`` holds that figure after the last update.
+    the optimum. After each update, ``last_linearization_error`` holds that figure,
+    ``last_rounds`` the number of rounds and ``last_costs`` the nonlinear cost before each round
+    and at the end.
     """
 
     def __init__(self, camera: CameraModel, gcps: GcpDatabase, dem: DemTiles | None, cfg: AdjustConfig = AdjustConfig(),
@@ -160,40 +162,40 @@ class IncrementalSolver:
         return pg
 
     def _linearize(self, pass_index: int, values: gtsam.Values, positions: NDArray[np.int64]) -> gtsam.NonlinearFactorGraph:
-        """The factors at ``positions`` of a pass as ``LinearContainerFactor`` s at ``values`` (the
-        Python factor families evaluated in one vectorised pass; only these factors linearised),
-        and the same rows of the pass's flat linear model refreshed at ``values``."""
+        """The factors at ``positions`` of a pass as ``LinearContainerFactor`` s at ``values``, and
+        the same rows of the pass's flat linear model refreshed at ``values``. Each family these
+        positions belong to is evaluated once, vectorised, and serves both; the others are not
+        evaluated (their factors are not called)."""
         prob = self.graphs[pass_index].problem
+        m = self._models[pass_index]
+        x = m.flat.from_values(values)
+        fresh = {f: np.isin(m.position[f], positions) for f in _NONLINEAR}
+        raw = {f: m.flat.raw(x, f, True) for f, rows in fresh.items() if rows.any()}
+        batches = {FlatProblem.family_of(b): b for b in prob.batches}
         sub = gtsam.NonlinearFactorGraph()
         for i in positions:
             sub.add(prob.graph.at(int(i)))
-        # evaluate (vectorised) only the families these positions belong to; the rest are not called
-        m = self._models[pass_index]
-        fresh = {f: np.isin(m.position[f], positions) for f in _NONLINEAR}
-        used = [b for b in prob.batches if FlatProblem.family_of(b) not in fresh or fresh[FlatProblem.family_of(b)].any()]
-        for b in used:
-            b.evaluate(values, True)
+        for f, out in raw.items():
+            batches[f].cache(*out)
         try:
             lin = sub.linearize(values)
         finally:
-            for b in used:
-                b.clear()
-        out = gtsam.NonlinearFactorGraph()
+            for f in raw:
+                batches[f].clear()
+        graph = gtsam.NonlinearFactorGraph()
         for i in range(len(positions)):
             gf = lin.at(i)
             lp = gtsam.Values()
             for k in gf.keys():
                 lp.insert(int(k), values.atVector(int(k)))
-            out.add(gtsam.LinearContainerFactor(gf, lp))
-        x = m.flat.from_values(values)
-        for f, rows in fresh.items():
-            if not rows.any():
-                continue
-            r, J = m.flat.family_rows(x, f, True)
+            graph.add(gtsam.LinearContainerFactor(gf, lp))
+        for f, out in raw.items():
+            rows = fresh[f]
+            r, J = m.flat.family_rows(x, f, True, raw=out)
             assert J is not None
             m.J[f] = (sp.diags((~rows).astype(float)) @ m.J[f] + sp.diags(rows.astype(float)) @ J).tocsr()
             m.c[f] = np.where(rows, r - J @ x, m.c[f])
-        return out
+        return graph
 
     def _new_model(self, pg: PassGraph, first_record: int) -> _PassModel:
         try:
@@ -252,7 +254,7 @@ class IncrementalSolver:
         info_keys, info_blocks = [], []
         for m in self._models:
             x = m.flat.from_values(values)
-            for f in _NONLINEAR + ("priors",):
+            for f in FlatProblem.FAMILIES:
                 r, J1 = m.flat.family_rows(x, f, f == "dem")
                 cost += 0.5 * float(r @ r)
                 if f not in m.J:
@@ -280,10 +282,6 @@ class IncrementalSolver:
                 h = H[np.searchsorted(keys, k)]
                 e2[rec] += np.einsum("ni,ni->n", g, np.linalg.solve(h, g[:, :, None])[:, :, 0])
         return e2, cost
-
-    def nonlinear_cost(self, values: gtsam.Values) -> float:
-        """``0.5 sum ||whitened residual||^2`` of every pass's factors at ``values`` (vectorised)."""
-        return self.linearization_errors(values)[1]
 
     def _relinearize(self) -> None:
         """Re-linearisation rounds (module docstring): re-linearise the stalest factors until the
