@@ -4,7 +4,7 @@ Model for one observation of landmark ``G`` (ECEF m) by camera ``c`` at exposure
 
     u   = T_go^T (E^T G - P_meas) + D theta            orbital frame, m (eq. 19: P = P_meas - T_go e)
     A   = A_meas - W . knots                           roll, pitch, yaw, rad (eqs. 22-27)
-    v   = M^T T_os(A)^T u,   M = T_si(omega) Rz(delta) Ry(beta) Rz(eps)     detector frame
+    v   = M^T T_os(A)^T u,   M = T_si(omega) Ry(beta) Rx(delta) Rz(eps)     detector frame
     xi  = f v_x / v_z,  eta = f v_y / v_z              focal-plane projection, m
     r   = [ (xi - x_obs) / dx,  (eta - y_obs) / c_s ]  pixels (along track, cross track)
 
@@ -128,8 +128,8 @@ def collinearity_residual(
     u_delta, u_beta, u_eps = uniq[:, 0], uniq[:, 1], uniq[:, 2]
     u_rx, u_ry, u_rz = rot_x(uniq[:, 3]), rot_y(uniq[:, 4]), rot_z(uniq[:, 5])
     u_tsi = u_rz @ u_ry @ u_rx
-    u_rzd, u_ryb, u_rze = rot_z(u_delta), rot_y(u_beta), rot_z(u_eps)
-    u_tic = u_rzd @ u_ryb
+    u_rxd, u_ryb, u_rze = rot_x(u_delta), rot_y(u_beta), rot_z(u_eps)
+    u_tic = u_ryb @ u_rxd  # T_ic = Ry(beta) Rx(delta): delta rolls about the line axis, then beta tilts
     m = (u_tsi @ u_tic @ u_rze)[inv]
     v = np.einsum("nji,nj->ni", m, v_s)
     vx, vy, vz = v[:, 0], v[:, 1], v[:, 2]
@@ -155,7 +155,7 @@ def collinearity_residual(
         dr_da = np.einsum("nij,nj->ni", jm, np.einsum("nji,nj->ni", d, u))
         j_knots[:, :, a, :] = -dr_da[:, :, None] * c.hermite[:, a, None, :]
     j_cam = np.zeros((n, 2, 10))
-    dms = (u_tsi @ drot_z(u_delta) @ u_ryb @ u_rze, u_tsi @ u_rzd @ drot_y(u_beta) @ u_rze, u_tsi @ u_tic @ drot_z(u_eps))
+    dms = (u_tsi @ u_ryb @ drot_x(u_delta) @ u_rze, u_tsi @ drot_y(u_beta) @ u_rxd @ u_rze, u_tsi @ u_tic @ drot_z(u_eps))
     for i, dm in enumerate(dms):
         j_cam[:, :, i] = np.einsum("nij,nj->ni", jv, np.einsum("nji,nj->ni", dm[inv], v_s))
     j_cam[:, 0, 3] = vx / (vz * c.dx)

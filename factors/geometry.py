@@ -12,7 +12,8 @@ Conventions (DESIGN.md section 3):
 * Orbital frame (eqs. 3-4, EOS convention): ``z = -P/|P|`` (toward geocentric nadir),
   ``y = z x V / |z x V|``, ``x = y x z``; ``T_go = [x y z]`` maps orbital -> inertial.
 * Camera model (eq. 2): ``r_scs = T_si @ T_ic @ T_cd @ d`` with ``T_si = Rz(wz) Ry(wy) Rx(wx)``,
-  ``T_ic = Rz(delta) Ry(beta)``, ``T_cd = Rz(eps)`` and the detector vector
+  ``T_ic = Ry(beta) Rx(delta)`` (delta rolls the camera about its along-track line axis, then beta
+  tilts it fore/aft; MISR's heritage convention), ``T_cd = Rz(eps)`` and the detector vector
   ``d = [-(k + (l - INT(l + 0.5)) dx), f * sum_i alpha_i (s - c_y)^i, f]`` (metres).
 """
 

@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph import __version__
-from misrgraph.camera import CameraModel
+from misrgraph.camera import CameraModel, load_camera_model
 from misrgraph.config import Config
 from misrgraph.constants import ANGLES, ARCSEC, BANDS, CAMERAS
 from misrgraph.dem import DemTiles
@@ -403,7 +403,7 @@ def run_adjust(
             raise FileFormatError(d / "passes", "no pass files (*.h5)")
         pass_file = passes[0]
     orbit_pass = OrbitPass.load(pass_file)
-    camera = CameraModel.load(cam_path)
+    camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
     gcps = GcpDatabase.load(gcp_file or d / "gcp.h5")
     dem = DemTiles.load(dem_file or d / "dem.h5")
     res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress)

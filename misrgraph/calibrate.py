@@ -306,9 +306,9 @@ def run_calibrate(
     if max_passes is not None:
         files = files[:max_passes]
     cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
-    from misrgraph.camera import TabulatedCameraModel
+    from misrgraph.camera import load_camera_model
 
-    table = TabulatedCameraModel.load_any(cam_path)
+    table = load_camera_model(cam_path)
     gcps = GcpDatabase.load(gcp_file or d / "gcp.h5")
     passes = []
     for i, f in enumerate(files):

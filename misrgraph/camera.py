@@ -3,9 +3,11 @@
 ``r_scs = T_si @ T_ic @ T_cd @ [-(k + (l - INT(l + 0.5)) dx), f * sum_i alpha_i (s - c_y)^i, f]``
 
 with ``T_si = Rz(wz) Ry(wy) Rx(wx)`` (instrument -> spacecraft, common to all cameras),
-``T_ic = Rz(delta) Ry(beta)`` (camera -> instrument; beta tilts the boresight along track, positive
-forward; delta is the azimuth offset compensating Earth rotation) and ``T_cd = Rz(eps)``
-(detector -> camera). Units: radians, metres, pixels. ``alpha_i`` is in pixel^-i, so that
+``T_ic = Ry(beta) Rx(delta)`` (camera -> instrument, active rotations: delta first rolls the
+camera about its along-track line axis, beta then tilts it fore/aft, positive forward; the
+boresight's cross-track component is ``-sin(delta)`` whatever beta is, which is how MISR's
+delta compensates Earth rotation) and ``T_cd = Rz(eps)`` (detector -> camera, about the boresight).
+Axes: x along track (forward), y right of the flight direction, z nadir. Units: radians, metres, pixels. ``alpha_i`` is in pixel^-i, so that
 ``f * alpha_1 = 21 um`` is the cross-track pitch and ``f * sum alpha_i (s - c_y)^i`` is the
 cross-track focal-plane coordinate in metres.
 
@@ -31,7 +33,8 @@ from misrgraph.constants import BANDS, CAMERAS, LINE_TIME_S, N_PIXELS, PITCH_ALO
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.h5io import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
 
-__all__ = ["CameraModel", "TabulatedCameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "validate_pixel_inputs"]
+__all__ = ["CameraModel", "TabulatedCameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "MODEL_NAMES", "load_camera_model",
+           "validate_pixel_inputs"]
 
 Array = NDArray[np.float64]
 N_ALPHA = 6
@@ -91,6 +94,14 @@ class CameraModel:
 
         return nominal_camera_model().copy()
 
+    @classmethod
+    def preflight(cls) -> "CameraModel":
+        """The pre-flight model: Table 1's printed values for Df, An, Da, the other cameras derived
+        consistently; see :func:`misrgraph.nominal.preflight_camera_model`."""
+        from misrgraph.nominal import preflight_camera_model
+
+        return preflight_camera_model()
+
     def copy(self) -> "CameraModel":
         """Deep copy."""
         return dataclasses.replace(
@@ -104,9 +115,9 @@ class CameraModel:
         return rot_z(wz) @ rot_y(wy) @ rot_x(wx)
 
     def t_ic(self, cam: ArrayLike) -> Array:
-        """Camera -> instrument rotation ``Rz(delta) Ry(beta)`` for camera indices, (..., 3, 3)."""
+        """Camera -> instrument rotation ``Ry(beta) Rx(delta)`` for camera indices, (..., 3, 3)."""
         c = np.asarray(cam, dtype=int)
-        return rot_z(self.delta[c]) @ rot_y(self.beta[c])
+        return rot_y(self.beta[c]) @ rot_x(self.delta[c])
 
     def t_cd(self, cam: ArrayLike) -> Array:
         """Detector -> camera rotation ``Rz(eps)``, (..., 3, 3)."""
@@ -219,6 +230,22 @@ class CameraModel:
             temperature_c=float(read_attr(g, "temperature_c")),
             provenance=prov,
         )
+
+
+#: Built-in models a user can name instead of a file (``--camera-model preflight``).
+MODEL_NAMES = ("preflight", "nominal")
+
+
+def load_camera_model(spec: str | os.PathLike[str]) -> "CameraModel | TabulatedCameraModel":
+    """A camera model by name (:data:`MODEL_NAMES`) or from a ``camera_model`` HDF5 file.
+
+    A file with a ``/temperature_table`` gives a :class:`TabulatedCameraModel`. A name wins over a
+    file of the same name only when no such file exists.
+    """
+    text = os.fspath(spec)
+    if text in MODEL_NAMES and not os.path.exists(text):
+        return CameraModel.preflight() if text == "preflight" else CameraModel.nominal()
+    return TabulatedCameraModel.load_any(text)
 
 
 def validate_pixel_inputs(camera: str, band: str, sample: float | None = None) -> tuple[int, int]:

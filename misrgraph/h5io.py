@@ -24,13 +24,21 @@ from misrgraph.errors import FileFormatError
 __all__ = ["atomic_h5", "open_h5", "read_dataset", "read_attr", "write_dataset", "FORMAT_VERSIONS"]
 
 FORMAT_VERSIONS: dict[str, int] = {
-    "camera_model": 1,
-    "orbit_pass": 1,
+    "camera_model": 2,
+    "orbit_pass": 2,
     "gcp_database": 1,
     "dem": 1,
-    "calibration_result": 1,
-    "adjustment_result": 1,
-    "update_state": 1,
+    "calibration_result": 2,
+    "adjustment_result": 2,
+    "update_state": 2,
+}
+
+#: Why an older version of a kind is refused, when the reason is known (one line each).
+_OLD_VERSION_REASON: dict[tuple[str, int], str] = {
+    (kind, 1): "version 1 stored camera angles in the retired convention T_ic = Rz(delta) Ry(beta) "
+               "(delta as an azimuth); version 2 uses MISR's T_ic = Ry(beta) Rx(delta), and the same "
+               "numbers would geolocate kilometres apart. Re-create the file with this version"
+    for kind in ("camera_model", "orbit_pass", "calibration_result", "adjustment_result", "update_state")
 }
 
 
@@ -77,7 +85,9 @@ def open_h5(path: str | os.PathLike[str], kind: str | None = None) -> Iterator[h
         if want is None:
             raise FileFormatError(p, f"unknown misrgraph_kind {got_kind!r}; expected one of {sorted(FORMAT_VERSIONS)}")
         if version is None or int(version) != want:
-            raise FileFormatError(p, f"format_version is {version!r}; expected {want} for kind {got_kind!r}")
+            why = _OLD_VERSION_REASON.get((got_kind, int(version))) if version is not None else None
+            raise FileFormatError(p, f"format_version is {version!r}; expected {want} for kind {got_kind!r}"
+                                     + (f" ({why})" if why else ""))
         yield f
     finally:
         f.close()

@@ -59,7 +59,7 @@ from numpy.typing import NDArray
 
 from misrgraph import __version__
 from misrgraph.adjust import AdjustConfig, AdjustResult, _estimated_models, find_blunders, score_pass
-from misrgraph.camera import CameraModel
+from misrgraph.camera import MODEL_NAMES, CameraModel, load_camera_model
 from misrgraph.constants import ANGLES, ARCSEC
 from misrgraph.dem import DemTiles
 from misrgraph.errors import FileFormatError, InputError
@@ -380,6 +380,16 @@ def _write_json_atomic(path: Path, obj: Any) -> None:
     os.replace(tmp, path)
 
 
+def _model_spec(camera_model: str | os.PathLike[str]) -> str:
+    """A built-in model name as it is, a file as its absolute path."""
+    text = os.fspath(camera_model)
+    return text if text in MODEL_NAMES and not os.path.exists(text) else str(Path(text).resolve())
+
+
+#: Version of ``state.json``; 2 since the camera convention became ``T_ic = Ry(beta) Rx(delta)``.
+STATE_VERSION = 2
+
+
 def load_state(directory: str | os.PathLike[str]) -> State | None:
     d = Path(directory)
     f = d / "state.json"
@@ -392,6 +402,10 @@ def load_state(directory: str | os.PathLike[str]) -> State | None:
     for key in ("version", "camera_model", "gcps", "passes", "config"):
         if key not in meta:
             raise FileFormatError(f, f"missing field {key!r}")
+    if meta["version"] != STATE_VERSION:
+        raise FileFormatError(f, f"state version {meta['version']!r}; expected {STATE_VERSION} (version 1 states "
+                                 "hold camera corrections in the retired T_ic = Rz(delta) Ry(beta) convention; "
+                                 "start a new state)")
     return State(d, meta)
 
 
@@ -447,13 +461,15 @@ def run_update(
             raise InputError("--camera-model/--gcps", None, "both, when creating a new state")
         d.mkdir(parents=True, exist_ok=True)
         (d / "passes").mkdir(exist_ok=True)
-        meta = {"version": 1, "software": f"misrgraph {__version__}", "camera_model": str(Path(camera_model).resolve()),
+        meta = {"version": STATE_VERSION, "software": f"misrgraph {__version__}", "camera_model": _model_spec(camera_model),
                 "gcps": str(Path(gcp_file).resolve()), "dem": str(Path(dem_file).resolve()) if dem_file else None,
                 "config": dataclasses.asdict(cfg), "passes": []}
         state = State(d, meta)
     meta = state.meta
     cfg = AdjustConfig.from_dict({k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()})
-    camera = CameraModel.load(meta["camera_model"])
+    camera = load_camera_model(meta["camera_model"])
+    if not isinstance(camera, CameraModel):
+        raise InputError("--camera-model", meta["camera_model"], "a single-temperature camera model (not a temperature table)")
     gcps = GcpDatabase.load(meta["gcps"])
     dem = DemTiles.load(meta["dem"]) if meta.get("dem") else None
     solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol)

@@ -16,14 +16,77 @@ def test_nominal_beta_matches_table1_df(nominal_camera):
     assert nominal_camera.beta[CAMERAS.index("An")] == 0.0
 
 
-def test_nominal_delta_compensates_earth_rotation_like_a_yaw(nominal_camera):
+def test_nominal_delta_compensates_earth_rotation_by_roll(nominal_camera):
+    # T_ic = Ry(beta) Rx(delta): on a descending pass the ground track drifts west (right of the
+    # flight direction), so fore cameras roll right (delta < 0) and aft cameras left (delta > 0),
+    # as Table 1's Df -2.8030 / Da +2.7314 deg. The derivation makes the compensation exact at
+    # 30 deg latitude; the derived delta moves by ~0.27 deg per 5 deg of latitude there, so 0.15 deg
+    # allows a ~3 deg difference between our idealised orbit/optics and MISR's.
     d = np.degrees(nominal_camera.delta)
-    # Earth-rotation compensation is a rotation about nadir: the same sign fore and aft,
-    # magnitude close to the crab angle (~3.9 deg * cos(lat)); Table 1 magnitudes are 2.7-2.8 deg.
-    fore, aft = d[:4], d[5:]
-    assert np.all(np.sign(fore) == np.sign(aft[0]))
-    assert np.all((np.abs(d[[0, 8]]) > 1.5) & (np.abs(d[[0, 8]]) < 4.0))
+    assert np.all(d[:4] < 0) and np.all(d[5:] > 0)
     assert d[CAMERAS.index("An")] == 0.0
+    assert d[CAMERAS.index("Df")] == pytest.approx(-2.8030, abs=0.15)
+    assert d[CAMERAS.index("Da")] == pytest.approx(2.7314, abs=0.15)
+    # magnitude grows with the view angle on each side
+    assert np.all(np.diff(np.abs(d[:5])) < 0) and np.all(np.diff(np.abs(d[4:])) > 0)
+
+
+def test_boresight_cross_track_component_is_minus_sin_delta(rng):
+    # closed form of Ry(beta) Rx(delta) [0, 0, 1] = [sin b cos d, -sin d, cos b cos d] for any beta
+    m = CameraModel.nominal().copy()
+    m.omega[:] = 0.0
+    m.epsilon[:] = 0.0
+    m.delta[:] = np.radians(rng.uniform(-4, 4, 9))
+    m.beta[:] = np.radians(rng.uniform(-70, 70, 9))
+    rays = m.detector_to_spacecraft(np.arange(9)) @ np.array([0.0, 0.0, 1.0])
+    want = np.stack([np.sin(m.beta) * np.cos(m.delta), -np.sin(m.delta), np.cos(m.beta) * np.cos(m.delta)], axis=-1)
+    np.testing.assert_allclose(rays, want, atol=1e-15)
+
+
+def test_preflight_model_holds_table1_as_printed():
+    from misrgraph.camera import load_camera_model
+    from misrgraph.nominal import TABLE1
+
+    m = load_camera_model("preflight")
+    red = BANDS.index("red")
+    for cam, row in TABLE1.items():
+        c = CAMERAS.index(cam)
+        assert np.degrees(m.delta[c]) == pytest.approx(row["delta_deg"], abs=1e-12)
+        assert np.degrees(m.beta[c]) == pytest.approx(row["beta_deg"], abs=1e-12)
+        assert np.degrees(m.epsilon[c]) == pytest.approx(row["epsilon_deg"], abs=1e-12)
+        assert m.focal_length[c, red] * 1e3 == pytest.approx(row["f_mm"], rel=1e-12)
+        assert np.degrees(np.arctan(m.k[c, red] / m.focal_length[c, red])) == pytest.approx(row["k_deg"], abs=1e-12)
+        # alpha_0 (tan of the first pixel's field angle) is where the boresight sample lies
+        assert -m.focal_plane_y(c, red, 0.0) / m.focal_length[c, red] == pytest.approx(row["alpha0"], rel=1e-12)
+    np.testing.assert_allclose(np.degrees(m.omega), [-0.0658333, -0.041111, 0.006666])
+    # the other cameras follow the table's sides: fore delta < 0, aft > 0, |delta| rising with view angle
+    d = np.degrees(m.delta)
+    assert np.all(d[:4] < 0) and np.all(d[5:] > 0)
+    assert np.all(np.diff(np.abs(d[:4])) < 0) and np.all(np.diff(np.abs(d[5:])) > 0)
+
+
+def test_table1_tracks_meet_near_30_degrees_and_cross_over():
+    # Acceptance of the convention: through the public geolocation API, Table 1's Df and Da see
+    # An's boresight track within 5 km at 30 deg latitude; at the equator Earth rotation is
+    # under-compensated and at 60 deg over-compensated, so each camera's miss changes sign, and
+    # fore and aft lie on opposite sides at both.
+    from misrgraph.nominal import compensation_miss_km
+
+    miss = compensation_miss_km(CameraModel.preflight(), [0.0, 30.0, 60.0])
+    df, da = miss["Df"], miss["Da"]
+    assert abs(df[1]) < 5.0 and abs(da[1]) < 5.0
+    assert np.sign(df[0]) == -np.sign(da[0]) and np.sign(df[2]) == -np.sign(da[2])
+    assert np.sign(df[0]) == -np.sign(df[2])
+    assert min(abs(df[0]), abs(da[0]), abs(df[2]), abs(da[2])) > 5.0
+
+
+def test_old_convention_files_are_refused(nominal_camera, tmp_path):
+    path = tmp_path / "old.h5"
+    nominal_camera.save(path)
+    with h5py.File(path, "r+") as f:
+        f.attrs["format_version"] = 1
+    with pytest.raises(FileFormatError, match=r"format_version is 1.*Rz\(delta\) Ry\(beta\)"):
+        CameraModel.load(path)
 
 
 def test_nominal_ifov_matches_seed_ground_sampling(nominal_camera):
