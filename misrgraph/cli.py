@@ -172,7 +172,7 @@ def info(file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
 @handle_errors
 def adjust(
     scenario_dir: Path = typer.Argument(..., help="Scenario directory (misrgraph simulate --scenario pass)."),
-    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model HDF5 (default: the scenario's, e.g. one written by calibrate)."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model HDF5, or 'preflight' (Table 1) or 'nominal' (default: the scenario's, e.g. one written by calibrate)."),
     pass_file: Optional[Path] = typer.Option(None, "--pass", help="Pass file (default: the first in SCENARIO_DIR/passes)."),
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (default SCENARIO_DIR/gcp.h5)."),
     dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (default SCENARIO_DIR/dem.h5)."),
@@ -237,7 +237,7 @@ def _print_adjust_summary(s: dict) -> None:
 @handle_errors
 def calibrate(
     scenario_dir: Path = typer.Argument(..., help="Scenario directory (misrgraph simulate --scenario month)."),
-    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Supplied (pre-flight) model; default SCENARIO_DIR/camera_model.h5."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Supplied model: HDF5, or 'preflight' (Table 1) or 'nominal'; default SCENARIO_DIR/camera_model.h5."),
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database; default SCENARIO_DIR/gcp.h5."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write the recalibrated camera model (HDF5, with covariance)."),
     params: str = typer.Option("delta,beta,epsilon", "--params", help="Comma list from: delta, beta, epsilon, f, alpha0..alpha5, omega."),
@@ -287,7 +287,7 @@ def calibrate(
 def update(
     state: Path = typer.Argument(..., help="State directory (created on first use)."),
     passes: Optional[list[Path]] = typer.Argument(None, help="New pass files (HDF5) to add, in order."),
-    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model (needed when creating the state)."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model HDF5, or 'preflight' / 'nominal' (needed when creating the state)."),
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (needed when creating the state)."),
     dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (recommended when creating the state)."),
     compare_batch: bool = typer.Option(False, "--compare-batch", help="Also re-solve all passes in batch and report the cost ratio and the difference in sigma."),
