@@ -45,7 +45,7 @@ from misrgraph.gcp import GcpDatabase
 from misrgraph.geolocation import PassGeometry
 from misrgraph.graph import GraphConfig, PassGraph, build_pass_graph
 from misrgraph.h5io import atomic_h5, write_dataset
-from misrgraph.passdata import KIND_CHECK, KIND_GCP, OrbitPass
+from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.solver import Marginals, SolverParams, information_norm, linearize, marginal_covariances, solve
 
 __all__ = ["AdjustConfig", "AdjustResult", "run_adjust", "adjust_pass", "corrected_geometry", "score_pass", "find_blunders"]
@@ -101,6 +101,8 @@ class AdjustResult:
     final_cost: float
     history: list[float]
     seconds: float
+    #: landmark rows dropped whole because most of their rays were rejected (see find_blunders)
+    dropped_landmarks: NDArray[np.int64] = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def _estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -> tuple[AttitudeErrorModel, EphemerisErrorModel, CameraModel]:
@@ -138,6 +140,8 @@ def adjust_pass(
     if progress and cfg.robust != "none":
         progress("robust solve")
     rejected, norm = find_blunders(orbit_pass, camera, dem, gcps, cfg)
+    blunder_mask = rejected
+    rejected, dropped = drop_unsupported_landmarks(orbit_pass, rejected)
     if progress:
         progress("least-squares solve")
     pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
@@ -149,9 +153,9 @@ def adjust_pass(
     resid = np.full((len(obs), 2), np.nan)
     resid[pg.obs_index[pg.collinearity.order]] = r
     att, eph, cam = _estimated_models(pg, res.values, camera)
-    rej = np.flatnonzero(rejected)
+    rej = np.flatnonzero(blunder_mask)
     return AdjustResult(pg, res.values, marg, att, eph, cam, rej, norm[rej], resid, res.iterations, res.final_error,
-                        res.history, time.perf_counter() - t0)
+                        res.history, time.perf_counter() - t0, dropped)
 
 
 def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | None, gcps: GcpDatabase | None,
@@ -174,6 +178,30 @@ def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | No
     log.info("robust solve: %d iterations; %d observations rejected (> %.1f sigma)", res_r.iterations,
              int(rejected.sum()), cfg.reject_sigma)
     return rejected, norm
+
+
+def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+    """Exclude every observation of a tie point that the blunder test left unsupported.
+
+    A landmark is dropped when more than half of its observations were rejected, or when fewer
+    than two cameras still see it. Then the landmark, not its rays, is what the robust solve got
+    wrong: typically a wrong terrain intersection, where the good rays look like blunders. One
+    ray plus the DEM would give it a confident position that may be kilometres off. GCPs keep
+    their ground prior and are never dropped; check points are not in the graph. Returns the new exclusion mask and the dropped rows.
+    """
+    obs = orbit_pass.observations
+    kinds = orbit_pass.landmarks.kind
+    n_lm = len(kinds)
+    total = np.bincount(obs.landmark, minlength=n_lm)
+    n_rej = np.bincount(obs.landmark[rejected], minlength=n_lm)
+    keep = ~rejected
+    pairs = np.unique(np.stack([obs.landmark[keep], obs.camera[keep]], 1), axis=0)
+    cams_left = np.bincount(pairs[:, 0], minlength=n_lm) if pairs.size else np.zeros(n_lm, np.int64)
+    drop = (kinds == KIND_TIE) & (total > 0) & ((2 * n_rej > total) | (cams_left < 2))
+    rows = np.flatnonzero(drop)
+    if rows.size:
+        log.info("dropped %d landmarks whose rays were mostly rejected (rows %s)", rows.size, rows[:20].tolist())
+    return rejected | drop[obs.landmark], rows.astype(np.int64)
 
 
 # ---------------------------------------------------------------------------- scoring
@@ -415,6 +443,7 @@ def run_adjust(
         "seconds": res.seconds,
         "observations": int(len(pg.collinearity)),
         "landmarks": int(pg.landmark_keys.size),
+        "dropped_tie_points": int(res.dropped_landmarks.size),
         "knots": {a: {"kept": int(res.attitude.knot_times[i].size), "removed": int(pg.removed_knots[i].size)}
                   for i, a in enumerate(ANGLES)},
         "rejected_observations": [{"index": int(i), "camera": CAMERAS[int(orbit_pass.observations.camera[i])],

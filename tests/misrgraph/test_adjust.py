@@ -146,3 +146,30 @@ def test_all_gcps_blunders_is_diagnosed(small_pass_dir, tmp_path):
     assert any("GCP observations were rejected" in m for m in s["diagnostics"])
     assert sum(r["landmark_kind"] == "gcp" for r in s["rejected_observations"]) == int(gcp_obs.sum())
     assert load_scenario(d).pass_files
+
+
+def test_tie_point_with_mostly_rejected_rays_is_dropped_whole(small_pass):
+    """A tie point whose rays were mostly rejected (or seen by < 2 cameras after rejection) loses
+    all its observations; a GCP keeps its remaining one (its ground prior still determines it)."""
+    from misrgraph.adjust import drop_unsupported_landmarks
+
+    _, p = small_pass
+    obs, kinds = p.observations, p.landmarks.kind
+    counts = np.bincount(obs.landmark, minlength=len(kinds))
+    tie = int(np.flatnonzero((kinds == KIND_TIE) & (counts >= 5))[0])
+    tie_obs = np.flatnonzero(obs.landmark == tie)
+    gcp = int(np.flatnonzero((kinds == KIND_GCP) & (counts >= 2))[0])
+    gcp_obs = np.flatnonzero(obs.landmark == gcp)
+    other = int(np.flatnonzero((kinds == KIND_TIE) & (counts >= 5))[1])
+    other_obs = np.flatnonzero(obs.landmark == other)
+
+    rejected = np.zeros(len(obs), bool)
+    rejected[tie_obs[: len(tie_obs) // 2 + 1]] = True  # a majority of the tie point's rays
+    rejected[gcp_obs[1:]] = True  # all but one of the GCP's
+    rejected[other_obs[0]] = True  # one ray of another tie point: a plain blunder
+    mask, rows = drop_unsupported_landmarks(p, rejected)
+    assert rows.tolist() == [tie]
+    assert mask[tie_obs].all()
+    assert not mask[gcp_obs[0]] and mask[gcp_obs[1:]].all()
+    assert mask[other_obs].sum() == 1
+    assert np.array_equal(mask & ~rejected, np.isin(np.arange(len(obs)), tie_obs) & ~rejected)
