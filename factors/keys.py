@@ -9,7 +9,8 @@ roll knot    ``r``   ``pass * 10**5 + knot``                        Vector2 (rad
 pitch knot   ``p``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
 yaw knot     ``y``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
 ephemeris    ``e``   ``pass * 10**3 + segment``                     Vector6 (a m/s, b m)
-camera       ``c``   ``camera * 10 + (band + 1 if per band else 0)`` Vector of chosen corrections
+camera       ``c``   ``bin * 1000 + camera * 10 + (band + 1 if per band else 0)`` Vector of chosen corrections
+                             (``bin``: temperature bin of a thermal calibration, else 0)
 instrument   ``w``   0                                              Vector3 (wx, wy, wz) rad
 ===========  ======  =============================================  ==========================
 
@@ -51,8 +52,8 @@ def ephemeris_key(pass_index: int, segment: int) -> int:
     return gtsam.symbol(EPHEMERIS, pass_index * 10**3 + segment)
 
 
-def camera_key(camera: int, band: int | None = None) -> int:
-    return gtsam.symbol(CAMERA, camera * 10 + (0 if band is None else band + 1))
+def camera_key(camera: int, band: int | None = None, temperature_bin: int = 0) -> int:
+    return gtsam.symbol(CAMERA, temperature_bin * 1000 + camera * 10 + (0 if band is None else band + 1))
 
 
 def omega_key() -> int:

@@ -51,7 +51,9 @@ class CameraModel:
     """Parameters of eq. 2 for all cameras and bands (SI units, radians).
 
     Shapes: ``omega (3,)`` as (wx, wy, wz); ``delta, beta, epsilon (9,)``;
-    ``focal_length, k, cy (9, 4)``; ``alpha (9, 4, 6)``. ``dx``/``dy`` are the along/cross-track
+    ``focal_length, k, cy (9, 4)``; ``alpha (9, 4, 6)``; ``band_delta, band_beta, band_epsilon
+    (9, 4)``: each band's own angle offsets (rad), added to the camera's angles for that band's
+    line array (zero unless a per-band calibration or truth sets them; see :meth:`angles`). ``dx``/``dy`` are the along/cross-track
     detector pitches (m); ``line_time`` the line repeat time (s); ``temperature_c`` the
     temperature (deg C) at which the parameters hold.
     """
@@ -69,10 +71,14 @@ class CameraModel:
     line_time: float = LINE_TIME_S
     temperature_c: float = 5.0
     provenance: dict[str, str] = field(default_factory=dict)
+    band_delta: Array = field(default_factory=lambda: np.zeros((NC, NB)))
+    band_beta: Array = field(default_factory=lambda: np.zeros((NC, NB)))
+    band_epsilon: Array = field(default_factory=lambda: np.zeros((NC, NB)))
 
     _SHAPES = {
         "omega": (3,), "delta": (NC,), "beta": (NC,), "epsilon": (NC,),
         "focal_length": (NC, NB), "alpha": (NC, NB, N_ALPHA), "k": (NC, NB), "cy": (NC, NB),
+        "band_delta": (NC, NB), "band_beta": (NC, NB), "band_epsilon": (NC, NB),
     }
 
     def __post_init__(self) -> None:
@@ -114,18 +120,27 @@ class CameraModel:
         wx, wy, wz = self.omega
         return rot_z(wz) @ rot_y(wy) @ rot_x(wx)
 
-    def t_ic(self, cam: ArrayLike) -> Array:
-        """Camera -> instrument rotation ``Ry(beta) Rx(delta)`` for camera indices, (..., 3, 3)."""
+    def angles(self, cam: ArrayLike, band: ArrayLike | None = None) -> tuple[Array, Array, Array]:
+        """(delta, beta, epsilon) in rad of cameras, plus each band's offsets when ``band`` is given."""
         c = np.asarray(cam, dtype=int)
-        return rot_y(self.beta[c]) @ rot_x(self.delta[c])
+        if band is None:
+            return self.delta[c], self.beta[c], self.epsilon[c]
+        b = np.asarray(band, dtype=int)
+        return self.delta[c] + self.band_delta[c, b], self.beta[c] + self.band_beta[c, b], self.epsilon[c] + self.band_epsilon[c, b]
 
-    def t_cd(self, cam: ArrayLike) -> Array:
+    def t_ic(self, cam: ArrayLike, band: ArrayLike | None = None) -> Array:
+        """Camera -> instrument rotation ``Ry(beta) Rx(delta)`` for camera (and band) indices, (..., 3, 3)."""
+        d, b_, _ = self.angles(cam, band)
+        return rot_y(b_) @ rot_x(d)
+
+    def t_cd(self, cam: ArrayLike, band: ArrayLike | None = None) -> Array:
         """Detector -> camera rotation ``Rz(eps)``, (..., 3, 3)."""
-        return rot_z(self.epsilon[np.asarray(cam, dtype=int)])
+        return rot_z(self.angles(cam, band)[2])
 
-    def detector_to_spacecraft(self, cam: ArrayLike) -> Array:
-        """``T_si T_ic T_cd`` for camera indices, (..., 3, 3)."""
-        return self.t_si() @ self.t_ic(cam) @ self.t_cd(cam)
+    def detector_to_spacecraft(self, cam: ArrayLike, band: ArrayLike | None = None) -> Array:
+        """``T_si T_ic T_cd`` for camera (and band) indices, (..., 3, 3); without ``band`` the
+        camera-level angles (no band offsets)."""
+        return self.t_si() @ self.t_ic(cam, band) @ self.t_cd(cam, band)
 
     def detector_vectors(
         self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike, exposure: ArrayLike | None = None
@@ -145,7 +160,7 @@ class CameraModel:
     ) -> Array:
         """Unit pointing vectors in the spacecraft frame for pixels, (..., 3) (eq. 2)."""
         d = self.detector_vectors(cam, band, line, sample, exposure)
-        r = np.einsum("...ij,...j->...i", self.detector_to_spacecraft(cam), d)
+        r = np.einsum("...ij,...j->...i", self.detector_to_spacecraft(cam, band), d)
         return r / np.linalg.norm(r, axis=-1, keepdims=True)
 
     def focal_plane_y(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
@@ -260,17 +275,20 @@ def validate_pixel_inputs(camera: str, band: str, sample: float | None = None) -
 
 
 class TabulatedCameraModel:
-    """A camera model tabulated at several temperatures, linearly interpolated in between.
+    """A camera model tabulated at several temperatures, piecewise linear in temperature.
 
     The seed's parameters are thermally sensitive (Table 1: f and alpha measured at three
     temperatures; delta, beta thermal). ``at_temperature(T)`` interpolates every parameter array
-    linearly between the two nearest tabulated temperatures (clamped at the ends of the table) and
-    returns a plain :class:`CameraModel`; calibration and adjustment use the model at each pass's
+    linearly between the two nearest tabulated temperatures and returns a plain
+    :class:`CameraModel`. Outside the tabulated temperatures the end segments are extended
+    linearly up to ``valid_range_c`` (deg C; default: the tabulated range, i.e. clamping), and the
+    temperature is clamped beyond it. Calibration and adjustment use the model at each pass's
     temperature. Saved as a ``camera_model`` file whose ``/camera_model`` group is the model at
-    the first temperature plus a ``/temperature_table/<i>`` group per tabulated temperature.
+    the first temperature plus a ``/temperature_table/<i>`` group per tabulated temperature (attr
+    ``valid_range_c``).
     """
 
-    def __init__(self, models: list[CameraModel]) -> None:
+    def __init__(self, models: list[CameraModel], valid_range_c: tuple[float, float] | None = None) -> None:
         if len(models) < 2:
             raise InputError("temperature table", len(models), "at least two models at different temperatures")
         temps = np.array([m.temperature_c for m in models])
@@ -279,13 +297,41 @@ class TabulatedCameraModel:
             raise InputError("temperature table", temps.tolist(), "distinct temperatures")
         self.models = [models[i] for i in order]
         self.temperatures_c = temps[order]
+        lo, hi = (float(self.temperatures_c[0]), float(self.temperatures_c[-1])) if valid_range_c is None else valid_range_c
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo <= self.temperatures_c[0] and hi >= self.temperatures_c[-1]):
+            raise InputError("valid_range_c", (lo, hi), "finite (low, high) that contains the tabulated temperatures")
+        self.valid_range_c = (float(lo), float(hi))
+
+    @classmethod
+    def linear(cls, base: CameraModel, slopes: dict[str, Array], t_range_c: tuple[float, float]) -> "TabulatedCameraModel":
+        """A model linear in temperature: ``base`` holds at ``base.temperature_c``; ``slopes`` per deg C,
+        each of shape (9,): ``delta``, ``beta`` (rad/C) and ``focal_scale`` (1/C, the relative
+        change of f with the focal-plane polynomial ``f alpha_i`` fixed, i.e. every alpha_i / (1 + x)).
+        Tabulated at the two ends of ``t_range_c``, so it is exact in between."""
+        unknown = set(slopes) - {"delta", "beta", "focal_scale"}
+        if unknown:
+            raise InputError("slopes", sorted(unknown), "keys from delta, beta, focal_scale")
+        models = []
+        for t in t_range_c:
+            m = base.copy()
+            dt = float(t) - base.temperature_c
+            for name in ("delta", "beta"):
+                if name in slopes:
+                    getattr(m, name)[:] += np.asarray(slopes[name], float) * dt
+            if "focal_scale" in slopes:
+                x = 1.0 + np.asarray(slopes["focal_scale"], float) * dt
+                m.focal_length *= x[:, None]
+                m.alpha /= x[:, None, None]
+            m.temperature_c = float(t)
+            models.append(m)
+        return cls(models)
 
     @property
     def line_time(self) -> float:
         return self.models[0].line_time
 
     def at_temperature(self, temperature_c: float) -> CameraModel:
-        t = float(np.clip(temperature_c, self.temperatures_c[0], self.temperatures_c[-1]))
+        t = float(np.clip(temperature_c, *self.valid_range_c))
         i = int(np.clip(np.searchsorted(self.temperatures_c, t) - 1, 0, len(self.models) - 2))
         a, b = self.models[i], self.models[i + 1]
         w = (t - self.temperatures_c[i]) / (self.temperatures_c[i + 1] - self.temperatures_c[i])
@@ -298,10 +344,15 @@ class TabulatedCameraModel:
 
     def save(self, path: str | os.PathLike[str]) -> None:
         with atomic_h5(path, "camera_model") as f:
-            self.models[0].write_group(f.create_group("camera_model"))
-            g = f.create_group("temperature_table")
-            for i, m in enumerate(self.models):
-                m.write_group(g.create_group(str(i)))
+            self.write_groups(f)
+
+    def write_groups(self, f: Any) -> None:
+        """Write ``/camera_model`` (the first entry) and ``/temperature_table`` into an open file."""
+        self.models[0].write_group(f.create_group("camera_model"))
+        g = f.create_group("temperature_table")
+        g.attrs["valid_range_c"] = np.asarray(self.valid_range_c, float)
+        for i, m in enumerate(self.models):
+            m.write_group(g.create_group(str(i)))
 
     @staticmethod
     def load_any(path: str | os.PathLike[str]) -> "CameraModel | TabulatedCameraModel":
@@ -309,7 +360,8 @@ class TabulatedCameraModel:
         with open_h5(path, "camera_model") as f:
             if "temperature_table" in f:
                 g = f["temperature_table"]
-                return TabulatedCameraModel([CameraModel.read_group(g[k]) for k in sorted(g, key=int)])
+                rng = tuple(float(v) for v in g.attrs["valid_range_c"]) if "valid_range_c" in g.attrs else None
+                return TabulatedCameraModel([CameraModel.read_group(g[k]) for k in sorted(g, key=int)], rng)
             if "camera_model" not in f:
                 raise FileFormatError(path, "missing group /camera_model")
             return CameraModel.read_group(f["camera_model"])

@@ -117,6 +117,8 @@ def simulate(
     noise_free: bool = typer.Option(False, "--noise-free", help="No measurement noise and no blunders."),
     camera_truth: Optional[Path] = typer.Option(None, "--camera-truth", help="Use this true camera model (e.g. another scenario's camera_truth.h5) instead of drawing one."),
     chips: bool = typer.Option(False, "--chips", help="Store nine 64x64 image chips per GCP."),
+    thermal: float = typer.Option(0.0, "--thermal-arcsec-per-c", help="Thermal truth: 1 sigma of each camera's delta and beta slopes (arcsec per deg C; 0 = none). The true camera is then a temperature table and each pass is simulated at its own camera temperature."),
+    thermal_ppm: float = typer.Option(0.0, "--thermal-ppm-per-c", help="Thermal truth: 1 sigma of each camera's focal-length scale slope (ppm per deg C)."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -128,7 +130,8 @@ def simulate(
     fields = dict(scenario=scenario, seed=seed, path=path, n_passes=passes, n_tie_points=tie_points, n_check_points=check_points,
                   n_gcps=gcps, month_days=days, duration_s=duration, gcp_blunder_rate=gcp_blunder_rate,
                   tie_blunder_rate=tie_blunder_rate, nav_sigma_m=nav_sigma, camera_misalignment_arcsec=misalignment,
-                  noise_free=noise_free, with_chips=chips, camera_truth=str(camera_truth) if camera_truth else "")
+                  noise_free=noise_free, with_chips=chips, camera_truth=str(camera_truth) if camera_truth else "",
+                  thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm)
     if config is not None:
         try:
             fields.update(json.loads(config.read_text()))
@@ -242,6 +245,7 @@ def calibrate(
     out: Optional[Path] = typer.Option(None, "--out", help="Write the recalibrated camera model (HDF5, with covariance)."),
     params: str = typer.Option("delta,beta,epsilon", "--params", help="Comma list from: delta, beta, epsilon, f, alpha0..alpha5, omega."),
     per_band: bool = typer.Option(False, "--per-band", help="Separate corrections per camera and band."),
+    temperature_bins: int = typer.Option(1, "--temperature-bins", help="Thermal calibration: split the passes into N bins of equal count by camera temperature, estimate the corrections per bin, write a temperature table and report each parameter's slope per deg C (1: one set for all temperatures)."),
     max_passes: Optional[int] = typer.Option(None, "--max-passes", help="Use only the first N passes."),
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write PNG plots here."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
@@ -256,7 +260,8 @@ def calibrate(
     bad = [p for p in names if p not in CAMERA_PARAMS]
     if bad or not names:
         _fail(f"--params: got {bad[0] if bad else params!r}; expected a comma list of {', '.join(CAMERA_PARAMS)}, omega")
-    cfg = CalibrateConfig.from_dict(dict(params=tuple(names), per_band=per_band, estimate_omega=omega))
+    cfg = CalibrateConfig.from_dict(dict(params=tuple(names), per_band=per_band, estimate_omega=omega,
+                                         temperature_bins=temperature_bins))
     with err_console.status("calibrating...") as st:
         s = run_calibrate(scenario_dir, camera_model, gcp_file, out, cfg, max_passes, progress=lambda m: st.update(m))
     if plots is not None:
@@ -272,7 +277,7 @@ def calibrate(
     t.add_column("pointing error (px)", justify="right")
     t.add_column("sigma (px)", justify="right")
     for cam, v in s["cameras"].items():
-        par = ", ".join(f"{k} {v_['value'] / 4.8481e-6:.1f}+-{v_['sigma'] / 4.8481e-6:.1f}" if k in ("delta", "beta", "epsilon")
+        par = ", ".join(f"{k} {v_['value'] / 4.8481e-6:.1f}+-{v_['sigma'] / 4.8481e-6:.1f}" if k.split(".")[-1] in ("delta", "beta", "epsilon")
                         else f"{k} {v_['value']:.3g}+-{v_['sigma']:.2g}" for k, v_ in v["params"].items())
         t.add_row(cam, par, f"{v.get('pointing_error_px', float('nan')):.3f}", f"{v['sigma_px']:.3f}")
     console.print(t)
@@ -280,6 +285,20 @@ def calibrate(
         console.print(f"max pointing error {s['max_pointing_error_px']:.3f} px (requirement 0.125); NEES/dim {s['nees']:.2f}")
     for pd in s["poorly_determined"]:
         console.print(f"[yellow]poorly determined:[/] {pd['parameter']} (posterior sigma {pd['ratio']:.0%} of its prior)")
+    if "thermal" in s:
+        th = s["thermal"]
+        tt = Table(title="thermal slopes per deg C (angles in arcsec) over bins at "
+                         + ", ".join(f"{x:.1f}" for x in th["bins_c"]) + " C")
+        tt.add_column("camera")
+        tt.add_column("slope +- sigma (true)")
+        for cam, ps in th["slopes"].items():
+            tt.add_row(cam, ", ".join(
+                f"{p} {e.get('slope_arcsec_per_c', e['slope_per_c']):.3g}+-{e.get('sigma_arcsec_per_c', e['sigma_per_c']):.2g}"
+                + (f" ({e['true_slope_per_c'] / (4.8481e-6 if 'slope_arcsec_per_c' in e else 1):.3g})" if "true_slope_per_c" in e else "")
+                for p, e in ps.items()))
+        console.print(tt)
+        if "nees" in th:
+            console.print(f"thermal slopes NEES/dim {th['nees']:.2f} over {th['nees_dim']}")
 
 
 @app.command()

@@ -213,7 +213,7 @@ class PassGeometry:
         """
         g_eci = np.einsum("...ji,...j->...i", nav.eci_to_ecef, ground)
         v_scs = np.einsum("...ji,...j->...i", nav.r_eci_scs, g_eci - nav.position)
-        m = self.camera.detector_to_spacecraft(cam)
+        m = self.camera.detector_to_spacecraft(cam, band)
         v_det = np.einsum("...ji,...j->...i", m, v_scs)
         f = self.camera.focal_length[cam, band]
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -129,8 +129,10 @@ class PassGraph:
 
 
 def camera_parameter_matrix(camera: CameraModel, cam: NDArray[np.int64], band: NDArray[np.int64]) -> Array:
-    """Per-observation 10-vector (delta, beta, eps, f, alpha_0..5) of the supplied model."""
-    return np.concatenate([camera.delta[cam, None], camera.beta[cam, None], camera.epsilon[cam, None],
+    """Per-observation 10-vector (delta, beta, eps, f, alpha_0..5) of the supplied model; the angles
+    include each observation's band offsets."""
+    d, b_, e = camera.angles(cam, band)
+    return np.concatenate([d[:, None], b_[:, None], e[:, None],
                            camera.focal_length[cam, band][:, None], camera.alpha[cam, band]], axis=1)
 
 
@@ -163,12 +165,15 @@ def build_pass_graph(
     exclude_observations: NDArray[np.bool_] | None = None,
     shared: set[int] | None = None,
     camera_for_pass: CameraModel | None = None,
+    temperature_bin: int = 0,
 ) -> PassGraph:
     """Build the graph of DESIGN.md section 4 for one pass (see the module docstring).
 
     ``shared`` holds keys (GCPs, cameras, omega) whose value and prior another pass of the same
     problem already added: they are referenced, not added again. ``camera_for_pass`` is the
-    supplied model at this pass's temperature when it differs from ``camera``.
+    supplied model at this pass's temperature when it differs from ``camera``. ``temperature_bin``
+    selects the camera-correction variables of a thermal calibration (one set per temperature
+    bin); ``camera_keys`` then maps ``bin * 1000 + camera code`` to the key.
     """
     shared = shared if shared is not None else set()
     camera = camera_for_pass or camera
@@ -228,11 +233,13 @@ def build_pass_graph(
     if cfg.estimate_camera:
         if cfg.camera_per_band:
             pairs = np.unique(np.stack([cam, band], 1), axis=0)
-            camera_keys = {int(c) * 10 + int(b): K.camera_key(int(c), int(b)) for c, b in pairs}
-            keys["camera"] = np.array([camera_keys[int(c) * 10 + int(b)] for c, b in zip(cam, band)], np.int64)
+            off = 1000 * temperature_bin
+            camera_keys = {off + int(c) * 10 + int(b): K.camera_key(int(c), int(b), temperature_bin) for c, b in pairs}
+            keys["camera"] = np.array([camera_keys[off + int(c) * 10 + int(b)] for c, b in zip(cam, band)], np.int64)
         else:
-            camera_keys = {int(c): K.camera_key(int(c)) for c in cams_used}
-            keys["camera"] = np.array([camera_keys[int(c)] for c in cam], np.int64)
+            off = 1000 * temperature_bin
+            camera_keys = {off + int(c): K.camera_key(int(c), None, temperature_bin) for c in cams_used}
+            keys["camera"] = np.array([camera_keys[off + int(c)] for c in cam], np.int64)
     if cfg.estimate_omega:
         keys["omega"] = np.full(idx.size, K.omega_key(), np.int64)
     select = tuple(CAMERA_PARAMS.index(p) for p in cfg.camera_params)
@@ -298,7 +305,7 @@ def build_pass_graph(
         add(k, np.zeros(6))
         graph.add(vector_prior(k, np.zeros(6), eph_sig))
     for ck, k in camera_keys.items():
-        c = ck // 10 if cfg.camera_per_band else ck
+        c = (ck % 1000) // 10 if cfg.camera_per_band else ck % 1000
         scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in cfg.camera_params]]
         if cfg.camera_prior_calibration:
             sig = np.array([CAMERA_PRIOR_SIGMA[p] for p in cfg.camera_params]) / scale

@@ -30,10 +30,14 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
             "observations": len(p.observations), "temperature_c": p.temperature_c, "has_truth": p.truth is not None,
         })
     elif kind == "camera_model":
-        from misrgraph.camera import CameraModel
+        from misrgraph.camera import CameraModel, load_camera_model
 
-        m = CameraModel.load(path)
+        lm = load_camera_model(path)
+        m = lm if isinstance(lm, CameraModel) else lm.models[0]
         out.update({"cameras": 9, "bands": 4, "temperature_c": m.temperature_c, "provenance": m.provenance})
+        if not isinstance(lm, CameraModel):
+            out.update({"temperature_table_c": [float(t) for t in lm.temperatures_c],
+                        "valid_range_c": list(lm.valid_range_c)})
     elif kind == "gcp_database":
         from misrgraph.gcp import GcpDatabase
 

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph import __version__
-from misrgraph.camera import CameraModel
+from misrgraph.camera import CameraModel, TabulatedCameraModel, load_camera_model
 from misrgraph.config import Config
 from misrgraph.constants import ARCSEC, BANDS, CAMERAS, NODAL_PERIOD_S, REPEAT_PATHS
 from misrgraph.dem import DemTiles, Geoid, SyntheticTerrain, land_mask
@@ -50,6 +50,7 @@ from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observ
 
 __all__ = [
     "ScenarioConfig",
+    "draw_thermal_truth",
     "run_simulate",
     "draw_ephemeris_error",
     "draw_attitude_error",
@@ -104,6 +105,8 @@ class ScenarioConfig(Config):
     noise_free: bool = False
     with_chips: bool = False
     camera_truth: str = ""
+    thermal_arcsec_per_c: float = 0.0
+    thermal_focal_ppm_per_c: float = 0.0
 
     def __post_init__(self) -> None:
         if self.scenario not in ("pass", "month", "path"):
@@ -115,6 +118,9 @@ class ScenarioConfig(Config):
         for name in ("tie_sigma_px", "gcp_sigma_px", "nav_sigma_m", "gcp_sigma_m", "duration_s"):
             if getattr(self, name) <= 0:
                 raise InputError(name, getattr(self, name), "a positive number")
+        for name in ("thermal_arcsec_per_c", "thermal_focal_ppm_per_c"):
+            if not getattr(self, name) >= 0:
+                raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma of the per-camera slope)")
         for name in ("tie_blunder_rate", "gcp_blunder_rate", "view_probability", "texture_probability", "dted1_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(name, getattr(self, name), "a fraction in [0, 1]")
@@ -157,6 +163,43 @@ def draw_attitude_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: 
         kt.append(times)
         kv.append(np.stack([v, r], -1))
     return AttitudeErrorModel(kt, kv)
+
+
+#: Temperature (deg C) at which the simulator's thermal truth equals the drawn misaligned camera
+#: (Table 1's pre-flight models are at 5 C); the table spans THERMAL_RANGE_C.
+THERMAL_REFERENCE_C = 5.0
+THERMAL_RANGE_C = (-10.0, 20.0)
+
+
+def draw_thermal_truth(rng: np.random.Generator, base: CameraModel, angle_sigma_rad: float,
+                       focal_sigma: float) -> TabulatedCameraModel:
+    """A true camera linear in temperature around ``base`` (at :data:`THERMAL_REFERENCE_C`).
+
+    Per camera: slopes of delta and beta ~ N(0, angle_sigma_rad) rad/C and a focal scale slope
+    ~ N(0, focal_sigma) 1/C (f grows, the focal-plane polynomial ``f alpha_i`` stays: the
+    cross-track field angle per pixel shrinks). Tabulated over :data:`THERMAL_RANGE_C`.
+    """
+    nc = len(CAMERAS)
+    slopes = {"delta": rng.standard_normal(nc) * angle_sigma_rad, "beta": rng.standard_normal(nc) * angle_sigma_rad,
+              "focal_scale": rng.standard_normal(nc) * focal_sigma}
+    base = base.copy()
+    base.temperature_c = THERMAL_REFERENCE_C
+    table = TabulatedCameraModel.linear(base, slopes, THERMAL_RANGE_C)
+    for m in table.models:
+        m.provenance = dict(base.provenance, thermal="linear in temperature (simulator truth)")
+    return table
+
+
+def _offset_table(truth: TabulatedCameraModel, truth_ref: CameraModel, supplied_ref: CameraModel) -> TabulatedCameraModel:
+    """``truth`` with the difference ``supplied_ref - truth_ref`` added at every temperature."""
+    models = []
+    for m in truth.models:
+        o = m.copy()
+        for name in CameraModel._SHAPES:
+            setattr(o, name, getattr(m, name) + getattr(supplied_ref, name) - getattr(truth_ref, name))
+        o.provenance = dict(supplied_ref.provenance)
+        models.append(o)
+    return TabulatedCameraModel(models, truth.valid_range_c)
 
 
 def draw_camera_misalignment(rng: np.random.Generator, nominal: CameraModel, sigma_rad: Array | float) -> CameraModel:
@@ -359,8 +402,8 @@ class Scenario:
 
     directory: Path
     config: dict[str, Any]
-    camera_model: CameraModel
-    camera_truth: CameraModel | None
+    camera_model: "CameraModel | TabulatedCameraModel"
+    camera_truth: "CameraModel | TabulatedCameraModel | None"
     gcps: GcpDatabase
     dem: DemTiles
     pass_files: list[Path]
@@ -386,8 +429,8 @@ def load_scenario(directory: str | os.PathLike[str]) -> Scenario:
     if not passes:
         raise FileFormatError(d / "passes", "no pass files (*.h5)")
     return Scenario(
-        d, config, CameraModel.load(d / "camera_model.h5"),
-        CameraModel.load(truth_path) if truth_path.exists() else None,
+        d, config, load_camera_model(d / "camera_model.h5"),
+        load_camera_model(truth_path) if truth_path.exists() else None,
         GcpDatabase.load(d / "gcp.h5"), DemTiles.load(d / "dem.h5"), passes,
     )
 
@@ -406,9 +449,13 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     gcps = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips)
     truth_cam = draw_camera_misalignment(rng, nominal, cfg.camera_misalignment_arcsec * ARCSEC)
     truth_cam.provenance = {"source": "simulator truth", "seed": str(cfg.seed)}
+    truth_model: CameraModel | TabulatedCameraModel = truth_cam
+    if cfg.thermal_arcsec_per_c > 0 or cfg.thermal_focal_ppm_per_c > 0:
+        truth_model = draw_thermal_truth(rng, truth_cam, cfg.thermal_arcsec_per_c * ARCSEC, cfg.thermal_focal_ppm_per_c * 1e-6)
     if cfg.camera_truth:
         # the same instrument as another scenario (e.g. the month a calibration came from)
-        truth_cam = CameraModel.load(cfg.camera_truth)
+        truth_model = load_camera_model(cfg.camera_truth)
+        truth_cam = truth_model.at_temperature(THERMAL_REFERENCE_C)
     if cfg.scenario == "month":
         supplied = nominal.copy()
         supplied.provenance = {"source": "pre-flight nominal model (misrgraph.nominal)"}
@@ -418,6 +465,9 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         ifov = np.array([nominal.ifov_cross_rad(c, RED, 751.5) for c in range(len(CAMERAS))])
         supplied = draw_camera_misalignment(rng, truth_cam, ifov * cfg.camera_residual_px)
         supplied.provenance = {"source": "calibrated model (truth + residual error)", "residual_px": str(cfg.camera_residual_px)}
+        if isinstance(truth_model, TabulatedCameraModel):
+            # a calibrated thermal table: the same residual error at every temperature
+            supplied = _offset_table(truth_model, truth_cam, supplied)
         n_tie, n_check = cfg.n_tie_points, cfg.n_check_points
         if cfg.scenario == "path":
             import datetime as _dt
@@ -441,7 +491,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                 progress(f"pass {k + 1}/{len(plan)}", k, len(plan))
             eph = terra_like_orbit(epoch_date=date, path=path, start_lat_deg=start_lat, duration_s=duration)
             temp = 5.0 + 3.0 * np.sin(2 * np.pi * orbit / 437.0) + 0.5 * rng.standard_normal()
-            p = simulate_pass(rng, cfg, eph, truth_cam, terrain, geoid, gcps, f"P{path:03d}_O{orbit:04d}", path, orbit,
+            p = simulate_pass(rng, cfg, eph, truth_model.at_temperature(float(temp)), terrain, geoid, gcps, f"P{path:03d}_O{orbit:04d}", path, orbit,
                               n_tie, n_check, float(temp), features=path_features,
                               feature_fraction=cfg.repeat_visibility if path_features is not None else 1.0)
             if cfg.scenario == "path" and path_features is None:
@@ -466,7 +516,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         lat, lon, _ = ecef_to_geodetic(lm)
         DemTiles.around(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction).save(tmp / "dem.h5")
         supplied.save(tmp / "camera_model.h5")
-        truth_cam.save(tmp / "camera_truth.h5")
+        truth_model.save(tmp / "camera_truth.h5")
         gcps.save(tmp / "gcp.h5")
         summary = {
             "software": f"misrgraph {__version__}",

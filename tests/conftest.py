@@ -77,3 +77,15 @@ def small_month_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("scen") / "month"
     run_simulate(ScenarioConfig(scenario="month", seed=31, n_gcps=30, month_days=16), out)
     return out
+
+
+@pytest.fixture(scope="session")
+def thermal_month_dir(tmp_path_factory):
+    """A reduced 'month' with a thermal truth: 40 GCPs over 30 days (about 110 GCP passes at
+    1-10 C), per-camera delta/beta slopes of 2 arcsec/C and focal-scale slopes of 20 ppm/C (1 sigma)."""
+    from misrgraph.simulate import ScenarioConfig, run_simulate
+
+    out = tmp_path_factory.mktemp("scen") / "thermal_month"
+    run_simulate(ScenarioConfig(scenario="month", seed=5, n_gcps=40, month_days=30, thermal_arcsec_per_c=2.0,
+                                thermal_focal_ppm_per_c=20.0), out)
+    return out

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import dataclasses
+
 import h5py
 import numpy as np
 import pytest
@@ -169,3 +171,37 @@ def test_tabulated_model_interpolates_linearly_and_round_trips(nominal_camera, t
     assert isinstance(TabulatedCameraModel.load_any(tmp_path / "t.h5"), TabulatedCameraModel)
     with pytest.raises(InputError, match="temperature table"):
         TabulatedCameraModel([cold])
+
+
+def test_linear_thermal_table_is_exact_and_extrapolates_within_its_range(nominal_camera):
+    from misrgraph.camera import TabulatedCameraModel
+
+    slopes = {"delta": np.linspace(-1e-5, 1e-5, 9), "beta": np.full(9, 2e-6), "focal_scale": np.full(9, 2e-5)}
+    t = TabulatedCameraModel.linear(nominal_camera, slopes, (-10.0, 20.0))
+    for temp in (-10.0, 3.7, 20.0):
+        m = t.at_temperature(temp)
+        dt = temp - nominal_camera.temperature_c
+        np.testing.assert_allclose(m.delta - nominal_camera.delta, slopes["delta"] * dt, atol=1e-15)
+        np.testing.assert_allclose(m.focal_length / nominal_camera.focal_length, 1 + 2e-5 * dt, rtol=1e-12)
+        # the physical focal-plane polynomial f * alpha_i stays (to second order in the scale)
+        np.testing.assert_allclose(m.focal_length * m.alpha[..., 1], nominal_camera.focal_length * nominal_camera.alpha[..., 1],
+                                   rtol=1e-6)
+    # a table with a wider valid range extends its end segments linearly, and clamps beyond
+    ext = TabulatedCameraModel([t.at_temperature(0.0), t.at_temperature(10.0)], valid_range_c=(-5.0, 15.0))
+    np.testing.assert_allclose(ext.at_temperature(-5.0).delta, t.at_temperature(-5.0).delta, atol=1e-15)
+    np.testing.assert_allclose(ext.at_temperature(40.0).delta, t.at_temperature(15.0).delta, atol=1e-15)
+    with pytest.raises(InputError, match="valid_range_c"):
+        TabulatedCameraModel([t.at_temperature(0.0), t.at_temperature(10.0)], valid_range_c=(2.0, 15.0))
+    with pytest.raises(InputError, match="slopes"):
+        TabulatedCameraModel.linear(nominal_camera, {"gamma": np.zeros(9)}, (0.0, 1.0))
+
+
+def test_thermal_table_round_trips_through_a_file(nominal_camera, tmp_path):
+    from misrgraph.camera import TabulatedCameraModel, load_camera_model
+
+    t = TabulatedCameraModel([nominal_camera.copy(), dataclasses.replace(nominal_camera.copy(), temperature_c=9.0)],
+                             valid_range_c=(0.0, 12.0))
+    t.save(tmp_path / "t.h5")
+    back = load_camera_model(tmp_path / "t.h5")
+    assert isinstance(back, TabulatedCameraModel) and back.valid_range_c == (0.0, 12.0)
+    np.testing.assert_array_equal(back.temperatures_c, [5.0, 9.0])
