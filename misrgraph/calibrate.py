@@ -331,11 +331,14 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
                     "value": float(res.values[i]), "sigma": float(sig[i])}
         if not entry["params"]:
             continue
+        # per-band calibration: the worst of the camera's calibrated bands
+        bands = sorted({_decode(ck, cfg)[2] for ck in cams if _decode(ck, cfg)[1] == c} - {None}) or [RED]
         if truth is not None:
-            entry["pointing_error_px"] = max(pointing_error_px(e, _at(truth, t), c) for e, t in zip(est_at, grid))
-            entry["pointing_error_before_px"] = max(pointing_error_px(m, _at(truth, t), c) for m, t in zip(sup_at, grid))
-        entry["sigma_px"] = float(np.sqrt(np.mean([pointing_error_px(sm[j], est_at[j], c) ** 2
-                                                   for sm in samples for j in range(grid.size)])))
+            entry["pointing_error_px"] = max(pointing_error_px(e, _at(truth, t), c, b) for e, t in zip(est_at, grid) for b in bands)
+            entry["pointing_error_before_px"] = max(pointing_error_px(m, _at(truth, t), c, b)
+                                                    for m, t in zip(sup_at, grid) for b in bands)
+        entry["sigma_px"] = float(np.sqrt(np.mean([pointing_error_px(sm[j], est_at[j], c, b) ** 2
+                                                   for sm in samples for j in range(grid.size) for b in bands])))
         cams_out[name] = entry
     out: dict[str, Any] = {"cameras": cams_out, "iterations": res.iterations, "final_cost": res.final_cost,
                            "seconds": res.seconds, "passes": len(res.graphs),

@@ -119,6 +119,8 @@ def simulate(
     chips: bool = typer.Option(False, "--chips", help="Store nine 64x64 image chips per GCP."),
     thermal: float = typer.Option(0.0, "--thermal-arcsec-per-c", help="Thermal truth: 1 sigma of each camera's delta and beta slopes (arcsec per deg C; 0 = none). The true camera is then a temperature table and each pass is simulated at its own camera temperature."),
     thermal_ppm: float = typer.Option(0.0, "--thermal-ppm-per-c", help="Thermal truth: 1 sigma of each camera's focal-length scale slope (ppm per deg C)."),
+    bands: str = typer.Option("red", "--bands", help="Bands observed, comma-separated from blue, green, red, nir (e.g. all four for band-to-band calibration)."),
+    band_misalignment: float = typer.Option(0.0, "--band-misalignment-arcsec", help="Per-band truth: 1 sigma of each band's own delta, beta, epsilon offsets (arcsec)."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -131,7 +133,8 @@ def simulate(
                   n_gcps=gcps, month_days=days, duration_s=duration, gcp_blunder_rate=gcp_blunder_rate,
                   tie_blunder_rate=tie_blunder_rate, nav_sigma_m=nav_sigma, camera_misalignment_arcsec=misalignment,
                   noise_free=noise_free, with_chips=chips, camera_truth=str(camera_truth) if camera_truth else "",
-                  thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm)
+                  thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm,
+                  bands=tuple(b.strip() for b in bands.split(",") if b.strip()), band_misalignment_arcsec=band_misalignment)
     if config is not None:
         try:
             fields.update(json.loads(config.read_text()))

@@ -107,6 +107,8 @@ class ScenarioConfig(Config):
     camera_truth: str = ""
     thermal_arcsec_per_c: float = 0.0
     thermal_focal_ppm_per_c: float = 0.0
+    bands: tuple = ("red",)
+    band_misalignment_arcsec: float = 0.0
 
     def __post_init__(self) -> None:
         if self.scenario not in ("pass", "month", "path"):
@@ -118,6 +120,10 @@ class ScenarioConfig(Config):
         for name in ("tie_sigma_px", "gcp_sigma_px", "nav_sigma_m", "gcp_sigma_m", "duration_s"):
             if getattr(self, name) <= 0:
                 raise InputError(name, getattr(self, name), "a positive number")
+        if not self.bands or len(set(self.bands)) != len(self.bands) or any(b not in BANDS for b in self.bands):
+            raise InputError("bands", self.bands, f"distinct names from {', '.join(BANDS)}")
+        if not self.band_misalignment_arcsec >= 0:
+            raise InputError("band_misalignment_arcsec", self.band_misalignment_arcsec, "a number >= 0")
         for name in ("thermal_arcsec_per_c", "thermal_focal_ppm_per_c"):
             if not getattr(self, name) >= 0:
                 raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma of the per-camera slope)")
@@ -235,7 +241,9 @@ def _observe(
     kinds: NDArray[np.int64],
     first_row: int,
 ) -> tuple[list[Array], NDArray[np.bool_]]:
-    """Measure landmarks in all cameras (red band). Returns observation columns and keep-mask."""
+    """Measure landmarks in all cameras, in each of ``cfg.bands``. Visibility (and dropout) is decided
+    per camera on the red band; every band measures what its camera sees. Returns observation
+    columns and keep-mask."""
     cols: list[list[Array]] = [[] for _ in range(7)]
     cams_seen = np.zeros(len(ecef), dtype=int)
     per_cam = []
@@ -248,13 +256,20 @@ def _observe(
     keep = np.where(kinds == KIND_TIE, cams_seen >= 3, cams_seen >= 1)
     for c, ln, sm, vis, ex in per_cam:
         sel = np.flatnonzero(vis & keep)
-        cols[0].append(sel)
-        cols[1].append(np.full(sel.size, c))
-        cols[2].append(np.full(sel.size, RED))
-        cols[3].append(ln[sel])
-        cols[4].append(sm[sel])
-        cols[5].append(ex[sel])
-        cols[6].append(np.where(kinds[sel] == KIND_GCP, cfg.gcp_sigma_px, cfg.tie_sigma_px))
+        for b in (BANDS.index(name) for name in cfg.bands):
+            if b == RED:
+                s_b, ln_b, sm_b, ex_b = sel, ln[sel], sm[sel], ex[sel]
+            else:
+                ip = geo.ground_to_pixel(c, b, ecef[sel])
+                ok = ip.visible
+                s_b, ln_b, sm_b, ex_b = sel[ok], ip.line[ok], ip.sample[ok], ip.exposure[ok]
+            cols[0].append(s_b)
+            cols[1].append(np.full(s_b.size, c))
+            cols[2].append(np.full(s_b.size, b))
+            cols[3].append(ln_b)
+            cols[4].append(sm_b)
+            cols[5].append(ex_b)
+            cols[6].append(np.where(kinds[s_b] == KIND_GCP, cfg.gcp_sigma_px, cfg.tie_sigma_px))
     return [np.concatenate(c) for c in cols], keep
 
 
@@ -452,6 +467,11 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     truth_model: CameraModel | TabulatedCameraModel = truth_cam
     if cfg.thermal_arcsec_per_c > 0 or cfg.thermal_focal_ppm_per_c > 0:
         truth_model = draw_thermal_truth(rng, truth_cam, cfg.thermal_arcsec_per_c * ARCSEC, cfg.thermal_focal_ppm_per_c * 1e-6)
+    if cfg.band_misalignment_arcsec > 0:
+        offsets = rng.standard_normal((3, len(CAMERAS), len(BANDS))) * cfg.band_misalignment_arcsec * ARCSEC
+        for m in ([truth_cam] if truth_model is truth_cam else [truth_cam, *truth_model.models]):  # type: ignore[union-attr]
+            for name, off in zip(("band_delta", "band_beta", "band_epsilon"), offsets):
+                getattr(m, name)[:] += off
     if cfg.camera_truth:
         # the same instrument as another scenario (e.g. the month a calibration came from)
         truth_model = load_camera_model(cfg.camera_truth)

@@ -89,3 +89,15 @@ def thermal_month_dir(tmp_path_factory):
     run_simulate(ScenarioConfig(scenario="month", seed=5, n_gcps=40, month_days=30, thermal_arcsec_per_c=2.0,
                                 thermal_focal_ppm_per_c=20.0), out)
     return out
+
+
+@pytest.fixture(scope="session")
+def band_month_dir(tmp_path_factory):
+    """A reduced 'month' observed in all four bands, whose true camera has per-band angle offsets
+    (10 arcsec 1 sigma per band and angle): 30 GCPs over 16 days."""
+    from misrgraph.simulate import ScenarioConfig, run_simulate
+
+    out = tmp_path_factory.mktemp("scen") / "band_month"
+    run_simulate(ScenarioConfig(scenario="month", seed=7, n_gcps=30, month_days=16, bands=("blue", "green", "red", "nir"),
+                                band_misalignment_arcsec=10.0), out)
+    return out

@@ -205,3 +205,19 @@ def test_thermal_table_round_trips_through_a_file(nominal_camera, tmp_path):
     back = load_camera_model(tmp_path / "t.h5")
     assert isinstance(back, TabulatedCameraModel) and back.valid_range_c == (0.0, 12.0)
     np.testing.assert_array_equal(back.temperatures_c, [5.0, 9.0])
+
+
+def test_band_offsets_act_on_their_band_only(nominal_camera, rng):
+    """A band's offset equals the same change of the camera angle for that band, and leaves the
+    other bands where they were."""
+    m = nominal_camera.copy()
+    off = np.radians(rng.uniform(-0.01, 0.01, 3))
+    m.band_delta[0, 1], m.band_beta[0, 1], m.band_epsilon[0, 1] = off
+    ref = nominal_camera.copy()
+    ref.delta[0] += off[0]
+    ref.beta[0] += off[1]
+    ref.epsilon[0] += off[2]
+    s = rng.uniform(0, 1503, 20)
+    np.testing.assert_allclose(m.direction_scs(0, 1, 0.0, s), ref.direction_scs(0, 1, 0.0, s), atol=1e-15)
+    for b in (0, 2, 3):
+        np.testing.assert_array_equal(m.direction_scs(0, b, 0.0, s), nominal_camera.direction_scs(0, b, 0.0, s))
