@@ -304,8 +304,10 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
     bases = res.supplied_models or [supplied]
     nb = len(bases)
     temps = res.pass_temperatures_c if res.pass_temperatures_c.size else np.array([supplied.temperature_c])
-    # worst case over the passes' temperatures (a thermal truth makes one model wrong at the ends)
-    grid = np.linspace(temps.min(), temps.max(), 5) if np.ptp(temps) > 0 else temps[:1]
+    # worst case over the passes' temperatures (a thermal truth makes one model wrong at the ends);
+    # with nothing thermal every temperature gives the same numbers, so one suffices
+    thermal = nb > 1 or res.supplied_table is not None or isinstance(truth, TabulatedCameraModel)
+    grid = np.linspace(temps.min(), temps.max(), 5) if thermal and np.ptp(temps) > 0 else np.array([float(np.median(temps))])
     sup_model: CameraModel | TabulatedCameraModel = res.supplied_table if res.supplied_table is not None else bases[0]
 
     def models_of(x: Array) -> list[CameraModel]:
