@@ -31,15 +31,34 @@ def _fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
+#: Set by ``misrgraph --debug``: errors propagate with their traceback instead of one line.
+_DEBUG = False
+
+
 def handle_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """Decorator: MisrGraphError -> one-line message, exit 2."""
+    """Decorator, the one error boundary of every command: any failure ends with one line on
+    stderr naming what went wrong. Exit status 2 for bad input (InputError, FileFormatError,
+    DegenerateProblemError), 1 for a failed computation or an unexpected error, 130 when
+    interrupted. ``misrgraph --debug`` re-raises instead, with the traceback."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return fn(*args, **kwargs)
+        except (typer.Exit, typer.Abort, SystemExit):
+            raise
         except MisrGraphError as exc:
-            _fail(str(exc))
+            if _DEBUG:
+                raise
+            _fail(str(exc), exc.exit_code)
+        except KeyboardInterrupt:
+            _fail("interrupted", 130)
+        except Exception as exc:
+            if _DEBUG:
+                raise
+            where = f" in {fn.__name__}"
+            _fail(f"internal error{where} ({exc.__class__.__name__}: {exc}). "
+                  "Rerun with 'misrgraph --debug ...' for the traceback", 1)
 
     return wrapper
 
@@ -49,7 +68,10 @@ def _print_json(obj: Any) -> None:
 
 
 @app.callback()
-def _root(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log progress details.")) -> None:
+def _root(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log progress details."),
+          debug: bool = typer.Option(False, "--debug", help="Show the full traceback of an error instead of one line.")) -> None:
+    global _DEBUG
+    _DEBUG = debug
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
 
 

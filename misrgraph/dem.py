@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.h5io import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
+from misrgraph.h5io import atomic_h5, create_dataset, open_h5, read_attr, read_dataset, write_dataset
 
 __all__ = [
     "SyntheticTerrain",
@@ -457,9 +457,9 @@ class DemTiles:
             g.attrs["height_reference"] = "mean sea level"
             write_dataset(g, "lat0", self.lat0, units="deg", description="latitude of posting [0, 0] (south-west)")
             write_dataset(g, "lon0", self.lon0, units="deg", description="longitude of posting [0, 0]")
-            g.create_dataset("heights", data=self.heights.astype(np.float32), compression="gzip", shuffle=True)
+            create_dataset(g, "heights", self.heights.astype(np.float32), compression="gzip", shuffle=True)
             g["heights"].attrs["units"] = "m above MSL"
-            g.create_dataset("flags", data=self.flags, compression="gzip")
+            create_dataset(g, "flags", self.flags, compression="gzip")
             g["flags"].attrs["meaning"] = "1 land, 2 water, 3 boundary"
             write_dataset(g, "quality", self.quality, units="1", meaning="1: DTED-1 30 m; 2: 60 m; 3: 120 m (1 sigma)")
 

@@ -19,10 +19,17 @@ __all__ = [
 
 
 class MisrGraphError(Exception):
-    """Root of every error raised deliberately by misrgraph."""
+    """Root of every error raised deliberately by misrgraph.
+
+    ``exit_code`` is the CLI's exit status for it: 2 for bad input (a value, a file, a problem
+    the input cannot determine), 1 for a computation that failed.
+    """
+
+    exit_code = 1
 
 
 class InputError(MisrGraphError, ValueError):
+    exit_code = 2
     """A user-supplied value is out of range, of the wrong shape or not one of the allowed names.
 
     Parameters
@@ -47,6 +54,8 @@ class InputError(MisrGraphError, ValueError):
 class FileFormatError(MisrGraphError):
     """An input file is missing, unreadable, of the wrong kind or version, or lacks a field."""
 
+    exit_code = 2
+
     def __init__(self, path: Any, problem: str) -> None:
         self.path = str(path)
         self.problem = problem
@@ -59,3 +68,5 @@ class ConvergenceError(MisrGraphError):
 
 class DegenerateProblemError(MisrGraphError):
     """The estimation problem is not well posed (e.g. no observations, a singular system)."""
+
+    exit_code = 2

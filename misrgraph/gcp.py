@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from misrgraph.dem import Geoid, SyntheticTerrain, land_mask
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.frames import enu_basis, geodetic_to_ecef
-from misrgraph.h5io import atomic_h5, open_h5, read_dataset, write_dataset
+from misrgraph.h5io import atomic_h5, create_dataset, open_h5, read_dataset, write_dataset
 
 __all__ = ["GcpDatabase", "GCP_REGIONS", "generate_gcp_database"]
 
@@ -87,7 +87,7 @@ class GcpDatabase:
             write_dataset(g, "sigma_m", self.sigma_m, units="m", meaning="1 sigma per ENU axis")
             g.create_dataset("region", data=np.asarray(self.region, dtype=object), dtype=__import__("h5py").string_dtype())
             if self.chips is not None:
-                g.create_dataset("chips", data=self.chips, compression="gzip")
+                create_dataset(g, "chips", self.chips, compression="gzip")
                 g["chips"].attrs["cameras"] = "Df,Cf,Bf,Af,An,Aa,Ba,Ca,Da"
             if self.truth_ecef is not None:
                 t = f.create_group("truth")

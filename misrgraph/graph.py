@@ -180,6 +180,14 @@ def build_pass_graph(
     geoid = geoid or Geoid("zero")
     obs = orbit_pass.observations
     kinds = orbit_pass.landmarks.kind
+    is_gcp = kinds == KIND_GCP
+    if is_gcp.any():
+        n_db = len(gcps) if gcps is not None else 0
+        bad = np.flatnonzero(is_gcp & (orbit_pass.landmarks.gcp_index >= n_db))
+        if bad.size:
+            raise InputError(f"pass {orbit_pass.pass_id}: landmarks.gcp_index[{bad[0]}]",
+                             int(orbit_pass.landmarks.gcp_index[bad[0]]),
+                             f"a row of the GCP database ({n_db} GCPs); is this the pass's GCP database?")
     use = kinds[obs.landmark] != KIND_CHECK
     if exclude_observations is not None:
         use &= ~exclude_observations

@@ -6,11 +6,19 @@ Writers go through :func:`atomic_h5`: the file is written under a temporary name
 directory and renamed into place only when complete, so a crash never leaves a partial file.
 Readers go through :func:`open_h5`, which checks kind and version and turns h5py/OS errors into a
 one-line :class:`~misrgraph.errors.FileFormatError`.
+
+Integrity: every numeric dataset is written with HDF5's Fletcher-32 checksum, and every file
+carries ``content_sha256``, a SHA-256 over the names, types, shapes and bytes of all its datasets
+and attributes (:func:`content_digest`), stamped just before the rename. :func:`open_h5` reads
+every dataset and verifies both, so a damaged file is refused with the dataset that failed (or
+"content digest mismatch") before any of it is used. The write is durable: the file and its
+directory are fsynced around the rename, and the file gets the mode the umask allows.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import tempfile
 from pathlib import Path
@@ -21,13 +29,14 @@ import numpy as np
 
 from misrgraph.errors import FileFormatError
 
-__all__ = ["atomic_h5", "open_h5", "read_dataset", "read_attr", "write_dataset", "FORMAT_VERSIONS"]
+__all__ = ["atomic_h5", "open_h5", "read_dataset", "read_attr", "write_dataset", "create_dataset", "FORMAT_VERSIONS",
+           "require_group", "DIGEST_ATTR", "content_digest", "stamp_content_digest", "fsync_directory", "file_mode"]
 
 FORMAT_VERSIONS: dict[str, int] = {
     "camera_model": 2,
     "orbit_pass": 2,
-    "gcp_database": 1,
-    "dem": 1,
+    "gcp_database": 2,
+    "dem": 2,
     "calibration_result": 2,
     "adjustment_result": 2,
     "update_state": 2,
@@ -40,6 +49,78 @@ _OLD_VERSION_REASON: dict[tuple[str, int], str] = {
                "numbers would geolocate kilometres apart. Re-create the file with this version"
     for kind in ("camera_model", "orbit_pass", "calibration_result", "adjustment_result", "update_state")
 }
+_OLD_VERSION_REASON.update({(kind, 1): "version 1 files carry no checksums or content digest; re-create the file "
+                                       "with this version" for kind in ("gcp_database", "dem")})
+
+#: Root attribute holding the SHA-256 content digest (hex) of a file.
+DIGEST_ATTR = "content_sha256"
+
+
+def _value_bytes(v: Any) -> bytes:
+    arr = np.asarray(v)
+    if arr.dtype.kind in "OSU":
+        items = [x.decode() if isinstance(x, bytes) else str(x) for x in arr.ravel()]
+        return ("\x00".join(items) + f"|{arr.shape}").encode()
+    return np.ascontiguousarray(arr).tobytes() + f"|{arr.dtype.str}|{arr.shape}".encode()
+
+
+def content_digest(f: h5py.File) -> str:
+    """SHA-256 (hex) over every dataset's and attribute's name, type, shape and bytes, in name
+    order, leaving out :data:`DIGEST_ATTR` itself. Reading a dataset whose Fletcher-32 checksum
+    fails raises :class:`FileFormatError` naming it."""
+    h = hashlib.sha256()
+
+    def attrs(obj: Any) -> None:
+        for k in sorted(obj.attrs):
+            if obj.name == "/" and k == DIGEST_ATTR:
+                continue
+            h.update(f"@{obj.name}:{k}=".encode())
+            h.update(_value_bytes(obj.attrs[k]))
+
+    def walk(group: Any) -> None:
+        attrs(group)
+        for name in sorted(group):
+            obj = group[name]
+            if isinstance(obj, h5py.Group):
+                walk(obj)
+                continue
+            try:
+                data = obj[()]
+            except OSError as exc:
+                raise FileFormatError(f.filename, f"dataset {obj.name} failed its checksum or cannot be read "
+                                                  f"({exc}); the file is damaged") from exc
+            h.update(f"#{obj.name}=".encode())
+            h.update(_value_bytes(data))
+            attrs(obj)
+
+    walk(f)
+    return h.hexdigest()
+
+
+def stamp_content_digest(f: h5py.File) -> None:
+    """Write :data:`DIGEST_ATTR` for a file open for writing (done by :func:`atomic_h5`)."""
+    f.attrs[DIGEST_ATTR] = content_digest(f)
+
+
+def file_mode() -> int:
+    """The mode a new file gets under the current umask (0o666 & ~umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def fsync_directory(path: str | os.PathLike[str]) -> None:
+    """fsync a directory so that a rename inside it survives a crash (no-op where unsupported)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - platforms without directory handles
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
 
 
 @contextlib.contextmanager
@@ -54,16 +135,49 @@ def atomic_h5(path: str | os.PathLike[str], kind: str) -> Iterator[h5py.File]:
             f.attrs["misrgraph_kind"] = kind
             f.attrs["format_version"] = FORMAT_VERSIONS[kind]
             yield f
+            stamp_content_digest(f)
+        os.chmod(tmp, file_mode())
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
         os.replace(tmp, target)
+        fsync_directory(target.parent)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
 
 
+def _validate(f: h5py.File, p: Path, kind: str | None) -> None:
+    got_kind = f.attrs.get("misrgraph_kind")
+    if got_kind is None:
+        raise FileFormatError(p, "missing root attribute 'misrgraph_kind'; not a misrgraph file")
+    got_kind = got_kind.decode() if isinstance(got_kind, bytes) else str(got_kind)
+    if kind is not None and got_kind != kind:
+        raise FileFormatError(p, f"misrgraph_kind is {got_kind!r}; expected {kind!r}")
+    version = f.attrs.get("format_version")
+    if isinstance(version, np.generic):
+        version = version.item()
+    want = FORMAT_VERSIONS.get(got_kind)
+    if want is None:
+        raise FileFormatError(p, f"unknown misrgraph_kind {got_kind!r}; expected one of {sorted(FORMAT_VERSIONS)}")
+    if version is None or int(version) != want:
+        why = _OLD_VERSION_REASON.get((got_kind, int(version))) if version is not None else None
+        raise FileFormatError(p, f"format_version is {version!r}; expected {want} for kind {got_kind!r}"
+                                 + (f" ({why})" if why else ""))
+    stored = f.attrs.get(DIGEST_ATTR)
+    if stored is None:
+        raise FileFormatError(p, f"no {DIGEST_ATTR} attribute: the file was not completed by misrgraph or was altered")
+    stored = stored.decode() if isinstance(stored, bytes) else str(stored)
+    got = content_digest(f)
+    if got != stored:
+        raise FileFormatError(p, f"content digest mismatch (stored {stored[:12]}..., computed {got[:12]}...): "
+                                 "the file is damaged or was altered")
+
+
 @contextlib.contextmanager
 def open_h5(path: str | os.PathLike[str], kind: str | None = None) -> Iterator[h5py.File]:
-    """Open a misrgraph HDF5 file read-only, validating kind and format version."""
+    """Open a misrgraph HDF5 file read-only after validating kind, format version, every
+    dataset's checksum and the content digest (see the module docstring)."""
     p = Path(path)
     if not p.exists():
         raise FileFormatError(p, "file does not exist")
@@ -72,25 +186,26 @@ def open_h5(path: str | os.PathLike[str], kind: str | None = None) -> Iterator[h
     except OSError as exc:
         raise FileFormatError(p, f"not a readable HDF5 file ({exc.__class__.__name__}: truncated or corrupt?)") from exc
     try:
-        got_kind = f.attrs.get("misrgraph_kind")
-        if got_kind is None:
-            raise FileFormatError(p, "missing root attribute 'misrgraph_kind'; not a misrgraph file")
-        got_kind = got_kind.decode() if isinstance(got_kind, bytes) else str(got_kind)
-        if kind is not None and got_kind != kind:
-            raise FileFormatError(p, f"misrgraph_kind is {got_kind!r}; expected {kind!r}")
-        version = f.attrs.get("format_version")
-        if isinstance(version, np.generic):
-            version = version.item()
-        want = FORMAT_VERSIONS.get(got_kind)
-        if want is None:
-            raise FileFormatError(p, f"unknown misrgraph_kind {got_kind!r}; expected one of {sorted(FORMAT_VERSIONS)}")
-        if version is None or int(version) != want:
-            why = _OLD_VERSION_REASON.get((got_kind, int(version))) if version is not None else None
-            raise FileFormatError(p, f"format_version is {version!r}; expected {want} for kind {got_kind!r}"
-                                     + (f" ({why})" if why else ""))
+        _validate(f, p, kind)
+    except FileFormatError:
+        f.close()
+        raise
+    except Exception as exc:  # h5py raises many kinds on damaged metadata
+        f.close()
+        raise FileFormatError(p, f"unreadable ({exc.__class__.__name__}: {exc}); the file is damaged") from exc
+    try:
         yield f
     finally:
         f.close()
+
+
+def require_group(parent: h5py.Group, name: str) -> h5py.Group:
+    """``parent[name]`` as a group, or a :class:`FileFormatError` naming the missing path."""
+    path = f"{parent.name.rstrip('/')}/{name}"
+    obj = parent.get(name)
+    if not isinstance(obj, h5py.Group):
+        raise FileFormatError(parent.file.filename, f"missing group {path}" if obj is None else f"{path} is not a group")
+    return obj
 
 
 def read_dataset(
@@ -130,9 +245,19 @@ def read_attr(obj: h5py.HLObject, name: str) -> Any:
     return v
 
 
+def create_dataset(group: h5py.Group, name: str, data: Any, **options: Any) -> h5py.Dataset:
+    """``group.create_dataset`` with a Fletcher-32 checksum wherever HDF5 allows one (arrays of
+    fixed-size types; not scalars or variable-length strings). ``options`` go to h5py."""
+    arr = data if options.get("dtype") is not None else np.asarray(data)
+    if np.ndim(arr) >= 1 and np.asarray(arr).dtype.kind not in "OU" and options.get("dtype") is None:
+        options.setdefault("fletcher32", True)
+    return group.create_dataset(name, data=arr, **options)
+
+
 def write_dataset(group: h5py.Group, name: str, data: Any, units: str | None = None, **attrs: Any) -> h5py.Dataset:
-    """Create a dataset with optional ``units`` and other attributes."""
-    ds = group.create_dataset(name, data=np.asarray(data))
+    """Create a dataset (with its checksum, see :func:`create_dataset`), optional ``units`` and
+    other attributes."""
+    ds = create_dataset(group, name, np.asarray(data))
     if units is not None:
         ds.attrs["units"] = units
     for k, v in attrs.items():

@@ -49,11 +49,21 @@ PATH1_NODE_LON_DEG = -64.6
 def _check_series(name: str, t: Array, *arrays: Array) -> None:
     if t.ndim != 1 or t.size < 2:
         raise InputError(f"{name}.t", t.shape, "a 1-D array of at least two times")
-    if not np.all(np.diff(t) > 0):
-        raise InputError(f"{name}.t", "non-increasing times", "strictly increasing seconds")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{name}.t[{i}]", float(t[i]), "finite seconds")
+    step = np.diff(t) <= 0
+    if step.any():
+        i = int(np.flatnonzero(step)[0]) + 1
+        raise InputError(f"{name}.t[{i}]", float(t[i]), f"strictly increasing seconds (after {float(t[i - 1])})")
     for a in arrays:
         if a.shape != (t.size, 3):
             raise InputError(name, a.shape, f"shape ({t.size}, 3)")
+        bad_rows = ~np.all(np.isfinite(a), axis=1)
+        if bad_rows.any():
+            i = int(np.flatnonzero(bad_rows)[0])
+            raise InputError(f"{name}[{i}]", a[i].tolist(), "finite values")
 
 
 @dataclass

@@ -17,7 +17,10 @@ HDF5 layout (kind ``orbit_pass``, see docs/data-model.md)::
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
+
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,14 +30,24 @@ from misrgraph.constants import ANGLES, BANDS, CAMERAS
 from misrgraph.errormodels import AttitudeErrorModel, EphemerisErrorModel
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.geolocation import PassGeometry
-from misrgraph.h5io import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
+from misrgraph.h5io import atomic_h5, open_h5, read_attr, read_dataset, require_group, write_dataset
 from misrgraph.orbit import AttitudeSeries, Ephemeris
 
-__all__ = ["Observations", "Landmarks", "PassTruth", "OrbitPass", "KIND_TIE", "KIND_GCP", "KIND_CHECK", "KIND_NAMES"]
+__all__ = ["PASS_ID_PATTERN", "Observations", "Landmarks", "PassTruth", "OrbitPass", "KIND_TIE", "KIND_GCP", "KIND_CHECK", "KIND_NAMES"]
 
 Array = NDArray[np.float64]
 KIND_TIE, KIND_GCP, KIND_CHECK = 0, 1, 2
 KIND_NAMES = {KIND_TIE: "tie", KIND_GCP: "gcp", KIND_CHECK: "check"}
+#: What a pass id may be: it names files (the update state keeps ``passes/<pass_id>.h5``).
+PASS_ID_PATTERN = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]{0,63}")
+
+
+def _check_rows(field: str, values: NDArray[Any], bad: NDArray[np.bool_], expected: str) -> None:
+    """Raise InputError naming the first offending row (and how many there are)."""
+    if np.any(bad):
+        rows = np.flatnonzero(bad)
+        more = f" (and {rows.size - 1} more rows)" if rows.size > 1 else ""
+        raise InputError(f"{field}[{rows[0]}]", values[rows[0]].item(), expected + more)
 
 
 @dataclass
@@ -58,12 +71,18 @@ class Observations:
             if arr.size != n:
                 raise InputError(f"observations.{name}", arr.size, f"{n} values (one per observation)")
             setattr(self, name, arr)
-        if n and (self.camera.min() < 0 or self.camera.max() >= len(CAMERAS)):
-            raise InputError("observations.camera", int(self.camera.max()), f"indices 0..{len(CAMERAS) - 1}")
-        if n and (self.band.min() < 0 or self.band.max() >= len(BANDS)):
-            raise InputError("observations.band", int(self.band.max()), f"indices 0..{len(BANDS) - 1}")
-        if n and np.any(self.sigma_px <= 0):
-            raise InputError("observations.sigma_px", float(self.sigma_px.min()), "positive pixels")
+        _check_rows("observations.camera", self.camera, (self.camera < 0) | (self.camera >= len(CAMERAS)),
+                    f"a camera index 0..{len(CAMERAS) - 1}")
+        _check_rows("observations.band", self.band, (self.band < 0) | (self.band >= len(BANDS)),
+                    f"a band index 0..{len(BANDS) - 1}")
+        _check_rows("observations.landmark", self.landmark, self.landmark < 0, "a landmark row >= 0")
+        for name in ("line", "sample", "exposure"):
+            arr = getattr(self, name)
+            _check_rows(f"observations.{name}", arr, ~np.isfinite(arr), "a finite number of pixels")
+        _check_rows("observations.exposure", self.exposure, self.exposure != np.round(self.exposure),
+                    "a whole exposure index")
+        _check_rows("observations.sigma_px", self.sigma_px, ~(np.isfinite(self.sigma_px) & (self.sigma_px > 0)),
+                    "a positive, finite sigma in pixels")
 
     def __len__(self) -> int:
         return int(self.landmark.size)
@@ -86,6 +105,10 @@ class Landmarks:
         self.gcp_index = np.asarray(self.gcp_index, dtype=np.int64).ravel()
         if not (self.id.size == self.kind.size == self.gcp_index.size):
             raise InputError("landmarks", (self.id.size, self.kind.size, self.gcp_index.size), "equal lengths")
+        _check_rows("landmarks.kind", self.kind, ~np.isin(self.kind, list(KIND_NAMES)),
+                    "a kind code " + ", ".join(f"{k} ({v})" for k, v in KIND_NAMES.items()))
+        _check_rows("landmarks.gcp_index", self.gcp_index, (self.kind == KIND_GCP) & (self.gcp_index < 0),
+                    "a GCP database row >= 0 for a GCP")
 
     def __len__(self) -> int:
         return int(self.id.size)
@@ -122,8 +145,15 @@ class OrbitPass:
         self.t0 = np.asarray(self.t0, dtype=float)
         if self.t0.shape != (len(CAMERAS), len(BANDS)):
             raise InputError("timing.t0", self.t0.shape, f"shape ({len(CAMERAS)}, {len(BANDS)})")
-        if len(self.observations) and self.observations.landmark.max() >= len(self.landmarks):
-            raise InputError("observations.landmark", int(self.observations.landmark.max()), f"rows < {len(self.landmarks)}")
+        _check_rows("observations.landmark", self.observations.landmark, self.observations.landmark >= len(self.landmarks),
+                    f"a landmark row < {len(self.landmarks)}")
+        _check_rows("timing.t0", self.t0.ravel(), ~np.isfinite(self.t0.ravel()), "finite seconds")
+        if not (np.isfinite(self.line_time) and self.line_time > 0):
+            raise InputError("timing.line_time", self.line_time, "a positive number of seconds")
+        if not np.isfinite(self.temperature_c):
+            raise InputError("temperature_c", self.temperature_c, "a finite temperature (deg C)")
+        if not PASS_ID_PATTERN.fullmatch(str(self.pass_id)):
+            raise InputError("pass_id", self.pass_id, "letters, digits, '_', '-' or '.' (1-64 characters, not starting with '.'; it names files)")
 
     # ------------------------------------------------------------------ geometry
     def geometry(self, camera: CameraModel, truth: bool = False) -> PassGeometry:
@@ -221,16 +251,16 @@ class OrbitPass:
                 ("exposure", float), ("sigma_px", float))))
             truth = None
             if "truth" in f:
-                tg = f["truth"]
-                e = tg["ephemeris_error"]
+                tg = require_group(f, "truth")
+                e = require_group(tg, "ephemeris_error")
                 eem = EphemerisErrorModel(read_dataset(e, "boundaries", (None,)), read_dataset(e, "params", (None, 6)))
-                a = tg["attitude_error"]
+                a = require_group(tg, "attitude_error")
                 aem = AttitudeErrorModel(
-                    [read_dataset(a[name], "knot_times", (None,)) for name in ANGLES],
-                    [read_dataset(a[name], "knots", (None, 2)) for name in ANGLES],
+                    [read_dataset(require_group(a, name), "knot_times", (None,)) for name in ANGLES],
+                    [read_dataset(require_group(a, name), "knots", (None, 2)) for name in ANGLES],
                 )
                 truth = PassTruth(eem, aem, read_dataset(tg, "landmark_ecef", (lid.size, 3)),
                                   read_dataset(tg, "blunder", (n.size,), dtype=bool),
-                                  CameraModel.read_group(tg["camera_model"]))
+                                  CameraModel.read_group(require_group(tg, "camera_model")))
             return cls(str(read_attr(f, "pass_id")), int(read_attr(f, "path")), int(read_attr(f, "orbit")), eph, att,
                        t0, line_time, lm, obs, float(read_attr(f, "temperature_c")), truth)

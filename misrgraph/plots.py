@@ -40,7 +40,9 @@ def plot_adjustment(result_h5: str | os.PathLike[str], out_dir: str | os.PathLik
 
     out = Path(out_dir)
     paths = []
-    with h5py.File(result_h5, "r") as f:
+    from misrgraph.h5io import open_h5
+
+    with open_h5(result_h5, "adjustment_result") as f:
         summary = json.loads(f.attrs["summary_json"])
         pass_file = f["provenance"].attrs.get("pass_file")
         kt = [f[f"attitude_error/{a}/knot_times"][()] for a in ANGLES]

@@ -141,8 +141,14 @@ def test_bad_shape_rejected(nominal_camera):
 def test_missing_field_and_wrong_kind(nominal_camera, tmp_path):
     path = tmp_path / "cgm.h5"
     nominal_camera.save(path)
+    from misrgraph.h5io import stamp_content_digest
+
     with h5py.File(path, "a") as f:
         del f["camera_model/beta"]
+    with pytest.raises(FileFormatError, match="content digest mismatch"):  # an edit is damage
+        CameraModel.load(path)
+    with h5py.File(path, "a") as f:
+        stamp_content_digest(f)  # a well-formed file whose writer left a field out
     with pytest.raises(FileFormatError, match="camera_model/beta"):
         CameraModel.load(path)
     with h5py.File(path, "a") as f:

@@ -9,7 +9,7 @@ import pytest
 from misrgraph.constants import ARCSEC, CAMERAS
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.frames import ecef_to_geodetic
-from misrgraph.h5io import atomic_h5
+from misrgraph.h5io import DIGEST_ATTR, atomic_h5, stamp_content_digest
 from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.simulate import (
     ScenarioConfig,
@@ -130,7 +130,7 @@ def test_corrupt_truncated_wrong_version_and_missing_fields(small_pass_dir, tmp_
         OrbitPass.load(tmp_path / "junk.h5")
     import shutil
 
-    for case in ("version", "missing_group", "missing_ds", "bad_shape"):
+    for case in ("version", "missing_group", "missing_ds", "bad_shape", "edited", "no_digest"):
         f = tmp_path / f"{case}.h5"
         shutil.copy(src, f)
         with h5py.File(f, "a") as h:
@@ -138,15 +138,51 @@ def test_corrupt_truncated_wrong_version_and_missing_fields(small_pass_dir, tmp_
                 h.attrs["format_version"] = 99
             elif case == "missing_group":
                 del h["timing"]
-            elif case == "missing_ds":
+            elif case in ("missing_ds", "edited"):
                 del h["observations/sample"]
+            elif case == "no_digest":
+                del h.attrs[DIGEST_ATTR]
             else:
                 del h["timing/t0"]
                 h["timing/t0"] = np.zeros((9, 3))
+            if case in ("missing_group", "missing_ds", "bad_shape"):
+                # a well-formed file (valid digest) from a writer that got the layout wrong
+                stamp_content_digest(h)
         pattern = {"version": "format_version is 99", "missing_group": "missing group /timing",
-                   "missing_ds": "missing dataset /observations/sample", "bad_shape": r"t0 has shape \(9, 3\)"}[case]
+                   "missing_ds": "missing dataset /observations/sample", "bad_shape": r"t0 has shape \(9, 3\)",
+                   "edited": "content digest mismatch", "no_digest": "no content_sha256"}[case]
         with pytest.raises(FileFormatError, match=pattern):
             OrbitPass.load(f)
+
+
+def test_zeroed_bytes_in_a_pass_file_are_refused(small_pass_dir, tmp_path):
+    """The reported case: 4000 zero bytes in the middle of a pass file. Refused on read with one
+    error naming the file (a checksum or the content digest), never a silent result."""
+    src = sorted((small_pass_dir / "passes").glob("*.h5"))[0]
+    data = bytearray(src.read_bytes())
+    mid = len(data) // 2
+    data[mid: mid + 4000] = bytes(4000)
+    bad = tmp_path / "zeroed.h5"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(FileFormatError, match="zeroed.h5"):
+        OrbitPass.load(bad)
+
+
+def test_files_are_written_with_checksums_and_the_umask_mode(tmp_path):
+    import os
+
+    old = os.umask(0o027)
+    try:
+        with atomic_h5(tmp_path / "x.h5", "dem") as f:
+            f.create_group("g")
+            from misrgraph.h5io import write_dataset
+
+            write_dataset(f["g"], "a", np.arange(10.0))
+    finally:
+        os.umask(old)
+    assert (os.stat(tmp_path / "x.h5").st_mode & 0o777) == 0o640
+    with h5py.File(tmp_path / "x.h5", "r") as h:
+        assert h["g/a"].fletcher32 and len(h.attrs[DIGEST_ATTR]) == 64
 
 
 def test_crash_during_write_leaves_no_file(tmp_path):
