@@ -13,6 +13,12 @@ and attributes (:func:`content_digest`), stamped just before the rename. :func:`
 every dataset and verifies both, so a damaged file is refused with the dataset that failed (or
 "content digest mismatch") before any of it is used. The write is durable: the file and its
 directory are fsynced around the rename, and the file gets the mode the umask allows.
+
+Before HDF5 parses a byte, the file as a whole is checked: every file starts with a 512-byte HDF5
+user block holding ``MISRGRAPH-SHA256`` and the SHA-256 of everything after the block
+(:func:`file_checksum_ok`). HDF5's own parser can loop for ever or crash on damaged metadata, so a
+damaged file must never reach it; the in-file checksums and digest then guard the content as
+HDF5 sees it.
 """
 
 from __future__ import annotations
@@ -30,7 +36,8 @@ import numpy as np
 from misrgraph.errors import FileFormatError
 
 __all__ = ["atomic_h5", "open_h5", "read_dataset", "read_attr", "write_dataset", "create_dataset", "FORMAT_VERSIONS",
-           "require_group", "DIGEST_ATTR", "content_digest", "stamp_content_digest", "fsync_directory", "file_mode"]
+           "require_group", "DIGEST_ATTR", "content_digest", "stamp_content_digest", "fsync_directory", "file_mode",
+           "USERBLOCK_SIZE", "file_checksum_ok", "reseal", "stored_file_sha256"]
 
 FORMAT_VERSIONS: dict[str, int] = {
     "camera_model": 2,
@@ -54,6 +61,60 @@ _OLD_VERSION_REASON.update({(kind, 1): "version 1 files carry no checksums or co
 
 #: Root attribute holding the SHA-256 content digest (hex) of a file.
 DIGEST_ATTR = "content_sha256"
+
+#: Size (bytes) of the HDF5 user block that carries the whole-file SHA-256.
+USERBLOCK_SIZE = 512
+_USERBLOCK_MAGIC = b"MISRGRAPH-SHA256 "
+
+
+def _sha256_after_userblock(path: str | os.PathLike[str]) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        fh.seek(USERBLOCK_SIZE)
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _write_userblock(path: str | os.PathLike[str]) -> None:
+    header = _USERBLOCK_MAGIC + _sha256_after_userblock(path).encode() + b"\n"
+    with open(path, "rb+") as fh:
+        fh.write(header.ljust(USERBLOCK_SIZE, b"\x00"))
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def reseal(path: str | os.PathLike[str]) -> None:
+    """Re-write the whole-file SHA-256 of a misrgraph file edited in place with h5py (an expert
+    tool: the in-file content digest still has to be re-stamped with
+    :func:`stamp_content_digest` for the edit to be accepted)."""
+    _write_userblock(path)
+
+
+def stored_file_sha256(path: str | os.PathLike[str]) -> str:
+    """The whole-file SHA-256 (hex) recorded in a misrgraph file's user block, without hashing
+    the file (:func:`open_h5` verifies it on every read). FileFormatError without one."""
+    with open(path, "rb") as fh:
+        head = fh.read(USERBLOCK_SIZE)
+    if len(head) < USERBLOCK_SIZE or not head.startswith(_USERBLOCK_MAGIC):
+        raise FileFormatError(path, "no misrgraph checksum block at the start of the file")
+    return head[len(_USERBLOCK_MAGIC): len(_USERBLOCK_MAGIC) + 64].decode("ascii", "replace")
+
+
+def file_checksum_ok(path: str | os.PathLike[str]) -> tuple[bool, str]:
+    """Check the whole-file SHA-256 in the user block without letting HDF5 parse the file.
+
+    Returns ``(ok, reason)``; ``reason`` says what is wrong (one line) when ``ok`` is False."""
+    with open(path, "rb") as fh:
+        head = fh.read(USERBLOCK_SIZE)
+    if len(head) < USERBLOCK_SIZE or not head.startswith(_USERBLOCK_MAGIC):
+        return False, ("no misrgraph checksum block at the start of the file (damaged, not written by "
+                       "misrgraph, or written by a version before this check)")
+    stored = head[len(_USERBLOCK_MAGIC): len(_USERBLOCK_MAGIC) + 64].decode("ascii", "replace")
+    got = _sha256_after_userblock(path)
+    if stored != got:
+        return False, f"file checksum mismatch (stored {stored[:12]}..., computed {got[:12]}...): the file is damaged"
+    return True, ""
 
 
 def _value_bytes(v: Any) -> bytes:
@@ -131,14 +192,13 @@ def atomic_h5(path: str | os.PathLike[str], kind: str) -> Iterator[h5py.File]:
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     os.close(fd)
     try:
-        with h5py.File(tmp, "w") as f:
+        with h5py.File(tmp, "w", userblock_size=USERBLOCK_SIZE) as f:
             f.attrs["misrgraph_kind"] = kind
             f.attrs["format_version"] = FORMAT_VERSIONS[kind]
             yield f
             stamp_content_digest(f)
         os.chmod(tmp, file_mode())
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
+        _write_userblock(tmp)  # whole-file SHA-256, fsynced
         os.replace(tmp, target)
         fsync_directory(target.parent)
     except BaseException:
@@ -181,6 +241,12 @@ def open_h5(path: str | os.PathLike[str], kind: str | None = None) -> Iterator[h
     p = Path(path)
     if not p.exists():
         raise FileFormatError(p, "file does not exist")
+    try:
+        ok, why = file_checksum_ok(p)
+    except OSError as exc:
+        raise FileFormatError(p, f"cannot read ({exc.__class__.__name__}: {exc})") from exc
+    if not ok:
+        raise FileFormatError(p, why)
     try:
         f = h5py.File(p, "r")
     except OSError as exc:

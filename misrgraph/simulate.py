@@ -454,9 +454,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     """Simulate a scenario into directory ``out`` (written atomically: a temporary sibling
     directory renamed into place). Returns a summary dict (also saved as scenario.json)."""
     out_dir = Path(out)
-    if out_dir.exists() and any(out_dir.iterdir()):
-        if not (out_dir / "scenario.json").exists():
-            raise InputError("--out", str(out_dir), "a new or empty directory, or an earlier scenario directory to replace")
+    _check_replaceable(out_dir)
     rng = np.random.default_rng(cfg.seed)
     terrain = SyntheticTerrain(seed=cfg.seed)
     geoid = Geoid("zero")
@@ -548,11 +546,77 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             "pass_summaries": summaries,
             "geoid": "zero (simulated data: DEM heights above MSL = ellipsoidal heights)",
         }
-        (tmp / "scenario.json").write_text(json.dumps(summary, indent=2))
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(tmp, out_dir)
+        _write_durable(tmp / "scenario.json", json.dumps(summary, indent=2))
+        _swap_into_place(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return summary
+
+
+#: What :func:`run_simulate` writes into a scenario directory (nothing else is ever replaced).
+SCENARIO_ENTRIES = frozenset({"scenario.json", "passes", "dem.h5", "camera_model.h5", "camera_truth.h5", "gcp.h5"})
+
+
+def _check_replaceable(out_dir: Path) -> None:
+    """Refuse an ``--out`` that holds anything simulate did not write (user data is never deleted)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("--out", str(out_dir), "a directory (this is a file)")
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        return
+    if not (out_dir / "scenario.json").exists():
+        raise InputError("--out", str(out_dir), "a new or empty directory, or an earlier scenario directory to replace "
+                                                "(this one is not empty and has no scenario.json)")
+    foreign = sorted(e.name for e in out_dir.iterdir() if e.name not in SCENARIO_ENTRIES)
+    foreign += sorted(f"passes/{e.name}" for e in (out_dir / "passes").iterdir()
+                      if not (e.is_file() and e.suffix == ".h5")) if (out_dir / "passes").is_dir() else []
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise InputError("--out", str(out_dir), f"a scenario directory holding only what simulate writes; it also holds "
+                                                f"{shown}: move those elsewhere or choose another --out")
+
+
+def _write_durable(path: Path, text: str) -> None:
+    with open(path, "w") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two directory entries (Linux renameat2 RENAME_EXCHANGE); False where the
+    platform or file system cannot."""
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    return fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0
+
+
+def _swap_into_place(new: Path, out_dir: Path) -> None:
+    """Put ``new`` at ``out_dir``. An existing ``out_dir`` is swapped with ``new`` atomically where
+    the OS allows (Linux), otherwise renamed aside first; it is deleted only once the new directory
+    is in place. A crash leaves the old or the new scenario at ``out_dir`` (on the fallback path,
+    possibly neither there but the old one intact as a hidden ``.<name>.old-*`` sibling)."""
+    from misrgraph.h5io import fsync_directory
+
+    old = None
+    if out_dir.exists():
+        if _exchange(new, out_dir):
+            fsync_directory(out_dir.parent)
+            shutil.rmtree(new, ignore_errors=True)  # now holds the old scenario
+            return
+        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
+        os.rmdir(old)
+        os.replace(out_dir, old)
+    os.replace(new, out_dir)
+    fsync_directory(out_dir.parent)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

@@ -9,6 +9,7 @@ import pytest
 from misrgraph.camera import CameraModel
 from misrgraph.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, PITCH_CROSS_M
 from misrgraph.errors import FileFormatError, InputError
+from misrgraph.h5io import reseal
 
 
 def test_nominal_beta_matches_table1_df(nominal_camera):
@@ -87,6 +88,7 @@ def test_old_convention_files_are_refused(nominal_camera, tmp_path):
     nominal_camera.save(path)
     with h5py.File(path, "r+") as f:
         f.attrs["format_version"] = 1
+    reseal(path)
     with pytest.raises(FileFormatError, match=r"format_version is 1.*Rz\(delta\) Ry\(beta\)"):
         CameraModel.load(path)
 
@@ -145,14 +147,19 @@ def test_missing_field_and_wrong_kind(nominal_camera, tmp_path):
 
     with h5py.File(path, "a") as f:
         del f["camera_model/beta"]
-    with pytest.raises(FileFormatError, match="content digest mismatch"):  # an edit is damage
+    with pytest.raises(FileFormatError, match="file checksum mismatch"):  # an edit is damage
+        CameraModel.load(path)
+    reseal(path)
+    with pytest.raises(FileFormatError, match="content digest mismatch"):  # ... at both levels
         CameraModel.load(path)
     with h5py.File(path, "a") as f:
         stamp_content_digest(f)  # a well-formed file whose writer left a field out
+    reseal(path)
     with pytest.raises(FileFormatError, match="camera_model/beta"):
         CameraModel.load(path)
     with h5py.File(path, "a") as f:
         f.attrs["misrgraph_kind"] = "dem"
+    reseal(path)
     with pytest.raises(FileFormatError, match="misrgraph_kind"):
         CameraModel.load(path)
     with pytest.raises(FileFormatError, match="does not exist"):

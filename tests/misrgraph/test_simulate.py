@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import h5py
@@ -9,7 +10,7 @@ import pytest
 from misrgraph.constants import ARCSEC, CAMERAS
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.frames import ecef_to_geodetic
-from misrgraph.h5io import DIGEST_ATTR, atomic_h5, stamp_content_digest
+from misrgraph.h5io import DIGEST_ATTR, atomic_h5, reseal, stamp_content_digest
 from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.simulate import (
     ScenarioConfig,
@@ -123,14 +124,14 @@ def test_corrupt_truncated_wrong_version_and_missing_fields(small_pass_dir, tmp_
     src = sorted((small_pass_dir / "passes").glob("*.h5"))[0]
     data = src.read_bytes()
     (tmp_path / "trunc.h5").write_bytes(data[: len(data) // 3])
-    with pytest.raises(FileFormatError, match="not a readable HDF5"):
+    with pytest.raises(FileFormatError, match="file checksum mismatch"):
         OrbitPass.load(tmp_path / "trunc.h5")
     (tmp_path / "junk.h5").write_bytes(b"\x00" * 1000)
-    with pytest.raises(FileFormatError, match="not a readable HDF5"):
+    with pytest.raises(FileFormatError, match="no misrgraph checksum block"):
         OrbitPass.load(tmp_path / "junk.h5")
     import shutil
 
-    for case in ("version", "missing_group", "missing_ds", "bad_shape", "edited", "no_digest"):
+    for case in ("version", "missing_group", "missing_ds", "bad_shape", "edited", "no_digest", "raw_edit"):
         f = tmp_path / f"{case}.h5"
         shutil.copy(src, f)
         with h5py.File(f, "a") as h:
@@ -138,7 +139,7 @@ def test_corrupt_truncated_wrong_version_and_missing_fields(small_pass_dir, tmp_
                 h.attrs["format_version"] = 99
             elif case == "missing_group":
                 del h["timing"]
-            elif case in ("missing_ds", "edited"):
+            elif case in ("missing_ds", "edited", "raw_edit"):
                 del h["observations/sample"]
             elif case == "no_digest":
                 del h.attrs[DIGEST_ATTR]
@@ -148,9 +149,12 @@ def test_corrupt_truncated_wrong_version_and_missing_fields(small_pass_dir, tmp_
             if case in ("missing_group", "missing_ds", "bad_shape"):
                 # a well-formed file (valid digest) from a writer that got the layout wrong
                 stamp_content_digest(h)
+        if case != "raw_edit":
+            reseal(f)  # past the whole-file checksum, to reach the check under test
         pattern = {"version": "format_version is 99", "missing_group": "missing group /timing",
                    "missing_ds": "missing dataset /observations/sample", "bad_shape": r"t0 has shape \(9, 3\)",
-                   "edited": "content digest mismatch", "no_digest": "no content_sha256"}[case]
+                   "edited": "content digest mismatch", "no_digest": "no content_sha256",
+                   "raw_edit": "file checksum mismatch"}[case]
         with pytest.raises(FileFormatError, match=pattern):
             OrbitPass.load(f)
 
@@ -222,3 +226,21 @@ def test_refuses_to_overwrite_foreign_directory(tmp_path):
         run_simulate(ScenarioConfig(n_tie_points=5), tmp_path)
     assert (tmp_path / "precious.txt").read_text() == "data"
     assert not (tmp_path / "scenario.json").exists() and json.loads("{}") == {}
+
+
+def test_replacing_a_scenario_keeps_user_files_and_leaves_no_debris(tmp_path):
+    """A scenario directory is replaced only if it holds nothing but what simulate writes; the
+    replacement swaps directories (the old one is deleted after the new one is in place)."""
+    cfg = ScenarioConfig(scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0, start_lat_deg=45.0)
+    out = tmp_path / "scen"
+    run_simulate(cfg, out)
+    first = (out / "scenario.json").read_text()
+    (out / "my_notes.txt").write_text("keep me")
+    with pytest.raises(InputError, match="my_notes.txt"):
+        run_simulate(dataclasses.replace(cfg, seed=cfg.seed + 1), out)
+    assert (out / "my_notes.txt").read_text() == "keep me" and (out / "scenario.json").read_text() == first
+    (out / "my_notes.txt").unlink()
+    run_simulate(dataclasses.replace(cfg, seed=cfg.seed + 1), out)
+    assert json.loads((out / "scenario.json").read_text())["config"]["seed"] == cfg.seed + 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scen"]  # no temporary or old directories left
+    load_scenario(out)
