@@ -30,21 +30,31 @@ points of repeat passes of the same path (keyed by path and feature id).
 
 Persistent state (directory ``STATE``)::
 
-    STATE/state.json     inputs (camera model, GCPs, DEM), config, ordered list of passes
-    STATE/passes/*.h5    a copy of every pass added
-    STATE/estimate.h5    the latest estimate of every variable (warm start after a restart)
+    STATE/state.json                    the manifest: inputs (camera model, GCPs, DEM) with their
+                                        SHA-256, config, the estimate file and the ordered passes,
+                                        each named with its SHA-256
+    STATE/passes/<pass_id>-<sha12>.h5   a copy of every pass added
+    STATE/estimate-<sha12>.h5           the latest estimate of every variable (warm start)
+    STATE/.lock                         held by the update in progress (one at a time)
 
-``state.json`` is replaced atomically *after* the pass copy and the estimate are written, so a
-crash during an update leaves the previous state intact (the pass is simply not in it) and a
-pass id already in the list is never added twice.
+Files are named by content and never modified; an update writes its new files first and then
+replaces ``state.json`` atomically (fsynced), and only after that removes the files the new
+manifest no longer names. A crash at any point therefore leaves the previous manifest and every
+file it names intact (the pass being added is simply not in it), and a pass id already in the
+manifest is never added twice. On replay each file is checked against the manifest's SHA-256, and
+each input against the SHA-256 recorded when the state was created: a camera model, GCP database
+or DEM replaced since then is an error, not a silent change of meaning.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import hashlib
 import json
 import logging
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -66,8 +76,8 @@ from misrgraph.errors import FileFormatError, InputError
 from misrgraph.flat import FlatProblem, NotFlat
 from misrgraph.gcp import GcpDatabase
 from misrgraph.graph import PassGraph, build_pass_graph, merge_problems
-from misrgraph.h5io import atomic_h5, open_h5, read_dataset, write_dataset
-from misrgraph.passdata import OrbitPass
+from misrgraph.h5io import atomic_h5, file_mode, fsync_directory, open_h5, read_dataset, stored_file_sha256, write_dataset
+from misrgraph.passdata import PASS_ID_PATTERN, OrbitPass
 from misrgraph.solver import Marginals, SolverParams, solve
 
 __all__ = ["IncrementalSolver", "run_update", "load_state", "batch_solution", "DEFAULT_LINEARIZATION_TOL"]
@@ -373,11 +383,18 @@ class State:
 
 def _write_json_atomic(path: Path, obj: Any) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        json.dump(obj, f, indent=2)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(obj, f, indent=2)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, file_mode())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    fsync_directory(path.parent)
 
 
 def _model_spec(camera_model: str | os.PathLike[str]) -> str:
@@ -386,11 +403,76 @@ def _model_spec(camera_model: str | os.PathLike[str]) -> str:
     return text if text in MODEL_NAMES and not os.path.exists(text) else str(Path(text).resolve())
 
 
-#: Version of ``state.json``; 2 since the camera convention became ``T_ic = Ry(beta) Rx(delta)``.
-STATE_VERSION = 2
+def _model_sha256(camera: CameraModel) -> str:
+    """SHA-256 over a camera model's numbers (for built-in models, which have no file)."""
+    h = hashlib.sha256()
+    for f in dataclasses.fields(camera):
+        v = getattr(camera, f.name)
+        if isinstance(v, np.ndarray):
+            h.update(f.name.encode() + np.ascontiguousarray(v, dtype=float).tobytes())
+    return h.hexdigest()
+
+
+def _input_sha256(spec: str, what: str) -> str:
+    """SHA-256 of an input: a file's whole-file checksum, or a built-in camera model's numbers."""
+    if what == "camera_model" and spec in MODEL_NAMES and not os.path.exists(spec):
+        return _model_sha256(load_camera_model(spec))  # type: ignore[arg-type]
+    return stored_file_sha256(spec)
+
+
+#: Version of ``state.json``: 2 since the camera convention became ``T_ic = Ry(beta) Rx(delta)``;
+#: 3 since the manifest names every file and input by SHA-256.
+STATE_VERSION = 3
+_HEX64 = re.compile(r"[0-9a-f]{64}")
+_INPUTS = ("camera_model", "gcps", "dem")
+
+
+def _check_manifest(f: Path, meta: Any) -> None:
+    """Validate state.json's structure, naming the first bad field."""
+    if not isinstance(meta, dict):
+        raise FileFormatError(f, "not a JSON object")
+    for key in ("version", "camera_model", "gcps", "passes", "config", "input_sha256", "estimate"):
+        if key not in meta:
+            raise FileFormatError(f, f"missing field {key!r}")
+    sha = meta["input_sha256"]
+    for key in _INPUTS:
+        if meta.get(key) is not None and not (isinstance(sha, dict) and _HEX64.fullmatch(str(sha.get(key)))):
+            raise FileFormatError(f, f"input_sha256.{key} is {sha.get(key) if isinstance(sha, dict) else sha!r}; "
+                                     "expected 64 hex digits")
+    files = ([("estimate", meta["estimate"])] if meta["estimate"] is not None else [])
+    if not isinstance(meta["passes"], list):
+        raise FileFormatError(f, "passes is not a list")
+    seen = set()
+    for i, e in enumerate(meta["passes"]):
+        pid = e.get("pass_id") if isinstance(e, dict) else None
+        if not isinstance(pid, str) or not PASS_ID_PATTERN.fullmatch(pid):
+            raise FileFormatError(f, f"passes[{i}].pass_id is {pid!r}; expected a valid pass id")
+        if pid in seen:
+            raise FileFormatError(f, f"passes[{i}].pass_id {pid!r} appears twice")
+        seen.add(pid)
+        files.append((f"passes[{i}]", e))
+    for where, e in files:
+        name, digest = (e.get("file"), e.get("sha256")) if isinstance(e, dict) else (None, None)
+        if not isinstance(name, str) or not re.fullmatch(r"(passes/)?[A-Za-z0-9_.-]+\.h5", name) or ".." in name:
+            raise FileFormatError(f, f"{where}.file is {name!r}; expected a file name inside the state directory")
+        if not isinstance(digest, str) or not _HEX64.fullmatch(digest):
+            raise FileFormatError(f, f"{where}.sha256 is {digest!r}; expected 64 hex digits")
+
+
+def _checked_file(d: Path, entry: dict[str, Any]) -> Path:
+    """The state file an entry names, after checking it against the manifest's SHA-256."""
+    path = d / entry["file"]
+    if not path.exists():
+        raise FileFormatError(path, "named by state.json but missing; the state is damaged")
+    got = stored_file_sha256(path)
+    if got != entry["sha256"]:
+        raise FileFormatError(path, f"SHA-256 {got[:12]}... differs from state.json's {entry['sha256'][:12]}...; "
+                                    "the state is damaged")
+    return path
 
 
 def load_state(directory: str | os.PathLike[str]) -> State | None:
+    """The state manifest in ``directory`` (None if there is none), validated."""
     d = Path(directory)
     f = d / "state.json"
     if not f.exists():
@@ -399,14 +481,64 @@ def load_state(directory: str | os.PathLike[str]) -> State | None:
         meta = json.loads(f.read_text())
     except json.JSONDecodeError as exc:
         raise FileFormatError(f, f"invalid JSON ({exc.msg}); the state is damaged") from exc
-    for key in ("version", "camera_model", "gcps", "passes", "config"):
-        if key not in meta:
-            raise FileFormatError(f, f"missing field {key!r}")
-    if meta["version"] != STATE_VERSION:
-        raise FileFormatError(f, f"state version {meta['version']!r}; expected {STATE_VERSION} (version 1 states "
-                                 "hold camera corrections in the retired T_ic = Rz(delta) Ry(beta) convention; "
-                                 "start a new state)")
+    if isinstance(meta, dict) and meta.get("version") != STATE_VERSION:
+        raise FileFormatError(f, f"state version {meta.get('version')!r}; expected {STATE_VERSION} (version 1 states "
+                                 "hold camera corrections in the retired T_ic = Rz(delta) Ry(beta) convention, version 2 "
+                                 "states name no file by digest; start a new state)")
+    _check_manifest(f, meta)
     return State(d, meta)
+
+
+@contextlib.contextmanager
+def _state_lock(d: Path) -> Any:
+    """Hold ``STATE/.lock`` exclusively for the duration of an update."""
+    import fcntl
+
+    d.mkdir(parents=True, exist_ok=True)
+    fh = open(d / ".lock", "a+")
+    try:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            raise InputError("STATE", str(d), "a state no other update is using (another update holds its lock)") from exc
+        yield
+    finally:
+        fh.close()
+
+
+def _collect_garbage(d: Path, meta: dict[str, Any]) -> None:
+    """Remove state files the manifest does not name (left by earlier updates or by crashes)."""
+    keep = {d / e["file"] for e in meta["passes"]} | ({d / meta["estimate"]["file"]} if meta["estimate"] else set())
+    for p in [*d.glob("estimate-*.h5"), *d.glob(".estimate*"), *(d / "passes").glob("*.h5"),
+              *(d / "passes").glob(".*.tmp")]:
+        if p not in keep:
+            with contextlib.suppress(FileNotFoundError):
+                p.unlink()
+
+
+def _store_by_digest(src: Path, d: Path, stem: str) -> dict[str, str]:
+    """Copy (or move, for our own temporaries) a misrgraph file into the state as
+    ``<stem>-<sha12>.h5``, durably; returns its manifest entry."""
+    digest = stored_file_sha256(src)
+    rel = f"{stem}-{digest[:12]}.h5"
+    target = d / rel
+    if src.parent == target.parent and src.name.startswith("."):
+        os.replace(src, target)
+    else:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        try:
+            with os.fdopen(fd, "wb") as out, open(src, "rb") as inp:
+                shutil.copyfileobj(inp, out)
+                out.flush()
+                os.fsync(out.fileno())
+            os.chmod(tmp, file_mode())
+            os.replace(tmp, target)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+            raise
+    fsync_directory(target.parent)
+    return {"file": rel, "sha256": digest}
 
 
 def _save_estimate(path: Path, values: gtsam.Values) -> None:
@@ -455,17 +587,43 @@ def run_update(
     :data:`DEFAULT_LINEARIZATION_TOL`): see :class:`IncrementalSolver`.
     """
     d = Path(state_dir)
+    with _state_lock(d):
+        return _run_update_locked(d, new_passes, camera_model, gcp_file, dem_file, cfg, compare_batch, progress,
+                                  crash_before_commit, report, linearization_tol)
+
+
+def _run_update_locked(
+    d: Path, new_passes: list[str | os.PathLike[str]], camera_model: str | os.PathLike[str] | None,
+    gcp_file: str | os.PathLike[str] | None, dem_file: str | os.PathLike[str] | None, cfg: AdjustConfig,
+    compare_batch: bool, progress: Callable[[str], None] | None, crash_before_commit: bool, report: str | None,
+    linearization_tol: float | None,
+) -> dict[str, Any]:
     state = load_state(d)
     if state is None:
         if camera_model is None or gcp_file is None:
             raise InputError("--camera-model/--gcps", None, "both, when creating a new state")
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "passes").mkdir(exist_ok=True)
-        meta = {"version": STATE_VERSION, "software": f"misrgraph {__version__}", "camera_model": _model_spec(camera_model),
-                "gcps": str(Path(gcp_file).resolve()), "dem": str(Path(dem_file).resolve()) if dem_file else None,
-                "config": dataclasses.asdict(cfg), "passes": []}
+        (d / "passes").mkdir(parents=True, exist_ok=True)
+        specs = {"camera_model": _model_spec(camera_model), "gcps": str(Path(gcp_file).resolve()),
+                 "dem": str(Path(dem_file).resolve()) if dem_file else None}
+        for key, flag in zip(_INPUTS, ("--camera-model", "--gcps", "--dem")):
+            spec = specs[key]
+            if spec is not None and not (key == "camera_model" and spec in MODEL_NAMES) and not Path(spec).is_file():
+                raise InputError(flag, spec, "an existing file")
+        meta = {"version": STATE_VERSION, "software": f"misrgraph {__version__}", **specs,
+                "input_sha256": {k: _input_sha256(v, k) for k, v in specs.items() if v is not None},
+                "config": dataclasses.asdict(cfg), "estimate": None, "passes": []}
         state = State(d, meta)
     meta = state.meta
+    for key in _INPUTS:  # the inputs must be the ones the state was built on
+        if meta.get(key) is None:
+            continue
+        if not (key == "camera_model" and meta[key] in MODEL_NAMES) and not Path(meta[key]).is_file():
+            raise InputError(key, meta[key], "the file this state was created with (it is missing)")
+        now = _input_sha256(meta[key], key)
+        if now != meta["input_sha256"][key]:
+            raise InputError(key, meta[key], f"the input this state was created with (SHA-256 "
+                                             f"{meta['input_sha256'][key][:12]}...; it is now {now[:12]}...: restore it "
+                                             "or start a new state)")
     cfg = AdjustConfig.from_dict({k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()})
     camera = load_camera_model(meta["camera_model"])
     if not isinstance(camera, CameraModel):
@@ -474,7 +632,10 @@ def run_update(
     dem = DemTiles.load(meta["dem"]) if meta.get("dem") else None
     solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol)
     # replay the state (warm start from the saved estimate), in one update
-    old = [OrbitPass.load(d / p["file"]) for p in meta["passes"]]
+    old = [OrbitPass.load(_checked_file(d, p)) for p in meta["passes"]]
+    for p, entry in zip(old, meta["passes"]):
+        if p.pass_id != entry["pass_id"]:
+            raise FileFormatError(d / entry["file"], f"holds pass {p.pass_id!r}; state.json says {entry['pass_id']!r}")
     if old:
         if progress:
             progress(f"restoring {len(old)} passes")
@@ -483,7 +644,8 @@ def run_update(
             e = np.zeros(len(p.observations), bool)
             e[np.asarray(entry.get("rejected_indices", []), dtype=np.int64)] = True
             excl.append(e)
-        solver.add_passes(old, excl, _load_estimate(d / "estimate.h5"))
+        warm = _load_estimate(_checked_file(d, meta["estimate"])) if meta["estimate"] else gtsam.Values()
+        solver.add_passes(old, excl, warm)
     summaries = []
     added = []
     for f in new_passes:
@@ -522,12 +684,8 @@ def run_update(
                 worst = max(worst, float(np.max(np.abs(solver.estimate.atVector(k) - bres.values.atVector(k)) / sig)))
             s["batch"] = {"seconds": bsec, "ratio_update_over_batch": seconds / bsec, "max_difference_in_sigma": worst}
         summaries.append(s)
-        copy = d / "passes" / f"{p.pass_id}.h5"
-        tmp = copy.with_suffix(".h5.tmp")
-        shutil.copyfile(f, tmp)
-        os.replace(tmp, copy)
-        added.append({"pass_id": p.pass_id, "file": f"passes/{p.pass_id}.h5",
-                      "rejected_indices": [int(i) for i in np.flatnonzero(rejected)]})
+        entry = _store_by_digest(Path(f), d, f"passes/{p.pass_id}")
+        added.append({"pass_id": p.pass_id, **entry, "rejected_indices": [int(i) for i in np.flatnonzero(rejected)]})
     out: dict[str, Any] = {}
     if report is not None:
         ids = [p.pass_id for p in solver.passes]
@@ -543,11 +701,13 @@ def run_update(
                                               for j, a in enumerate(ANGLES)}}
         rep.update(score_pass(solver.passes[i], res, camera, whole_state=False))
         out["report"] = rep
-    if added:
-        _save_estimate(d / "estimate.tmp.h5", solver.estimate)
+    if added or not (d / "state.json").exists():
+        tmp = d / f".estimate.{os.getpid()}.h5"
+        _save_estimate(tmp, solver.estimate)
+        new_meta = {**meta, "estimate": _store_by_digest(tmp, d, "estimate"), "passes": meta["passes"] + added}
         if crash_before_commit:
             raise RuntimeError("simulated crash before the state was committed")
-        os.replace(d / "estimate.tmp.h5", d / "estimate.h5")
-        meta["passes"] = meta["passes"] + added
-        _write_json_atomic(d / "state.json", meta)
+        _write_json_atomic(d / "state.json", new_meta)  # the commit point
+        meta = new_meta
+        _collect_garbage(d, meta)
     return {"state": str(d), "passes_in_state": len(meta["passes"]), "updates": summaries, **out}

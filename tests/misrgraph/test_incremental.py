@@ -97,6 +97,56 @@ def test_state_restart_crash_and_duplicates(path_dir, tmp_path):
     assert r2["passes_in_state"] == 3
     assert [u["status"] for u in r2["updates"]] == ["added", "already in the state; not added again"]
     assert len(set(load_state(state).pass_ids)) == 3
+    # content-named files only: exactly the ones the manifest names (the crash's leftovers are gone)
+    meta = json.loads((state / "state.json").read_text())
+    named = {meta["estimate"]["file"], *(e["file"] for e in meta["passes"])}
+    on_disk = {str(p.relative_to(state)) for p in state.rglob("*.h5")}
+    assert on_disk == named and not [p for p in state.rglob(".*") if p.name != ".lock"]
+
+
+def test_state_refuses_changed_inputs_damaged_files_and_a_second_update(path_dir, tmp_path):
+    """The manifest names every file and input by SHA-256: a replaced camera model, a damaged or
+    swapped pass copy and a bad pass id in state.json are refused with one line naming them."""
+    import fcntl
+    import shutil
+
+    from misrgraph.errors import FileFormatError, InputError
+
+    sc = load_scenario(path_dir)
+    inputs = tmp_path / "inputs"
+    shutil.copytree(path_dir, inputs)
+    state = tmp_path / "state"
+    kw = dict(camera_model=inputs / "camera_model.h5", gcp_file=inputs / "gcp.h5", dem_file=inputs / "dem.h5")
+    run_update(state, [str(sc.pass_files[0])], **kw)
+    good = (state / "state.json").read_text()
+    # the camera model file replaced by another valid one (the truth model)
+    shutil.copy(inputs / "camera_model.h5", tmp_path / "cm.bak")
+    shutil.copy(inputs / "camera_truth.h5", inputs / "camera_model.h5")
+    with pytest.raises(InputError, match=r"camera_model.*SHA-256.*start a new state"):
+        run_update(state, [str(sc.pass_files[1])])
+    shutil.copy(tmp_path / "cm.bak", inputs / "camera_model.h5")
+    # a pass copy swapped for another valid pass file
+    meta = json.loads(good)
+    copy = state / meta["passes"][0]["file"]
+    saved = copy.read_bytes()
+    shutil.copy(sc.pass_files[1], copy)
+    with pytest.raises(FileFormatError, match=r"differs from state.json"):
+        run_update(state, [])
+    copy.write_bytes(saved)
+    # a hand-edited manifest with a pass id that would name a file outside the state
+    bad = json.loads(good)
+    bad["passes"][0]["pass_id"] = "../../etc"
+    (state / "state.json").write_text(json.dumps(bad))
+    with pytest.raises(FileFormatError, match=r"passes\[0\].pass_id"):
+        run_update(state, [])
+    (state / "state.json").write_text(good)
+    # a second update while one holds the lock
+    with open(state / ".lock", "a+") as fh:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        with pytest.raises(InputError, match="lock"):
+            run_update(state, [str(sc.pass_files[1])])
+    r = run_update(state, [str(sc.pass_files[1])])  # intact again: the update goes through
+    assert r["passes_in_state"] == 2
 
 
 def test_update_cli(path_dir, tmp_path):
