@@ -234,6 +234,7 @@ class CollinearityBatch:
         self.layout = BlockLayout(self.group, self.slot_keys, self.slot_dims, rows=2)
         self.robust = robust
         self._cache: tuple[Array, Array | None] | None = None
+        self._cache_values: gtsam.Values | None = None  # the Values object the cache belongs to
 
     def __len__(self) -> int:
         return int(self.group.size)
@@ -282,16 +283,22 @@ class CollinearityBatch:
     # ------------------------------------------------------------------ cache for the solver core
     def evaluate(self, values: gtsam.Values, jacobians: bool = True) -> None:
         """Evaluate every observation at ``values`` and cache the result for the factors."""
-        self.cache(*self.residuals(values, jacobians))
+        self.cache(*self.residuals(values, jacobians), values=values)
 
-    def cache(self, r: Array, j: dict[str, Array] | None) -> None:
-        """Cache an evaluation already made: :func:`collinearity_residual`'s output for every
-        observation, in the batch's order (as :meth:`residuals` returns it)."""
+    def cache(self, r: Array, j: dict[str, Array] | None, values: gtsam.Values) -> None:
+        """Cache an evaluation already made at ``values``: :func:`collinearity_residual`'s output
+        for every observation, in the batch's order (as :meth:`residuals` returns it).
+
+        The cache belongs to that ``Values`` object: a factor called with any other ``Values``
+        computes live, so a stale cache can never answer for another point. (Do not modify
+        ``values`` while the cache is live; :func:`misrgraph.solver.linearize` never does.)"""
         self._cache = (r.ravel(), self.layout.assemble(self._blocks(j)) if j is not None else None)
+        self._cache_values = values
 
     def clear(self) -> None:
         """Drop the cache: factors compute live from the Values they are given."""
         self._cache = None
+        self._cache_values = None
 
     # ------------------------------------------------------------------ factors
     def factors(self) -> list[gtsam.CustomFactor]:
@@ -307,7 +314,7 @@ class CollinearityBatch:
     def factor_rows(self, f: int, values: gtsam.Values | None, want_h: bool) -> tuple[Array, list[Array] | None]:
         """Residual (2m,) and per-key Jacobian blocks of factor ``f`` (cached or live)."""
         a, b = int(self.layout.obs_start[f]), int(self.layout.obs_stop[f])
-        if self._cache is not None and (not want_h or self._cache[1] is not None):
+        if self._cache is not None and values is self._cache_values and (not want_h or self._cache[1] is not None):
             r_all, buf = self._cache
             r = r_all[2 * a: 2 * b]
             blocks = self.layout.split(self.layout.factor_matrix(buf, f), f) if want_h and buf is not None else None

@@ -72,6 +72,7 @@ class DemBatch:
         self.sigma_m = np.asarray(sigma_m, float)
         self.surface = surface
         self._cache: tuple[Array, Array | None] | None = None
+        self._cache_values: gtsam.Values | None = None
 
     def __len__(self) -> int:
         return int(self.keys.size)
@@ -83,14 +84,17 @@ class DemBatch:
         return dem_residual(self._landmarks(values), self.surface, jacobians)
 
     def evaluate(self, values: gtsam.Values, jacobians: bool = True) -> None:
-        self.cache(*self.residuals(values, jacobians))
+        self.cache(*self.residuals(values, jacobians), values=values)
 
-    def cache(self, r: Array, j: Array | None) -> None:
-        """Cache an evaluation already made: :func:`dem_residual`'s output for every landmark."""
+    def cache(self, r: Array, j: Array | None, values: gtsam.Values) -> None:
+        """Cache an evaluation already made at ``values`` (:func:`dem_residual`'s output for every
+        landmark); used only by factors called with that same ``Values`` object."""
         self._cache = (r, j)
+        self._cache_values = values
 
     def clear(self) -> None:
         self._cache = None
+        self._cache_values = None
 
     def factors(self) -> list[gtsam.CustomFactor]:
         return [gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, float(s)), [int(k)], self._callback(i))
@@ -98,7 +102,7 @@ class DemBatch:
 
     def _callback(self, i: int):
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H: Any) -> Array:
-            if self._cache is not None and (H is None or self._cache[1] is not None):
+            if self._cache is not None and values is self._cache_values and (H is None or self._cache[1] is not None):
                 r, j = self._cache[0][i:i + 1], (self._cache[1][i] if self._cache[1] is not None else None)
             else:
                 rr, jj = dem_residual(np.asarray(values.atVector(int(self.keys[i])))[None, :], self.surface, H is not None)

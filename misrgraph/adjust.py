@@ -73,7 +73,7 @@ class AdjustConfig(Config):
     robust_k: float = 3.0
     reject_sigma: float = 5.0
     max_iterations: int = 100
-    backend: str = "schur"
+    backend: str = "auto"
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
         base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=self.threshold1, threshold2=self.threshold2,

@@ -561,6 +561,40 @@ def bench_nees(
                       f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}")
 
 
+@bench_app.command("kill")
+@handle_errors
+def bench_kill(
+    commands: str = typer.Option(",".join(("simulate", "calibrate", "adjust", "update")), "--commands",
+                                 help="Comma list of simulate, calibrate, adjust, update."),
+    trials: int = typer.Option(20, "--trials", help="SIGKILL trials per command."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the kill times."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the scenarios and outputs here."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Fault tolerance: SIGKILL each command at random points; every file must be the old one or
+    a complete new one, no pass counted twice, and a rerun must complete. Exit 1 on any failure."""
+    from misrgraph.faults import run_kill_trials
+
+    with err_console.status("kill trials...") as st:
+        res = run_kill_trials(tuple(c.strip() for c in commands.split(",") if c.strip()), trials, seed, workdir,
+                              progress=lambda m: st.update(m))
+    if as_json:
+        _print_json(res)
+    else:
+        table = Table(title=f"SIGKILL trials ({trials} per command)")
+        cols = ("trials", "killed_while_running", "old", "new", "none", "half_written", "lost", "counted_twice",
+                "rerun_failed", "debris")
+        heads = ("trials", "killed", "old", "new", "none", "half", "lost", "twice", "rerun✗", "debris")
+        table.add_column("command")
+        for c in heads:
+            table.add_column(c, justify="right")
+        for name, r in res["commands"].items():
+            table.add_row(name, *(str(r[c]) for c in cols))
+        console.print(table)
+    if res["failures"]:
+        raise typer.Exit(1)
+
+
 @app.command()
 @handle_errors
 def demo(

@@ -1,14 +1,19 @@
 """Digital elevation model: synthetic terrain, 3-arcsecond tiles, local surface fits (eq. 8).
 
 * :class:`SyntheticTerrain` is a deterministic global height field (m above mean sea level) made
-  of random plane waves with wavelengths from 1.5 km to 300 km and amplitudes growing with
-  wavelength (a fractal-like spectrum, relief of a few km, slopes up to ~20 deg), zero over the
-  ocean (real land mask from ``global-land-mask``).
-* :class:`DemTiles` holds square tiles of heights at 3-arcsecond postings with a
+  of random 3-D plane waves evaluated on the sphere (smooth across the antimeridian and the
+  poles) with wavelengths from 1.5 km to 300 km and amplitudes growing with wavelength (a
+  fractal-like spectrum, relief of a few km, slopes up to ~20 deg), zero over the ocean (real
+  land mask from ``global-land-mask``).
+* :class:`DemTiles` holds square tiles of heights (``size x size`` postings) with a
   land/water/boundary flag per posting and a quality identifier per tile (``1`` = DTED-1 class,
-  30 m vertical 1 sigma, about 60 % of tiles; ``2`` = reduced accuracy, 60-120 m). Each tile's
-  heights carry an error that is a tile-wide bias of the quality's sigma plus white noise of a
-  tenth of it, so the local fit's reported sigma is honest.
+  30 m vertical 1 sigma, about 60 % of tiles; ``2`` = reduced accuracy, 60-120 m). Postings are
+  3 arcseconds in latitude; in longitude they widen with latitude as DTED's do
+  (:func:`dted_lon_posting_deg`: 3" to 50 deg, 6" to 70, 9" to 75, 12" to 80, 18" beyond). Tiles
+  are found by their centres on the unit sphere and columns wrap in longitude, so lookups work
+  across the antimeridian; tiles stop at the poles (rows beyond +-90 deg are never made). The
+  heights' error is a smooth field of the quality's sigma plus white noise of a tenth of it, a
+  function of position (not of the tile), so the local fit's reported sigma is honest.
 * :func:`fit_local_surface` fits the surface of eq. 8 around a point from at most 6 x 6 postings
   -- bilinear (2 x 2), biquadratic (least squares on 4 x 4) or bicubic (4 x 4) --
   (bicubic 4 x 4 interpolation is the most accurate on real terrain, measured) and returns
@@ -37,6 +42,7 @@ __all__ = [
     "fit_local_surface",
     "Geoid",
     "POSTING_DEG",
+    "dted_lon_posting_deg",
     "QUALITY_SIGMA_M",
     "FLAG_LAND",
     "FLAG_WATER",
@@ -49,6 +55,34 @@ FLAG_LAND, FLAG_WATER, FLAG_BOUNDARY = 1, 2, 3
 #: Vertical 1-sigma (m) of each quality identifier.
 QUALITY_SIGMA_M = {1: 30.0, 2: 60.0, 3: 120.0}
 EARTH_R = 6371e3
+#: DTED longitude spacing: (upper |latitude| bound of the zone in deg, multiple of the 3" posting).
+DTED_LON_ZONES = ((50.0, 1), (70.0, 2), (75.0, 3), (80.0, 4), (90.0, 6))
+#: 3" postings around the equator.
+POSTINGS_360 = 432000
+
+
+def dted_lon_posting_factor(lat: ArrayLike) -> NDArray[np.int64]:
+    """The longitude posting as a multiple of 3" at latitude(s) ``lat`` (deg), DTED's zones."""
+    a = np.abs(np.asarray(lat, dtype=float))
+    out = np.full(a.shape, DTED_LON_ZONES[-1][1], np.int64)
+    for bound, factor in reversed(DTED_LON_ZONES[:-1]):
+        out = np.where(a < bound, factor, out)
+    return out
+
+
+def dted_lon_posting_deg(lat: ArrayLike) -> Array:
+    """DTED longitude posting (deg) at latitude(s) ``lat`` (deg): 3" below 50 deg, then 6", 9",
+    12" and 18" above 80 deg."""
+    return dted_lon_posting_factor(lat) * POSTING_DEG
+
+
+def _wrap_deg(d: ArrayLike) -> Array:
+    return (np.asarray(d, dtype=float) + 180.0) % 360.0 - 180.0
+
+
+def _unit(lat: ArrayLike, lon: ArrayLike) -> Array:
+    la, lo = np.radians(np.asarray(lat, dtype=float)), np.radians(np.asarray(lon, dtype=float))
+    return np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], -1)
 
 
 def land_mask(lat: ArrayLike, lon: ArrayLike) -> NDArray[np.bool_]:
@@ -69,27 +103,25 @@ class SyntheticTerrain:
     n_waves: int = 32
     max_relief_m: float = 2500.0
 
-    def _waves(self) -> tuple[Array, Array, Array, Array]:
+    def _waves(self) -> tuple[Array, Array, Array]:
         rng = np.random.default_rng(self.seed)
         lam = np.exp(rng.uniform(np.log(1.5e3), np.log(300e3), self.n_waves))
-        theta = rng.uniform(0, np.pi, self.n_waves)
+        u = rng.standard_normal((self.n_waves, 3))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
         phase = rng.uniform(0, 2 * np.pi, self.n_waves)
         amp = (lam / 300e3) ** 0.9
         amp = amp / amp.sum() * self.max_relief_m
-        k = 2 * np.pi / lam
-        return k * np.cos(theta), k * np.sin(theta), phase, amp
+        return (2 * np.pi / lam)[:, None] * u, phase, amp
 
     def relief(self, lat: ArrayLike, lon: ArrayLike) -> Array:
-        """Terrain before the land mask (m); smooth everywhere."""
-        kx, ky, ph, amp = self._waves()
+        """Terrain before the land mask (m): plane waves in 3-D evaluated on the sphere of radius
+        6371 km, so it is smooth everywhere, across the antimeridian and over the poles."""
+        k, ph, amp = self._waves()
         la = np.radians(np.asarray(lat, dtype=float))
         lo = np.radians(np.asarray(lon, dtype=float))
-        # local metric coordinates, continuous in longitude away from the poles
-        x = EARTH_R * lo * np.cos(la)
-        y = EARTH_R * la
-        arg = x[..., None] * kx + y[..., None] * ky + ph
-        h = np.sum(amp * (1 + np.sin(arg)), axis=-1) * 0.5
-        return h
+        xyz = EARTH_R * np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], -1)
+        arg = xyz @ k.T + ph
+        return np.sum(amp * (1 + np.sin(arg)), axis=-1) * 0.5
 
     def height(self, lat: ArrayLike, lon: ArrayLike) -> Array:
         """Height above MSL (m): relief over land, 0 over water."""
@@ -278,25 +310,29 @@ def _value_noise(i: NDArray[np.int64], j: NDArray[np.int64], seed: int, spacing:
     """Unit-variance, C1 random field on the posting grid: independent N(0, 1) values on a lattice
     every ``spacing`` postings, blended with smoothstep weights ``w`` and divided by
     ``sqrt(sum w^2)`` (so the variance is 1 everywhere). Points two lattice cells apart are
-    independent."""
+    independent. ``j`` is a longitude index: the lattice wraps at 360 deg (continuous across the
+    antimeridian; ``spacing`` divides :data:`POSTINGS_360`)."""
     fi = np.asarray(i, float) / spacing
     fj = np.asarray(j, float) / spacing
     a, b = np.floor(fi).astype(np.int64), np.floor(fj).astype(np.int64)
     si, sj = fi - a, fj - b
     si, sj = si * si * (3 - 2 * si), sj * sj * (3 - 2 * sj)
     w = [(1 - si) * (1 - sj), si * (1 - sj), (1 - si) * sj, si * sj]
-    z = [_hash_normal(a + da, b + db, seed) for da, db in ((0, 0), (1, 0), (0, 1), (1, 1))]
+    period = POSTINGS_360 // spacing
+    z = [_hash_normal(a + da, (b + db) % period, seed) for da, db in ((0, 0), (1, 0), (0, 1), (1, 1))]
     num = sum(wk * zk for wk, zk in zip(w, z))
     return num / np.sqrt(sum(wk * wk for wk in w))
 
 
 @dataclass
 class DemTiles:
-    """Square DEM tiles at 3-arcsecond postings.
+    """Square DEM tiles: ``posting_deg`` (3") in latitude, ``lon_posting (T,)`` deg per tile in
+    longitude (DTED's zones, :func:`dted_lon_posting_deg`; default ``posting_deg``).
 
-    ``lat0, lon0 (T,)`` deg of posting ``[0, 0]`` (south-west corner); ``heights (T, n, n)`` m
-    above MSL (row = latitude index northward, column = longitude eastward); ``flags (T, n, n)``
-    (1 land, 2 water, 3 boundary); ``quality (T,)`` identifiers (see :data:`QUALITY_SIGMA_M`).
+    ``lat0, lon0 (T,)`` deg of posting ``[0, 0]`` (south-west corner; ``lon0`` in [-180, 180),
+    columns continue east across the antimeridian); ``heights (T, n, n)`` m above MSL (row =
+    latitude index northward, column = longitude eastward); ``flags (T, n, n)`` (1 land, 2 water,
+    3 boundary); ``quality (T,)`` identifiers (see :data:`QUALITY_SIGMA_M`).
     """
 
     lat0: Array
@@ -305,10 +341,13 @@ class DemTiles:
     flags: NDArray[np.uint8]
     quality: NDArray[np.int64]
     posting_deg: float = POSTING_DEG
+    lon_posting: Array | None = None
 
     def __post_init__(self) -> None:
         self.lat0 = np.asarray(self.lat0, dtype=float)
         self.lon0 = np.asarray(self.lon0, dtype=float)
+        self.lon_posting = (np.full(self.lat0.shape, float(self.posting_deg)) if self.lon_posting is None
+                            else np.asarray(self.lon_posting, dtype=float))
         self.heights = np.asarray(self.heights, dtype=float)
         self.flags = np.asarray(self.flags, dtype=np.uint8)
         self.quality = np.asarray(self.quality, dtype=np.int64)
@@ -317,8 +356,16 @@ class DemTiles:
             raise InputError("dem.heights", self.heights.shape, f"shape ({t}, n, n)")
         if self.flags.shape != self.heights.shape:
             raise InputError("dem.flags", self.flags.shape, f"shape {self.heights.shape}")
-        if self.lon0.shape != (t,) or self.quality.shape != (t,):
-            raise InputError("dem.lon0/quality", (self.lon0.shape, self.quality.shape), f"shape ({t},)")
+        if self.lon0.shape != (t,) or self.quality.shape != (t,) or self.lon_posting.shape != (t,):
+            raise InputError("dem.lon0/quality/lon_posting", (self.lon0.shape, self.quality.shape, self.lon_posting.shape),
+                             f"shape ({t},)")
+        if t and not (np.all(np.isfinite(self.lat0)) and np.all(np.abs(self.lat0) <= 90.0)):
+            raise InputError("dem.lat0", self.lat0[~(np.abs(self.lat0) <= 90.0)][:1].tolist(), "finite, within [-90, 90] deg")
+        if t and not np.all(self.lat0 + (self.size - 1) * self.posting_deg <= 90.0 + 1e-9):
+            raise InputError("dem.lat0", float(self.lat0.max()), f"tiles ending at or below 90 deg "
+                                                                 f"(lat0 <= {90.0 - (self.size - 1) * self.posting_deg:.6f})")
+        if t and not (np.all(np.isfinite(self.lon_posting)) and np.all(self.lon_posting > 0)):
+            raise InputError("dem.lon_posting", float(self.lon_posting.min()), "positive, finite (deg)")
         bad = set(np.unique(self.quality).tolist()) - set(QUALITY_SIGMA_M)
         if bad:
             raise InputError("dem.quality", sorted(bad)[0], tuple(str(q) for q in QUALITY_SIGMA_M))
@@ -360,15 +407,21 @@ class DemTiles:
         if step < 1:
             raise InputError("dem tile size", size, f"at least {2 * margin + 2} postings")
         off = np.array([-pad, 0, pad])
+        fz = dted_lon_posting_factor(la)  # the point's DTED zone: longitude posting / 3"
         ri = np.floor(la / p)[:, None] + off  # (N, 3) rows of the point and its padded corners
-        rj = np.floor(lo / p)[:, None] + off
+        rj = np.floor(_wrap_deg(lo) / (fz * p))[:, None] + off  # columns in the zone's posting
         ti = np.floor((ri - margin) / step).astype(np.int64)
         tj = np.floor((rj - margin) / step).astype(np.int64)
-        pairs = np.stack(np.broadcast_arrays(ti[:, :, None], tj[:, None, :]), -1).reshape(-1, 2)
-        cells = np.unique(pairs, axis=0) if la.size else np.zeros((0, 2), np.int64)
-        i0 = cells[:, 0] * step
-        j0 = cells[:, 1] * step
-        lat0, lon0 = i0 * p, j0 * p
+        tz = np.broadcast_to(fz[:, None, None], (la.size, 3, 3))
+        triples = np.stack(np.broadcast_arrays(ti[:, :, None], tj[:, None, :], tz), -1).reshape(-1, 3)
+        cells = np.unique(triples, axis=0) if la.size else np.zeros((0, 3), np.int64)
+        # tiles stop at the poles: rows beyond +-90 deg are never made
+        last = int(round(90.0 / p))
+        i0 = np.clip(cells[:, 0] * step, -last, last - (size - 1))
+        cells = np.unique(np.stack([i0, cells[:, 1], cells[:, 2]], -1), axis=0) if la.size else cells
+        i0, fzc = cells[:, 0], cells[:, 2]
+        j0 = cells[:, 1] * step * fzc  # in 3" units
+        lat0, lon0 = i0 * p, _wrap_deg(j0 * p)
         g = np.arange(size)
         seed = int(rng.integers(0, 2**62))
 
@@ -376,11 +429,12 @@ class DemTiles:
             u = _hash_uniform(np.floor(glat_).astype(np.int64), np.floor(glon_).astype(np.int64), seed)
             return np.where(u < dted1_fraction, 1, 2)
 
-        def chunk(c0: NDArray[np.int64], c1: NDArray[np.int64]) -> tuple[Array, NDArray[np.uint8]]:
-            """Heights and flags of the tiles with origin postings (c0, c1)."""
+        def chunk(c0: NDArray[np.int64], c1: NDArray[np.int64], f: NDArray[np.int64]) -> tuple[Array, NDArray[np.uint8]]:
+            """Heights and flags of the tiles with origin postings (c0, c1) (3" units) and
+            longitude posting f x 3"."""
             gi = c0[:, None, None] + g[None, :, None] + 0 * g[None, None, :]
-            gj = c1[:, None, None] + 0 * g[None, :, None] + g[None, None, :]
-            glat, glon = gi * p, gj * p
+            gj = (c1[:, None, None] + 0 * g[None, :, None] + g[None, None, :] * f[:, None, None]) % POSTINGS_360
+            glat, glon = gi * p, _wrap_deg(gj * p)
             land = land_mask(glat, glon)
             true_h = np.where(land, terrain.relief(glat, glon), 0.0)
             flags = np.where(land, FLAG_LAND, FLAG_WATER).astype(np.uint8)
@@ -396,9 +450,9 @@ class DemTiles:
         heights = np.zeros((len(cells), size, size))
         flags = np.zeros((len(cells), size, size), np.uint8)
         for c in range(0, len(cells), 128):
-            heights[c:c + 128], flags[c:c + 128] = chunk(i0[c:c + 128], j0[c:c + 128])
-        quality = cell_quality(lat0 + size / 2 * p, lon0 + size / 2 * p)
-        return cls(lat0, lon0, heights, flags, quality)
+            heights[c:c + 128], flags[c:c + 128] = chunk(i0[c:c + 128], j0[c:c + 128], fzc[c:c + 128])
+        quality = cell_quality(lat0 + size / 2 * p, _wrap_deg(lon0 + size / 2 * fzc * p))
+        return cls(lat0, lon0, heights, flags, quality, p, fzc * p)
 
     def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3,
                 hint: NDArray[np.int64] | None = None) -> NDArray[np.int64]:
@@ -420,7 +474,7 @@ class DemTiles:
             ok = h >= 0
             hh = np.where(ok, h, 0)
             r = (la - self.lat0[hh]) / self.posting_deg
-            c = (((lo - self.lon0[hh]) + 180.0) % 360.0 - 180.0) / self.posting_deg
+            c = _wrap_deg(lo - self.lon0[hh]) / self.lon_posting[hh]
             ok &= (r >= margin) & (r <= self.size - 1 - margin) & (c >= margin) & (c <= self.size - 1 - margin)
             out[ok] = h[ok]
             rest = np.flatnonzero(~ok)
@@ -430,19 +484,25 @@ class DemTiles:
         if not hasattr(self, "_tree"):
             from scipy.spatial import cKDTree
 
-            half = self.size / 2 * self.posting_deg
-            self._centres = np.stack([self.lat0 + half, self.lon0 + half], -1)
-            self._tree = cKDTree(self._centres)
+            # centres on the unit sphere: nearness that knows the antimeridian and the poles
+            half = (self.size - 1) / 2
+            self._tree = cKDTree(_unit(self.lat0 + half * self.posting_deg, self.lon0 + half * self.lon_posting))
         k = min(8, self.lat0.size)
-        _, cand = self._tree.query(np.stack([la, lo], -1), k=k)
+        _, cand = self._tree.query(_unit(la, lo), k=k)
         cand = cand.reshape(la.size, k)
         r = (la[:, None] - self.lat0[cand]) / self.posting_deg
-        c = (((lo[:, None] - self.lon0[cand]) + 180.0) % 360.0 - 180.0) / self.posting_deg
+        c = _wrap_deg(lo[:, None] - self.lon0[cand]) / self.lon_posting[cand]
         inside = (r >= margin) & (r <= self.size - 1 - margin) & (c >= margin) & (c <= self.size - 1 - margin)
         first = np.argmax(inside, axis=1)  # candidates come nearest first
         ok = inside[np.arange(la.size), first]
         out[ok] = cand[np.arange(la.size), first][ok]
         return out
+
+    def posting_position(self, tile: NDArray[np.int64], row: ArrayLike, col: ArrayLike) -> tuple[Array, Array]:
+        """(lat, lon) in deg (lon in [-180, 180)) of postings ``(row, col)`` of tiles ``tile``."""
+        t = np.asarray(tile, np.int64)
+        return (self.lat0[t] + np.asarray(row, float) * self.posting_deg,
+                _wrap_deg(self.lon0[t] + np.asarray(col, float) * self.lon_posting[t]))
 
     def surface(self, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic") -> LocalSurface:
         """Local surface fit (eq. 8) at points; see :func:`fit_local_surface`."""
@@ -457,6 +517,7 @@ class DemTiles:
             g.attrs["height_reference"] = "mean sea level"
             write_dataset(g, "lat0", self.lat0, units="deg", description="latitude of posting [0, 0] (south-west)")
             write_dataset(g, "lon0", self.lon0, units="deg", description="longitude of posting [0, 0]")
+            write_dataset(g, "lon_posting", self.lon_posting, units="deg", description="longitude posting per tile")
             create_dataset(g, "heights", self.heights.astype(np.float32), compression="gzip", shuffle=True)
             g["heights"].attrs["units"] = "m above MSL"
             create_dataset(g, "flags", self.flags, compression="gzip")
@@ -479,6 +540,7 @@ class DemTiles:
                 read_dataset(g, "flags", (t, n, n), dtype=np.uint8),
                 read_dataset(g, "quality", (t,), dtype=np.int64),
                 float(read_attr(g, "posting_deg")),
+                read_dataset(g, "lon_posting", (t,)),
             )
 
 
@@ -497,7 +559,7 @@ def fit_local_surface(dem: DemTiles, lat: ArrayLike, lon: ArrayLike, method: str
         return out
     t = tile[sel]
     r = (la[sel] - dem.lat0[t]) / dem.posting_deg
-    c = (((lo[sel] - dem.lon0[t]) + 180.0) % 360.0 - 180.0) / dem.posting_deg
+    c = _wrap_deg(lo[sel] - dem.lon0[t]) / dem.lon_posting[t]
     if method == "bicubic":
         h, dr, dc, rms = _cubic_convolution(dem.heights, r, c, t)
     else:
@@ -510,7 +572,7 @@ def fit_local_surface(dem: DemTiles, lat: ArrayLike, lon: ArrayLike, method: str
         sig_q[q] = v
     out.height[sel] = h
     out.dh_dlat[sel] = dr / dem.posting_deg
-    out.dh_dlon[sel] = dc / dem.posting_deg
+    out.dh_dlon[sel] = dc / dem.lon_posting[t]
     out.sigma[sel] = np.sqrt(sig_q[dem.quality[t]] ** 2 + rms**2)
     out.valid[sel] = True
     return out

@@ -43,7 +43,7 @@ FORMAT_VERSIONS: dict[str, int] = {
     "camera_model": 2,
     "orbit_pass": 2,
     "gcp_database": 2,
-    "dem": 2,
+    "dem": 3,
     "calibration_result": 2,
     "adjustment_result": 2,
     "update_state": 2,
@@ -58,6 +58,8 @@ _OLD_VERSION_REASON: dict[tuple[str, int], str] = {
 }
 _OLD_VERSION_REASON.update({(kind, 1): "version 1 files carry no checksums or content digest; re-create the file "
                                        "with this version" for kind in ("gcp_database", "dem")})
+_OLD_VERSION_REASON[("dem", 2)] = ("version 2 DEMs have 3-arcsecond longitude postings at every latitude (no "
+                                   "/tiles/lon_posting, DTED's zones); re-create the file with this version")
 
 #: Root attribute holding the SHA-256 content digest (hex) of a file.
 DIGEST_ATTR = "content_sha256"

@@ -186,7 +186,7 @@ class IncrementalSolver:
         for i in positions:
             sub.add(prob.graph.at(int(i)))
         for f, out in raw.items():
-            batches[f].cache(*out)
+            batches[f].cache(*out, values=values)
         try:
             lin = sub.linearize(values)
         finally:

@@ -1,6 +1,6 @@
 """The solver core: Levenberg-Marquardt driven from Python over GTSAM's sparse elimination.
 
-Why (DESIGN.md section 4, measured trap): when GTSAM's C++ optimisers call a Python
+Why (a measured trap): when GTSAM's C++ optimisers call a Python
 ``CustomFactor`` each call receives a copy of the whole ``Values`` (1.56 s for one LM iteration
 of a 2000-landmark graph here), while ``graph.linearize(values)`` called from Python does not
 copy. So the core:
@@ -10,7 +10,8 @@ copy. So the core:
 2. calls ``graph.linearize(values)`` once per iteration (one C++ call, Python callbacks ~20 us each);
 3. adds the LM damping ``sqrt(lambda) I`` per variable and eliminates with GTSAM
    (``GaussianFactorGraph.optimize(ordering)``, landmarks first -- the classic Schur order --,
-   the ordering computed once and reused); or, with ``backend="schur"``, accumulates the normal
+   the ordering computed once and reused); or, with ``backend="schur"`` (``"auto"``, the
+   default, where the problem allows it), accumulates the normal
    equations directly from the per-observation blocks (:mod:`misrgraph.flat`) and solves them by a
    numpy Schur complement on the 3x3 landmark blocks -- no Python callback at all, ~4x faster
    than GTSAM's elimination at 2000 tie points, identical iterates with
@@ -37,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph.config import Config
-from misrgraph.errors import ConvergenceError, DegenerateProblemError
+from misrgraph.errors import ConvergenceError, DegenerateProblemError, InputError
 from misrgraph.graph import Problem
 
 __all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "marginal_covariances", "solve_gtsam_lm",
@@ -46,6 +47,10 @@ __all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "margin
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
+
+
+#: Linear-solver backends of :func:`solve`.
+BACKENDS = ("auto", "schur", "gtsam")
 
 
 @dataclass(frozen=True)
@@ -58,19 +63,27 @@ class SolverParams(Config):
     lambda_upper: float = 1e10
     relative_error_tol: float = 1e-5
     absolute_error_tol: float = 1e-5
-    backend: str = "gtsam"
-    #: Schur backend: add the DEM factors' second-order term (exact Hessian of the DEM part,
-    #: see :meth:`misrgraph.flat.FlatProblem.normal_equations`) once an accepted step decreased
-    #: the cost by less than ``second_order_below`` (relative). Gauss-Newton alone creeps on the
-    #: DEM's sub-posting curvature (measured: 60 iterations still 1.5e-5 above the minimum).
-    dem_second_order: bool = True
+    #: ``"auto"`` (the Schur backend where the problem allows it, else GTSAM elimination; the
+    #: result's ``backend`` says which ran), ``"schur"`` or ``"gtsam"`` (an explicit choice that
+    #: cannot apply is an error, never a silent substitute).
+    backend: str = "auto"
+    #: Add the DEM factors' second-order term (exact Hessian of the DEM part, see
+    #: :meth:`misrgraph.flat.FlatProblem.normal_equations`) once an accepted step decreased the
+    #: cost by less than ``second_order_below`` (relative). Gauss-Newton alone creeps on the DEM's
+    #: sub-posting curvature (measured: 60 iterations still 1.5e-5 above the minimum). Only the
+    #: Schur backend has it: None = wherever the backend that runs has it; True = required (an
+    #: error where it cannot apply); False = never.
+    dem_second_order: bool | None = None
     second_order_below: float = 1e-4
 
     def __post_init__(self) -> None:
-        if self.backend not in ("gtsam", "schur"):
-            from misrgraph.errors import InputError
+        from misrgraph.errors import InputError
 
-            raise InputError("backend", self.backend, ("gtsam", "schur"))
+        if self.backend not in BACKENDS:
+            raise InputError("backend", self.backend, BACKENDS)
+        if self.backend == "gtsam" and self.dem_second_order:
+            raise InputError("dem_second_order", self.dem_second_order,
+                             "False or None with backend 'gtsam' (only the Schur backend has the second-order DEM term)")
 
 
 @dataclass
@@ -83,6 +96,8 @@ class SolveResult:
     seconds: float = 0.0
     linearize_seconds: float = 0.0
     n_linearize: int = 0
+    #: the backend that ran (``"schur"`` or ``"gtsam"``; ``"auto"`` resolved)
+    backend: str = ""
 
 
 def _with_cache(problem: Problem, values: gtsam.Values, jacobians: bool, fn: Callable[[], object]):
@@ -126,17 +141,29 @@ def solve(
     """Minimise the problem's error with Levenberg-Marquardt (see the module docstring).
 
     ``params.backend`` chooses the linear solver of each step: ``"gtsam"`` (GTSAM's sparse
-    elimination of the linearised factor graph, any problem) or ``"schur"`` (the vectorised flat
-    problem with a numpy Schur complement on the 3x3 landmark blocks; single-pass least squares,
-    see :mod:`misrgraph.flat`). Both apply the same damping, acceptance and convergence rules.
+    elimination of the linearised factor graph, any problem), ``"schur"`` (the vectorised flat
+    problem with a numpy Schur complement on the 3x3 landmark blocks; single-pass least squares
+    without robust losses, see :mod:`misrgraph.flat`; :class:`InputError` for any other problem)
+    or ``"auto"`` (Schur where it applies, else GTSAM; ``SolveResult.backend`` says which ran).
+    Both apply the same damping, acceptance and convergence rules.
     """
-    if params.backend == "schur":
+    if params.backend in ("schur", "auto"):
         from misrgraph.flat import NotFlat
 
         try:
-            return _solve_schur(problem, params, initial, progress)
+            res = _solve_schur(problem, params.replace(dem_second_order=params.dem_second_order is not False),
+                               initial, progress)
+            res.backend = "schur"
+            return res
         except NotFlat as exc:
-            log.info("schur backend not applicable (%s); using GTSAM elimination", exc)
+            if params.backend == "schur":
+                raise InputError("backend", "schur", f"'auto' or 'gtsam' for this problem (the Schur backend "
+                                                     f"cannot solve it: {exc})") from exc
+            if params.dem_second_order:
+                raise InputError("dem_second_order", True, f"False or None for this problem (it needs the Schur "
+                                                           f"backend, which cannot solve it: {exc})") from exc
+            log.info("backend auto: GTSAM elimination (the Schur backend cannot solve this problem: %s)", exc)
+    params = params.replace(dem_second_order=False)
     values = gtsam.Values(initial if initial is not None else problem.initial)
     ordering = _ordering(problem)
 
@@ -146,8 +173,10 @@ def solve(
         except RuntimeError as exc:  # indeterminant system
             raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
 
-    return _levenberg_marquardt(values, lambda x: error(problem, x), lambda x, _: linearize(problem, x), step, params,
-                                progress, lambda x: x)
+    res = _levenberg_marquardt(values, lambda x: error(problem, x), lambda x, _: linearize(problem, x), step, params,
+                               progress, lambda x: x)
+    res.backend = "gtsam"
+    return res
 
 
 def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at: Callable[[object, bool], object],

@@ -166,3 +166,46 @@ def test_per_observation_grouping_gives_the_same_system(exact_pass):
     hb = b.problem.graph.linearize(b.problem.initial).hessian()
     np.testing.assert_allclose(ha[0], hb[0], rtol=1e-9, atol=1e-9 * np.max(np.abs(ha[0])))
     assert K.describe(int(a.landmark_keys[0]))[0] in "lg"
+
+
+def test_cache_answers_only_for_the_values_it_was_computed_at(graph):
+    """A live cache serves factors called with the same Values object, and only those: the error
+    at any other point is computed live (the issue: a graph.error(v) during a live cache returned
+    the cached point's error). Checked by planting a zero residual in the cache."""
+    prob = graph.problem
+    b = graph.collinearity
+    n = b.layout.n_factors
+    v0 = prob.initial
+    r, _ = b.residuals(v0)
+    live0 = sum(prob.graph.at(i).error(v0) for i in range(n))
+    v1 = gtsam.Values(v0)
+    k = int(graph.landmark_keys[0])
+    v1.update(k, v0.atVector(k) + np.array([300.0, 0.0, 0.0]))
+    live1 = sum(prob.graph.at(i).error(v1) for i in range(n))
+    assert live0 > 0 and live1 != pytest.approx(live0)
+    try:
+        b.cache(np.zeros_like(r), None, values=v0)
+        assert sum(prob.graph.at(i).error(v0) for i in range(n)) == 0.0  # the cache is used for v0...
+        assert sum(prob.graph.at(i).error(v1) for i in range(n)) == pytest.approx(live1, rel=1e-12)  # ...not v1
+        assert sum(prob.graph.at(i).error(gtsam.Values(v0)) for i in range(n)) == pytest.approx(live0, rel=1e-12)
+    finally:
+        b.clear()
+
+
+def test_solver_linearize_uses_the_cache(graph, monkeypatch):
+    """The vectorised path is really taken inside ``solver.linearize`` (no per-factor live
+    evaluation), so keying the cache by the Values object costs no speed."""
+    from misrgraph.solver import linearize
+
+    b = graph.collinearity
+    calls = {"live": 0}
+    real = b._gather
+
+    def counting(values, sl):
+        if sl.stop - sl.start < len(b):
+            calls["live"] += 1
+        return real(values, sl)
+
+    monkeypatch.setattr(b, "_gather", counting)
+    lin = linearize(graph.problem, graph.problem.initial)
+    assert lin.size() == graph.problem.graph.size() and calls["live"] == 0

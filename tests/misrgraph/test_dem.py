@@ -217,3 +217,63 @@ def test_tile_hint_reads_the_same_dem(rng):
     assert v.sum() > 40
     np.testing.assert_allclose(hinted.height[v], fresh.height[v], rtol=0, atol=1e-9)
     np.testing.assert_allclose(hinted.dh_dlat[v], fresh.dh_dlat[v], rtol=1e-12, atol=1e-9)
+
+
+def test_dted_longitude_spacing_by_zone():
+    from misrgraph.dem import dted_lon_posting_deg
+
+    lat = np.array([0.0, 49.9, 50.0, 69.9, 70.0, 74.9, 75.0, 79.9, 80.0, 89.0, -55.0])
+    np.testing.assert_allclose(dted_lon_posting_deg(lat) * 3600, [3, 3, 6, 6, 9, 9, 12, 12, 18, 18, 6])
+
+
+@pytest.mark.parametrize("lat0", [10.0, 55.0, 72.0, 81.5])
+def test_tiles_across_the_antimeridian_and_at_high_latitude(rng, lat0):
+    """A walk across 180 deg longitude reads one continuous surface (no jump beyond slope x step);
+    tiles carry DTED's longitude spacing for their latitude; heights match the terrain at the
+    postings' own positions to within the DEM's error."""
+    from misrgraph.dem import dted_lon_posting_deg
+
+    terrain = SyntheticTerrain(seed=5)
+    n = 4001
+    lo = np.linspace(179.99, 180.01, n)  # 0.02 deg: ~2.2 km at the equator
+    lo = (lo + 180.0) % 360.0 - 180.0
+    la = np.full(n, lat0)
+    dem = DemTiles.around(la, lo, terrain, rng, size=32)
+    np.testing.assert_allclose(dem.lon_posting, dted_lon_posting_deg(lat0))
+    assert np.all((dem.lon0 >= -180.0) & (dem.lon0 < 180.0))
+    s = fit_local_surface(dem, la, lo)
+    assert s.valid.all()
+    tiles = dem.tile_of(la, lo)
+    # the walk changes tiles at or near 180 deg, or one tile spans it (18" postings at 81.5 deg)
+    assert np.unique(tiles).size > 1 or dem.lon0[tiles[0]] + 31 * dem.lon_posting[tiles[0]] > 180.0
+    coslat = np.cos(np.radians(lat0))
+    step_m = 0.02 / (n - 1) * 111e3 * coslat
+    slope = np.hypot(s.dh_dlat / 111e3, s.dh_dlon / (111e3 * coslat))
+    assert np.all(np.abs(np.diff(s.height)) <= 2 * slope[:-1] * step_m + 1e-6)
+    # the postings sit where the tile says: heights = terrain there + error within 5 sigma
+    t = np.unique(tiles)
+    rr, cc = np.meshgrid(np.arange(32), np.arange(32), indexing="ij")
+    plat, plon = dem.posting_position(t[:, None, None], rr[None], cc[None])
+    land = dem.flags[t] != FLAG_WATER
+    err = (dem.heights[t] - terrain.height(plat, plon))[land]
+    assert err.size == 0 or np.all(np.abs(err) < 5 * 60.0)
+
+
+def test_tiles_stop_at_the_pole(rng):
+    terrain = SyntheticTerrain(seed=6)
+    lat, lon = np.array([89.9985, 89.9]), np.array([10.0, -170.0])  # 1.8 postings from the pole; 120
+    dem = DemTiles.around(lat, lon, terrain, rng, size=32)
+    assert np.all(dem.lat0 + 31 * POSTING_DEG <= 90.0 + 1e-9)
+    s = fit_local_surface(dem, lat, lon)
+    assert not s.valid[0] and s.valid[1]  # within 3 postings of the pole: no tile holds it
+    with pytest.raises(InputError, match="dem.lat0"):
+        DemTiles(np.array([89.99]), np.array([0.0]), np.zeros((1, 32, 32)), np.ones((1, 32, 32)), np.array([1]))
+
+
+def test_dem_file_keeps_the_longitude_spacing(rng, tmp_path):
+    terrain = SyntheticTerrain(seed=7)
+    dem = DemTiles.around(np.array([20.0, 60.0]), np.array([5.0, 5.0]), terrain, rng, size=16)
+    dem.save(tmp_path / "d.h5")
+    back = DemTiles.load(tmp_path / "d.h5")
+    np.testing.assert_array_equal(back.lon_posting, dem.lon_posting)
+    assert sorted(set(np.round(dem.lon_posting * 3600, 6))) == [3.0, 6.0]

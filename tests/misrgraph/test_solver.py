@@ -175,3 +175,21 @@ def test_second_order_dem_term_reaches_a_stationary_point(noisy_graph):
     g = j.T @ r
     dec = float(g @ spla.spsolve((j.T @ j).tocsc(), g))
     assert dec < 1e-6 * so.final_error
+
+
+def test_backend_choices_that_cannot_apply_are_errors(noisy_graph, small_pass):
+    """An explicit backend is used or refused, never silently replaced; 'auto' says what ran."""
+    from misrgraph.errors import InputError
+    from misrgraph.graph import build_pass_graph
+
+    sc, p = small_pass
+    robust = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True, robust="cauchy"))
+    with pytest.raises(InputError, match=r"backend.*Schur backend cannot solve it.*robust"):
+        solve(robust.problem, TIGHT.replace(backend="schur"))
+    with pytest.raises(InputError, match="dem_second_order"):
+        solve(robust.problem, TIGHT.replace(dem_second_order=True))
+    with pytest.raises(InputError, match="dem_second_order"):
+        SolverParams(backend="gtsam", dem_second_order=True)
+    assert solve(robust.problem, SolverParams(max_iterations=3)).backend == "gtsam"
+    assert solve(noisy_graph.problem, SolverParams(max_iterations=3)).backend == "schur"
+    assert solve(noisy_graph.problem, SolverParams(backend="gtsam", max_iterations=3)).backend == "gtsam"
