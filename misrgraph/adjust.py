@@ -45,6 +45,7 @@ from misrgraph.gcp import GcpDatabase
 from misrgraph.geolocation import PassGeometry
 from misrgraph.graph import GraphConfig, PassGraph, build_pass_graph
 from misrgraph.h5io import atomic_h5, write_dataset
+from misrgraph.results import capped_list
 from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.solver import Marginals, SolverParams, information_norm, linearize, marginal_covariances, solve
 
@@ -446,9 +447,11 @@ def run_adjust(
         "dropped_tie_points": int(res.dropped_landmarks.size),
         "knots": {a: {"kept": int(res.attitude.knot_times[i].size), "removed": int(pg.removed_knots[i].size)}
                   for i, a in enumerate(ANGLES)},
-        "rejected_observations": [{"index": int(i), "camera": CAMERAS[int(orbit_pass.observations.camera[i])],
-                                   "landmark_kind": "gcp" if orbit_pass.landmarks.kind[orbit_pass.observations.landmark[i]] == KIND_GCP else "tie",
-                                   "normalised_residual": float(n)} for i, n in zip(res.rejected, res.rejected_norm)],
+        "rejected_observations": capped_list(
+            [{"index": int(i), "camera": CAMERAS[int(orbit_pass.observations.camera[i])],
+              "landmark_kind": "gcp" if orbit_pass.landmarks.kind[orbit_pass.observations.landmark[i]] == KIND_GCP else "tie",
+              "normalised_residual": float(n)} for i, n in zip(res.rejected, res.rejected_norm)],
+            f"{out}:/observations/rejected" if out is not None else None, group_by=("camera", "landmark_kind")),
         "ephemeris": {"params": res.ephemeris.params.tolist(),
                       "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in pg.ephemeris_keys()]},
     }

@@ -46,6 +46,7 @@ from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError
 from misrgraph.gcp import GcpDatabase
 from misrgraph.graph import CAMERA_PRIOR_SIGMA, GraphConfig, PassGraph, Problem, build_pass_graph, merge_problems
 from misrgraph.h5io import atomic_h5, write_dataset
+from misrgraph.results import capped_list
 from misrgraph.passdata import KIND_GCP, OrbitPass
 from misrgraph.solver import SolverParams, linearize, solve
 
@@ -344,8 +345,9 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
         cams_out[name] = entry
     out: dict[str, Any] = {"cameras": cams_out, "iterations": res.iterations, "final_cost": res.final_cost,
                            "seconds": res.seconds, "passes": len(res.graphs),
-                           "rejected_observations": len(res.rejected),
-                           "rejected": [{"pass": int(p), "observation": int(o), "normalised_residual": r} for p, o, r in res.rejected],
+                           "rejected_observations": capped_list(
+                               [{"pass": int(p), "observation": int(o), "normalised_residual": float(r)} for p, o, r in res.rejected],
+                               None),
                            "poorly_determined": poorly,
                            "correlation": {"labels": res.labels, "matrix": np.round(corr, 4).tolist()}}
     if nb > 1:
@@ -543,6 +545,7 @@ def run_calibrate(
     res = calibrate_passes(passes, supplied, gcps, cfg, progress, table=None if isinstance(table, CameraModel) else table)
     summary = summarise(res, cfg, supplied, truth)
     if out is not None:
+        summary["rejected_observations"]["full_list"] = f"{out}:/calibration/rejected"
         with atomic_h5(out, "camera_model") as f:
             for m in (res.table.models if res.table is not None else [res.camera]):
                 m.provenance.update({"scenario": str(d), "camera_model_in": str(cam_path),
@@ -556,5 +559,10 @@ def run_calibrate(
             write_dataset(g, "corrections", res.values, units="rad (angles), m (f), pixel^-i (alpha_i)")
             write_dataset(g, "covariance", res.covariance)
             write_dataset(g, "correlation", np.asarray(summary["correlation"]["matrix"]))
+            rej = np.array([(p, o, r) for p, o, r in res.rejected], float).reshape(-1, 3)
+            r = g.create_group("rejected")
+            write_dataset(r, "pass_index", rej[:, 0].astype(np.int64), meaning="index of the pass in the month (file order)")
+            write_dataset(r, "observation", rej[:, 1].astype(np.int64), meaning="observation index within the pass")
+            write_dataset(r, "normalised_residual", rej[:, 2], units="sigma")
             g.attrs["summary_json"] = json.dumps({k: v for k, v in summary.items() if k != "correlation"})
     return summary

@@ -240,7 +240,8 @@ def _print_adjust_summary(s: dict) -> None:
     console.print(f"pass {s['pass_id']}: {s['observations']} observations, {s['landmarks']} landmarks, "
                   f"{s['iterations']} iterations, cost {s['final_cost']:.1f}, {s['seconds']:.1f} s")
     console.print("knots kept/removed: " + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in s["knots"].items()))
-    console.print(f"rejected observations: {len(s['rejected_observations'])}")
+    rej = s["rejected_observations"]
+    console.print(f"rejected observations: {rej['count']}" + (f" (all in {rej['full_list']})" if rej["full_list"] else ""))
     for d in s.get("diagnostics", []):
         console.print(f"[yellow]note:[/] {d}")
     if "checkpoint_geolocation_m" in s:
@@ -296,7 +297,7 @@ def calibrate(
     if as_json:
         _print_json({k: v for k, v in s.items() if k != "rejected"})
         return
-    t = Table(title=f"camera calibration: {s['passes']} passes, {s['iterations']} iterations, {s['rejected_observations']} observations rejected")
+    t = Table(title=f"camera calibration: {s['passes']} passes, {s['iterations']} iterations, {s['rejected_observations']['count']} observations rejected")
     t.add_column("camera")
     t.add_column("corrections (arcsec for angles) +- sigma")
     t.add_column("pointing error (px)", justify="right")

@@ -43,7 +43,7 @@ def _calibrate(out: Path, st: dict[str, Any]) -> str:
     plot_calibration(s, out / "plots")
     worst = max(s["cameras"].items(), key=lambda kv: kv[1]["pointing_error_px"])
     return (f"max pointing error {s['max_pointing_error_px']:.3f} px ({worst[0]}; sigma {worst[1]['sigma_px']:.3f} px; "
-            f"requirement 0.125), NEES/dim {s['nees']:.2f}, {s['rejected_observations']} blunders rejected")
+            f"requirement 0.125), NEES/dim {s['nees']:.2f}, {s['rejected_observations']['count']} blunders rejected")
 
 
 def _simulate_pass(out: Path, st: dict[str, Any]) -> str:

@@ -1,7 +1,8 @@
 """Fault injection: SIGKILL at random points of the commands that write files.
 
-Each trial starts a ``misrgraph`` command in a child process, kills it with SIGKILL after a random
-fraction of the time an uninterrupted run of the same command takes, and then inspects what is on
+Each trial starts a ``misrgraph`` command in a child process, kills it with SIGKILL at a time drawn
+uniformly between the interpreter's start-up (``misrgraph --help``, measured) and the end of an
+uninterrupted run of the same command, and then inspects what is on
 disk: every file misrgraph would read must be the old one or a complete new one (it opens and
 passes every integrity check), nothing may be lost, no pass may be in an update state twice, and
 a rerun of the same command must complete. Outcomes are counted per command::
@@ -309,6 +310,8 @@ def run_kill_trials(
         if progress:
             progress("simulating the inputs")
         inputs = _prepare_inputs(work, commands)
+        # kills land in the command's work, after interpreter start-up and imports (measured)
+        startup_s = min(_run(_cli("--help")) for _ in range(2))
         classes = {"simulate": _Simulate, "calibrate": _Calibrate, "adjust": _Adjust, "update": _Update}
         report: dict[str, Any] = {}
         for name in commands:
@@ -324,7 +327,7 @@ def run_kill_trials(
                     progress(f"{name}: trial {i + 1}/{trials}")
                 t.reset(i)
                 before = t.snapshot()
-                after = float(rng.uniform(0.05, 1.0)) * full_s
+                after = float(rng.uniform(min(startup_s, 0.9 * full_s), full_s))
                 killed += _run_and_kill(t.command(i), after)
                 outcome = t.judge(before, i)
                 counts[outcome] += 1
@@ -337,6 +340,7 @@ def run_kill_trials(
                 if not t.rerun_ok(i):
                     counts["rerun_failed"] += 1
             report[name] = {"trials": trials, "killed_while_running": killed, "uninterrupted_s": full_s,
+                            "startup_s": startup_s,
                             **counts, "debris": debris}
         return {"commands": report, "failures": int(sum(r[k] for r in report.values() for k in _FAILURES))}
     finally:

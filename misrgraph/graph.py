@@ -193,6 +193,10 @@ def build_pass_graph(
         use &= ~exclude_observations
     idx = np.flatnonzero(use)
     if idx.size == 0:
+        n_all = int(np.sum(kinds[obs.landmark] != KIND_CHECK)) if len(obs) else 0
+        if n_all:
+            raise DegenerateProblemError(f"pass {orbit_pass.pass_id}: all {n_all} tie-point and GCP observations were "
+                                         "excluded (rejected as blunders or unsupported); nothing is left to adjust")
         raise DegenerateProblemError(f"pass {orbit_pass.pass_id}: no tie-point or GCP observations to adjust")
     cams_used = np.unique(obs.camera[idx])
     if cams_used.size < 2:

@@ -147,6 +147,7 @@ def solve(
     or ``"auto"`` (Schur where it applies, else GTSAM; ``SolveResult.backend`` says which ran).
     Both apply the same damping, acceptance and convergence rules.
     """
+    _check_finite_start(problem, initial if initial is not None else problem.initial)
     if params.backend in ("schur", "auto"):
         from misrgraph.flat import NotFlat
 
@@ -177,6 +178,26 @@ def solve(
                                progress, lambda x: x)
     res.backend = "gtsam"
     return res
+
+
+def _check_finite_start(problem: Problem, values: gtsam.Values) -> None:
+    """A DegenerateProblemError naming the factors whose residual is not finite at the start
+    (e.g. landmarks whose initial position is off the DEM tiles), instead of a bare NaN error."""
+    from factors.keys import describe
+
+    for b in problem.batches:
+        r, _ = b.residuals(values, False)
+        bad = ~np.all(np.isfinite(np.asarray(r).reshape(len(b), -1)), axis=1)
+        if not bad.any():
+            continue
+        n = int(bad.sum())
+        if hasattr(b, "keys"):  # DEM batch: one landmark per row
+            first = describe(int(np.asarray(b.keys)[bad][0]))
+            raise DegenerateProblemError(f"{n} landmark(s) start off the DEM tiles (first: {first}); their rays "
+                                         "do not meet the terrain covered by the DEM (wild observations or the "
+                                         "wrong DEM)")
+        raise DegenerateProblemError(f"{n} collinearity residual(s) are not finite at the initial values; "
+                                     "check the observations and the camera model")
 
 
 def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at: Callable[[object, bool], object],

@@ -58,7 +58,9 @@ def test_blunders_are_found_and_nothing_else(adjusted):
     b = s["blunders"]
     assert b["rejected_that_were_blunders"] == b["rejected"]
     assert b["rejected"] >= 0.9 * b["injected"]
-    for r in s["rejected_observations"]:
+    rej = s["rejected_observations"]
+    assert rej["count"] == b["rejected"] and len(rej["largest"]) == min(rej["count"], 20)
+    for r in rej["largest"]:
         assert r["normalised_residual"] > 5.0
 
 
@@ -156,7 +158,7 @@ def test_all_gcps_blunders_is_diagnosed(small_pass_dir, tmp_path):
     p.save(f)
     s = run_adjust(d)
     assert any("GCP observations were rejected" in m for m in s["diagnostics"])
-    assert sum(r["landmark_kind"] == "gcp" for r in s["rejected_observations"]) == int(gcp_obs.sum())
+    assert s["rejected_observations"]["by_landmark_kind"]["gcp"] == int(gcp_obs.sum())
     assert load_scenario(d).pass_files
 
 

@@ -110,6 +110,28 @@ def test_cli_json_and_bad_params(small_month_dir):
     assert r.exit_code == 2 and "--params" in r.output
 
 
+def test_json_caps_the_rejected_list_and_the_file_holds_it_all(small_month_dir, tmp_path):
+    """The summary shows at most 20 rejected observations (the largest residuals) with the count;
+    the result file holds every one of them."""
+    import h5py
+
+    from misrgraph.calibrate import run_calibrate
+    from misrgraph.results import capped_list
+
+    out = tmp_path / "cal.h5"
+    s = run_calibrate(small_month_dir, out=out, max_passes=12)
+    rej = s["rejected_observations"]
+    assert rej["full_list"] == f"{out}:/calibration/rejected"
+    with h5py.File(out, "r") as f:
+        res = f["calibration/rejected/normalised_residual"][()]
+    assert res.size == rej["count"] > 0
+    assert [e["normalised_residual"] for e in rej["largest"]] == sorted(res, key=abs, reverse=True)[:20]
+    many = capped_list([{"normalised_residual": float(i), "camera": "An" if i % 2 else "Df"} for i in range(500)],
+                       "x.h5:/r", group_by=("camera",))
+    assert many["count"] == 500 and many["shown"] == 20 and many["largest"][0]["normalised_residual"] == 499.0
+    assert many["by_camera"] == {"Df": 250, "An": 250}
+
+
 def test_supplied_thermal_table_is_applied_per_pass(thermal_month_dir):
     """With the true thermal table as the supplied model, each pass is modelled at its own
     temperature, so the common corrections are zero within their covariance (chi-square, 95 %)
