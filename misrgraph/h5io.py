@@ -37,7 +37,7 @@ from misrgraph.errors import FileFormatError
 
 __all__ = ["atomic_h5", "open_h5", "read_dataset", "read_attr", "write_dataset", "create_dataset", "FORMAT_VERSIONS",
            "require_group", "DIGEST_ATTR", "content_digest", "stamp_content_digest", "fsync_directory", "file_mode",
-           "USERBLOCK_SIZE", "file_checksum_ok", "reseal", "stored_file_sha256"]
+           "USERBLOCK_SIZE", "file_checksum_ok", "reseal", "stored_file_sha256", "atomic_file"]
 
 FORMAT_VERSIONS: dict[str, int] = {
     "camera_model": 2,
@@ -184,6 +184,26 @@ def fsync_directory(path: str | os.PathLike[str]) -> None:
         pass
     finally:
         os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike[str], binary: bool = False) -> Iterator[Any]:
+    """Open a plain file for writing that appears at ``path`` only if the block succeeds: a hidden
+    temporary in the same directory, fsynced, given the umask's mode, renamed, directory fsynced."""
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb" if binary else "w") as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, file_mode())
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    fsync_directory(target.parent)
 
 
 @contextlib.contextmanager

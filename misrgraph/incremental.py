@@ -56,7 +56,6 @@ import logging
 import os
 import re
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,7 +75,7 @@ from misrgraph.errors import FileFormatError, InputError
 from misrgraph.flat import FlatProblem, NotFlat
 from misrgraph.gcp import GcpDatabase
 from misrgraph.graph import PassGraph, build_pass_graph, merge_problems
-from misrgraph.h5io import atomic_h5, file_mode, fsync_directory, open_h5, read_dataset, stored_file_sha256, write_dataset
+from misrgraph.h5io import atomic_file, atomic_h5, fsync_directory, open_h5, read_dataset, stored_file_sha256, write_dataset
 from misrgraph.passdata import PASS_ID_PATTERN, OrbitPass
 from misrgraph.solver import Marginals, SolverParams, solve
 
@@ -382,19 +381,8 @@ class State:
 
 
 def _write_json_atomic(path: Path, obj: Any) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=2)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    fsync_directory(path.parent)
+    with atomic_file(path) as f:
+        json.dump(obj, f, indent=2)
 
 
 def _model_spec(camera_model: str | os.PathLike[str]) -> str:
@@ -524,20 +512,10 @@ def _store_by_digest(src: Path, d: Path, stem: str) -> dict[str, str]:
     target = d / rel
     if src.parent == target.parent and src.name.startswith("."):
         os.replace(src, target)
+        fsync_directory(target.parent)
     else:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-        try:
-            with os.fdopen(fd, "wb") as out, open(src, "rb") as inp:
-                shutil.copyfileobj(inp, out)
-                out.flush()
-                os.fsync(out.fileno())
-            os.chmod(tmp, file_mode())
-            os.replace(tmp, target)
-        except BaseException:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(tmp)
-            raise
-    fsync_directory(target.parent)
+        with atomic_file(target, binary=True) as out, open(src, "rb") as inp:
+            shutil.copyfileobj(inp, out)
     return {"file": rel, "sha256": digest}
 
 
