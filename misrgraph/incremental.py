@@ -482,15 +482,21 @@ def _state_lock(d: Path) -> Any:
     """Hold ``STATE/.lock`` exclusively for the duration of an update."""
     import fcntl
 
+    created = not d.exists()
     d.mkdir(parents=True, exist_ok=True)
     fh = open(d / ".lock", "a+")
+    locked = False
     try:
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            locked = True
         except OSError as exc:
             raise InputError("STATE", str(d), "a state no other update is using (another update holds its lock)") from exc
         yield
     finally:
+        if locked and created and not (d / "state.json").exists():
+            # a first update that failed leaves nothing behind (not even the lock or the directory)
+            shutil.rmtree(d, ignore_errors=True)
         fh.close()
 
 

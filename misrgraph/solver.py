@@ -183,6 +183,7 @@ def solve(
 def _check_finite_start(problem: Problem, values: gtsam.Values) -> None:
     """A DegenerateProblemError naming the factors whose residual is not finite at the start
     (e.g. landmarks whose initial position is off the DEM tiles), instead of a bare NaN error."""
+    from factors.dem_height import DemBatch
     from factors.keys import describe
 
     for b in problem.batches:
@@ -191,7 +192,7 @@ def _check_finite_start(problem: Problem, values: gtsam.Values) -> None:
         if not bad.any():
             continue
         n = int(bad.sum())
-        if hasattr(b, "keys"):  # DEM batch: one landmark per row
+        if isinstance(b, DemBatch):  # one landmark per row
             first = describe(int(np.asarray(b.keys)[bad][0]))
             raise DegenerateProblemError(f"{n} landmark(s) start off the DEM tiles (first: {first}); their rays "
                                          "do not meet the terrain covered by the DEM (wild observations or the "

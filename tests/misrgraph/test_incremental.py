@@ -162,6 +162,7 @@ def test_update_cli(path_dir, tmp_path):
     assert u["batch"]["max_difference_in_sigma"] < 0.01
     res = CliRunner().invoke(app, ["update", str(tmp_path / "t"), str(sc.pass_files[0])])
     assert res.exit_code == 2 and "--camera-model/--gcps" in res.output
+    assert not (tmp_path / "t").exists()  # a failed first update leaves nothing behind
     # an earlier pass on request, after a restart, with its marginals
     pid = u["pass_id"]
     res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), "--report", pid, "--json"])
