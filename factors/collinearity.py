@@ -37,7 +37,7 @@ from factors.geometry import attitude_matrix, attitude_matrix_derivatives, drot_
 from factors.layout import BlockLayout
 
 __all__ = ["CAMERA_PARAMS", "CAMERA_PARAM_SCALE", "CollinearityConstants", "collinearity_residual", "CollinearityBatch",
-           "FactorShapeError"]
+           "FactorShapeError", "cached_at"]
 
 Array = NDArray[np.float64]
 CAMERA_PARAMS = ("delta", "beta", "epsilon", "f", "alpha0", "alpha1", "alpha2", "alpha3", "alpha4", "alpha5")
@@ -182,6 +182,15 @@ def _robust(noise: gtsam.noiseModel.Base, robust: tuple[str, float] | None) -> g
     return gtsam.noiseModel.Robust.Create(est, noise)
 
 
+def cached_at(cache: tuple[gtsam.Values, Array, Array | None] | None, values: gtsam.Values | None,
+              want_jacobians: bool) -> tuple[Array, Array | None] | None:
+    """A batch cache's (residuals, Jacobians) if it was computed at this very ``Values`` object
+    (and holds Jacobians when they are wanted); None means: compute live."""
+    if cache is None or cache[0] is not values or (want_jacobians and cache[2] is None):
+        return None
+    return cache[1], cache[2]
+
+
 class CollinearityBatch:
     """All collinearity observations of a problem, grouped into CustomFactors.
 
@@ -233,8 +242,7 @@ class CollinearityBatch:
         self.slot_dims = [3, 6, 2, 2, 2, 2, 2, 2, len(self.camera_select), 3]
         self.layout = BlockLayout(self.group, self.slot_keys, self.slot_dims, rows=2)
         self.robust = robust
-        self._cache: tuple[Array, Array | None] | None = None
-        self._cache_values: gtsam.Values | None = None  # the Values object the cache belongs to
+        self._cache: tuple[gtsam.Values, Array, Array | None] | None = None  # (at, residuals, Jacobians)
 
     def __len__(self) -> int:
         return int(self.group.size)
@@ -292,13 +300,11 @@ class CollinearityBatch:
         The cache belongs to that ``Values`` object: a factor called with any other ``Values``
         computes live, so a stale cache can never answer for another point. (Do not modify
         ``values`` while the cache is live; :func:`misrgraph.solver.linearize` never does.)"""
-        self._cache = (r.ravel(), self.layout.assemble(self._blocks(j)) if j is not None else None)
-        self._cache_values = values
+        self._cache = (values, r.ravel(), self.layout.assemble(self._blocks(j)) if j is not None else None)
 
     def clear(self) -> None:
         """Drop the cache: factors compute live from the Values they are given."""
         self._cache = None
-        self._cache_values = None
 
     # ------------------------------------------------------------------ factors
     def factors(self) -> list[gtsam.CustomFactor]:
@@ -314,8 +320,9 @@ class CollinearityBatch:
     def factor_rows(self, f: int, values: gtsam.Values | None, want_h: bool) -> tuple[Array, list[Array] | None]:
         """Residual (2m,) and per-key Jacobian blocks of factor ``f`` (cached or live)."""
         a, b = int(self.layout.obs_start[f]), int(self.layout.obs_stop[f])
-        if self._cache is not None and values is self._cache_values and (not want_h or self._cache[1] is not None):
-            r_all, buf = self._cache
+        hit = cached_at(self._cache, values, want_h)
+        if hit is not None:
+            r_all, buf = hit
             r = r_all[2 * a: 2 * b]
             blocks = self.layout.split(self.layout.factor_matrix(buf, f), f) if want_h and buf is not None else None
             return r, blocks

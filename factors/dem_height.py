@@ -20,6 +20,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.collinearity import FactorShapeError, cached_at
 from factors.geometry import geodetic_from_ecef, geodetic_jacobians
 
 __all__ = ["dem_residual", "dem_residual_hessian", "DemBatch", "Surface"]
@@ -71,8 +72,7 @@ class DemBatch:
         self.keys = np.asarray(keys, np.int64)
         self.sigma_m = np.asarray(sigma_m, float)
         self.surface = surface
-        self._cache: tuple[Array, Array | None] | None = None
-        self._cache_values: gtsam.Values | None = None
+        self._cache: tuple[gtsam.Values, Array, Array | None] | None = None  # (at, residuals, Jacobians)
 
     def __len__(self) -> int:
         return int(self.keys.size)
@@ -89,12 +89,10 @@ class DemBatch:
     def cache(self, r: Array, j: Array | None, values: gtsam.Values) -> None:
         """Cache an evaluation already made at ``values`` (:func:`dem_residual`'s output for every
         landmark); used only by factors called with that same ``Values`` object."""
-        self._cache = (r, j)
-        self._cache_values = values
+        self._cache = (values, r, j)
 
     def clear(self) -> None:
         self._cache = None
-        self._cache_values = None
 
     def factors(self) -> list[gtsam.CustomFactor]:
         return [gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, float(s)), [int(k)], self._callback(i))
@@ -102,13 +100,12 @@ class DemBatch:
 
     def _callback(self, i: int):
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H: Any) -> Array:
-            if self._cache is not None and values is self._cache_values and (H is None or self._cache[1] is not None):
-                r, j = self._cache[0][i:i + 1], (self._cache[1][i] if self._cache[1] is not None else None)
+            hit = cached_at(self._cache, values, H is not None)
+            if hit is not None:
+                r, j = hit[0][i:i + 1], (hit[1][i] if hit[1] is not None else None)
             else:
                 rr, jj = dem_residual(np.asarray(values.atVector(int(self.keys[i])))[None, :], self.surface, H is not None)
                 r, j = rr, (jj[0] if jj is not None else None)
-            from factors.collinearity import FactorShapeError
-
             if r.shape != (1,):
                 raise FactorShapeError(f"DEM factor {i}: residual shape {r.shape}, expected (1,)")
             if H is not None and not np.all(np.isfinite(r)):

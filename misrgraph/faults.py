@@ -196,9 +196,7 @@ class _Simulate(_Target):
         return self._seed() if self.out.exists() else None
 
     def judge(self, before: int | None, trial: int) -> str:
-        if not self.out.exists():
-            return "none" if before is None else "lost"
-        if self.out.is_dir() and not any(self.out.iterdir()):
+        if not self.out.exists() or not any(self.out.iterdir()):
             return "none" if before is None else "lost"
         seed = self._seed()
         if seed is None:

@@ -93,26 +93,32 @@ def reseal(path: str | os.PathLike[str]) -> None:
     _write_userblock(path)
 
 
-def stored_file_sha256(path: str | os.PathLike[str]) -> str:
-    """The whole-file SHA-256 (hex) recorded in a misrgraph file's user block, without hashing
-    the file (:func:`open_h5` verifies it on every read). FileFormatError without one."""
+def _userblock_sha256(path: str | os.PathLike[str]) -> str | None:
+    """The SHA-256 (hex) recorded in the user block, or None if there is no misrgraph block."""
     with open(path, "rb") as fh:
         head = fh.read(USERBLOCK_SIZE)
     if len(head) < USERBLOCK_SIZE or not head.startswith(_USERBLOCK_MAGIC):
-        raise FileFormatError(path, "no misrgraph checksum block at the start of the file")
+        return None
     return head[len(_USERBLOCK_MAGIC): len(_USERBLOCK_MAGIC) + 64].decode("ascii", "replace")
+
+
+def stored_file_sha256(path: str | os.PathLike[str]) -> str:
+    """The whole-file SHA-256 (hex) recorded in a misrgraph file's user block, without hashing
+    the file (:func:`open_h5` verifies it on every read). FileFormatError without one."""
+    stored = _userblock_sha256(path)
+    if stored is None:
+        raise FileFormatError(path, "no misrgraph checksum block at the start of the file")
+    return stored
 
 
 def file_checksum_ok(path: str | os.PathLike[str]) -> tuple[bool, str]:
     """Check the whole-file SHA-256 in the user block without letting HDF5 parse the file.
 
     Returns ``(ok, reason)``; ``reason`` says what is wrong (one line) when ``ok`` is False."""
-    with open(path, "rb") as fh:
-        head = fh.read(USERBLOCK_SIZE)
-    if len(head) < USERBLOCK_SIZE or not head.startswith(_USERBLOCK_MAGIC):
+    stored = _userblock_sha256(path)
+    if stored is None:
         return False, ("no misrgraph checksum block at the start of the file (damaged, not written by "
                        "misrgraph, or written by a version before this check)")
-    stored = head[len(_USERBLOCK_MAGIC): len(_USERBLOCK_MAGIC) + 64].decode("ascii", "replace")
     got = _sha256_after_userblock(path)
     if stored != got:
         return False, f"file checksum mismatch (stored {stored[:12]}..., computed {got[:12]}...): the file is damaged"

@@ -388,7 +388,7 @@ def _write_json_atomic(path: Path, obj: Any) -> None:
 def _model_spec(camera_model: str | os.PathLike[str]) -> str:
     """A built-in model name as it is, a file as its absolute path."""
     text = os.fspath(camera_model)
-    return text if text in MODEL_NAMES and not os.path.exists(text) else str(Path(text).resolve())
+    return text if _is_builtin("camera_model", text) else str(Path(text).resolve())
 
 
 def _model_sha256(camera: CameraModel) -> str:
@@ -401,9 +401,14 @@ def _model_sha256(camera: CameraModel) -> str:
     return h.hexdigest()
 
 
+def _is_builtin(what: str, spec: str) -> bool:
+    """Whether an input spec names a built-in camera model (no file) rather than a file."""
+    return what == "camera_model" and spec in MODEL_NAMES and not os.path.exists(spec)
+
+
 def _input_sha256(spec: str, what: str) -> str:
     """SHA-256 of an input: a file's whole-file checksum, or a built-in camera model's numbers."""
-    if what == "camera_model" and spec in MODEL_NAMES and not os.path.exists(spec):
+    if _is_builtin(what, spec):
         return _model_sha256(load_camera_model(spec))  # type: ignore[arg-type]
     return stored_file_sha256(spec)
 
@@ -503,7 +508,7 @@ def _state_lock(d: Path) -> Any:
 def _collect_garbage(d: Path, meta: dict[str, Any]) -> None:
     """Remove state files the manifest does not name (left by earlier updates or by crashes)."""
     keep = {d / e["file"] for e in meta["passes"]} | ({d / meta["estimate"]["file"]} if meta["estimate"] else set())
-    for p in [*d.glob("estimate-*.h5"), *d.glob(".estimate*"), *(d / "passes").glob("*.h5"),
+    for p in [*d.glob("estimate-*.h5"), *d.glob(".estimate*"), *d.glob(".*.tmp"), *(d / "passes").glob("*.h5"),
               *(d / "passes").glob(".*.tmp")]:
         if p not in keep:
             with contextlib.suppress(FileNotFoundError):
@@ -591,7 +596,7 @@ def _run_update_locked(
                  "dem": str(Path(dem_file).resolve()) if dem_file else None}
         for key, flag in zip(_INPUTS, ("--camera-model", "--gcps", "--dem")):
             spec = specs[key]
-            if spec is not None and not (key == "camera_model" and spec in MODEL_NAMES) and not Path(spec).is_file():
+            if spec is not None and not _is_builtin(key, spec) and not Path(spec).is_file():
                 raise InputError(flag, spec, "an existing file")
         meta = {"version": STATE_VERSION, "software": f"misrgraph {__version__}", **specs,
                 "input_sha256": {k: _input_sha256(v, k) for k, v in specs.items() if v is not None},
@@ -601,7 +606,7 @@ def _run_update_locked(
     for key in _INPUTS:  # the inputs must be the ones the state was built on
         if meta.get(key) is None:
             continue
-        if not (key == "camera_model" and meta[key] in MODEL_NAMES) and not Path(meta[key]).is_file():
+        if not _is_builtin(key, meta[key]) and not Path(meta[key]).is_file():
             raise InputError(key, meta[key], "the file this state was created with (it is missing)")
         now = _input_sha256(meta[key], key)
         if now != meta["input_sha256"][key]:

@@ -45,6 +45,7 @@ from misrgraph.errors import InputError
 from misrgraph.frames import ecef_to_geodetic
 from misrgraph.gcp import GcpDatabase, generate_gcp_database
 from misrgraph.geolocation import PassGeometry
+from misrgraph.h5io import atomic_file, fsync_directory
 from misrgraph.orbit import AttitudeSeries, Ephemeris, path_node_longitude, terra_like_orbit
 from misrgraph.passdata import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass, PassTruth
 
@@ -546,7 +547,8 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             "pass_summaries": summaries,
             "geoid": "zero (simulated data: DEM heights above MSL = ellipsoidal heights)",
         }
-        _write_durable(tmp / "scenario.json", json.dumps(summary, indent=2))
+        with atomic_file(tmp / "scenario.json") as fh:
+            fh.write(json.dumps(summary, indent=2))
         _swap_into_place(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -576,13 +578,6 @@ def _check_replaceable(out_dir: Path) -> None:
                                                 f"{shown}: move those elsewhere or choose another --out")
 
 
-def _write_durable(path: Path, text: str) -> None:
-    with open(path, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-
-
 def _exchange(a: Path, b: Path) -> bool:
     """Atomically swap two directory entries (Linux renameat2 RENAME_EXCHANGE); False where the
     platform or file system cannot."""
@@ -605,8 +600,6 @@ def _swap_into_place(new: Path, out_dir: Path) -> None:
     the OS allows (Linux), otherwise renamed aside first; it is deleted only once the new directory
     is in place. A crash leaves the old or the new scenario at ``out_dir`` (on the fallback path,
     possibly neither there but the old one intact as a hidden ``.<name>.old-*`` sibling)."""
-    from misrgraph.h5io import fsync_directory
-
     old = None
     if out_dir.exists():
         if _exchange(new, out_dir):

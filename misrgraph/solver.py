@@ -77,8 +77,6 @@ class SolverParams(Config):
     second_order_below: float = 1e-4
 
     def __post_init__(self) -> None:
-        from misrgraph.errors import InputError
-
         if self.backend not in BACKENDS:
             raise InputError("backend", self.backend, BACKENDS)
         if self.backend == "gtsam" and self.dem_second_order:
@@ -147,7 +145,19 @@ def solve(
     or ``"auto"`` (Schur where it applies, else GTSAM; ``SolveResult.backend`` says which ran).
     Both apply the same damping, acceptance and convergence rules.
     """
-    _check_finite_start(problem, initial if initial is not None else problem.initial)
+    try:
+        return _solve(problem, params, initial, progress)
+    except _NonFiniteStart:
+        _explain_nonfinite_start(problem, initial if initial is not None else problem.initial)
+        raise
+
+
+class _NonFiniteStart(DegenerateProblemError):
+    """The cost is not finite at the initial values (explained by :func:`_explain_nonfinite_start`)."""
+
+
+def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
+           progress: Callable[[int, float, float], None] | None) -> SolveResult:
     if params.backend in ("schur", "auto"):
         from misrgraph.flat import NotFlat
 
@@ -180,9 +190,10 @@ def solve(
     return res
 
 
-def _check_finite_start(problem: Problem, values: gtsam.Values) -> None:
+def _explain_nonfinite_start(problem: Problem, values: gtsam.Values) -> None:
     """A DegenerateProblemError naming the factors whose residual is not finite at the start
-    (e.g. landmarks whose initial position is off the DEM tiles), instead of a bare NaN error."""
+    (e.g. landmarks whose initial position is off the DEM tiles), instead of a bare NaN error.
+    Called only once the start is known to be non-finite (no cost on the normal path)."""
     from factors.dem_height import DemBatch
     from factors.keys import describe
 
@@ -217,7 +228,7 @@ def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at:
     x = x0
     err = cost(x)
     if not np.isfinite(err):
-        raise DegenerateProblemError(f"initial error is not finite ({err})")
+        raise _NonFiniteStart(f"initial error is not finite ({err})")
     history = [err]
     lam = params.lambda_initial
     converged = False
