@@ -1,9 +1,9 @@
 """Pure, vectorised geometry shared by the factors and by :mod:`misrgraph`.
 
 Everything here is numpy-only (no GTSAM), arrays in and arrays out, so it can be tested alone and
-imported by both packages without cycles (DESIGN.md section 2).
+imported by both packages without cycles.
 
-Conventions (DESIGN.md section 3):
+Conventions (docs/conventions.md):
 
 * Rotation matrices are *active* right-handed rotations; ``rot_z(a) @ v`` rotates ``v`` by ``a``
   about +z. Angles are radians. Leading dimensions broadcast: an angle array of shape ``(N,)``

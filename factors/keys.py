@@ -1,4 +1,4 @@
-"""Key letters of every variable in the graph -- defined here and nowhere else (DESIGN.md section 4).
+"""Key letters of every variable in the graph -- defined here and nowhere else.
 
 ===========  ======  =============================================  ==========================
 variable     letter  index                                          type

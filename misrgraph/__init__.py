@@ -1,7 +1,7 @@
 """misrgraph: in-flight geometric calibration of MISR as a GTSAM factor graph.
 
 Units are SI (metres, seconds, radians) inside the package; degrees and arcseconds appear only at
-interfaces. See DESIGN.md (shared) and docs/ for the conventions.
+interfaces. See docs/ for the conventions and data model.
 """
 
 from __future__ import annotations

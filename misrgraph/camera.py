@@ -95,7 +95,7 @@ class CameraModel:
     # ------------------------------------------------------------------ construction
     @classmethod
     def nominal(cls) -> "CameraModel":
-        """The nominal (design) model, derived from DESIGN.md's geometry; see :mod:`misrgraph.nominal`."""
+        """The nominal (design) model, derived from the nominal instrument geometry; see :mod:`misrgraph.nominal`."""
         from misrgraph.nominal import nominal_camera_model
 
         return nominal_camera_model().copy()

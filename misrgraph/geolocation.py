@@ -1,6 +1,6 @@
 """Pushbroom geolocation: pixel -> ground (ray casting) and ground -> pixel (line search).
 
-Model (eqs. 1, 2, 5, 6 and DESIGN.md section 3). For camera ``c``, band ``b`` and image
+Model (eqs. 1, 2, 5, 6 and docs/conventions.md). For camera ``c``, band ``b`` and image
 coordinates ``(l, s)`` the line is exposed at ``t = t0[c, b] + INT(l + 0.5) * dt_line`` and
 
     r_eci = T_go(t) @ T_os(A(t) + dA(t)) @ r_scs(c, b, l, s)

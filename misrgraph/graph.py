@@ -167,7 +167,7 @@ def build_pass_graph(
     camera_for_pass: CameraModel | None = None,
     temperature_bin: int = 0,
 ) -> PassGraph:
-    """Build the graph of DESIGN.md section 4 for one pass (see the module docstring).
+    """Build the factor graph of one pass (see the module docstring).
 
     ``shared`` holds keys (GCPs, cameras, omega) whose value and prior another pass of the same
     problem already added: they are referenced, not added again. ``camera_for_pass`` is the

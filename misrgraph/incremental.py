@@ -1,7 +1,7 @@
 """Incremental bundle adjustment with iSAM2 as passes arrive, and its persistent state.
 
 The Python factors are never handed to ``ISAM2`` directly (each of its callbacks would receive a
-copy of the whole ``Values``, DESIGN.md section 4). Instead every factor enters iSAM2 as a
+copy of the whole ``Values``; see :mod:`misrgraph.solver`). Instead every factor enters iSAM2 as a
 ``gtsam.LinearContainerFactor`` -- the factor linearised in one vectorised pass at the current
 estimate -- and this module decides what to re-linearise, swapping factors in through
 ``removeFactorIndices``.

@@ -1,4 +1,4 @@
-"""Scenario simulator: realistic orbit passes with known injected errors (seed section 4, DESIGN.md).
+"""Scenario simulator: realistic orbit passes with known injected errors (paper section 4).
 
 Two scenarios, following the paper's order of work:
 
