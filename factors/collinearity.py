@@ -299,7 +299,7 @@ class CollinearityBatch:
 
         The cache belongs to that ``Values`` object: a factor called with any other ``Values``
         computes live, so a stale cache can never answer for another point. (Do not modify
-        ``values`` while the cache is live; :func:`misrgraph.solver.linearize` never does.)"""
+        ``values`` while the cache is live; :func:`misrgraph.estimate.solver.linearize` never does.)"""
         self._cache = (values, r.ravel(), self.layout.assemble(self._blocks(j)) if j is not None else None)
 
     def clear(self) -> None:

@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 
 
 def _sensitivity(out: Path, st: dict[str, Any]) -> str:
-    from misrgraph.sensitivity import run_sensitivity
+    from misrgraph.evaluate.sensitivity import run_sensitivity
 
     res = run_sensitivity(arcsec=10.0, pixel=0.0, band="red")
     df, an = res["cameras"]["Df"], res["cameras"]["An"]
@@ -28,7 +28,7 @@ def _sensitivity(out: Path, st: dict[str, Any]) -> str:
 
 
 def _simulate_month(out: Path, st: dict[str, Any]) -> str:
-    from misrgraph.simulate import ScenarioConfig, run_simulate
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     cfg = ScenarioConfig(scenario="month", seed=1, **({"n_gcps": 30, "month_days": 16} if st["small"] else {}))
     s = run_simulate(cfg, out / "month")
@@ -36,8 +36,8 @@ def _simulate_month(out: Path, st: dict[str, Any]) -> str:
 
 
 def _calibrate(out: Path, st: dict[str, Any]) -> str:
-    from misrgraph.calibrate import run_calibrate
-    from misrgraph.plots import plot_calibration
+    from misrgraph.estimate.calibrate import run_calibrate
+    from misrgraph.viz.plots import plot_calibration
 
     s = run_calibrate(out / "month", out=out / "camera_calibrated.h5")
     plot_calibration(s, out / "plots")
@@ -47,7 +47,7 @@ def _calibrate(out: Path, st: dict[str, Any]) -> str:
 
 
 def _simulate_pass(out: Path, st: dict[str, Any]) -> str:
-    from misrgraph.simulate import ScenarioConfig, run_simulate
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     n = 150 if st["small"] else 600
     s = run_simulate(ScenarioConfig(scenario="pass", seed=2, n_tie_points=n, n_check_points=60,
@@ -57,8 +57,8 @@ def _simulate_pass(out: Path, st: dict[str, Any]) -> str:
 
 
 def _adjust(out: Path, st: dict[str, Any]) -> str:
-    from misrgraph.adjust import run_adjust
-    from misrgraph.plots import plot_adjustment
+    from misrgraph.estimate.adjust import run_adjust
+    from misrgraph.viz.plots import plot_adjustment
 
     s = run_adjust(out / "pass", camera_model=out / "camera_calibrated.h5", out=out / "pass_result.h5")
     plot_adjustment(out / "pass_result.h5", out / "plots")
@@ -73,8 +73,8 @@ def _adjust(out: Path, st: dict[str, Any]) -> str:
 def _incremental(out: Path, st: dict[str, Any]) -> str:
     import shutil
 
-    from misrgraph.incremental import run_update
-    from misrgraph.simulate import ScenarioConfig, run_simulate
+    from misrgraph.estimate.incremental import run_update
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     n_pass = 3 if st["small"] else 4
     run_simulate(ScenarioConfig(scenario="path", seed=3, n_passes=n_pass, n_tie_points=60 if st["small"] else 150,
@@ -93,7 +93,7 @@ def _incremental(out: Path, st: dict[str, Any]) -> str:
 
 
 def _view(out: Path, st: dict[str, Any]) -> str:
-    from misrgraph.viewer import run_view
+    from misrgraph.viz.viewer import run_view
 
     r = run_view(out / "pass_result.h5", save=out / "pass_result.rrd")
     run_view(out / "camera_calibrated.h5", save=out / "calibration.rrd")

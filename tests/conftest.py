@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import settings
 
-from misrgraph.camera import CameraModel
-from misrgraph.geolocation import PassGeometry
-from misrgraph.orbit import AttitudeSeries, terra_like_orbit
+from misrgraph.model.camera import CameraModel
+from misrgraph.model.geolocation import PassGeometry
+from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 
 settings.register_profile("ci", max_examples=40, deadline=None, derandomize=True)
 settings.load_profile("ci")
@@ -39,7 +39,7 @@ def rng() -> np.random.Generator:
 @pytest.fixture(scope="session")
 def small_pass_dir(tmp_path_factory):
     """A reduced 'pass' scenario (seed 11): 150 tie points, 20 check points, 15-minute pass."""
-    from misrgraph.simulate import ScenarioConfig, run_simulate
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "pass"
     cfg = ScenarioConfig(scenario="pass", seed=11, n_tie_points=150, n_check_points=20, duration_s=900.0,
@@ -50,7 +50,7 @@ def small_pass_dir(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def small_pass(small_pass_dir):
-    from misrgraph.simulate import load_scenario
+    from misrgraph.sim.simulate import load_scenario
 
     sc = load_scenario(small_pass_dir)
     return sc, sc.load_pass(0)
@@ -60,7 +60,7 @@ def small_pass(small_pass_dir):
 def exact_pass(tmp_path_factory):
     """Noise-free pass, no camera residual, knots on the graph's grid: the truth is a zero of
     every collinearity residual."""
-    from misrgraph.simulate import ScenarioConfig, load_scenario, run_simulate
+    from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "exact"
     run_simulate(ScenarioConfig(scenario="pass", seed=21, n_tie_points=40, n_check_points=0, duration_s=900.0,
@@ -72,7 +72,7 @@ def exact_pass(tmp_path_factory):
 @pytest.fixture(scope="session")
 def small_month_dir(tmp_path_factory):
     """A reduced 'month' scenario: 30 GCPs over 16 days (about 40 GCP passes)."""
-    from misrgraph.simulate import ScenarioConfig, run_simulate
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "month"
     run_simulate(ScenarioConfig(scenario="month", seed=31, n_gcps=30, month_days=16), out)
@@ -83,7 +83,7 @@ def small_month_dir(tmp_path_factory):
 def thermal_month_dir(tmp_path_factory):
     """A reduced 'month' with a thermal truth: 40 GCPs over 30 days (about 110 GCP passes at
     1-10 C), per-camera delta/beta slopes of 2 arcsec/C and focal-scale slopes of 20 ppm/C (1 sigma)."""
-    from misrgraph.simulate import ScenarioConfig, run_simulate
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "thermal_month"
     run_simulate(ScenarioConfig(scenario="month", seed=5, n_gcps=40, month_days=30, thermal_arcsec_per_c=2.0,
@@ -95,7 +95,7 @@ def thermal_month_dir(tmp_path_factory):
 def band_month_dir(tmp_path_factory):
     """A reduced 'month' observed in all four bands, whose true camera has per-band angle offsets
     (10 arcsec 1 sigma per band and angle): 30 GCPs over 16 days."""
-    from misrgraph.simulate import ScenarioConfig, run_simulate
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "band_month"
     run_simulate(ScenarioConfig(scenario="month", seed=7, n_gcps=30, month_days=16, bands=("blue", "green", "red", "nir"),

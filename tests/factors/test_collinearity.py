@@ -6,8 +6,8 @@ import pytest
 
 from factors import keys as K
 from factors.collinearity import FactorShapeError, collinearity_residual
-from misrgraph.constants import CAMERAS
-from misrgraph.graph import GraphConfig, build_pass_graph
+from misrgraph.model.constants import CAMERAS
+from misrgraph.estimate.graph import GraphConfig, build_pass_graph
 
 NO_REMOVAL = GraphConfig(threshold1=0, threshold2=0, use_dem=False)
 
@@ -195,7 +195,7 @@ def test_cache_answers_only_for_the_values_it_was_computed_at(graph):
 def test_solver_linearize_uses_the_cache(graph, monkeypatch):
     """The vectorised path is really taken inside ``solver.linearize`` (no per-factor live
     evaluation), so keying the cache by the Values object costs no speed."""
-    from misrgraph.solver import linearize
+    from misrgraph.estimate.solver import linearize
 
     b = graph.collinearity
     calls = {"live": 0}

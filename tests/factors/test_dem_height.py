@@ -5,7 +5,7 @@ import pytest
 
 from factors.dem_height import dem_residual, dem_residual_hessian
 from factors.geometry import geodetic_from_ecef
-from misrgraph.frames import ecef_to_geodetic, geodetic_to_ecef
+from misrgraph.model.frames import ecef_to_geodetic, geodetic_to_ecef
 
 
 def _surface(lat, lon):

@@ -6,7 +6,7 @@ import pytest
 
 from factors.layout import BlockLayout
 from factors.priors import enu_covariance, gcp_prior, vector_prior
-from misrgraph.frames import enu_basis
+from misrgraph.model.frames import enu_basis
 
 
 def test_enu_covariance_is_rotated_diagonal():

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from typer.testing import CliRunner
 
-from misrgraph.cli import app
+from misrgraph.commands.cli import app
 from misrgraph.demo import STAGES
 
 

@@ -1,0 +1,636 @@
+"""The ``misrgraph`` command line: thin wrappers over the ``run_*`` functions.
+
+Every command turns a :class:`~misrgraph.errors.MisrGraphError` into a one-line message on
+stderr and exit status 2 (no traceback). ``--json`` prints machine-readable output on stdout.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from misrgraph.errors import MisrGraphError
+
+__all__ = ["app", "main"]
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_show_locals=False, help="In-flight geometric calibration of MISR as a GTSAM factor graph.")
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _fail(message: str, code: int = 2) -> None:
+    err_console.print(f"misrgraph: error: {message}", markup=False, highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+#: Set by ``misrgraph --debug``: errors propagate with their traceback instead of one line.
+_DEBUG = False
+
+
+def handle_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorator, the one error boundary of every command: any failure ends with one line on
+    stderr naming what went wrong. Exit status 2 for bad input (InputError, FileFormatError,
+    DegenerateProblemError), 1 for a failed computation or an unexpected error, 130 when
+    interrupted. ``misrgraph --debug`` re-raises instead, with the traceback."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except (typer.Exit, typer.Abort, SystemExit):
+            raise
+        except MisrGraphError as exc:
+            if _DEBUG:
+                raise
+            _fail(str(exc), exc.exit_code)
+        except KeyboardInterrupt:
+            _fail("interrupted", 130)
+        except Exception as exc:
+            if _DEBUG:
+                raise
+            where = f" in {fn.__name__}"
+            _fail(f"internal error{where} ({exc.__class__.__name__}: {exc}). "
+                  "Rerun with 'misrgraph --debug ...' for the traceback", 1)
+
+    return wrapper
+
+
+def _print_json(obj: Any) -> None:
+    sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False) + "\n")
+
+
+@app.callback()
+def _root(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log progress details."),
+          debug: bool = typer.Option(False, "--debug", help="Show the full traceback of an error instead of one line.")) -> None:
+    global _DEBUG
+    _DEBUG = debug
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+
+
+SENS_HELP = """Ground displacement of each camera's pixel for a small attitude (and ephemeris) error.
+
+Signs: along_m > 0 is in the flight direction, cross_m > 0 to the right of it (orbital +y).
++pitch tips the view forward, +roll tips it to the left, +yaw turns it counter-clockwise seen
+from above. Ephemeris errors: +M m along (+x), cross (+y, right) and radial (up), attitude fixed
+relative to the orbital frame. Nominal point: WGS84 ellipsoid, mid-pass of a Terra-like
+descending pass (path 37) near the equator."""
+
+
+@app.command(help=SENS_HELP)
+@handle_errors
+def sensitivity(
+    arcsec: float = typer.Option(10.0, "--arcsec", help="Attitude perturbation (arcsec)."),
+    pixel: float = typer.Option(0.0, "--pixel", help="Sample number, 0..1503."),
+    band: str = typer.Option("red", "--band", help="blue, green, red or nir."),
+    ephemeris_m: Optional[float] = typer.Option(None, "--ephemeris-m", help="Also perturb the position by this many metres along, cross and radial."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    from misrgraph.evaluate.sensitivity import run_sensitivity
+
+    res = run_sensitivity(arcsec=arcsec, pixel=pixel, band=band, ephemeris_m=ephemeris_m)
+    if as_json:
+        _print_json(res)
+        return
+    table = Table(title=f"Ground displacement (m) for +{arcsec:g} arcsec, pixel {pixel:g}, {band} band")
+    table.add_column("camera")
+    for ang in ("yaw", "pitch", "roll"):
+        table.add_column(f"{ang}\nalong", justify="right")
+        table.add_column(f"{ang}\ncross", justify="right")
+    for cam, v in res["cameras"].items():
+        table.add_row(cam, *[f"{v[a][d]:.1f}" for a in ("yaw", "pitch", "roll") for d in ("along_m", "cross_m")])
+    console.print(table)
+    if ephemeris_m is not None:
+        eph = Table(title=f"Ground displacement (m) for +{ephemeris_m:g} m of position error")
+        eph.add_column("camera")
+        for ax in ("along", "cross", "radial"):
+            eph.add_column(f"{ax}\nalong", justify="right")
+            eph.add_column(f"{ax}\ncross", justify="right")
+        for cam, v in res["cameras"].items():
+            e = v["ephemeris"]
+            eph.add_row(cam, *[f"{e[a][d]:.1f}" for a in ("along", "cross", "radial") for d in ("along_m", "cross_m")])
+        console.print(eph)
+
+
+@app.command()
+@handle_errors
+def simulate(
+    scenario: str = typer.Option("pass", "--scenario", help="pass (one adjustment pass), month (GCP passes for calibration) or path (repeat passes of one path seeing the same features)."),
+    passes: int = typer.Option(10, "--passes", help="Repeat passes of the path scenario (16 days apart)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed: the same seed gives the same files."),
+    out: Path = typer.Option(..., "--out", help="Output directory (created; replaced if it is an earlier scenario)."),
+    path: int = typer.Option(37, "--path", help="WRS-2 path (1..233) of the pass / reference path of the month."),
+    tie_points: int = typer.Option(1000, "--tie-points", help="Tie points per pass (pass scenario)."),
+    check_points: int = typer.Option(100, "--check-points", help="Independent check points per pass."),
+    gcps: int = typer.Option(120, "--gcps", help="GCPs in the database."),
+    days: int = typer.Option(30, "--days", help="Length of the month scenario (days)."),
+    duration: float = typer.Option(2700.0, "--duration", help="Pass duration (s)."),
+    gcp_blunder_rate: float = typer.Option(0.05, "--gcp-blunder-rate", help="Fraction of GCP observations that are blunders."),
+    tie_blunder_rate: float = typer.Option(0.0, "--tie-blunder-rate", help="Fraction of tie-point observations that are blunders."),
+    nav_sigma: float = typer.Option(50.0, "--nav-sigma-m", help="Ephemeris offset 1 sigma per axis (m)."),
+    misalignment: float = typer.Option(60.0, "--misalignment-arcsec", help="Camera misalignment 1 sigma (arcsec)."),
+    noise_free: bool = typer.Option(False, "--noise-free", help="No measurement noise and no blunders."),
+    camera_truth: Optional[Path] = typer.Option(None, "--camera-truth", help="Use this true camera model (e.g. another scenario's camera_truth.h5) instead of drawing one."),
+    chips: bool = typer.Option(False, "--chips", help="Store nine 64x64 image chips per GCP."),
+    thermal: float = typer.Option(0.0, "--thermal-arcsec-per-c", help="Thermal truth: 1 sigma of each camera's delta and beta slopes (arcsec per deg C; 0 = none). The true camera is then a temperature table and each pass is simulated at its own camera temperature."),
+    thermal_ppm: float = typer.Option(0.0, "--thermal-ppm-per-c", help="Thermal truth: 1 sigma of each camera's focal-length scale slope (ppm per deg C)."),
+    bands: str = typer.Option("red", "--bands", help="Bands observed, comma-separated from blue, green, red, nir (e.g. all four for band-to-band calibration)."),
+    band_misalignment: float = typer.Option(0.0, "--band-misalignment-arcsec", help="Per-band truth: 1 sigma of each band's own delta, beta, epsilon offsets (arcsec)."),
+    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Simulate a scenario directory: passes, GCP database, DEM, supplied and true camera models."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+
+    fields = dict(scenario=scenario, seed=seed, path=path, n_passes=passes, n_tie_points=tie_points, n_check_points=check_points,
+                  n_gcps=gcps, month_days=days, duration_s=duration, gcp_blunder_rate=gcp_blunder_rate,
+                  tie_blunder_rate=tie_blunder_rate, nav_sigma_m=nav_sigma, camera_misalignment_arcsec=misalignment,
+                  noise_free=noise_free, with_chips=chips, camera_truth=str(camera_truth) if camera_truth else "",
+                  thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm,
+                  bands=tuple(b.strip() for b in bands.split(",") if b.strip()), band_misalignment_arcsec=band_misalignment)
+    if config is not None:
+        try:
+            fields.update(json.loads(config.read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            _fail(f"--config: cannot read {config}: {exc}")
+    cfg = ScenarioConfig.from_dict(fields)
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err_console,
+                  disable=as_json) as bar:
+        task = bar.add_task("simulating", total=None)
+
+        def progress(desc: str, k: int, n: int) -> None:
+            bar.update(task, description=desc, completed=k, total=max(n, 1))
+
+        summary = run_simulate(cfg, out, progress=progress)
+    if as_json:
+        _print_json({k: v for k, v in summary.items() if k != "pass_summaries"})
+        return
+    console.print(f"[bold]{cfg.scenario}[/] scenario (seed {cfg.seed}) written to {out}: {summary['passes']} passes, "
+                  f"{summary['observations']} observations, {summary['gcps_seen']} GCPs seen "
+                  f"({summary['gcps_seen_in_3_or_more_passes']} in 3 or more passes)")
+
+
+@app.command()
+@handle_errors
+def info(file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
+         as_json: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+    """Validate a misrgraph HDF5 file and print what it holds."""
+    from misrgraph.io.info import run_info
+
+    res = run_info(file)
+    if as_json:
+        _print_json(res)
+        return
+    table = Table(title=str(file), show_header=False)
+    for k, v in res.items():
+        table.add_row(k, json.dumps(v) if isinstance(v, (dict, list)) else str(v))
+    console.print(table)
+
+
+@app.command()
+@handle_errors
+def adjust(
+    scenario_dir: Path = typer.Argument(..., help="Scenario directory (misrgraph simulate --scenario pass)."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model HDF5, or 'preflight' (Table 1) or 'nominal' (default: the scenario's, e.g. one written by calibrate)."),
+    pass_file: Optional[Path] = typer.Option(None, "--pass", help="Pass file (default: the first in SCENARIO_DIR/passes)."),
+    gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (default SCENARIO_DIR/gcp.h5)."),
+    dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (default SCENARIO_DIR/dem.h5)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write RESULT.h5 (error models, landmarks, covariances, residuals)."),
+    plots: Optional[Path] = typer.Option(None, "--plots", help="Write PNG plots here (needs --out)."),
+    pitch_spacing: float = typer.Option(60.0, "--pitch-knots-s", help="Pitch knot spacing (s)."),
+    rollyaw_spacing: float = typer.Option(120.0, "--roll-yaw-knots-s", help="Roll and yaw knot spacing (s)."),
+    threshold1: int = typer.Option(1, "--threshold1", help="Eq. 28: minimum observations per knot support (the seed suggests ~20; see docs/conventions.md)."),
+    threshold2: int = typer.Option(1, "--threshold2", help="Eq. 29: minimum cameras per knot support (the seed suggests 3)."),
+    knot_rule: str = typer.Option("support", "--knot-rule", help="Eqs. 28-29 on each knot's support (default) or, literally, on [t_i, t_i+1) ('interval')."),
+    no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
+    robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
+    from misrgraph.estimate.adjust import AdjustConfig, run_adjust
+
+    cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
+                                      threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
+                                      use_dem=not no_dem, robust=robust))
+    with err_console.status("adjusting...") as st:
+        summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
+                             progress=lambda s: st.update(s))
+    if plots is not None:
+        if out is None:
+            _fail("--plots: needs --out RESULT.h5 (the plots are drawn from it)")
+        from misrgraph.viz.plots import plot_adjustment
+
+        plot_adjustment(out, plots)
+    if as_json:
+        _print_json(summary)
+        return
+    _print_adjust_summary(summary)
+
+
+def _print_adjust_summary(s: dict) -> None:
+    console.print(f"pass {s['pass_id']}: {s['observations']} observations, {s['landmarks']} landmarks, "
+                  f"{s['iterations']} iterations, cost {s['final_cost']:.1f}, {s['seconds']:.1f} s")
+    console.print("knots kept/removed: " + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in s["knots"].items()))
+    rej = s["rejected_observations"]
+    console.print(f"rejected observations: {rej['count']}" + (f" (all in {rej['full_list']})" if rej["full_list"] else ""))
+    for d in s.get("diagnostics", []):
+        console.print(f"[yellow]note:[/] {d}")
+    if "checkpoint_geolocation_m" in s:
+        t = Table(title="check points: ground error (m) with supplied -> corrected navigation")
+        for col in ("camera", "before mean", "before std", "after mean", "after std", "ratio", "co-reg vs An (px)"):
+            t.add_column(col, justify="right")
+        for cam, v in s["checkpoint_geolocation_m"].items():
+            t.add_row(cam, f"{v['before']['mean']:.1f}", f"{v['before']['std']:.1f}", f"{v['after']['mean']:.1f}",
+                      f"{v['after']['std']:.1f}", f"{v['ratio_before_over_after']:.1f}",
+                      f"{s['coregistration_px'].get(cam, float('nan')):.3f}")
+        console.print(t)
+        att, obs = s["attitude_rms_arcsec"], s["attitude_rms_arcsec_observed"]
+        console.print("attitude RMS error (arcsec) where observed / whole pass: "
+                      + ", ".join(f"{k} {obs[k]:.2f}/{v:.2f}" for k, v in att.items())
+                      + f" ({100 * s['observed_fraction_of_pass']:.0f} % of the pass observed); "
+                      f"ephemeris RMS error {s['ephemeris_rms_m']:.1f} m")
+        n = s["nees"]
+        console.print(f"NEES / dim: knots {n['knots']:.2f}, landmarks {n['landmarks']:.2f}, whole state {n['state']:.2f} (1 = honest)")
+
+
+@app.command()
+@handle_errors
+def calibrate(
+    scenario_dir: Path = typer.Argument(..., help="Scenario directory (misrgraph simulate --scenario month)."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Supplied model: HDF5, or 'preflight' (Table 1) or 'nominal'; default SCENARIO_DIR/camera_model.h5."),
+    gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database; default SCENARIO_DIR/gcp.h5."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write the recalibrated camera model (HDF5, with covariance)."),
+    params: str = typer.Option("delta,beta,epsilon", "--params", help="Comma list from: delta, beta, epsilon, f, alpha0..alpha5, omega."),
+    per_band: bool = typer.Option(False, "--per-band", help="Separate corrections per camera and band."),
+    temperature_bins: int = typer.Option(1, "--temperature-bins", help="Thermal calibration: split the passes into N bins of equal count by camera temperature, estimate the corrections per bin, write a temperature table and report each parameter's slope per deg C (1: one set for all temperatures)."),
+    max_passes: Optional[int] = typer.Option(None, "--max-passes", help="Use only the first N passes."),
+    plots: Optional[Path] = typer.Option(None, "--plots", help="Write PNG plots here."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Camera calibration by space resection over GCP passes (per-pass navigation errors as nuisance)."""
+    from factors.collinearity import CAMERA_PARAMS
+    from misrgraph.estimate.calibrate import CalibrateConfig, run_calibrate
+
+    names = [p.strip() for p in params.split(",") if p.strip()]
+    omega = "omega" in names
+    names = [p for p in names if p != "omega"]
+    bad = [p for p in names if p not in CAMERA_PARAMS]
+    if bad or not names:
+        _fail(f"--params: got {bad[0] if bad else params!r}; expected a comma list of {', '.join(CAMERA_PARAMS)}, omega")
+    cfg = CalibrateConfig.from_dict(dict(params=tuple(names), per_band=per_band, estimate_omega=omega,
+                                         temperature_bins=temperature_bins))
+    with err_console.status("calibrating...") as st:
+        s = run_calibrate(scenario_dir, camera_model, gcp_file, out, cfg, max_passes, progress=lambda m: st.update(m))
+    if plots is not None:
+        from misrgraph.viz.plots import plot_calibration
+
+        plot_calibration(s, plots)
+    if as_json:
+        _print_json({k: v for k, v in s.items() if k != "rejected"})
+        return
+    t = Table(title=f"camera calibration: {s['passes']} passes, {s['iterations']} iterations, {s['rejected_observations']['count']} observations rejected")
+    t.add_column("camera")
+    t.add_column("corrections (arcsec for angles) +- sigma")
+    t.add_column("pointing error (px)", justify="right")
+    t.add_column("sigma (px)", justify="right")
+    for cam, v in s["cameras"].items():
+        par = ", ".join(f"{k} {v_['value'] / 4.8481e-6:.1f}+-{v_['sigma'] / 4.8481e-6:.1f}" if k.split(".")[-1] in ("delta", "beta", "epsilon")
+                        else f"{k} {v_['value']:.3g}+-{v_['sigma']:.2g}" for k, v_ in v["params"].items())
+        t.add_row(cam, par, f"{v.get('pointing_error_px', float('nan')):.3f}", f"{v['sigma_px']:.3f}")
+    console.print(t)
+    if "max_pointing_error_px" in s:
+        console.print(f"max pointing error {s['max_pointing_error_px']:.3f} px (requirement 0.125); NEES/dim {s['nees']:.2f}")
+    for pd in s["poorly_determined"]:
+        console.print(f"[yellow]poorly determined:[/] {pd['parameter']} (posterior sigma {pd['ratio']:.0%} of its prior)")
+    if "thermal" in s:
+        th = s["thermal"]
+        tt = Table(title="thermal slopes per deg C (angles in arcsec) over bins at "
+                         + ", ".join(f"{x:.1f}" for x in th["bins_c"]) + " C")
+        tt.add_column("camera")
+        tt.add_column("slope +- sigma (true)")
+        for cam, ps in th["slopes"].items():
+            tt.add_row(cam, ", ".join(
+                f"{p} {e.get('slope_arcsec_per_c', e['slope_per_c']):.3g}+-{e.get('sigma_arcsec_per_c', e['sigma_per_c']):.2g}"
+                + (f" ({e['true_slope_per_c'] / (4.8481e-6 if 'slope_arcsec_per_c' in e else 1):.3g})" if "true_slope_per_c" in e else "")
+                for p, e in ps.items()))
+        console.print(tt)
+        if "nees" in th:
+            console.print(f"thermal slopes NEES/dim {th['nees']:.2f} over {th['nees_dim']}")
+
+
+@app.command()
+@handle_errors
+def update(
+    state: Path = typer.Argument(..., help="State directory (created on first use)."),
+    passes: Optional[list[Path]] = typer.Argument(None, help="New pass files (HDF5) to add, in order."),
+    camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model HDF5, or 'preflight' / 'nominal' (needed when creating the state)."),
+    gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (needed when creating the state)."),
+    dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (recommended when creating the state)."),
+    compare_batch: bool = typer.Option(False, "--compare-batch", help="Also re-solve all passes in batch and report the cost ratio and the difference in sigma."),
+    report: Optional[str] = typer.Option(None, "--report", help="Also report error models, marginals and scores of this earlier pass id."),
+    linearization_tol: Optional[float] = typer.Option(None, "--linearization-tol", min=1e-6,
+                                                      help="Re-linearise until the linear model's error is at most this many sigma "
+                                                           "(smaller: closer to the optimum, slower) [default: misrgraph.estimate.incremental.DEFAULT_LINEARIZATION_TOL]."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON."),
+) -> None:
+    """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
+    import numpy as np
+
+    from misrgraph.estimate.incremental import run_update
+
+    with err_console.status("updating...") as st:
+        if not passes and report is None:
+            _fail("PASSES: give new pass files to add, or --report PASS_ID for an earlier pass")
+        out = run_update(state, [str(p) for p in passes or []], camera_model, gcp_file, dem_file,
+                         compare_batch=compare_batch, progress=lambda m: st.update(m), report=report,
+                         linearization_tol=linearization_tol)  # None: the library default
+    if as_json:
+        _print_json(out)
+        return
+    console.print(f"state {out['state']}: {out['passes_in_state']} passes")
+    if "report" in out:
+        r = out["report"]
+        console.print(f"{r['pass_id']}: knots kept/removed " + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in r["knots"].items())
+                      + "; mean knot sigma (arcsec) " + ", ".join(f"{a} {np.mean(v):.2f}" for a, v in r["attitude_knot_sigma_arcsec"].items()))
+    for u in out["updates"]:
+        if u["status"] != "added":
+            console.print(f"{u['pass_id']}: {u['status']}")
+            continue
+        line = (f"{u['pass_id']}: added in {u['update_seconds']:.2f} s ({u['relinearization_rounds']} re-linearisation rounds)")
+        if "batch" in u:
+            b = u["batch"]
+            line += f"; batch re-solve {b['seconds']:.2f} s (update/batch {b['ratio_update_over_batch']:.2f}), max difference {b['max_difference_in_sigma']:.1e} sigma"
+        console.print(line)
+        if "nees" in u:
+            console.print(f"   NEES/dim knots {u['nees']['knots']:.2f}, landmarks {u['nees']['landmarks']:.2f}; "
+                          "attitude RMS where observed (arcsec) " + ", ".join(f"{k} {v:.1f}" for k, v in u["attitude_rms_arcsec_observed"].items()))
+
+
+@app.command()
+@handle_errors
+def view(
+    result: Path = typer.Argument(..., help="RESULT.h5 from adjust, or a camera model written by calibrate."),
+    save: Optional[Path] = typer.Option(None, "--save", help="Write a .rrd recording."),
+    spawn: bool = typer.Option(False, "--spawn", help="Open the rerun viewer."),
+    exaggeration: float = typer.Option(200.0, "--exaggeration", help="Scale of the 3-sigma landmark ellipsoids."),
+) -> None:
+    """Inspect covariances and residuals in the rerun viewer (entity paths: see misrgraph.viz.viewer)."""
+    from misrgraph.viz.viewer import run_view
+
+    out = run_view(result, save, spawn, exaggeration)
+    console.print(f"logged {len(out['entities'])} entities ({out['kind']})" + (f" to {out['rrd']}" if out["rrd"] else ""))
+
+
+bench_app = typer.Typer(help="Speed and memory, as ratios against a baseline run in the same process.", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("solver")
+@handle_errors
+def bench_solver(
+    tie_points: int = typer.Option(1000, "--tie-points", help="Tie points in the simulated pass."),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep/reuse simulated scenarios here."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Solver core vs gtsam.LevenbergMarquardtOptimizer on the same graph (per linearisation, per iteration)."""
+    from misrgraph.evaluate.bench import run_bench_solver
+
+    if tie_points < 10:
+        _fail(f"--tie-points: got {tie_points}; expected at least 10")
+    with err_console.status("simulating and solving (gtsam LM is the slow part)..."):
+        res = run_bench_solver(tie_points, seed, workdir)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title=f"bench solver: {res['variables']} variables, {res['factors']} factors, {res['observations']} observations")
+    for col in ("solver", "seconds", "iterations", "s / iteration", "final cost"):
+        t.add_column(col)
+    for name in ("core", "gtsam_lm"):
+        r = res[name]
+        t.add_row(name, f"{r['seconds']:.2f}", str(r["iterations"]), f"{r['seconds_per_iteration']:.3f}", f"{r['final_cost']:.6f}")
+    console.print(t)
+    console.print(f"gtsam_lm / core = {res['ratio_gtsam_lm_over_core']:.1f}x; linearisation (s): "
+                  + ", ".join(f"{k} {v:.3f}" for k, v in res["linearize_seconds"].items()))
+
+
+@bench_app.command("sba")
+@handle_errors
+def bench_sba(
+    tie_points: int = typer.Option(2000, "--tie-points"),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep/reuse simulated scenarios here."),
+    skip_gtsam: bool = typer.Option(False, "--skip-gtsam-lm", help="Leave out gtsam.LevenbergMarquardtOptimizer (slow)."),
+    target_rel: float = typer.Option(1e-6, "--target-rel", help="Equal final cost: within this relative amount of the lowest cost any solver found."),
+    budget_s: float = typer.Option(60.0, "--budget", help="Seconds each solver may run at most."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Time to equal final cost (with knot marginals): misrgraph vs gtsam LM vs scipy least_squares vs Ceres."""
+    from misrgraph.evaluate.bench import run_bench_sba
+
+    if not (0.0 < target_rel < 1.0):
+        _fail(f"--target-rel: got {target_rel}; expected a relative cost tolerance in (0, 1), e.g. 1e-6")
+    if budget_s <= 0.0:
+        _fail(f"--budget: got {budget_s}; expected a positive number of seconds")
+    with err_console.status("simulating and solving with every alternative..."):
+        res = run_bench_sba(tie_points, seed, workdir, skip_gtsam=skip_gtsam, target_rel=target_rel, budget_s=budget_s)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title=f"bench sba: {res['tie_points']} tie points, {res['observations']} observations, "
+                    f"{res['variables']} variables; target cost {res['target_cost']:.4f} "
+                    f"(lowest found + {res['target_relative']:.0e} relative); seconds include knot marginals")
+    for col in ("solver", "reached", "s to target", "iterates", "time / misrgraph", "at its own lowest cost"):
+        t.add_column(col, no_wrap=col == "solver")
+    for name, r in res["results"].items():
+        if "seconds" not in r:
+            t.add_row(name, r.get("skipped", ""), "", "", "", "")
+            continue
+        key = f"{name}_over_misrgraph"
+        ratio = res["ratios"].get(key, 1.0)
+        bound = ">= " if key in res["ratios_that_are_lower_bounds"] else ""
+        own = res["ratios_at_each_solvers_own_lowest_cost"].get(key)
+        t.add_row(name, "yes" if r["reached"] else "no", f"{r['seconds']:.2f}", str(r["iterations"]),
+                  f"{bound}{ratio:.2f}", "" if own is None else f"{own:.2f}")
+    console.print(t)
+    rows = [(n, r) for n, r in res["results"].items() if "seconds_to_relative_level" in r]
+    if rows:
+        levels = list(rows[0][1]["seconds_to_relative_level"])
+        p = Table(title=f"seconds to within a relative level of the lowest cost {res['lowest_cost']:.4f}")
+        p.add_column("solver", no_wrap=True)
+        for lvl in levels:
+            p.add_column(lvl)
+        for n, r in rows:
+            p.add_row(n, *("-" if v is None else f"{v:.2f}" for v in r["seconds_to_relative_level"].values()))
+        console.print(p)
+    console.print("'no': stopped by its own criterion (relative decrease 1e-10) or its time budget "
+                  f"({res['budget_seconds']:.0f} s) before the target; its ratio is then a lower bound.")
+
+
+@bench_app.command("scaling")
+@handle_errors
+def bench_scaling(
+    sizes: str = typer.Option("250,500,1000,2000,4000", "--sizes", help="Comma list of tie-point counts."),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir"),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Time per pass against tie points, with a fitted exponent, and peak memory."""
+    from misrgraph.evaluate.bench import run_bench_scaling
+
+    try:
+        ns = tuple(int(x) for x in sizes.split(","))
+    except ValueError:
+        _fail(f"--sizes: got {sizes!r}; expected comma-separated integers such as 250,500,1000")
+    with err_console.status("simulating and solving..."):
+        res = run_bench_scaling(ns, seed, workdir)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title="bench scaling (Schur backend, with knot marginals)")
+    for col in ("tie points", "observations", "seconds", "iterations", "s / iteration", "peak Python MB"):
+        t.add_column(col)
+    for r in res["rows"]:
+        t.add_row(str(r["tie_points"]), str(r["observations"]), f"{r['seconds']:.2f}", str(r["iterations"]),
+                  f"{r['seconds_per_iteration']:.3f}", f"{r['peak_python_mb']:.0f}")
+    console.print(t)
+    console.print(f"fitted exponent: per iteration vs observations {res['exponent_per_iteration_vs_observations']:.2f}, "
+                  f"total vs tie points {res['exponent_total_vs_tie_points']:.2f}; peak RSS {res['process_peak_rss_mb']:.0f} MB")
+
+
+@bench_app.command("incremental")
+@handle_errors
+def bench_incremental(
+    passes: int = typer.Option(10, "--passes"),
+    tie_points: int = typer.Option(150, "--tie-points"),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir"),
+    linearization_tol: Optional[float] = typer.Option(None, "--linearization-tol", min=1e-6,
+                                                      help="iSAM2 re-linearisation tolerance in sigma [default: the library's]."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Cost of adding the k-th pass with iSAM2 against a batch re-solve of all k passes."""
+    from misrgraph.evaluate.bench import run_bench_incremental
+
+    with err_console.status("simulating and solving..."):
+        res = run_bench_incremental(passes, tie_points, seed, workdir, linearization_tol)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title="bench incremental")
+    for col in ("pass k", "iSAM2 update (s)", "batch re-solve of k passes (s)", "ratio", "rounds", "staleness (sigma)"):
+        t.add_column(col)
+    for r in res["rows"]:
+        t.add_row(str(r["pass"]), f"{r['incremental_seconds']:.2f}", f"{r['batch_seconds']:.2f}", f"{r['ratio']:.2f}",
+                  str(r["relinearization_rounds"]), f"{r['linearization_error_sigma']:.3f}")
+    console.print(t)
+    acc = res["max_difference_in_sigma_vs_tight_batch"]
+    console.print(f"after the last pass, largest difference from a tightly converged batch: iSAM2 "
+                  f"{acc['incremental']:.4f} sigma, batch LM at its 1e-5 criterion {acc['batch']:.4f} sigma")
+
+
+@bench_app.command("nees")
+@handle_errors
+def bench_nees(
+    study: str = typer.Option("calibration", "--study", help="calibration or adjust."),
+    runs: int = typer.Option(20, "--runs", help="Seeded runs."),
+    seed: int = typer.Option(1000, "--seed", help="First seed."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir"),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Covariance honesty: NEES over seeded runs against its 95 % chi-square band (reduced sizes)."""
+    from misrgraph.evaluate.bench import run_bench_nees
+
+    if runs < 1:
+        _fail(f"--runs: got {runs}; expected at least 1")
+    with err_console.status(f"{runs} seeded {study} runs..."):
+        res = run_bench_nees(study, runs, seed, workdir)
+    if as_json:
+        _print_json(res)
+        return
+    for k, v in res["summary"].items():
+        console.print(f"{study} {k}: NEES/dim {v['nees_per_dim']:.3f}, 95 % band [{v['band'][0]:.3f}, {v['band'][1]:.3f}] "
+                      f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}")
+
+
+@bench_app.command("kill")
+@handle_errors
+def bench_kill(
+    commands: str = typer.Option(",".join(("simulate", "calibrate", "adjust", "update")), "--commands",
+                                 help="Comma list of simulate, calibrate, adjust, update."),
+    trials: int = typer.Option(20, "--trials", help="SIGKILL trials per command."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the kill times."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the scenarios and outputs here."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Fault tolerance: SIGKILL each command at random points; every file must be the old one or
+    a complete new one, no pass counted twice, and a rerun must complete. Exit 1 on any failure."""
+    from misrgraph.evaluate.faults import run_kill_trials
+
+    with err_console.status("kill trials...") as st:
+        res = run_kill_trials(tuple(c.strip() for c in commands.split(",") if c.strip()), trials, seed, workdir,
+                              progress=lambda m: st.update(m))
+    if as_json:
+        _print_json(res)
+    else:
+        table = Table(title=f"SIGKILL trials ({trials} per command)")
+        cols = ("trials", "killed_while_running", "old", "new", "none", "half_written", "lost", "counted_twice",
+                "rerun_failed", "debris")
+        heads = ("trials", "killed", "old", "new", "none", "half", "lost", "twice", "rerun✗", "debris")
+        table.add_column("command")
+        for c in heads:
+            table.add_column(c, justify="right")
+        for name, r in res["commands"].items():
+            table.add_row(name, *(str(r[c]) for c in cols))
+        console.print(table)
+    if res["failures"]:
+        raise typer.Exit(1)
+
+
+@app.command()
+@handle_errors
+def demo(
+    out: Path = typer.Option(Path("demo-output"), "--out", help="Directory for the demo's products."),
+    small: bool = typer.Option(False, "--small", help="Reduced sizes (about a minute)."),
+) -> None:
+    """The whole workflow on simulated data: calibrate, adjust, update, record; prints a summary."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from misrgraph.demo import STAGES, run_demo
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TimeElapsedColumn(), console=err_console) as bar:
+        task = bar.add_task("demo", total=len(STAGES))
+        done = {"n": 0}
+
+        def step(name: str) -> None:
+            bar.update(task, description=name, completed=done["n"])
+            done["n"] += 1
+
+        records = run_demo(out, progress=step, small=small)
+        bar.update(task, completed=len(STAGES), description="done")
+    table = Table(title=f"misrgraph demo (products in {out})")
+    for col in ("stage", "result against the simulator's truth", "time (s)"):
+        table.add_column(col)
+    for r in records:
+        table.add_row(r["stage"], r["summary"], f"{r['seconds']:.1f}")
+    console.print(table)
+    console.print(f"total {sum(r['seconds'] for r in records):.0f} s")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,568 @@
+"""Camera geometric model calibration by space resection over a month of GCP passes (seed 4.1).
+
+One graph holds every GCP pass: the GCP landmarks (shared by the passes that see them, each with
+its 30 m ENU prior, eq. 32), the camera corrections (shared by all passes: default delta, beta,
+eps per camera; optionally f, alpha_i, per band, and the common omega), and per pass the
+navigation errors as nuisance variables with priors from the navigation accuracy: the ephemeris
+error of eq. 19 and the attitude error spline of eqs. 23-27 at the adjustment's knot spacing.
+
+Why this nuisance design: the navigation errors of one pass shift all nine views of that pass
+together and change from pass to pass, while a camera error is the same in every pass. With the
+nuisance variables carrying honest priors, the only way to explain a residual that repeats in
+one camera across many passes is a camera correction -- the averaging over passes is what
+separates the two (seed 2: "each GCP seen in at least three passes"). Knots are never removed
+here (GCP views are sparse, and merged spline segments would mis-fit them, see
+docs/conventions.md); knots without data are held by their priors. ``misrgraph bench
+separation`` measures how the camera error shrinks with the number of passes.
+
+Procedure: robust (Cauchy) solve -> reject observations above ``reject_sigma`` -> least-squares
+re-solve; marginal covariance of the camera parameters from ``gtsam.Marginals`` (joint); a
+parameter whose posterior sigma is more than ``poorly_determined_ratio`` of its prior sigma is
+reported as poorly determined (the data hardly constrain it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from factors import keys as K
+from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
+from misrgraph import __version__
+from misrgraph.model.camera import CameraModel, TabulatedCameraModel, load_camera_model
+from misrgraph.config import Config
+from misrgraph.model.constants import BANDS, CAMERAS
+from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError
+from misrgraph.model.gcp import GcpDatabase
+from misrgraph.estimate.graph import CAMERA_PRIOR_SIGMA, GraphConfig, PassGraph, Problem, build_pass_graph, merge_problems
+from misrgraph.io.h5 import atomic_h5, write_dataset
+from misrgraph.io.results import capped_list
+from misrgraph.io.passes import KIND_GCP, OrbitPass
+from misrgraph.estimate.solver import SolverParams, linearize, solve
+
+__all__ = ["CalibrateConfig", "CalibrationResult", "calibrate_passes", "run_calibrate", "pointing_error_px",
+           "temperature_bins", "thermal_slopes"]
+
+log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+RED = BANDS.index("red")
+
+
+@dataclass(frozen=True)
+class CalibrateConfig(Config):
+    """Calibration settings. ``params`` from :data:`factors.collinearity.CAMERA_PARAMS`."""
+
+    params: tuple = ("delta", "beta", "epsilon")
+    per_band: bool = False
+    estimate_omega: bool = False
+    knot_spacing_s: tuple = (120.0, 60.0, 120.0)
+    robust: str = "cauchy"
+    robust_k: float = 3.0
+    reject_sigma: float = 5.0
+    max_iterations: int = 100
+    poorly_determined_ratio: float = 0.5
+    temperature_bins: int = 1
+
+    def __post_init__(self) -> None:
+        if int(self.temperature_bins) != self.temperature_bins or self.temperature_bins < 1:
+            raise InputError("temperature_bins", self.temperature_bins, "an integer >= 1")
+
+    def graph_config(self, **kw: Any) -> GraphConfig:
+        base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=0, threshold2=0, use_dem=False,
+                    estimate_camera=True, camera_params=tuple(self.params), camera_per_band=self.per_band,
+                    camera_prior_calibration=True, estimate_omega=self.estimate_omega)
+        base.update(kw)
+        return GraphConfig.from_dict(base)
+
+
+@dataclass
+class CalibrationResult:
+    camera: CameraModel
+    keys: list[int]
+    labels: list[str]
+    values: Array
+    covariance: Array
+    prior_sigma: Array
+    rejected: list[tuple[int, int, float]]
+    iterations: int
+    final_cost: float
+    seconds: float
+    graphs: list[PassGraph]
+    #: thermal calibration: temperature (deg C) of each bin, the supplied model there, and the
+    #: calibrated table (None with one bin); pass temperatures for the valid range
+    bin_temperatures_c: Array = dataclasses.field(default_factory=lambda: np.zeros(1))
+    supplied_models: list[CameraModel] = dataclasses.field(default_factory=list)
+    table: TabulatedCameraModel | None = None
+    pass_temperatures_c: Array = dataclasses.field(default_factory=lambda: np.zeros(0))
+    supplied_table: TabulatedCameraModel | None = None
+
+
+def _build(passes: list[OrbitPass], camera: CameraModel, gcps: GcpDatabase, cfg: GraphConfig,
+           exclude: list[NDArray[np.bool_]] | None, progress: Callable[[str], None] | None,
+           table: Any = None, bins: NDArray[np.int64] | None = None) -> tuple[Problem, list[PassGraph]]:
+    shared: set[int] = set()
+    graphs = []
+    for i, p in enumerate(passes):
+        if progress and i % 20 == 0:
+            progress(f"graph: pass {i + 1}/{len(passes)}")
+        pg = build_pass_graph(p, camera, None, gcps, cfg, pass_index=i, shared=shared,
+                              exclude_observations=exclude[i] if exclude else None,
+                              camera_for_pass=table.at_temperature(p.temperature_c) if table is not None else None,
+                              temperature_bin=int(bins[i]) if bins is not None else 0)
+        shared |= set(pg.problem.initial.keys()) & (set(pg.problem.eliminate_first) | set(pg.problem.eliminate_last))
+        graphs.append(pg)
+    return merge_problems([g.problem for g in graphs]), graphs
+
+
+def _decode(ck: int, cfg: CalibrateConfig) -> tuple[int, int, int | None]:
+    """(temperature bin, camera, band or None) of a camera code of ``PassGraph.camera_keys``."""
+    code = ck % 1000
+    return ck // 1000, *((code // 10, code % 10) if cfg.per_band else (code, None))
+
+
+def _camera_keys_labels(graphs: list[PassGraph], cfg: CalibrateConfig,
+                        bin_temps: Array | None = None) -> tuple[list[int], list[str], list[int]]:
+    keys: dict[int, int] = {}
+    for g in graphs:
+        keys.update(g.camera_keys)
+    out_k, labels, cams = [], [], []
+    for ck in sorted(keys):
+        t_bin, c, b = _decode(ck, cfg)
+        name = CAMERAS[c] + (f"/{BANDS[b]}" if b is not None else "")
+        if cfg.temperature_bins > 1 and bin_temps is not None:
+            name += f"@{bin_temps[t_bin]:+.1f}C"
+        out_k.append(keys[ck])
+        cams.append(ck)
+        labels += [f"{name}.{p}" for p in cfg.params]
+    if cfg.estimate_omega:
+        out_k.append(K.omega_key())
+        labels += ["omega_x", "omega_y", "omega_z"]
+    return out_k, labels, cams
+
+
+def _joint_marginal(problem: Problem, values: gtsam.Values, keys: list[int]) -> Array:
+    lin = linearize(problem, values)
+    marg = gtsam.Marginals(lin, values)
+    jm = marg.jointMarginalCovariance(gtsam.KeyVector(keys))
+    return np.asarray(jm.fullMatrix())
+
+
+def _apply(camera: CameraModel, cams: list[int], cfg: CalibrateConfig, x: Array, temperature_bin: int = 0) -> CameraModel:
+    m = camera.copy()
+    n = len(cfg.params)
+    for i, ck in enumerate(cams):
+        t_bin, c, band = _decode(ck, cfg)
+        if t_bin != temperature_bin:
+            continue
+        for j, p in enumerate(cfg.params):
+            _add_correction(m, p, c, band, x[i * n + j])
+    if cfg.estimate_omega:
+        m.omega += x[len(cams) * n: len(cams) * n + 3]
+    return m
+
+
+def calibrate_passes(
+    passes: list[OrbitPass],
+    camera: CameraModel,
+    gcps: GcpDatabase,
+    cfg: CalibrateConfig = CalibrateConfig(),
+    progress: Callable[[str], None] | None = None,
+    table: Any = None,
+) -> CalibrationResult:
+    """Space resection of the camera model over GCP passes (see the module docstring).
+
+    With ``table`` (a :class:`~misrgraph.model.camera.TabulatedCameraModel`) every pass uses the model
+    interpolated at its own temperature; the estimated corrections are common to all temperatures
+    and are reported relative to ``camera`` (the model at the median pass temperature).
+    """
+    if not passes:
+        raise DegenerateProblemError("no passes to calibrate from")
+    t0 = time.perf_counter()
+    passes = [p for p in passes if np.any(p.landmarks.kind == KIND_GCP)]
+    if not passes:
+        raise DegenerateProblemError("none of the passes has GCP observations; calibration needs GCPs")
+    params = SolverParams(max_iterations=cfg.max_iterations)
+    temps = np.array([p.temperature_c for p in passes])
+    bins, bin_temps = temperature_bins(passes, cfg.temperature_bins)
+    supplied_models = [table.at_temperature(t) if table is not None else camera for t in bin_temps]
+    exclude = [np.zeros(len(p.observations), bool) for p in passes]
+    rejected: list[tuple[int, int, float]] = []
+    if cfg.robust != "none":
+        prob, graphs = _build(passes, camera, gcps, cfg.graph_config(group_by="observation", robust=cfg.robust,
+                                                                      robust_k=cfg.robust_k), None, progress, table, bins)
+        if progress:
+            progress("robust solve")
+        res = solve(prob, params)
+        for i, g in enumerate(graphs):
+            r, _ = g.collinearity.residuals(res.values)
+            w = np.linalg.norm(r / g.collinearity.sigma_px[:, None], axis=1)
+            idx = g.obs_index[g.collinearity.order]
+            bad = w > cfg.reject_sigma
+            exclude[i][idx[bad]] = True
+            rejected += [(i, int(j), float(x)) for j, x in zip(idx[bad], w[bad])]
+    prob, graphs = _build(passes, camera, gcps, cfg.graph_config(), exclude, progress, table, bins)
+    if progress:
+        progress("least-squares solve")
+    res = solve(prob, params)
+    keys, labels, cams = _camera_keys_labels(graphs, cfg, bin_temps)
+    if progress:
+        progress("marginal covariance")
+    cov = _joint_marginal(prob, res.values, keys)
+    x = np.concatenate([res.values.atVector(k) for k in keys])
+    # from variable units (CAMERA_PARAM_SCALE) to SI
+    unit = np.concatenate([CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in cfg.params]]] * (len(keys) - cfg.estimate_omega)
+                          + ([np.ones(3)] if cfg.estimate_omega else []))
+    x = x * unit
+    cov = cov * np.outer(unit, unit)
+    prior = np.array([CAMERA_PRIOR_SIGMA[p] for _ in cams for p in cfg.params]
+                     + ([GraphConfig().omega_prior_rad] * 3 if cfg.estimate_omega else []))
+    prov = {"source": "misrgraph calibrate", "software": f"misrgraph {__version__}",
+            "passes": str(len(passes)), "params": ",".join(cfg.params)}
+    models = []
+    for j, (base, t_bin) in enumerate(zip(supplied_models, bin_temps)):
+        m = _apply(base, cams, cfg, x, j)
+        m.temperature_c = float(t_bin)
+        m.provenance = dict(prov)
+        models.append(m)
+    out = CalibrationResult(models[0], keys, labels, x, cov, prior, rejected, res.iterations, res.final_error,
+                            time.perf_counter() - t0, graphs, bin_temps, supplied_models, None, temps, table)
+    if len(models) == 1 and table is not None:  # a supplied table: the common correction at every entry
+        out.table = TabulatedCameraModel([_apply(m, cams, cfg, x, 0) for m in table.models], table.valid_range_c)
+        for m in out.table.models:
+            m.provenance = dict(prov)
+    elif len(models) > 1:
+        out.table = _fit_table(out, cfg, x, table if table is not None else camera)
+        for m in out.table.models:
+            m.provenance = dict(prov, thermal="GLS line through the temperature bins")
+        out.camera = out.table.at_temperature(float(np.median(temps)))
+    return out
+
+
+def temperature_bins(passes: list[OrbitPass], n_bins: int) -> tuple[NDArray[np.int64], Array]:
+    """Split passes into ``n_bins`` bins of about equal counts by camera temperature.
+
+    Returns the bin of each pass and each bin's temperature (deg C): the mean of its passes'
+    temperatures weighted by their GCP observations, since a bin's correction is the
+    least-squares fit of one constant to its passes, about that weighted mean for a parameter
+    linear in temperature.
+    """
+    temps = np.array([p.temperature_c for p in passes], float)
+    if n_bins == 1:
+        return np.zeros(len(passes), np.int64), np.array([float(np.median(temps))])
+    if len(passes) < 2 * n_bins:
+        raise DegenerateProblemError(f"{len(passes)} GCP passes cannot fill {n_bins} temperature bins (need >= 2 each)")
+    order = np.argsort(temps, kind="stable")
+    bins = np.empty(len(passes), np.int64)
+    for j, chunk in enumerate(np.array_split(order, n_bins)):
+        bins[chunk] = j
+    weight = np.array([np.sum(p.landmarks.kind[p.observations.landmark] == KIND_GCP) for p in passes], float)
+    bin_temps = np.array([np.average(temps[bins == j], weights=weight[bins == j] + 1e-9) for j in range(n_bins)])
+    if np.any(np.diff(bin_temps) <= 0):
+        raise DegenerateProblemError(f"temperature bins are not distinct ({bin_temps.round(3).tolist()} C); use fewer bins")
+    return bins, bin_temps
+
+
+# ---------------------------------------------------------------------------- scoring
+def _directions(m: CameraModel, c: int, b: int, s: Array) -> Array:
+    return m.direction_scs(np.full(s.size, c), np.full(s.size, b), np.zeros(s.size), s)
+
+
+def pointing_error_px(estimated: CameraModel, reference: CameraModel, c: int, b: int = RED, n: int = 48) -> float:
+    """RMS over the swath of the angle between two models' pointing, in units of the pixel IFOV."""
+    s = np.linspace(0, 1503, n)
+    d1, d2 = _directions(estimated, c, b, s), _directions(reference, c, b, s)
+    ang = np.arccos(np.clip(np.sum(d1 * d2, axis=1), -1, 1))
+    return float(np.sqrt(np.mean((ang / estimated.ifov_cross_rad(c, b, s)) ** 2)))
+
+
+def _at(model: "CameraModel | TabulatedCameraModel", t: float) -> CameraModel:
+    return model.at_temperature(t)
+
+
+def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel,
+              truth: "CameraModel | TabulatedCameraModel | None", draws: int = 60) -> dict[str, Any]:
+    """The JSON summary of the calibration issue (see ``misrgraph calibrate --help``).
+
+    With temperature bins, pointing errors are the worst over the passes' temperature range (the
+    calibrated table against the truth at each temperature), and ``"thermal"`` gives the slope of
+    every estimated parameter (per deg C) with its sigma and, with a truth, its error and NEES.
+    """
+    sig = np.sqrt(np.diag(res.covariance))
+    corr = res.covariance / np.outer(sig, sig)
+    rng = np.random.default_rng(0)
+    chol = np.linalg.cholesky(0.5 * (res.covariance + res.covariance.T))
+    cams = _cams(res, cfg)
+    bases = res.supplied_models or [supplied]
+    nb = len(bases)
+    temps = res.pass_temperatures_c if res.pass_temperatures_c.size else np.array([supplied.temperature_c])
+    # worst case over the passes' temperatures (a thermal truth makes one model wrong at the ends);
+    # with nothing thermal every temperature gives the same numbers, so one suffices
+    thermal = nb > 1 or res.supplied_table is not None or isinstance(truth, TabulatedCameraModel)
+    grid = np.linspace(temps.min(), temps.max(), 5) if thermal and np.ptp(temps) > 0 else np.array([float(np.median(temps))])
+    sup_model: CameraModel | TabulatedCameraModel = res.supplied_table if res.supplied_table is not None else bases[0]
+
+    def models_of(x: Array) -> list[CameraModel]:
+        if nb == 1:
+            return [_apply(sup_model.at_temperature(t), cams, cfg, x, 0) for t in grid]
+        tab = _fit_table(res, cfg, x, sup_model)
+        return [tab.at_temperature(t) for t in grid]
+
+    est_at = models_of(res.values)
+    samples = [models_of(res.values + chol @ rng.standard_normal(res.values.size)) for _ in range(draws)]
+    sup_at = [sup_model.at_temperature(t) for t in grid]
+    cams_out: dict[str, Any] = {}
+    poorly = []
+    for i, label in enumerate(res.labels):
+        if sig[i] > cfg.poorly_determined_ratio * res.prior_sigma[i]:
+            poorly.append({"parameter": label, "sigma": float(sig[i]), "prior_sigma": float(res.prior_sigma[i]),
+                           "ratio": float(sig[i] / res.prior_sigma[i])})
+    for c, name in enumerate(CAMERAS):
+        entry: dict[str, Any] = {"params": {}}
+        for i, label in enumerate(res.labels):
+            if label.startswith(name + ".") or label.startswith(name + "/") or label.startswith(name + "@"):
+                entry["params"][label[len(name) + 1:] if label[len(name)] in "./" else label[len(name):]] = {
+                    "value": float(res.values[i]), "sigma": float(sig[i])}
+        if not entry["params"]:
+            continue
+        # per-band calibration: the worst of the camera's calibrated bands
+        bands = sorted({_decode(ck, cfg)[2] for ck in cams if _decode(ck, cfg)[1] == c} - {None}) or [RED]
+        if truth is not None:
+            entry["pointing_error_px"] = max(pointing_error_px(e, _at(truth, t), c, b) for e, t in zip(est_at, grid) for b in bands)
+            entry["pointing_error_before_px"] = max(pointing_error_px(m, _at(truth, t), c, b)
+                                                    for m, t in zip(sup_at, grid) for b in bands)
+        entry["sigma_px"] = float(np.sqrt(np.mean([pointing_error_px(sm[j], est_at[j], c, b) ** 2
+                                                   for sm in samples for j in range(grid.size) for b in bands])))
+        cams_out[name] = entry
+    out: dict[str, Any] = {"cameras": cams_out, "iterations": res.iterations, "final_cost": res.final_cost,
+                           "seconds": res.seconds, "passes": len(res.graphs),
+                           "rejected_observations": capped_list(
+                               [{"pass": int(p), "observation": int(o), "normalised_residual": float(r)} for p, o, r in res.rejected],
+                               None),
+                           "poorly_determined": poorly,
+                           "correlation": {"labels": res.labels, "matrix": np.round(corr, 4).tolist()}}
+    if nb > 1:
+        out["temperature_bins_c"] = [float(t) for t in res.bin_temperatures_c]
+        out["thermal"] = thermal_slopes(res, cfg, truth)
+    if truth is not None:
+        out["max_pointing_error_px"] = max(v["pointing_error_px"] for v in cams_out.values())
+        true_x = _true_corrections(res, cfg, supplied, truth)
+        e = res.values - true_x
+        out["nees"] = float(e @ np.linalg.solve(res.covariance, e) / e.size)
+        out["nees_dim"] = int(e.size)
+    return out
+
+
+def _add_correction(m: CameraModel, p: str, c: int, band: int | None, v: float) -> None:
+    """Add one estimated correction to a model in place. A per-band angle correction goes into
+    that band's offset (``band_delta`` ...), never into the camera-level angle the bands share;
+    a camera-level f or alpha correction applies to every band."""
+    b = slice(None) if band is None else band
+    if p in ("delta", "beta", "epsilon"):
+        if band is None:
+            getattr(m, p)[c] += v
+        else:
+            getattr(m, "band_" + p)[c, band] += v
+    elif p == "f":
+        m.focal_length[c, b] += v
+    else:
+        m.alpha[c, b, int(p[-1])] += v
+
+
+def _param_value(m: CameraModel, p: str, c: int, b: int) -> float:
+    """A parameter's value for camera ``c`` and band ``b`` (angles include the band's offset)."""
+    if p in ("delta", "beta", "epsilon"):
+        return float(getattr(m, p)[c] + getattr(m, "band_" + p)[c, b])
+    if p == "f":
+        return float(m.focal_length[c, b])
+    return float(m.alpha[c, b, int(p[-1])])
+
+
+def _gls_groups(res: CalibrationResult, cfg: CalibrateConfig) -> list[tuple[int, int | None, int, list[int], Array, Array]]:
+    """Per (camera, band, parameter): (camera, band, param index, indices into ``res.values``,
+    bin temperatures, GLS weights (2, k)) of the line ``a + s (T - mean T)`` through the bins."""
+    cams = _cams(res, cfg)
+    n = len(cfg.params)
+    col = {ck: i for i, ck in enumerate(cams)}
+    groups: dict[tuple[int, int | None], list[int]] = {}
+    for ck in cams:
+        _, c, band = _decode(ck, cfg)
+        groups.setdefault((c, band), []).append(ck)
+    out = []
+    for (c, band), cks in sorted(groups.items(), key=lambda kv: (kv[0][0], -1 if kv[0][1] is None else kv[0][1])):
+        t = res.bin_temperatures_c[[_decode(ck, cfg)[0] for ck in cks]]
+        a = np.stack([np.ones(len(t)), t - t.mean()], 1)
+        for j in range(n):
+            idx = [col[ck] * n + j for ck in cks]
+            w = np.linalg.inv(res.covariance[np.ix_(idx, idx)])
+            out.append((c, band, j, idx, t, np.linalg.solve(a.T @ w @ a, a.T @ w)))
+    return out
+
+
+def _fit_table(res: CalibrationResult, cfg: CalibrateConfig, x: Array,
+               supplied: "CameraModel | TabulatedCameraModel") -> TabulatedCameraModel:
+    """The calibrated thermal table: the supplied model at each end of the passes' temperature
+    range plus the GLS line of the corrections through the bins, evaluated there (exact
+    between the ends for corrections linear in temperature)."""
+    t_lo, t_hi = float(res.pass_temperatures_c.min()), float(res.pass_temperatures_c.max())
+    if t_hi - t_lo < 1e-6:
+        raise DegenerateProblemError(f"all passes at {t_lo:.3f} C: no temperature range to tabulate")
+    models = []
+    for t_end in (t_lo, t_hi):
+        m = supplied.at_temperature(t_end).copy()
+        for c, band, j, idx, t, gls in _gls_groups(res, cfg):
+            a, slope = gls @ x[idx]
+            v = a + slope * (t_end - t.mean())
+            _add_correction(m, cfg.params[j], c, band, v)
+        m.temperature_c = t_end
+        models.append(m)
+    return TabulatedCameraModel(models)
+
+
+def thermal_slopes(res: CalibrationResult, cfg: CalibrateConfig,
+                   truth: "CameraModel | TabulatedCameraModel | None" = None) -> dict[str, Any]:
+    """Slope (per deg C) of every estimated parameter across the temperature bins, with its sigma.
+
+    For each camera (and band) and parameter, the bins' corrections ``x_j`` are fitted with
+    ``a + s (T_j - T_mean)`` by generalised least squares with their joint covariance; the slope
+    of the parameter is that ``s`` plus the supplied model's own slope across the bins. ``s`` is a
+    linear function ``L x`` of the corrections, so the slopes' covariance is ``L C L^T``.
+    ``linearity`` is the chi-square of the bins about their lines (dof: bins - 2 per line;
+    only with >= 3 bins): a large value says a line does not describe the thermal behaviour.
+    With a truth, the true slope is the truth's change across the bins' extreme temperatures
+    (exact for a truth linear in temperature) and ``nees`` is over all slopes jointly. Angles are
+    also given in arcsec per deg C.
+    """
+    from misrgraph.model.constants import ARCSEC
+
+    rows, names, offsets, true_s = [], [], [], []
+    chi2, dof = 0.0, 0
+    for c, band, j, idx, t, gls in _gls_groups(res, cfg):
+        p = cfg.params[j]
+        row = np.zeros(res.values.size)
+        row[idx] = gls[1]
+        b = RED if band is None else band
+        bins_here = [int(np.argmin(np.abs(res.bin_temperatures_c - tt))) for tt in t]
+        sup = np.array([_param_value(res.supplied_models[k], p, c, b) for k in bins_here])
+        rows.append(row)
+        offsets.append(float(gls[1] @ sup))
+        names.append((CAMERAS[c] + (f"/{BANDS[band]}" if band is not None else ""), p))
+        if len(t) > 2:
+            xa = res.values[idx]
+            r = xa - np.stack([np.ones(len(t)), t - t.mean()], 1) @ (gls @ xa)
+            chi2 += float(r @ np.linalg.solve(res.covariance[np.ix_(idx, idx)], r))
+            dof += len(t) - 2
+        if truth is not None:
+            lo, hi = truth.at_temperature(float(t.min())), truth.at_temperature(float(t.max()))
+            true_s.append((_param_value(hi, p, c, b) - _param_value(lo, p, c, b)) / (t.max() - t.min()))
+    lmat = np.array(rows)
+    slope = lmat @ res.values + np.array(offsets)
+    cov_s = lmat @ res.covariance @ lmat.T
+    sig_s = np.sqrt(np.diag(cov_s))
+    out: dict[str, Any] = {"bins_c": [float(x) for x in res.bin_temperatures_c], "slopes": {}}
+    if dof:
+        from scipy import stats
+
+        out["linearity"] = {"chi2": chi2, "dof": dof, "p_value": float(stats.chi2.sf(chi2, dof))}
+    for i, (cam, p) in enumerate(names):
+        e: dict[str, Any] = {"slope_per_c": float(slope[i]), "sigma_per_c": float(sig_s[i])}
+        if p in ("delta", "beta", "epsilon"):
+            e.update(slope_arcsec_per_c=float(slope[i] / ARCSEC), sigma_arcsec_per_c=float(sig_s[i] / ARCSEC))
+        if true_s:
+            e.update(true_slope_per_c=float(true_s[i]), z=float((slope[i] - true_s[i]) / sig_s[i]))
+        out["slopes"].setdefault(cam, {})[p] = e
+    if true_s:
+        err = slope - np.array(true_s)
+        out["nees"] = float(err @ np.linalg.solve(cov_s, err) / err.size)
+        out["nees_dim"] = int(err.size)
+    return out
+
+
+def _cams(res: CalibrationResult, cfg: CalibrateConfig) -> list[int]:
+    keys: dict[int, int] = {}
+    for g in res.graphs:
+        keys.update(g.camera_keys)
+    return sorted(keys)
+
+
+def _true_corrections(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel,
+                      truth: "CameraModel | TabulatedCameraModel") -> Array:
+    """Truth minus supplied model for every estimated correction, each bin at its temperature."""
+    out = []
+    bases = res.supplied_models or [supplied]
+    for ck in _cams(res, cfg):
+        t_bin, c, band = _decode(ck, cfg)
+        b = RED if band is None else band
+        base = bases[t_bin]
+        tm = truth.at_temperature(float(res.bin_temperatures_c[t_bin]))
+        for p in cfg.params:
+            out.append(_param_value(tm, p, c, b) - _param_value(base, p, c, b))
+    if cfg.estimate_omega:
+        tm = truth.at_temperature(float(res.bin_temperatures_c[0]))
+        out += list(tm.omega - bases[0].omega)
+    return np.array(out)
+
+
+def run_calibrate(
+    scenario_dir: str | os.PathLike[str],
+    camera_model: str | os.PathLike[str] | None = None,
+    gcp_file: str | os.PathLike[str] | None = None,
+    out: str | os.PathLike[str] | None = None,
+    cfg: CalibrateConfig = CalibrateConfig(),
+    max_passes: int | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Calibrate from every pass of a scenario directory; write the recalibrated model when ``out``."""
+    d = Path(scenario_dir)
+    if not d.is_dir():
+        raise InputError("SCENARIO_DIR", str(d), "a directory written by 'misrgraph simulate --scenario month'")
+    files = sorted((d / "passes").glob("*.h5"))
+    if not files:
+        raise FileFormatError(d / "passes", "no pass files (*.h5)")
+    if max_passes is not None:
+        files = files[:max_passes]
+    cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
+    table = load_camera_model(cam_path)
+    gcps = GcpDatabase.load(gcp_file or d / "gcp.h5")
+    passes = []
+    for i, f in enumerate(files):
+        if progress and i % 25 == 0:
+            progress(f"reading pass {i + 1}/{len(files)}")
+        passes.append(OrbitPass.load(f))
+    supplied = table if isinstance(table, CameraModel) else table.at_temperature(
+        float(np.median([p.temperature_c for p in passes])))
+    truth_path = d / "camera_truth.h5"
+    truth = load_camera_model(truth_path) if truth_path.exists() else None
+    res = calibrate_passes(passes, supplied, gcps, cfg, progress, table=None if isinstance(table, CameraModel) else table)
+    summary = summarise(res, cfg, supplied, truth)
+    if out is not None:
+        summary["rejected_observations"]["full_list"] = f"{out}:/calibration/rejected"
+        with atomic_h5(out, "camera_model") as f:
+            for m in (res.table.models if res.table is not None else [res.camera]):
+                m.provenance.update({"scenario": str(d), "camera_model_in": str(cam_path),
+                                     "config": json.dumps(dataclasses.asdict(cfg))})
+            if res.table is not None:  # thermal: one model per temperature bin
+                res.table.write_groups(f)
+            else:
+                res.camera.write_group(f.create_group("camera_model"))
+            g = f.create_group("calibration")
+            g.create_dataset("labels", data=np.array(res.labels, dtype=object), dtype=__import__("h5py").string_dtype())
+            write_dataset(g, "corrections", res.values, units="rad (angles), m (f), pixel^-i (alpha_i)")
+            write_dataset(g, "covariance", res.covariance)
+            write_dataset(g, "correlation", np.asarray(summary["correlation"]["matrix"]))
+            rej = np.array([(p, o, r) for p, o, r in res.rejected], float).reshape(-1, 3)
+            r = g.create_group("rejected")
+            write_dataset(r, "pass_index", rej[:, 0].astype(np.int64), meaning="index of the pass in the month (file order)")
+            write_dataset(r, "observation", rej[:, 1].astype(np.int64), meaning="observation index within the pass")
+            write_dataset(r, "normalised_residual", rej[:, 2], units="sigma")
+            g.attrs["summary_json"] = json.dumps({k: v for k, v in summary.items() if k != "correlation"})
+    return summary

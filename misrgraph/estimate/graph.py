@@ -1,0 +1,380 @@
+"""Graph builder: one orbit pass (+ camera model, DEM, GCPs) -> variables, factors, initial values.
+
+Variables (keys in :mod:`factors.keys`): a landmark per tie point and GCP, attitude knots per
+angle (spacing per angle, knots removed by eqs. 28-29), one ephemeris-error ``Vector6`` per
+segment, and optionally camera corrections. Factors: collinearity (one ``CustomFactor`` per
+landmark holding all its views, or per observation), DEM height for tie points, GCP priors
+(eq. 32), and priors on knots, ephemeris and camera from the navigation / calibration accuracy.
+Check points (kind 2) are never put in the graph.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from factors import keys as K
+from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS, CollinearityBatch, CollinearityConstants
+from factors.dem_height import DemBatch
+from factors.priors import gcp_prior, vector_prior
+from misrgraph.model.camera import CameraModel
+from misrgraph.config import Config
+from misrgraph.model.constants import ARCSEC, CAMERAS
+from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
+from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel, interval_counts, knots_to_remove
+from misrgraph.errors import DegenerateProblemError, InputError
+from misrgraph.model.frames import ecef_to_geodetic
+from misrgraph.model.gcp import GcpDatabase
+from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
+
+__all__ = ["GraphConfig", "PassGraph", "Problem", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor",
+           "CAMERA_PRIOR_SIGMA", "merge_problems"]
+
+log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+
+#: For the simulator's smooth attitude process (periods log-uniform in 200-2000 s) the rate's
+#: 1 sigma is sigma * sqrt(E[(2 pi / P)^2]) = 0.0146 sigma per second.
+rate_prior_factor = 2 * np.pi * np.sqrt((1 / (2 * 200.0**2) - 1 / (2 * 2000.0**2)) / np.log(10.0))
+
+
+#: Default a-priori 1 sigma of each camera parameter correction when calibrating (pre-flight
+#: knowledge after launch and gravity release): angles 0.1 deg, f 0.2 mm, alpha_i ~ 1e-3 of the
+#: field-angle polynomial at the swath edge (|s - c_y| = 752 px).
+CAMERA_PRIOR_SIGMA = dict(zip(CAMERA_PARAMS, (1.745e-3, 1.745e-3, 1.745e-3, 2e-4) + tuple(1e-3 / 752.0**i for i in range(6))))
+
+
+@dataclass(frozen=True)
+class GraphConfig(Config):
+    """How a pass becomes a graph (units in the names)."""
+
+    knot_spacing_s: tuple = (120.0, 60.0, 120.0)
+    threshold1: int = 1
+    threshold2: int = 1
+    knot_rule: str = "support"
+    ephemeris_segments: int = 1
+    attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
+    ephemeris_b_sigma_m: float = 50.0
+    ephemeris_a_sigma_mps: tuple = (0.05, 0.01, 0.01)
+    estimate_camera: bool = True
+    camera_params: tuple = ("delta", "beta", "epsilon")
+    camera_per_band: bool = False
+    camera_prior_px: float = 0.0625
+    camera_prior_calibration: bool = False
+    estimate_omega: bool = False
+    omega_prior_rad: float = 1.745e-3
+    use_dem: bool = True
+    dem_method: str = "bicubic"
+    group_by: str = "landmark"
+    robust: str = "none"
+    robust_k: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.group_by not in ("landmark", "observation"):
+            raise InputError("group_by", self.group_by, ("landmark", "observation"))
+        if self.robust not in ("none", "huber", "cauchy"):
+            raise InputError("robust", self.robust, ("none", "huber", "cauchy"))
+        bad = [p for p in self.camera_params if p not in CAMERA_PARAMS]
+        if bad or not self.camera_params:
+            raise InputError("camera_params", bad or self.camera_params, CAMERA_PARAMS)
+        if self.knot_rule not in ("interval", "support"):
+            raise InputError("knot_rule", self.knot_rule, ("interval", "support"))
+        if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
+            raise InputError("knot_spacing_s", self.knot_spacing_s, "three positive spacings (roll, pitch, yaw) in s")
+
+
+@dataclass
+class Problem:
+    """A nonlinear least-squares problem ready for the solver core."""
+
+    graph: gtsam.NonlinearFactorGraph
+    initial: gtsam.Values
+    batches: list
+    eliminate_first: list[int]
+    dims: dict[int, int]
+    eliminate_last: list[int] = field(default_factory=list)
+
+    @property
+    def other_keys(self) -> list[int]:
+        """Non-landmark keys: those not eliminated first, in insertion order, ``eliminate_last`` at the end."""
+        first = set(self.eliminate_first)
+        last = set(self.eliminate_last)
+        return [k for k in self.dims if k not in first and k not in last] + [k for k in self.eliminate_last if k in self.dims]
+
+
+@dataclass
+class PassGraph:
+    """The graph of one pass plus what is needed to interpret the solution."""
+
+    problem: Problem
+    pass_index: int
+    attitude_model: AttitudeErrorModel
+    removed_knots: list[NDArray[np.int64]]
+    ephemeris_model: EphemerisErrorModel
+    landmark_rows: NDArray[np.int64]
+    landmark_keys: NDArray[np.int64]
+    obs_index: NDArray[np.int64]
+    collinearity: CollinearityBatch
+    camera_keys: dict[int, int] = field(default_factory=dict)
+
+    def knot_keys(self, angle: int) -> list[int]:
+        return [K.knot_key(angle, self.pass_index, i) for i in range(self.attitude_model.knot_times[angle].size)]
+
+    def ephemeris_keys(self) -> list[int]:
+        return [K.ephemeris_key(self.pass_index, s) for s in range(self.ephemeris_model.n_segments)]
+
+
+def camera_parameter_matrix(camera: CameraModel, cam: NDArray[np.int64], band: NDArray[np.int64]) -> Array:
+    """Per-observation 10-vector (delta, beta, eps, f, alpha_0..5) of the supplied model; the angles
+    include each observation's band offsets."""
+    d, b_, e = camera.angles(cam, band)
+    return np.concatenate([d[:, None], b_[:, None], e[:, None],
+                           camera.focal_length[cam, band][:, None], camera.alpha[cam, band]], axis=1)
+
+
+def dem_surface(dem: DemTiles, geoid: Geoid, method: str):
+    """Callable ``(lat, lon) -> (h_ellipsoid, dh/dlat, dh/dlon)`` for the DEM factor.
+
+    It passes the tiles of its last call as the hint of the next (the solver evaluates the same
+    landmarks again and again; a hint of another length is ignored), which skips most tile
+    searches; the heights do not depend on it.
+    """
+    last: list[NDArray[np.int64] | None] = [None]
+
+    def surface(lat: Array, lon: Array) -> tuple[Array, Array, Array]:
+        """NaN where a landmark is off the DEM tiles (an LM trial step then has an infinite cost)."""
+        s = fit_local_surface(dem, lat, lon, method, hint=last[0])
+        last[0] = s.tile
+        return s.height + geoid.undulation(lat, lon), s.dh_dlat, s.dh_dlon
+
+    return surface
+
+
+def build_pass_graph(
+    orbit_pass: OrbitPass,
+    camera: CameraModel,
+    dem: DemTiles | None,
+    gcps: GcpDatabase | None,
+    cfg: GraphConfig = GraphConfig(),
+    pass_index: int = 0,
+    geoid: Geoid | None = None,
+    exclude_observations: NDArray[np.bool_] | None = None,
+    shared: set[int] | None = None,
+    camera_for_pass: CameraModel | None = None,
+    temperature_bin: int = 0,
+) -> PassGraph:
+    """Build the factor graph of one pass (see the module docstring).
+
+    ``shared`` holds keys (GCPs, cameras, omega) whose value and prior another pass of the same
+    problem already added: they are referenced, not added again. ``camera_for_pass`` is the
+    supplied model at this pass's temperature when it differs from ``camera``. ``temperature_bin``
+    selects the camera-correction variables of a thermal calibration (one set per temperature
+    bin); ``camera_keys`` then maps ``bin * 1000 + camera code`` to the key.
+    """
+    shared = shared if shared is not None else set()
+    camera = camera_for_pass or camera
+    geoid = geoid or Geoid("zero")
+    obs = orbit_pass.observations
+    kinds = orbit_pass.landmarks.kind
+    is_gcp = kinds == KIND_GCP
+    if is_gcp.any():
+        n_db = len(gcps) if gcps is not None else 0
+        bad = np.flatnonzero(is_gcp & (orbit_pass.landmarks.gcp_index >= n_db))
+        if bad.size:
+            raise InputError(f"pass {orbit_pass.pass_id}: landmarks.gcp_index[{bad[0]}]",
+                             int(orbit_pass.landmarks.gcp_index[bad[0]]),
+                             f"a row of the GCP database ({n_db} GCPs); is this the pass's GCP database?")
+    use = kinds[obs.landmark] != KIND_CHECK
+    if exclude_observations is not None:
+        use &= ~exclude_observations
+    idx = np.flatnonzero(use)
+    if idx.size == 0:
+        n_all = int(np.sum(kinds[obs.landmark] != KIND_CHECK)) if len(obs) else 0
+        if n_all:
+            raise DegenerateProblemError(f"pass {orbit_pass.pass_id}: all {n_all} tie-point and GCP observations were "
+                                         "excluded (rejected as blunders or unsupported); nothing is left to adjust")
+        raise DegenerateProblemError(f"pass {orbit_pass.pass_id}: no tie-point or GCP observations to adjust")
+    cams_used = np.unique(obs.camera[idx])
+    if cams_used.size < 2:
+        raise DegenerateProblemError(
+            f"pass {orbit_pass.pass_id}: observations from a single camera ({CAMERAS[cams_used[0]]}); "
+            "multi-angle adjustment needs at least two cameras")
+    cam, band = obs.camera[idx], obs.band[idx]
+    t_obs = orbit_pass.observation_times()[idx]
+    t_lo, t_hi = orbit_pass.span
+    geo = orbit_pass.geometry(camera)
+    nav = geo.nav_state(t_obs)
+    # --- ephemeris and attitude error models (structure only; values are variables)
+    eph = EphemerisErrorModel.zeros(t_lo, t_hi, cfg.ephemeris_segments)
+    seg, design = eph.design(t_obs)
+    att = AttitudeErrorModel.zeros(t_lo, t_hi, cfg.knot_spacing_s)
+    removed = []
+    for a in range(3):
+        counts = interval_counts(att.knot_times[a], t_obs, cam)
+        removed.append(knots_to_remove(counts, cfg.threshold1, cfg.threshold2, cfg.knot_rule))
+    att_kept = att.without(removed)
+    hermite = np.empty((idx.size, 3, 4))
+    knot_keys = np.empty((idx.size, 3, 2), np.int64)
+    for a in range(3):
+        i, w = att_kept.bracket(a, t_obs)
+        hermite[:, a] = w
+        knot_keys[:, a, 0] = [K.knot_key(a, pass_index, int(j)) for j in i]
+        knot_keys[:, a, 1] = [K.knot_key(a, pass_index, int(j) + 1) for j in i]
+    # --- landmarks
+    lm_rows = np.unique(obs.landmark[idx])
+    lm_key_of = {}
+    for row in lm_rows:
+        if kinds[row] == KIND_GCP:
+            lm_key_of[row] = K.gcp_key(int(orbit_pass.landmarks.gcp_index[row]))
+        else:
+            lm_key_of[row] = K.landmark_key(orbit_pass.path, int(orbit_pass.landmarks.id[row]))
+    obs_lm_key = np.array([lm_key_of[r] for r in obs.landmark[idx]], np.int64)
+    # --- constants and batch
+    const = CollinearityConstants(
+        nav.eci_to_ecef, nav.position, nav.t_go, design, nav.angles, hermite,
+        camera.k[cam, band], obs.line[idx] - obs.exposure[idx], obs.sample[idx] - camera.cy[cam, band],
+        camera.focal_plane_dy_ds(cam, band, obs.sample[idx]), camera.dx,
+    )
+    keys = {"landmark": obs_lm_key, "ephemeris": np.array([K.ephemeris_key(pass_index, int(s)) for s in seg]),
+            "knots": knot_keys}
+    camera_keys: dict[int, int] = {}
+    if cfg.estimate_camera:
+        if cfg.camera_per_band:
+            pairs = np.unique(np.stack([cam, band], 1), axis=0)
+            off = 1000 * temperature_bin
+            camera_keys = {off + int(c) * 10 + int(b): K.camera_key(int(c), int(b), temperature_bin) for c, b in pairs}
+            keys["camera"] = np.array([camera_keys[off + int(c) * 10 + int(b)] for c, b in zip(cam, band)], np.int64)
+        else:
+            off = 1000 * temperature_bin
+            camera_keys = {off + int(c): K.camera_key(int(c), None, temperature_bin) for c in cams_used}
+            keys["camera"] = np.array([camera_keys[off + int(c)] for c in cam], np.int64)
+    if cfg.estimate_omega:
+        keys["omega"] = np.full(idx.size, K.omega_key(), np.int64)
+    select = tuple(CAMERA_PARAMS.index(p) for p in cfg.camera_params)
+    group = obs.landmark[idx] if cfg.group_by == "landmark" else np.arange(idx.size)
+    robust = None if cfg.robust == "none" else (cfg.robust, cfg.robust_k)
+    coll = CollinearityBatch(const, camera_parameter_matrix(camera, cam, band), camera.omega, obs.sigma_px[idx],
+                             group, keys, select, robust)
+    graph = gtsam.NonlinearFactorGraph()
+    for f in coll.factors():
+        graph.add(f)
+    values = gtsam.Values()
+    dims: dict[int, int] = {}
+
+    def add(key: int, value: Array) -> bool:
+        """Add a variable unless another pass of the problem owns it; True when added here."""
+        dims[int(key)] = int(np.size(value))
+        if int(key) in shared:
+            return False
+        values.insert(int(key), np.asarray(value, dtype=float))
+        return True
+
+    # initial landmark positions: mean of each view's ray cast onto the DEM (supplied navigation)
+    surface = dem_surface(dem, geoid, cfg.dem_method) if dem is not None else None
+    init = _initial_landmarks(orbit_pass, geo, idx, lm_rows, dem, geoid, cfg.dem_method)
+    batches: list = [coll]
+    dem_keys: list[int] = []
+    dem_sig: list[float] = []
+    dem_rows: list[int] = []
+    gcp_ecef = gcps.ecef() if gcps is not None else None
+    gcp_cov = gcps.covariance_ecef() if gcps is not None else None
+    for row in lm_rows:
+        key = lm_key_of[row]
+        if kinds[row] == KIND_GCP:
+            if gcp_ecef is None or gcp_cov is None:
+                raise InputError("gcps", None, "the GCP database (the pass has GCP observations)")
+            gi = int(orbit_pass.landmarks.gcp_index[row])
+            if add(key, gcp_ecef[gi]):
+                graph.add(gcp_prior(key, gcp_ecef[gi], gcp_cov[gi]))
+        elif add(key, init[row]):
+            dem_rows.append(row)
+    if cfg.use_dem and dem is not None and dem_rows:
+        # one vectorised surface fit for every tie point this pass owns (sigma of its DEM factor)
+        lat, lon, _ = ecef_to_geodetic(np.stack([init[r] for r in dem_rows]))
+        s = fit_local_surface(dem, lat, lon, cfg.dem_method)
+        dem_keys = [lm_key_of[r] for r, ok in zip(dem_rows, s.valid) if ok]
+        dem_sig = [float(x) for x, ok in zip(s.sigma, s.valid) if ok]
+    if dem_keys:
+        assert surface is not None
+        dem_batch = DemBatch(np.array(dem_keys), np.array(dem_sig), surface)
+        for f in dem_batch.factors():
+            graph.add(f)
+        batches.append(dem_batch)
+    # navigation variables and priors
+    att_sig = np.asarray(cfg.attitude_sigma_arcsec) * ARCSEC
+    for a in range(3):
+        for j in range(att_kept.knot_times[a].size):
+            k = K.knot_key(a, pass_index, j)
+            add(k, np.zeros(2))
+            graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * rate_prior_factor]))
+    eph_sig = np.r_[np.asarray(cfg.ephemeris_a_sigma_mps, float), np.full(3, cfg.ephemeris_b_sigma_m)]
+    for s in range(eph.n_segments):
+        k = K.ephemeris_key(pass_index, s)
+        add(k, np.zeros(6))
+        graph.add(vector_prior(k, np.zeros(6), eph_sig))
+    for ck, k in camera_keys.items():
+        c = (ck % 1000) // 10 if cfg.camera_per_band else ck % 1000
+        scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in cfg.camera_params]]
+        if cfg.camera_prior_calibration:
+            sig = np.array([CAMERA_PRIOR_SIGMA[p] for p in cfg.camera_params]) / scale
+        else:
+            ifov = float(camera.ifov_cross_rad(c, 2, 751.5))
+            # a calibrated model: angles known to camera_prior_px pixels, the rest to 1 % of the pre-flight sigma
+            sig = np.array([cfg.camera_prior_px * ifov if p in ("delta", "beta", "epsilon") else 1e-2 * CAMERA_PRIOR_SIGMA[p]
+                            for p in cfg.camera_params]) / scale
+        if add(k, np.zeros(len(cfg.camera_params))):
+            graph.add(vector_prior(k, np.zeros(len(cfg.camera_params)), sig))
+    if cfg.estimate_omega and add(K.omega_key(), np.zeros(3)):
+        graph.add(vector_prior(K.omega_key(), np.zeros(3), np.full(3, cfg.omega_prior_rad)))
+    last = list(camera_keys.values()) + ([K.omega_key()] if cfg.estimate_omega else [])
+    problem = Problem(graph, values, batches, [int(lm_key_of[r]) for r in lm_rows], dims, last)
+    log.info("pass %s: %d observations, %d landmarks, knots kept %s (removed %s)", orbit_pass.pass_id, idx.size,
+             lm_rows.size, [t.size for t in att_kept.knot_times], [r.size for r in removed])
+    return PassGraph(problem, pass_index, att_kept, removed, eph, lm_rows,
+                     np.array([lm_key_of[r] for r in lm_rows], np.int64), idx, coll, camera_keys)
+
+
+def merge_problems(problems: list[Problem]) -> Problem:
+    """One problem from several passes' problems built with a common ``shared`` key set:
+    landmarks first, then every pass's navigation variables pass by pass, shared cameras last."""
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    dims: dict[int, int] = {}
+    batches: list = []
+    first: list[int] = []
+    last: list[int] = []
+    for p in problems:
+        graph.push_back(p.graph)
+        values.insert(p.initial)
+        batches += p.batches
+        for k in p.eliminate_first:
+            if k not in dims:
+                first.append(k)
+        for k, d in p.dims.items():
+            dims.setdefault(k, d)
+        for k in p.eliminate_last:
+            if k not in last:
+                last.append(k)
+    return Problem(graph, values, batches, first, dims, last)
+
+
+def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, method) -> dict[int, Array]:
+    """Median over views of each view's ray cast onto the DEM surface (or the ellipsoid)."""
+    obs = orbit_pass.observations
+    if dem is not None:
+        def surface(lat: Array, lon: Array) -> Array:
+            s = fit_local_surface(dem, lat, lon, method)
+            return np.where(s.valid, s.height, 0.0) + geoid.undulation(lat, lon)
+    else:
+        surface = None
+    g = geo.pixel_to_ground(obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx],
+                            surface=surface, exposure=obs.exposure[idx])
+    lm = obs.landmark[idx]
+    order = np.argsort(lm, kind="stable")
+    rows, starts = np.unique(lm[order], return_index=True)
+    groups = np.split(g[order], starts[1:])
+    return {int(r): np.median(grp, axis=0) for r, grp in zip(rows, groups)}

@@ -1,0 +1,58 @@
+"""``misrgraph info``: validate a misrgraph HDF5 file and summarise what it holds."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from misrgraph.io.h5 import open_h5, read_attr
+
+__all__ = ["run_info"]
+
+
+def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Kind, format version and counts of a file, after fully loading (validating) it."""
+    with open_h5(path) as f:
+        kind = str(read_attr(f, "misrgraph_kind"))
+        version = int(read_attr(f, "format_version"))
+    out: dict[str, Any] = {"file": str(path), "kind": kind, "format_version": version}
+    if kind == "orbit_pass":
+        from misrgraph.io.passes import KIND_NAMES, OrbitPass
+
+        p = OrbitPass.load(path)
+        t0, t1 = p.span
+        out.update({
+            "pass_id": p.pass_id, "path": p.path, "orbit": p.orbit, "epoch_utc": p.ephemeris.epoch_utc,
+            "time_span_s": [t0, t1], "duration_s": t1 - t0, "ephemeris_samples": int(p.ephemeris.t.size),
+            "landmarks": {KIND_NAMES[k]: int(np.sum(p.landmarks.kind == k)) for k in KIND_NAMES},
+            "observations": len(p.observations), "temperature_c": p.temperature_c, "has_truth": p.truth is not None,
+        })
+    elif kind == "camera_model":
+        from misrgraph.model.camera import CameraModel, load_camera_model
+
+        lm = load_camera_model(path)
+        m = lm if isinstance(lm, CameraModel) else lm.models[0]
+        out.update({"cameras": 9, "bands": 4, "temperature_c": m.temperature_c, "provenance": m.provenance})
+        if not isinstance(lm, CameraModel):
+            out.update({"temperature_table_c": [float(t) for t in lm.temperatures_c],
+                        "valid_range_c": list(lm.valid_range_c)})
+    elif kind == "gcp_database":
+        from misrgraph.model.gcp import GcpDatabase
+
+        g = GcpDatabase.load(path)
+        regions, counts = np.unique(g.region, return_counts=True)
+        out.update({"gcps": len(g), "regions": {str(r): int(c) for r, c in zip(regions, counts)},
+                    "has_chips": g.chips is not None, "has_truth": g.truth_ecef is not None})
+    elif kind == "dem":
+        from misrgraph.model.dem import DemTiles
+
+        d = DemTiles.load(path)
+        out.update({"tiles": int(d.lat0.size), "postings_per_side": d.size, "posting_arcsec": d.posting_deg * 3600,
+                    "dted1_fraction": float(np.mean(d.quality == 1)) if d.lat0.size else 0.0})
+    else:
+        from misrgraph.io.results import summarise_result_file
+
+        out.update(summarise_result_file(path, kind))
+    return out

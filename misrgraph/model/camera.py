@@ -1,0 +1,367 @@
+"""The Camera Geometric Model (CGM) of eq. 2 for the nine MISR cameras and four bands.
+
+``r_scs = T_si @ T_ic @ T_cd @ [-(k + (l - INT(l + 0.5)) dx), f * sum_i alpha_i (s - c_y)^i, f]``
+
+with ``T_si = Rz(wz) Ry(wy) Rx(wx)`` (instrument -> spacecraft, common to all cameras),
+``T_ic = Ry(beta) Rx(delta)`` (camera -> instrument, active rotations: delta first rolls the
+camera about its along-track line axis, beta then tilts it fore/aft, positive forward; the
+boresight's cross-track component is ``-sin(delta)`` whatever beta is, which is how MISR's
+delta compensates Earth rotation) and ``T_cd = Rz(eps)`` (detector -> camera, about the boresight).
+Axes: x along track (forward), y right of the flight direction, z nadir. Units: radians, metres, pixels. ``alpha_i`` is in pixel^-i, so that
+``f * alpha_1 = 21 um`` is the cross-track pitch and ``f * sum alpha_i (s - c_y)^i`` is the
+cross-track focal-plane coordinate in metres.
+
+The parameters are data: :class:`CameraModel` is a dataclass that saves to and loads from HDF5
+(kind ``camera_model``). Camera arrays are indexed in the order of
+:data:`misrgraph.model.constants.CAMERAS`, band arrays in the order of :data:`~misrgraph.model.constants.BANDS`.
+A model tabulated at several temperatures is a :class:`TabulatedCameraModel`, whose
+``at_temperature`` interpolates linearly; a plain model's ``at_temperature`` returns itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors.geometry import detector_vector, rot_x, rot_y, rot_z
+from misrgraph.model.constants import BANDS, CAMERAS, LINE_TIME_S, N_PIXELS, PITCH_ALONG_M, PITCH_CROSS_M
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
+
+__all__ = ["CameraModel", "TabulatedCameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "MODEL_NAMES", "load_camera_model",
+           "validate_pixel_inputs"]
+
+Array = NDArray[np.float64]
+N_ALPHA = 6
+NC, NB = len(CAMERAS), len(BANDS)
+
+#: Nominal along-track angle of each band's line array from the optical axis (deg, detector
+#: frame, positive toward -x_detector i.e. k > 0). Red matches Table 1's An value (-0.050 deg);
+#: the arrays are equally spaced by 0.075 deg.
+BAND_ANGLE_DEG: dict[str, float] = {"blue": 0.100, "green": 0.025, "red": -0.050, "nir": -0.125}
+
+
+@dataclass
+class CameraModel:
+    """Parameters of eq. 2 for all cameras and bands (SI units, radians).
+
+    Shapes: ``omega (3,)`` as (wx, wy, wz); ``delta, beta, epsilon (9,)``;
+    ``focal_length, k, cy (9, 4)``; ``alpha (9, 4, 6)``; ``band_delta, band_beta, band_epsilon
+    (9, 4)``: each band's own angle offsets (rad), added to the camera's angles for that band's
+    line array (zero unless a per-band calibration or truth sets them; see :meth:`angles`). ``dx``/``dy`` are the along/cross-track
+    detector pitches (m); ``line_time`` the line repeat time (s); ``temperature_c`` the
+    temperature (deg C) at which the parameters hold.
+    """
+
+    omega: Array
+    delta: Array
+    beta: Array
+    epsilon: Array
+    focal_length: Array
+    alpha: Array
+    k: Array
+    cy: Array
+    dx: float = PITCH_ALONG_M
+    dy: float = PITCH_CROSS_M
+    line_time: float = LINE_TIME_S
+    temperature_c: float = 5.0
+    provenance: dict[str, str] = field(default_factory=dict)
+    band_delta: Array = field(default_factory=lambda: np.zeros((NC, NB)))
+    band_beta: Array = field(default_factory=lambda: np.zeros((NC, NB)))
+    band_epsilon: Array = field(default_factory=lambda: np.zeros((NC, NB)))
+
+    _SHAPES = {
+        "omega": (3,), "delta": (NC,), "beta": (NC,), "epsilon": (NC,),
+        "focal_length": (NC, NB), "alpha": (NC, NB, N_ALPHA), "k": (NC, NB), "cy": (NC, NB),
+        "band_delta": (NC, NB), "band_beta": (NC, NB), "band_epsilon": (NC, NB),
+    }
+
+    def __post_init__(self) -> None:
+        for name, shape in self._SHAPES.items():
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if arr.shape != shape:
+                raise InputError(f"CameraModel.{name}", arr.shape, f"shape {shape}")
+            if not np.all(np.isfinite(arr)):
+                raise InputError(f"CameraModel.{name}", "non-finite values", "finite numbers")
+            setattr(self, name, arr)
+        if np.any(self.focal_length <= 0):
+            raise InputError("CameraModel.focal_length", self.focal_length.min(), "positive metres")
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def nominal(cls) -> "CameraModel":
+        """The nominal (design) model, derived from the nominal instrument geometry; see :mod:`misrgraph.model.nominal`."""
+        from misrgraph.model.nominal import nominal_camera_model
+
+        return nominal_camera_model().copy()
+
+    @classmethod
+    def preflight(cls) -> "CameraModel":
+        """The pre-flight model: Table 1's printed values for Df, An, Da, the other cameras derived
+        consistently; see :func:`misrgraph.model.nominal.preflight_camera_model`."""
+        from misrgraph.model.nominal import preflight_camera_model
+
+        return preflight_camera_model()
+
+    def copy(self) -> "CameraModel":
+        """Deep copy."""
+        return dataclasses.replace(
+            self, **{n: np.array(getattr(self, n)) for n in self._SHAPES}, provenance=dict(self.provenance)
+        )
+
+    # ------------------------------------------------------------------ geometry
+    def t_si(self) -> Array:
+        """Instrument -> spacecraft rotation ``Rz(wz) Ry(wy) Rx(wx)``, (3, 3)."""
+        wx, wy, wz = self.omega
+        return rot_z(wz) @ rot_y(wy) @ rot_x(wx)
+
+    def angles(self, cam: ArrayLike, band: ArrayLike | None = None) -> tuple[Array, Array, Array]:
+        """(delta, beta, epsilon) in rad of cameras, plus each band's offsets when ``band`` is given."""
+        c = np.asarray(cam, dtype=int)
+        if band is None:
+            return self.delta[c], self.beta[c], self.epsilon[c]
+        b = np.asarray(band, dtype=int)
+        return self.delta[c] + self.band_delta[c, b], self.beta[c] + self.band_beta[c, b], self.epsilon[c] + self.band_epsilon[c, b]
+
+    def t_ic(self, cam: ArrayLike, band: ArrayLike | None = None) -> Array:
+        """Camera -> instrument rotation ``Ry(beta) Rx(delta)`` for camera (and band) indices, (..., 3, 3)."""
+        d, b_, _ = self.angles(cam, band)
+        return rot_y(b_) @ rot_x(d)
+
+    def t_cd(self, cam: ArrayLike, band: ArrayLike | None = None) -> Array:
+        """Detector -> camera rotation ``Rz(eps)``, (..., 3, 3)."""
+        return rot_z(self.angles(cam, band)[2])
+
+    def detector_to_spacecraft(self, cam: ArrayLike, band: ArrayLike | None = None) -> Array:
+        """``T_si T_ic T_cd`` for camera (and band) indices, (..., 3, 3); without ``band`` the
+        camera-level angles (no band offsets)."""
+        return self.t_si() @ self.t_ic(cam, band) @ self.t_cd(cam, band)
+
+    def detector_vectors(
+        self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike, exposure: ArrayLike | None = None
+    ) -> Array:
+        """Eq. 2 detector-frame vectors (m) for index arrays, (..., 3).
+
+        The along-track fraction is ``line - exposure`` with ``exposure = INT(line + 0.5)`` unless
+        given (see :class:`misrgraph.model.geolocation.ImagePoints`)."""
+        c = np.asarray(cam, dtype=int)
+        b = np.asarray(band, dtype=int)
+        return detector_vector(
+            line, sample, self.k[c, b], self.dx, self.focal_length[c, b], self.alpha[c, b], self.cy[c, b], exposure
+        )
+
+    def direction_scs(
+        self, cam: ArrayLike, band: ArrayLike, line: ArrayLike, sample: ArrayLike, exposure: ArrayLike | None = None
+    ) -> Array:
+        """Unit pointing vectors in the spacecraft frame for pixels, (..., 3) (eq. 2)."""
+        d = self.detector_vectors(cam, band, line, sample, exposure)
+        r = np.einsum("...ij,...j->...i", self.detector_to_spacecraft(cam, band), d)
+        return r / np.linalg.norm(r, axis=-1, keepdims=True)
+
+    def focal_plane_y(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
+        """Cross-track focal-plane coordinate ``f sum alpha_i (s - c_y)^i`` (m)."""
+        c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+        s = np.asarray(sample, dtype=float) - self.cy[c, b]
+        a = self.alpha[c, b]
+        return self.focal_length[c, b] * np.sum(a * s[..., None] ** np.arange(N_ALPHA), axis=-1)
+
+    def focal_plane_dy_ds(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
+        """Derivative of :meth:`focal_plane_y` with respect to the sample (m per pixel)."""
+        c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+        s = np.asarray(sample, dtype=float) - self.cy[c, b]
+        a = self.alpha[c, b]
+        i = np.arange(1, N_ALPHA)
+        return self.focal_length[c, b] * np.sum(i * a[..., 1:] * s[..., None] ** (i - 1), axis=-1)
+
+    def sample_from_focal_plane_y(self, cam: ArrayLike, band: ArrayLike, y: ArrayLike, iterations: int = 8) -> Array:
+        """Invert :meth:`focal_plane_y` by Newton's method (the polynomial is monotonic on the swath)."""
+        c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+        y = np.asarray(y, dtype=float)
+        s = self.cy[c, b] + y / (self.focal_length[c, b] * self.alpha[c, b, 1])
+        for _ in range(iterations):
+            s = s - (self.focal_plane_y(c, b, s) - y) / self.focal_plane_dy_ds(c, b, s)
+        return s
+
+    def ifov_cross_rad(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
+        """Cross-track angular size of one pixel (rad) at a sample."""
+        c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+        y = self.focal_plane_y(c, b, sample)
+        f = self.focal_length[c, b]
+        return self.focal_plane_dy_ds(c, b, sample) * f / (f * f + y * y)
+
+    # ------------------------------------------------------------------ temperature
+    def at_temperature(self, temperature_c: float) -> "CameraModel":
+        """This model (single temperature) unchanged; tabulated models override (see TabulatedCameraModel)."""
+        return self
+
+    # ------------------------------------------------------------------ I/O
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Write to HDF5 (kind ``camera_model``), atomically."""
+        with atomic_h5(path, "camera_model") as f:
+            self.write_group(f.create_group("camera_model"))
+
+    def write_group(self, g: Any) -> None:
+        """Write the parameters into an open HDF5 group."""
+        g.attrs["cameras"] = ",".join(CAMERAS)
+        g.attrs["bands"] = ",".join(BANDS)
+        units = {"focal_length": "m", "k": "m", "cy": "pixel", "alpha": "pixel^-i", "omega": "rad"}
+        for name in self._SHAPES:
+            write_dataset(g, name, getattr(self, name), units=units.get(name, "rad"))
+        g["omega"].attrs["order"] = "wx,wy,wz"
+        for name in ("dx", "dy"):
+            g.attrs[name] = float(getattr(self, name))
+        g.attrs["line_time"] = float(self.line_time)
+        g.attrs["temperature_c"] = float(self.temperature_c)
+        prov = g.create_group("provenance")
+        for key, value in self.provenance.items():
+            prov.attrs[key] = str(value)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> "CameraModel":
+        """Read a model written by :meth:`save`, validating every field."""
+        with open_h5(path, "camera_model") as f:
+            if "camera_model" not in f:
+                raise FileFormatError(path, "missing group /camera_model")
+            return cls.read_group(f["camera_model"])
+
+    @classmethod
+    def read_group(cls, g: Any) -> "CameraModel":
+        """Read parameters from an open HDF5 group (see :meth:`write_group`)."""
+        cams = str(read_attr(g, "cameras")).split(",")
+        if tuple(cams) != CAMERAS:
+            raise FileFormatError(g.file.filename, f"camera order {cams}; expected {list(CAMERAS)}")
+        values = {name: read_dataset(g, name, shape) for name, shape in cls._SHAPES.items()}
+        prov = {k: str(v) for k, v in g["provenance"].attrs.items()} if "provenance" in g else {}
+        return cls(
+            **values,
+            dx=float(read_attr(g, "dx")),
+            dy=float(read_attr(g, "dy")),
+            line_time=float(read_attr(g, "line_time")),
+            temperature_c=float(read_attr(g, "temperature_c")),
+            provenance=prov,
+        )
+
+
+#: Built-in models a user can name instead of a file (``--camera-model preflight``).
+MODEL_NAMES = ("preflight", "nominal")
+
+
+def load_camera_model(spec: str | os.PathLike[str]) -> "CameraModel | TabulatedCameraModel":
+    """A camera model by name (:data:`MODEL_NAMES`) or from a ``camera_model`` HDF5 file.
+
+    A file with a ``/temperature_table`` gives a :class:`TabulatedCameraModel`. A name wins over a
+    file of the same name only when no such file exists.
+    """
+    text = os.fspath(spec)
+    if text in MODEL_NAMES and not os.path.exists(text):
+        return CameraModel.preflight() if text == "preflight" else CameraModel.nominal()
+    return TabulatedCameraModel.load_any(text)
+
+
+def validate_pixel_inputs(camera: str, band: str, sample: float | None = None) -> tuple[int, int]:
+    """Validate a (camera, band, sample) triple from a user; return indices or raise InputError."""
+    from misrgraph.model.constants import band_index, camera_index
+
+    c = camera_index(camera)
+    b = band_index(band)
+    if sample is not None and not (0 <= float(sample) <= N_PIXELS - 1):
+        raise InputError("pixel", sample, f"a sample number in 0..{N_PIXELS - 1}")
+    return c, b
+
+
+class TabulatedCameraModel:
+    """A camera model tabulated at several temperatures, piecewise linear in temperature.
+
+    The seed's parameters are thermally sensitive (Table 1: f and alpha measured at three
+    temperatures; delta, beta thermal). ``at_temperature(T)`` interpolates every parameter array
+    linearly between the two nearest tabulated temperatures and returns a plain
+    :class:`CameraModel`. Outside the tabulated temperatures the end segments are extended
+    linearly up to ``valid_range_c`` (deg C; default: the tabulated range, i.e. clamping), and the
+    temperature is clamped beyond it. Calibration and adjustment use the model at each pass's
+    temperature. Saved as a ``camera_model`` file whose ``/camera_model`` group is the model at
+    the first temperature plus a ``/temperature_table/<i>`` group per tabulated temperature (attr
+    ``valid_range_c``).
+    """
+
+    def __init__(self, models: list[CameraModel], valid_range_c: tuple[float, float] | None = None) -> None:
+        if len(models) < 2:
+            raise InputError("temperature table", len(models), "at least two models at different temperatures")
+        temps = np.array([m.temperature_c for m in models])
+        order = np.argsort(temps)
+        if np.any(np.diff(temps[order]) <= 0):
+            raise InputError("temperature table", temps.tolist(), "distinct temperatures")
+        self.models = [models[i] for i in order]
+        self.temperatures_c = temps[order]
+        lo, hi = (float(self.temperatures_c[0]), float(self.temperatures_c[-1])) if valid_range_c is None else valid_range_c
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo <= self.temperatures_c[0] and hi >= self.temperatures_c[-1]):
+            raise InputError("valid_range_c", (lo, hi), "finite (low, high) that contains the tabulated temperatures")
+        self.valid_range_c = (float(lo), float(hi))
+
+    @classmethod
+    def linear(cls, base: CameraModel, slopes: dict[str, Array], t_range_c: tuple[float, float]) -> "TabulatedCameraModel":
+        """A model linear in temperature: ``base`` holds at ``base.temperature_c``; ``slopes`` per deg C,
+        each of shape (9,): ``delta``, ``beta`` (rad/C) and ``focal_scale`` (1/C, the relative
+        change of f with the focal-plane polynomial ``f alpha_i`` fixed, i.e. every alpha_i / (1 + x)).
+        Tabulated at the two ends of ``t_range_c``, so it is exact in between."""
+        unknown = set(slopes) - {"delta", "beta", "focal_scale"}
+        if unknown:
+            raise InputError("slopes", sorted(unknown), "keys from delta, beta, focal_scale")
+        models = []
+        for t in t_range_c:
+            m = base.copy()
+            dt = float(t) - base.temperature_c
+            for name in ("delta", "beta"):
+                if name in slopes:
+                    getattr(m, name)[:] += np.asarray(slopes[name], float) * dt
+            if "focal_scale" in slopes:
+                x = 1.0 + np.asarray(slopes["focal_scale"], float) * dt
+                m.focal_length *= x[:, None]
+                m.alpha /= x[:, None, None]
+            m.temperature_c = float(t)
+            models.append(m)
+        return cls(models)
+
+    @property
+    def line_time(self) -> float:
+        return self.models[0].line_time
+
+    def at_temperature(self, temperature_c: float) -> CameraModel:
+        t = float(np.clip(temperature_c, *self.valid_range_c))
+        i = int(np.clip(np.searchsorted(self.temperatures_c, t) - 1, 0, len(self.models) - 2))
+        a, b = self.models[i], self.models[i + 1]
+        w = (t - self.temperatures_c[i]) / (self.temperatures_c[i + 1] - self.temperatures_c[i])
+        out = a.copy()
+        for name in CameraModel._SHAPES:
+            setattr(out, name, (1 - w) * getattr(a, name) + w * getattr(b, name))
+        out.temperature_c = t
+        out.provenance = dict(a.provenance, interpolated_at_c=f"{t:.3f}")
+        return out
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        with atomic_h5(path, "camera_model") as f:
+            self.write_groups(f)
+
+    def write_groups(self, f: Any) -> None:
+        """Write ``/camera_model`` (the first entry) and ``/temperature_table`` into an open file."""
+        self.models[0].write_group(f.create_group("camera_model"))
+        g = f.create_group("temperature_table")
+        g.attrs["valid_range_c"] = np.asarray(self.valid_range_c, float)
+        for i, m in enumerate(self.models):
+            m.write_group(g.create_group(str(i)))
+
+    @staticmethod
+    def load_any(path: str | os.PathLike[str]) -> "CameraModel | TabulatedCameraModel":
+        """A plain model, or a tabulated one when the file has ``/temperature_table``."""
+        with open_h5(path, "camera_model") as f:
+            if "temperature_table" in f:
+                g = f["temperature_table"]
+                rng = tuple(float(v) for v in g.attrs["valid_range_c"]) if "valid_range_c" in g.attrs else None
+                return TabulatedCameraModel([CameraModel.read_group(g[k]) for k in sorted(g, key=int)], rng)
+            if "camera_model" not in f:
+                raise FileFormatError(path, "missing group /camera_model")
+            return CameraModel.read_group(f["camera_model"])

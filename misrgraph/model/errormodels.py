@@ -1,0 +1,196 @@
+"""Navigation error models of seed section 4.2: ephemeris drift (eq. 19) and attitude spline (eqs. 23-29).
+
+* :class:`EphemerisErrorModel`: per segment ``s`` between navigation fixes, in the orbital frame
+  (x along track, y cross track to the right, z toward nadir), ``e(t) = a_s (t - t_s) + b_s``
+  (eq. 19) with ``t_s`` the segment start. Parameters per segment are the ``Vector6``
+  ``[a_x, a_y, a_z, b_x, b_y, b_z]`` (m/s, m). The supplied position is ``P_meas = P_true + T_go e``.
+* :class:`AttitudeErrorModel`: per angle (roll, pitch, yaw) a cubic Hermite spline through knots
+  ``(value, rate)`` (rad, rad/s), eqs. 23-27; ``A_meas = A_true + E(t)`` (eq. 22). Knots are
+  equally spaced with a spacing per angle; :func:`knots_to_remove` applies eqs. 28-29, after
+  which the spline spans the neighbours of a removed knot.
+
+All evaluation is vectorised and returns the derivatives with respect to the parameters that the
+factors need: :meth:`EphemerisErrorModel.design` and :meth:`AttitudeErrorModel.bracket`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors.geometry import hermite_weights
+from misrgraph.model.constants import ANGLES, CAMERAS
+from misrgraph.errors import InputError
+
+__all__ = ["EphemerisErrorModel", "AttitudeErrorModel", "knots_to_remove", "interval_counts", "uniform_knots"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class EphemerisErrorModel:
+    """Piecewise-linear ephemeris error (eq. 19). ``boundaries (S+1,)`` s; ``params (S, 6)``."""
+
+    boundaries: Array
+    params: Array
+
+    def __post_init__(self) -> None:
+        self.boundaries = np.asarray(self.boundaries, dtype=float)
+        self.params = np.asarray(self.params, dtype=float)
+        if self.boundaries.ndim != 1 or self.boundaries.size < 2 or np.any(np.diff(self.boundaries) <= 0):
+            raise InputError("ephemeris_error.boundaries", self.boundaries, "increasing segment boundaries (at least 2)")
+        if self.params.shape != (self.boundaries.size - 1, 6):
+            raise InputError("ephemeris_error.params", self.params.shape, f"shape ({self.boundaries.size - 1}, 6)")
+
+    @classmethod
+    def zeros(cls, t_start: float, t_end: float, segments: int = 1) -> "EphemerisErrorModel":
+        """A zero model with ``segments`` equal segments over [t_start, t_end]."""
+        if segments < 1:
+            raise InputError("segments", segments, "an integer >= 1")
+        return cls(np.linspace(t_start, t_end, segments + 1), np.zeros((segments, 6)))
+
+    @property
+    def n_segments(self) -> int:
+        return self.params.shape[0]
+
+    def segment_of(self, t: ArrayLike) -> NDArray[np.int64]:
+        """Index of the segment containing each time (times outside clamp to the end segments)."""
+        return np.clip(np.searchsorted(self.boundaries, np.asarray(t, dtype=float), side="right") - 1, 0, self.n_segments - 1)
+
+    def design(self, t: ArrayLike) -> tuple[NDArray[np.int64], Array]:
+        """Segment index and ``de/dparams`` (``(N, 3, 6)``) at times ``t``: ``[(t - t_s) I, I]``."""
+        tt = np.ravel(np.asarray(t, dtype=float))
+        seg = self.segment_of(tt)
+        dt = tt - self.boundaries[seg]
+        d = np.zeros((tt.size, 3, 6))
+        d[:, [0, 1, 2], [0, 1, 2]] = dt[:, None]
+        d[:, [0, 1, 2], [3, 4, 5]] = 1.0
+        return seg, d
+
+    def evaluate(self, t: ArrayLike) -> Array:
+        """``e(t)`` in the orbital frame (m), ``(N, 3)``."""
+        seg, d = self.design(t)
+        return np.einsum("nij,nj->ni", d, self.params[seg])
+
+
+def uniform_knots(t_start: float, t_end: float, spacing: float) -> Array:
+    """Equally spaced knot times covering [t_start, t_end] (the last knot at or after t_end)."""
+    if spacing <= 0:
+        raise InputError("knot spacing", spacing, "a positive number of seconds")
+    n = int(np.ceil((t_end - t_start) / spacing - 1e-9))
+    return t_start + spacing * np.arange(max(n, 1) + 1)
+
+
+@dataclass
+class AttitudeErrorModel:
+    """Cubic Hermite attitude error per angle. ``knot_times[a] (M_a,)``, ``knots[a] (M_a, 2)``
+    as (value rad, rate rad/s) for ``a`` in roll, pitch, yaw."""
+
+    knot_times: list[Array]
+    knots: list[Array]
+
+    def __post_init__(self) -> None:
+        if len(self.knot_times) != 3 or len(self.knots) != 3:
+            raise InputError("attitude_error", len(self.knot_times), "three angles (roll, pitch, yaw)")
+        for a in range(3):
+            kt = np.asarray(self.knot_times[a], dtype=float)
+            kv = np.asarray(self.knots[a], dtype=float)
+            if kt.ndim != 1 or kt.size < 2 or np.any(np.diff(kt) <= 0):
+                raise InputError(f"attitude_error.knot_times[{ANGLES[a]}]", kt, "at least 2 increasing times")
+            if kv.shape != (kt.size, 2):
+                raise InputError(f"attitude_error.knots[{ANGLES[a]}]", kv.shape, f"shape ({kt.size}, 2)")
+            self.knot_times[a] = kt
+            self.knots[a] = kv
+
+    @classmethod
+    def zeros(cls, t_start: float, t_end: float, spacing: tuple[float, float, float]) -> "AttitudeErrorModel":
+        """Zero error, knots every ``spacing`` s per angle (roll, pitch, yaw)."""
+        kt = [uniform_knots(t_start, t_end, s) for s in spacing]
+        return cls(kt, [np.zeros((k.size, 2)) for k in kt])
+
+    def bracket(self, angle: int, t: ArrayLike) -> tuple[NDArray[np.int64], Array]:
+        """Index ``i`` of the left knot bracketing each time and the Hermite weights ``(N, 4)`` of
+        ``(a_i, a'_i, a_{i+1}, a'_{i+1})``; times outside the knots extrapolate the end segments."""
+        kt = self.knot_times[angle]
+        tt = np.ravel(np.asarray(t, dtype=float))
+        i = np.clip(np.searchsorted(kt, tt, side="right") - 1, 0, kt.size - 2)
+        dt = kt[i + 1] - kt[i]
+        return i, hermite_weights((tt - kt[i]) / dt, dt)
+
+    def evaluate(self, t: ArrayLike) -> Array:
+        """``E(t)`` (rad), ``(N, 3)`` in order roll, pitch, yaw."""
+        tt = np.ravel(np.asarray(t, dtype=float))
+        out = np.empty((tt.size, 3))
+        for a in range(3):
+            i, w = self.bracket(a, tt)
+            k = self.knots[a]
+            out[:, a] = w[:, 0] * k[i, 0] + w[:, 1] * k[i, 1] + w[:, 2] * k[i + 1, 0] + w[:, 3] * k[i + 1, 1]
+        return out
+
+    def rate(self, t: ArrayLike) -> Array:
+        """``dE/dt`` (rad/s), ``(N, 3)``, by the analytic derivative of the Hermite basis."""
+        tt = np.ravel(np.asarray(t, dtype=float))
+        out = np.empty((tt.size, 3))
+        for a in range(3):
+            kt, k = self.knot_times[a], self.knots[a]
+            i = np.clip(np.searchsorted(kt, tt, side="right") - 1, 0, kt.size - 2)
+            dt = kt[i + 1] - kt[i]
+            u = (tt - kt[i]) / dt
+            dw = np.stack([(-6 * u + 6 * u**2) / dt, 1 - 4 * u + 3 * u**2, (6 * u - 6 * u**2) / dt, 3 * u**2 - 2 * u], -1)
+            out[:, a] = dw[:, 0] * k[i, 0] + dw[:, 1] * k[i, 1] + dw[:, 2] * k[i + 1, 0] + dw[:, 3] * k[i + 1, 1]
+        return out
+
+    def without(self, removed: list[NDArray[np.int64]]) -> "AttitudeErrorModel":
+        """A copy with knots removed per angle (indices into the current knots)."""
+        kt, kv = [], []
+        for a in range(3):
+            keep = np.ones(self.knot_times[a].size, bool)
+            keep[np.asarray(removed[a], dtype=int)] = False
+            kt.append(self.knot_times[a][keep].copy())
+            kv.append(self.knots[a][keep].copy())
+        return AttitudeErrorModel(kt, kv)
+
+
+def interval_counts(knot_times: ArrayLike, obs_times: ArrayLike, obs_camera: ArrayLike) -> NDArray[np.int64]:
+    """``N_tie_point_seen(t_i, t_{i+1}, camera)``: observations per knot interval and camera,
+    shape ``(M - 1, 9)`` (an observation at exactly ``t_{i+1}`` counts in the next interval)."""
+    kt = np.asarray(knot_times, dtype=float)
+    t = np.asarray(obs_times, dtype=float)
+    cam = np.asarray(obs_camera, dtype=int)
+    idx = np.searchsorted(kt, t, side="right") - 1
+    ok = (idx >= 0) & (idx < kt.size - 1)
+    counts = np.zeros((kt.size - 1, len(CAMERAS)), dtype=np.int64)
+    np.add.at(counts, (idx[ok], cam[ok]), 1)
+    return counts
+
+
+def knots_to_remove(counts: ArrayLike, threshold1: int, threshold2: int, rule: str = "interval") -> NDArray[np.int64]:
+    """Knots to remove by eqs. 28-29 from the per-interval, per-camera counts ``(M - 1, 9)``.
+
+    ``rule="interval"`` is the seed's literal rule: knot ``i`` is judged on ``[t_i, t_{i+1})``.
+    ``rule="support"`` judges it on its whole support ``[t_{i-1}, t_{i+1})`` -- the two segments
+    its value and rate shape. A knot is removed when the tie-point observations counted there,
+    summed over cameras, are fewer than ``threshold1`` (eq. 28) or when fewer than ``threshold2``
+    cameras see any (eq. 29). The first and last knots are always kept so the spline still spans
+    the pass (their values are held by their priors).
+
+    With ``rule="support"`` and ``threshold1 = threshold2 = 1`` only knots with no data at all
+    in their support go, so every merged segment is free of data and no observation is fitted by
+    a spline coarser than its own (see docs/conventions.md for the measured consequence).
+    """
+    c = np.asarray(counts)
+    if c.ndim != 2:
+        raise InputError("counts", c.shape, "an (intervals, cameras) array")
+    if rule not in ("interval", "support"):
+        raise InputError("knot removal rule", rule, ("interval", "support"))
+    m = c.shape[0] + 1
+    judged = c.copy()
+    if rule == "support":
+        judged = np.zeros_like(c)
+        judged[1:] = c[1:] + c[:-1]  # knot i (1..M-2) sees intervals i-1 and i
+    fail = (judged.sum(axis=1) < threshold1) | ((judged > 0).sum(axis=1) < threshold2)
+    fail[0] = False
+    idx = np.flatnonzero(fail)
+    return idx[(idx > 0) & (idx < m - 1)]

@@ -1,0 +1,615 @@
+"""Scenario simulator: realistic orbit passes with known injected errors (paper section 4).
+
+Two scenarios, following the paper's order of work:
+
+* ``month``: GCP passes over about a month for camera calibration. Every daylight (descending)
+  orbit of the 16-day/233-path cycle whose common swath covers a GCP is simulated; each GCP is
+  measured in every camera that sees it (1/8 px noise, a blunder fraction). The supplied camera
+  model is the pre-flight (nominal) one; the truth carries post-launch misalignments of delta,
+  beta, epsilon (default 60 arcsec 1 sigma: kilometres on the ground for the D cameras).
+* ``pass``: one ~45-minute daylight pass with tie points over textured land (0.2 px), GCPs on the
+  path (1/8 px), independent check points, and a supplied camera model that is calibrated
+  (residual camera error ~1/16 px per angle, as after space resection).
+
+Injected navigation errors per pass: ephemeris (eq. 19) b ~ N(0, 50 m) per orbital axis (150 m
+3 sigma), drift a ~ N(0, 0.05 m/s) along track and N(0, 0.01 m/s) across/radial; attitude (eqs.
+23-27) a cubic Hermite spline through knots (pitch every 60 s, roll/yaw every 120 s) sampled
+from a smooth random process (periods 200-2000 s) with 1 sigma 41/3, 44/3, 36/3 arcsec for
+roll, pitch, yaw (the 3-sigma knowledge requirement). The supplied navigation is the measured
+one; the truth is ``P = P_meas - T_go e``, ``A = A_meas - E`` (docs/conventions.md). All
+randomness comes from one ``numpy`` generator seeded by ``seed``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from misrgraph import __version__
+from misrgraph.model.camera import CameraModel, TabulatedCameraModel, load_camera_model
+from misrgraph.config import Config
+from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS, NODAL_PERIOD_S, REPEAT_PATHS
+from misrgraph.model.dem import DemTiles, Geoid, SyntheticTerrain, land_mask
+from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel, uniform_knots
+from misrgraph.errors import InputError
+from misrgraph.model.frames import ecef_to_geodetic
+from misrgraph.model.gcp import GcpDatabase, generate_gcp_database
+from misrgraph.model.geolocation import PassGeometry
+from misrgraph.io.h5 import atomic_file, fsync_directory
+from misrgraph.model.orbit import AttitudeSeries, Ephemeris, path_node_longitude, terra_like_orbit
+from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass, PassTruth
+
+__all__ = [
+    "ScenarioConfig",
+    "draw_thermal_truth",
+    "run_simulate",
+    "draw_ephemeris_error",
+    "draw_attitude_error",
+    "draw_camera_misalignment",
+    "simulate_pass",
+    "Scenario",
+    "load_scenario",
+]
+
+log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+Progress = Callable[[str, int, int], None]
+RED = BANDS.index("red")
+
+
+@dataclass(frozen=True)
+class ScenarioConfig(Config):
+    """Simulator settings (units in the names). Unknown keys are rejected by ``from_dict``."""
+
+    scenario: str = "pass"
+    seed: int = 0
+    n_passes: int = 10
+    repeat_visibility: float = 0.8
+    path: int = 37
+    epoch_date: str = "2001-06-15"
+    start_lat_deg: float = 72.0
+    duration_s: float = 2700.0
+    month_days: int = 30
+    n_tie_points: int = 1000
+    n_check_points: int = 100
+    n_gcps: int = 120
+    tie_sigma_px: float = 0.2
+    gcp_sigma_px: float = 0.125
+    tie_blunder_rate: float = 0.0
+    gcp_blunder_rate: float = 0.05
+    blunder_min_px: float = 3.0
+    blunder_max_px: float = 10.0
+    view_probability: float = 0.9
+    texture_probability: float = 0.85
+    swath_half_width_px: float = 550.0
+    nav_sigma_m: float = 50.0
+    along_drift_sigma_mps: float = 0.05
+    drift_sigma_mps: float = 0.01
+    ephemeris_segments: int = 1
+    attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
+    knot_spacing_s: tuple = (120.0, 60.0, 120.0)
+    camera_misalignment_arcsec: float = 60.0
+    camera_residual_px: float = 0.0625
+    gcp_sigma_m: float = 30.0
+    dem_tile_size: int = 32
+    dted1_fraction: float = 0.6
+    noise_free: bool = False
+    with_chips: bool = False
+    camera_truth: str = ""
+    thermal_arcsec_per_c: float = 0.0
+    thermal_focal_ppm_per_c: float = 0.0
+    bands: tuple = ("red",)
+    band_misalignment_arcsec: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.scenario not in ("pass", "month", "path"):
+            raise InputError("scenario", self.scenario, ("pass", "month", "path"))
+        if self.n_passes < 1:
+            raise InputError("n_passes", self.n_passes, "an integer >= 1")
+        if not (1 <= self.path <= REPEAT_PATHS):
+            raise InputError("path", self.path, f"an integer in 1..{REPEAT_PATHS}")
+        for name in ("tie_sigma_px", "gcp_sigma_px", "nav_sigma_m", "gcp_sigma_m", "duration_s"):
+            if getattr(self, name) <= 0:
+                raise InputError(name, getattr(self, name), "a positive number")
+        if not self.bands or len(set(self.bands)) != len(self.bands) or any(b not in BANDS for b in self.bands):
+            raise InputError("bands", self.bands, f"distinct names from {', '.join(BANDS)}")
+        if not self.band_misalignment_arcsec >= 0:
+            raise InputError("band_misalignment_arcsec", self.band_misalignment_arcsec, "a number >= 0")
+        for name in ("thermal_arcsec_per_c", "thermal_focal_ppm_per_c"):
+            if not getattr(self, name) >= 0:
+                raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma of the per-camera slope)")
+        for name in ("tie_blunder_rate", "gcp_blunder_rate", "view_probability", "texture_probability", "dted1_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise InputError(name, getattr(self, name), "a fraction in [0, 1]")
+        if len(self.attitude_sigma_arcsec) != 3 or len(self.knot_spacing_s) != 3:
+            raise InputError("attitude_sigma_arcsec/knot_spacing_s", (self.attitude_sigma_arcsec, self.knot_spacing_s),
+                             "three values (roll, pitch, yaw)")
+        if self.n_tie_points < 0 or self.n_check_points < 0 or self.n_gcps < 5:
+            raise InputError("counts", (self.n_tie_points, self.n_check_points, self.n_gcps), "n_tie_points, n_check_points >= 0; n_gcps >= 5")
+
+
+# ---------------------------------------------------------------------------- truth draws
+def draw_ephemeris_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float) -> EphemerisErrorModel:
+    """Random eq. 19 model: b ~ N(0, nav_sigma_m), a ~ N(0, along/drift sigma) per segment."""
+    model = EphemerisErrorModel.zeros(t_start, t_end, cfg.ephemeris_segments)
+    s = model.n_segments
+    a_sig = np.array([cfg.along_drift_sigma_mps, cfg.drift_sigma_mps, cfg.drift_sigma_mps])
+    model.params[:, :3] = rng.standard_normal((s, 3)) * a_sig
+    model.params[:, 3:] = rng.standard_normal((s, 3)) * cfg.nav_sigma_m
+    return model
+
+
+def smooth_process(rng: np.random.Generator, sigma: float, n_terms: int = 6) -> Callable[[Array], tuple[Array, Array]]:
+    """A zero-mean random sum of sinusoids (periods 200-2000 s) with standard deviation ``sigma``;
+    returns ``f(t) -> (value, rate)``."""
+    period = np.exp(rng.uniform(np.log(200.0), np.log(2000.0), n_terms))
+    w = 2 * np.pi / period
+    ph = rng.uniform(0, 2 * np.pi, n_terms)
+    amp = rng.rayleigh(1.0, n_terms)
+    amp *= sigma / np.sqrt(np.sum(amp**2) / 2)
+    return lambda t: (np.sum(amp * np.sin(np.multiply.outer(t, w) + ph), -1), np.sum(amp * w * np.cos(np.multiply.outer(t, w) + ph), -1))
+
+
+def draw_attitude_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float) -> AttitudeErrorModel:
+    """Random attitude error spline: knots (value, rate) sampled from :func:`smooth_process`."""
+    kt, kv = [], []
+    for a in range(3):
+        times = uniform_knots(t_start, t_end, cfg.knot_spacing_s[a])
+        f = smooth_process(rng, cfg.attitude_sigma_arcsec[a] * ARCSEC)
+        v, r = f(times)
+        kt.append(times)
+        kv.append(np.stack([v, r], -1))
+    return AttitudeErrorModel(kt, kv)
+
+
+#: Temperature (deg C) at which the simulator's thermal truth equals the drawn misaligned camera
+#: (Table 1's pre-flight models are at 5 C); the table spans THERMAL_RANGE_C.
+THERMAL_REFERENCE_C = 5.0
+THERMAL_RANGE_C = (-10.0, 20.0)
+
+
+def draw_thermal_truth(rng: np.random.Generator, base: CameraModel, angle_sigma_rad: float,
+                       focal_sigma: float) -> TabulatedCameraModel:
+    """A true camera linear in temperature around ``base`` (at :data:`THERMAL_REFERENCE_C`).
+
+    Per camera: slopes of delta and beta ~ N(0, angle_sigma_rad) rad/C and a focal scale slope
+    ~ N(0, focal_sigma) 1/C (f grows, the focal-plane polynomial ``f alpha_i`` stays: the
+    cross-track field angle per pixel shrinks). Tabulated over :data:`THERMAL_RANGE_C`.
+    """
+    nc = len(CAMERAS)
+    slopes = {"delta": rng.standard_normal(nc) * angle_sigma_rad, "beta": rng.standard_normal(nc) * angle_sigma_rad,
+              "focal_scale": rng.standard_normal(nc) * focal_sigma}
+    base = base.copy()
+    base.temperature_c = THERMAL_REFERENCE_C
+    table = TabulatedCameraModel.linear(base, slopes, THERMAL_RANGE_C)
+    for m in table.models:
+        m.provenance = dict(base.provenance, thermal="linear in temperature (simulator truth)")
+    return table
+
+
+def _offset_table(truth: TabulatedCameraModel, truth_ref: CameraModel, supplied_ref: CameraModel) -> TabulatedCameraModel:
+    """``truth`` with the difference ``supplied_ref - truth_ref`` added at every temperature."""
+    models = []
+    for m in truth.models:
+        o = m.copy()
+        for name in CameraModel._SHAPES:
+            setattr(o, name, getattr(m, name) + getattr(supplied_ref, name) - getattr(truth_ref, name))
+        o.provenance = dict(supplied_ref.provenance)
+        models.append(o)
+    return TabulatedCameraModel(models, truth.valid_range_c)
+
+
+def draw_camera_misalignment(rng: np.random.Generator, nominal: CameraModel, sigma_rad: Array | float) -> CameraModel:
+    """Copy of ``nominal`` with delta, beta, epsilon of every camera perturbed by N(0, sigma)."""
+    m = nominal.copy()
+    sig = np.broadcast_to(np.asarray(sigma_rad, dtype=float), (len(CAMERAS),))
+    for name in ("delta", "beta", "epsilon"):
+        getattr(m, name)[:] += rng.standard_normal(len(CAMERAS)) * sig
+    return m
+
+
+def _true_attitude(t: Array) -> tuple[Array, Array]:
+    """Actual spacecraft pointing relative to the orbital frame: a few-arcsec slow wobble."""
+    w = 2 * np.pi / np.array([1500.0, 1100.0, 1800.0])
+    amp = np.array([3.0, 4.0, 5.0]) * ARCSEC
+    return amp * np.sin(w * t[:, None]), amp * w * np.cos(w * t[:, None])
+
+
+# ---------------------------------------------------------------------------- one pass
+@dataclass
+class _Landmark:
+    ecef: Array
+    kind: int
+    ident: int
+    gcp_index: int
+
+
+def _observe(
+    geo: PassGeometry,
+    rng: np.random.Generator,
+    cfg: ScenarioConfig,
+    ecef: Array,
+    kinds: NDArray[np.int64],
+    first_row: int,
+) -> tuple[list[Array], NDArray[np.bool_]]:
+    """Measure landmarks in all cameras, in each of ``cfg.bands``. Visibility (and dropout) is decided
+    per camera on the red band; every band measures what its camera sees. Returns observation
+    columns and keep-mask."""
+    cols: list[list[Array]] = [[] for _ in range(7)]
+    cams_seen = np.zeros(len(ecef), dtype=int)
+    per_cam = []
+    for c in range(len(CAMERAS)):
+        ln, sm, vis, ex, _ = geo.ground_to_pixel(c, RED, ecef)
+        dropout = rng.random(len(ecef)) >= cfg.view_probability
+        vis = vis & ~(dropout & (kinds == KIND_TIE))
+        per_cam.append((c, ln, sm, vis, ex))
+        cams_seen += vis
+    keep = np.where(kinds == KIND_TIE, cams_seen >= 3, cams_seen >= 1)
+    for c, ln, sm, vis, ex in per_cam:
+        sel = np.flatnonzero(vis & keep)
+        for b in (BANDS.index(name) for name in cfg.bands):
+            if b == RED:
+                s_b, ln_b, sm_b, ex_b = sel, ln[sel], sm[sel], ex[sel]
+            else:
+                ip = geo.ground_to_pixel(c, b, ecef[sel])
+                ok = ip.visible
+                s_b, ln_b, sm_b, ex_b = sel[ok], ip.line[ok], ip.sample[ok], ip.exposure[ok]
+            cols[0].append(s_b)
+            cols[1].append(np.full(s_b.size, c))
+            cols[2].append(np.full(s_b.size, b))
+            cols[3].append(ln_b)
+            cols[4].append(sm_b)
+            cols[5].append(ex_b)
+            cols[6].append(np.where(kinds[s_b] == KIND_GCP, cfg.gcp_sigma_px, cfg.tie_sigma_px))
+    return [np.concatenate(c) for c in cols], keep
+
+
+def simulate_pass(
+    rng: np.random.Generator,
+    cfg: ScenarioConfig,
+    eph: Ephemeris,
+    camera_truth: CameraModel,
+    terrain: SyntheticTerrain,
+    geoid: Geoid,
+    gcps: GcpDatabase,
+    pass_id: str,
+    path: int,
+    orbit: int,
+    n_tie: int,
+    n_check: int,
+    temperature_c: float = 5.0,
+    features: list[_Landmark] | None = None,
+    feature_fraction: float = 1.0,
+) -> OrbitPass:
+    """Simulate one pass: navigation errors, landmarks, observations with noise and blunders.
+
+    With ``features`` (tie/check points of an earlier pass of the same path) no new features are
+    drawn: each given feature is kept with probability ``feature_fraction`` (clouds) and keeps
+    its id, so repeat passes observe the same ground points.
+    """
+    t_lo, t_hi = eph.span
+    ang, rate = _true_attitude(eph.t)
+    e_att = draw_attitude_error(rng, cfg, t_lo, t_hi)
+    e_eph = draw_ephemeris_error(rng, cfg, t_lo, t_hi)
+    att_meas = AttitudeSeries(eph.t, ang + e_att.evaluate(eph.t), rate + e_att.rate(eph.t))
+    t0 = np.full((len(CAMERAS), len(BANDS)), t_lo)
+    geo = PassGeometry(eph, att_meas, camera_truth, t0=t0,
+                       attitude_delta=lambda t: -e_att.evaluate(t), position_delta=lambda t: -e_eph.evaluate(t))
+    surface = lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo)
+
+    lms: list[_Landmark] = []
+    # GCPs seen by the nadir camera during the pass
+    if len(gcps) and gcps.truth_ecef is not None:
+        _, _, vis, _, _ = geo.ground_to_pixel(CAMERAS.index("An"), RED, gcps.truth_ecef)
+        for gi in np.flatnonzero(vis):
+            lms.append(_Landmark(gcps.truth_ecef[gi], KIND_GCP, int(gcps.id[gi]), int(gi)))
+    # tie and check points over textured land, inside the common swath
+    an = CAMERAS.index("An")
+    n_lines = geo.lines_in_pass(an, RED)
+    if features is not None:
+        lms += [f for f in features if rng.random() < feature_fraction]
+        n_tie = n_check = 0
+    for kind, count in ((KIND_TIE, n_tie), (KIND_CHECK, n_check)):
+        got, tries = 0, 0
+        while got < count and tries < 30:
+            tries += 1
+            m = max(4 * (count - got), 64)
+            line = np.floor(rng.uniform(0.0, 1.0, m) * n_lines)
+            samp = 751.5 + rng.uniform(-cfg.swath_half_width_px, cfg.swath_half_width_px, m)
+            g = geo.pixel_to_ground(an, RED, line, samp)
+            lat, lon, _ = ecef_to_geodetic(g)
+            ok = land_mask(lat, lon) & (rng.random(m) < cfg.texture_probability) & (np.abs(lat) < 80)
+            if not ok.any():
+                continue
+            g = geo.pixel_to_ground(an, RED, line[ok], samp[ok], surface=surface)
+            take = min(count - got, len(g))
+            for p in g[:take]:
+                lms.append(_Landmark(p, kind, 1 + max((lm.ident for lm in lms if lm.kind != KIND_GCP), default=-1), -1))
+            got += take
+    if not lms:
+        ecef = np.zeros((0, 3))
+        kinds = np.zeros(0, np.int64)
+    else:
+        ecef = np.stack([lm.ecef for lm in lms])
+        kinds = np.array([lm.kind for lm in lms], np.int64)
+    cols, keep = _observe(geo, rng, cfg, ecef, kinds, 0)
+    # renumber the kept landmarks
+    new_index = -np.ones(len(lms), np.int64)
+    new_index[keep] = np.arange(int(keep.sum()))
+    kept = [lm for lm, k in zip(lms, keep) if k]
+    obs_lm = new_index[cols[0].astype(np.int64)]
+    n_obs = obs_lm.size
+    line, sample = cols[3].copy(), cols[4].copy()
+    sigma = cols[6]
+    if not cfg.noise_free:
+        line += rng.standard_normal(n_obs) * sigma
+        sample += rng.standard_normal(n_obs) * sigma
+    kind_obs = np.array([kept[i].kind for i in obs_lm], np.int64) if n_obs else np.zeros(0, np.int64)
+    rate = np.where(kind_obs == KIND_GCP, cfg.gcp_blunder_rate, cfg.tie_blunder_rate)
+    blunder = (rng.random(n_obs) < rate) & (kind_obs != KIND_CHECK) & (not cfg.noise_free)
+    nb = int(blunder.sum())
+    if nb:
+        mag = rng.uniform(cfg.blunder_min_px, cfg.blunder_max_px, nb)
+        ang_b = rng.uniform(0, 2 * np.pi, nb)
+        line[blunder] += mag * np.cos(ang_b)
+        sample[blunder] += mag * np.sin(ang_b)
+    landmarks = Landmarks(
+        np.array([lm.ident for lm in kept], np.int64),
+        np.array([lm.kind for lm in kept], np.int64),
+        np.array([lm.gcp_index for lm in kept], np.int64),
+    )
+    obs = Observations(obs_lm, cols[1], cols[2], line, sample, cols[5], sigma)
+    truth = PassTruth(e_eph, e_att, np.stack([lm.ecef for lm in kept]) if kept else np.zeros((0, 3)), blunder, camera_truth)
+    return OrbitPass(pass_id, path, orbit, eph, att_meas, t0, camera_truth.line_time, landmarks, obs, temperature_c, truth)
+
+
+# ---------------------------------------------------------------------------- scenarios
+def _month_passes(cfg: ScenarioConfig, gcps: GcpDatabase) -> list[tuple[int, int, str, float, float]]:
+    """(orbit, path, date, start_lat, duration) of the daylight passes whose swath covers a GCP."""
+    import datetime as dt
+
+    ref_path = cfg.path
+    ref = terra_like_orbit(epoch_date=cfg.epoch_date, path=ref_path, start_lat_deg=80.0, duration_s=2950.0, step_s=8.192)
+    geo = PassGeometry(ref, AttitudeSeries.zeros(ref.t), CameraModel.nominal())
+    nav = geo.nav_state(ref.t)
+    track = np.einsum("nij,nj->ni", nav.eci_to_ecef, nav.position)
+    tlat, tlon, _ = ecef_to_geodetic(track)
+    tlon_rel = np.unwrap(np.radians(tlon)) - np.radians(path_node_longitude(ref_path))
+    out: dict[int, list[float]] = {}
+    orbits_per_day = 86400.0 / NODAL_PERIOD_S
+    n_orbits = int(cfg.month_days * orbits_per_day)
+    glat, glon = np.radians(gcps.lat), np.radians(gcps.lon)
+    for j in range(n_orbits):
+        path = (ref_path - 1 + 16 * j) % REPEAT_PATHS + 1
+        lon_track = tlon_rel + np.radians(path_node_longitude(path))
+        # great-circle distance from each GCP to the ground track samples
+        d = np.arccos(np.clip(
+            np.sin(glat[:, None]) * np.sin(np.radians(tlat))[None, :]
+            + np.cos(glat[:, None]) * np.cos(np.radians(tlat))[None, :] * np.cos(glon[:, None] - lon_track[None, :]), -1, 1))
+        dmin = d.min(axis=1) * 6371e3
+        seen = np.flatnonzero(dmin < 150e3)
+        if seen.size:
+            lat_seen = gcps.lat[seen]
+            out[j] = [path, float(lat_seen.max()), float(lat_seen.min())]
+    passes = []
+    d0 = dt.date.fromisoformat(cfg.epoch_date)
+    for j, (path, lat_max, lat_min) in out.items():
+        day = d0 + dt.timedelta(days=int(j / orbits_per_day))
+        start = min(lat_max + 16.0, 81.0)
+        # ~112 km of latitude per ~16.5 s at ~6.8 km/s ground speed; include Da's delay (~230 s)
+        duration = (start - lat_min) * 111e3 / 6.75e3 + 520.0
+        passes.append((j, int(path), day.isoformat(), start, min(duration, 2900.0)))
+    return passes
+
+
+@dataclass
+class Scenario:
+    """A loaded scenario directory (see :func:`run_simulate`)."""
+
+    directory: Path
+    config: dict[str, Any]
+    camera_model: "CameraModel | TabulatedCameraModel"
+    camera_truth: "CameraModel | TabulatedCameraModel | None"
+    gcps: GcpDatabase
+    dem: DemTiles
+    pass_files: list[Path]
+
+    def load_pass(self, i: int) -> OrbitPass:
+        return OrbitPass.load(self.pass_files[i])
+
+
+def load_scenario(directory: str | os.PathLike[str]) -> Scenario:
+    """Load a directory written by :func:`run_simulate`, validating every file."""
+    from misrgraph.errors import FileFormatError
+
+    d = Path(directory)
+    meta = d / "scenario.json"
+    if not meta.exists():
+        raise FileFormatError(d, "not a scenario directory (no scenario.json); create one with 'misrgraph simulate'")
+    try:
+        config = json.loads(meta.read_text())
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(meta, f"invalid JSON: {exc.msg} at line {exc.lineno}") from exc
+    truth_path = d / "camera_truth.h5"
+    passes = sorted((d / "passes").glob("*.h5"))
+    if not passes:
+        raise FileFormatError(d / "passes", "no pass files (*.h5)")
+    return Scenario(
+        d, config, load_camera_model(d / "camera_model.h5"),
+        load_camera_model(truth_path) if truth_path.exists() else None,
+        GcpDatabase.load(d / "gcp.h5"), DemTiles.load(d / "dem.h5"), passes,
+    )
+
+
+def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Progress | None = None) -> dict[str, Any]:
+    """Simulate a scenario into directory ``out`` (written atomically: a temporary sibling
+    directory renamed into place). Returns a summary dict (also saved as scenario.json)."""
+    out_dir = Path(out)
+    _check_replaceable(out_dir)
+    rng = np.random.default_rng(cfg.seed)
+    terrain = SyntheticTerrain(seed=cfg.seed)
+    geoid = Geoid("zero")
+    nominal = CameraModel.nominal()
+    gcps = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips)
+    truth_cam = draw_camera_misalignment(rng, nominal, cfg.camera_misalignment_arcsec * ARCSEC)
+    truth_cam.provenance = {"source": "simulator truth", "seed": str(cfg.seed)}
+    truth_model: CameraModel | TabulatedCameraModel = truth_cam
+    if cfg.thermal_arcsec_per_c > 0 or cfg.thermal_focal_ppm_per_c > 0:
+        truth_model = draw_thermal_truth(rng, truth_cam, cfg.thermal_arcsec_per_c * ARCSEC, cfg.thermal_focal_ppm_per_c * 1e-6)
+    if cfg.band_misalignment_arcsec > 0:
+        offsets = rng.standard_normal((3, len(CAMERAS), len(BANDS))) * cfg.band_misalignment_arcsec * ARCSEC
+        for m in ([truth_cam] if truth_model is truth_cam else [truth_cam, *truth_model.models]):  # type: ignore[union-attr]
+            for name, off in zip(("band_delta", "band_beta", "band_epsilon"), offsets):
+                getattr(m, name)[:] += off
+    if cfg.camera_truth:
+        # the same instrument as another scenario (e.g. the month a calibration came from)
+        truth_model = load_camera_model(cfg.camera_truth)
+        truth_cam = truth_model.at_temperature(THERMAL_REFERENCE_C)
+    if cfg.scenario == "month":
+        supplied = nominal.copy()
+        supplied.provenance = {"source": "pre-flight nominal model (misrgraph.model.nominal)"}
+        plan = _month_passes(cfg, gcps)
+        n_tie, n_check = 0, 0
+    else:
+        ifov = np.array([nominal.ifov_cross_rad(c, RED, 751.5) for c in range(len(CAMERAS))])
+        supplied = draw_camera_misalignment(rng, truth_cam, ifov * cfg.camera_residual_px)
+        supplied.provenance = {"source": "calibrated model (truth + residual error)", "residual_px": str(cfg.camera_residual_px)}
+        if isinstance(truth_model, TabulatedCameraModel):
+            # a calibrated thermal table: the same residual error at every temperature
+            supplied = _offset_table(truth_model, truth_cam, supplied)
+        n_tie, n_check = cfg.n_tie_points, cfg.n_check_points
+        if cfg.scenario == "path":
+            import datetime as _dt
+
+            d0 = _dt.date.fromisoformat(cfg.epoch_date)
+            plan = [(233 * k, cfg.path, (d0 + _dt.timedelta(days=16 * k)).isoformat(), cfg.start_lat_deg, cfg.duration_s)
+                    for k in range(cfg.n_passes)]
+        else:
+            plan = [(0, cfg.path, cfg.epoch_date, cfg.start_lat_deg, cfg.duration_s)]
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        (tmp / "passes").mkdir()
+        all_lm = []
+        n_obs = 0
+        seen_count = np.zeros(len(gcps), int)
+        summaries = []
+        path_features: list[_Landmark] | None = None
+        for k, (orbit, path, date, start_lat, duration) in enumerate(plan):
+            if progress:
+                progress(f"pass {k + 1}/{len(plan)}", k, len(plan))
+            eph = terra_like_orbit(epoch_date=date, path=path, start_lat_deg=start_lat, duration_s=duration)
+            temp = 5.0 + 3.0 * np.sin(2 * np.pi * orbit / 437.0) + 0.5 * rng.standard_normal()
+            p = simulate_pass(rng, cfg, eph, truth_model.at_temperature(float(temp)), terrain, geoid, gcps, f"P{path:03d}_O{orbit:04d}", path, orbit,
+                              n_tie, n_check, float(temp), features=path_features,
+                              feature_fraction=cfg.repeat_visibility if path_features is not None else 1.0)
+            if cfg.scenario == "path" and path_features is None:
+                assert p.truth is not None
+                path_features = [_Landmark(p.truth.landmark_ecef[i], int(p.landmarks.kind[i]), int(p.landmarks.id[i]), -1)
+                                 for i in range(len(p.landmarks)) if p.landmarks.kind[i] != KIND_GCP]
+            if cfg.scenario == "month" and not np.any(p.landmarks.kind == KIND_GCP):
+                continue
+            p.save(tmp / "passes" / f"{p.pass_id}.h5")
+            gi = p.landmarks.gcp_index[p.landmarks.kind == KIND_GCP]
+            seen_count[gi] += 1
+            n_obs += len(p.observations)
+            assert p.truth is not None
+            all_lm.append(p.truth.landmark_ecef)
+            summaries.append({"pass_id": p.pass_id, "observations": len(p.observations),
+                              "tie_points": int(np.sum(p.landmarks.kind == KIND_TIE)),
+                              "gcps": int(np.sum(p.landmarks.kind == KIND_GCP)),
+                              "check_points": int(np.sum(p.landmarks.kind == KIND_CHECK))})
+        if progress:
+            progress("DEM tiles", len(plan), len(plan))
+        lm = np.concatenate(all_lm + [gcps.truth_ecef]) if all_lm else gcps.truth_ecef
+        lat, lon, _ = ecef_to_geodetic(lm)
+        DemTiles.around(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction).save(tmp / "dem.h5")
+        supplied.save(tmp / "camera_model.h5")
+        truth_model.save(tmp / "camera_truth.h5")
+        gcps.save(tmp / "gcp.h5")
+        summary = {
+            "software": f"misrgraph {__version__}",
+            "config": dataclasses.asdict(cfg),
+            "passes": len(summaries),
+            "observations": n_obs,
+            "gcps_seen": int(np.sum(seen_count > 0)),
+            "gcps_seen_in_3_or_more_passes": int(np.sum(seen_count >= 3)),
+            "pass_summaries": summaries,
+            "geoid": "zero (simulated data: DEM heights above MSL = ellipsoidal heights)",
+        }
+        with atomic_file(tmp / "scenario.json") as fh:
+            fh.write(json.dumps(summary, indent=2))
+        _swap_into_place(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return summary
+
+
+#: What :func:`run_simulate` writes into a scenario directory (nothing else is ever replaced).
+SCENARIO_ENTRIES = frozenset({"scenario.json", "passes", "dem.h5", "camera_model.h5", "camera_truth.h5", "gcp.h5"})
+
+
+def _check_replaceable(out_dir: Path) -> None:
+    """Refuse an ``--out`` that holds anything simulate did not write (user data is never deleted)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("--out", str(out_dir), "a directory (this is a file)")
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        return
+    if not (out_dir / "scenario.json").exists():
+        raise InputError("--out", str(out_dir), "a new or empty directory, or an earlier scenario directory to replace "
+                                                "(this one is not empty and has no scenario.json)")
+    foreign = sorted(e.name for e in out_dir.iterdir() if e.name not in SCENARIO_ENTRIES)
+    foreign += sorted(f"passes/{e.name}" for e in (out_dir / "passes").iterdir()
+                      if not (e.is_file() and e.suffix == ".h5")) if (out_dir / "passes").is_dir() else []
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise InputError("--out", str(out_dir), f"a scenario directory holding only what simulate writes; it also holds "
+                                                f"{shown}: move those elsewhere or choose another --out")
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two directory entries (Linux renameat2 RENAME_EXCHANGE); False where the
+    platform or file system cannot."""
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    return fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0
+
+
+def _swap_into_place(new: Path, out_dir: Path) -> None:
+    """Put ``new`` at ``out_dir``. An existing ``out_dir`` is swapped with ``new`` atomically where
+    the OS allows (Linux), otherwise renamed aside first; it is deleted only once the new directory
+    is in place. A crash leaves the old or the new scenario at ``out_dir`` (on the fallback path,
+    possibly neither there but the old one intact as a hidden ``.<name>.old-*`` sibling)."""
+    old = None
+    if out_dir.exists():
+        if _exchange(new, out_dir):
+            fsync_directory(out_dir.parent)
+            shutil.rmtree(new, ignore_errors=True)  # now holds the old scenario
+            return
+        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
+        os.rmdir(old)
+        os.replace(out_dir, old)
+    os.replace(new, out_dir)
+    fsync_directory(out_dir.parent)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

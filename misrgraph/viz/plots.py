@@ -1,0 +1,132 @@
+"""PNG plots of adjustment and calibration results (matplotlib, headless ``Agg`` backend).
+
+Used by ``misrgraph adjust --plots DIR``, ``misrgraph calibrate --plots DIR``, the demo and the
+notebooks. Every function writes atomically (temporary file, then rename) and returns the paths.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
+
+__all__ = ["plot_adjustment", "plot_calibration"]
+
+
+def _save(fig: Any, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    os.replace(tmp, path)
+    return path
+
+
+def plot_adjustment(result_h5: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> list[Path]:
+    """Attitude error vs truth with 1-sigma bands, residual histograms, check-point errors."""
+    import json
+
+    import h5py
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from misrgraph.model.errormodels import AttitudeErrorModel
+    from misrgraph.io.passes import OrbitPass
+
+    out = Path(out_dir)
+    paths = []
+    from misrgraph.io.h5 import open_h5
+
+    with open_h5(result_h5, "adjustment_result") as f:
+        summary = json.loads(f.attrs["summary_json"])
+        pass_file = f["provenance"].attrs.get("pass_file")
+        kt = [f[f"attitude_error/{a}/knot_times"][()] for a in ANGLES]
+        kv = [f[f"attitude_error/{a}/knots"][()] for a in ANGLES]
+        jc = [f[f"attitude_error/{a}/joint_covariance"][()] for a in ANGLES]
+        res = f["observations/residual_px"][()]
+        cam = f["observations/camera"][()]
+    model = AttitudeErrorModel(kt, kv)
+    truth = None
+    if pass_file is not None and Path(str(pass_file)).exists():
+        truth = OrbitPass.load(str(pass_file)).truth
+    t = np.arange(kt[0][0], kt[0][-1], 4.096)
+    est = model.evaluate(t)
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    for i, (a, ax) in enumerate(zip(ANGLES, axes)):
+        idx, w = model.bracket(i, t)
+        rows = np.stack([2 * idx, 2 * idx + 1, 2 * idx + 2, 2 * idx + 3], 1)
+        sig = np.sqrt(np.einsum("ni,nij,nj->n", w, jc[i][rows[:, :, None], rows[:, None, :]], w))
+        ax.fill_between(t, (est[:, i] - sig) / ARCSEC, (est[:, i] + sig) / ARCSEC, alpha=0.3, label="estimate +- 1 sigma")
+        ax.plot(t, est[:, i] / ARCSEC, lw=1.2, label="estimate")
+        ax.plot(kt[i], kv[i][:, 0] / ARCSEC, "o", ms=3, label="knots")
+        if truth is not None:
+            ax.plot(t, truth.attitude_error.evaluate(t)[:, i] / ARCSEC, "k--", lw=1, label="truth")
+        ax.set_ylabel(f"{a} error (arcsec)")
+    axes[0].legend(loc="upper right", fontsize=7, ncol=4)
+    axes[-1].set_xlabel("time from pass epoch (s)")
+    fig.suptitle(f"attitude error, pass {summary.get('pass_id', '')}")
+    paths.append(_save(fig, out / "attitude_error.png"))
+    plt.close(fig)
+    fig, axes = plt.subplots(3, 3, figsize=(9, 7), sharex=True)
+    for c, ax in zip(range(len(CAMERAS)), axes.ravel()):
+        sel = (cam == c) & np.isfinite(res[:, 0])
+        ax.hist(res[sel, 0], bins=30, alpha=0.6, label="along")
+        ax.hist(res[sel, 1], bins=30, alpha=0.6, label="cross")
+        ax.set_title(CAMERAS[c], fontsize=9)
+    axes[0, 0].legend(fontsize=7)
+    fig.supxlabel("post-fit residual (pixels)")
+    paths.append(_save(fig, out / "residuals.png"))
+    plt.close(fig)
+    cp = summary.get("checkpoint_geolocation_m")
+    if cp:
+        fig, ax = plt.subplots(figsize=(8, 3.5))
+        names = list(cp)
+        x = np.arange(len(names))
+        ax.bar(x - 0.2, [cp[n]["before"]["mean"] for n in names], 0.4, yerr=[cp[n]["before"]["std"] for n in names], label="supplied navigation")
+        ax.bar(x + 0.2, [cp[n]["after"]["mean"] for n in names], 0.4, yerr=[cp[n]["after"]["std"] for n in names], label="corrected")
+        ax.set_xticks(x, names)
+        ax.set_ylabel("check-point error (m)")
+        ax.legend()
+        paths.append(_save(fig, out / "checkpoints.png"))
+        plt.close(fig)
+    return paths
+
+
+def plot_calibration(summary: dict[str, Any], out_dir: str | os.PathLike[str]) -> list[Path]:
+    """Pointing error and sigma per camera; correlation matrix."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    paths = []
+    names = list(summary["cameras"])
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    x = np.arange(len(names))
+    if all("pointing_error_px" in summary["cameras"][n] for n in names):
+        ax.bar(x - 0.2, [summary["cameras"][n]["pointing_error_before_px"] for n in names], 0.4, label="pre-flight model")
+        ax.bar(x + 0.2, [summary["cameras"][n]["pointing_error_px"] for n in names], 0.4, label="recalibrated")
+    ax.plot(x, [summary["cameras"][n]["sigma_px"] for n in names], "k_", ms=20, mew=2, label="predicted sigma")
+    ax.axhline(0.125, color="r", ls=":", label="1/8 pixel requirement")
+    ax.set_yscale("log")
+    ax.set_xticks(x, names)
+    ax.set_ylabel("pointing error (pixels)")
+    ax.legend(fontsize=8)
+    paths.append(_save(fig, out / "calibration_pointing.png"))
+    plt.close(fig)
+    corr = np.asarray(summary["correlation"]["matrix"])
+    fig, ax = plt.subplots(figsize=(7, 6))
+    im = ax.imshow(corr, cmap="RdBu_r", vmin=-1, vmax=1)
+    labels = summary["correlation"]["labels"]
+    ax.set_xticks(range(len(labels)), labels, rotation=90, fontsize=5)
+    ax.set_yticks(range(len(labels)), labels, fontsize=5)
+    fig.colorbar(im, ax=ax, label="correlation")
+    paths.append(_save(fig, out / "calibration_correlation.png"))
+    plt.close(fig)
+    return paths

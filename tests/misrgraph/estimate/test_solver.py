@@ -1,0 +1,195 @@
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from misrgraph.errors import DegenerateProblemError
+from misrgraph.estimate.flat import FlatProblem
+from misrgraph.estimate.graph import GraphConfig, build_pass_graph
+from misrgraph.io.passes import Observations, OrbitPass
+from misrgraph.estimate.solver import SolverParams, marginal_covariances, solve, solve_gtsam_lm
+
+TIGHT = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12, max_iterations=60)
+
+
+@pytest.fixture(scope="module")
+def noisy_graph(small_pass):
+    sc, p = small_pass
+    return build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True))
+
+
+def test_core_reaches_the_gtsam_lm_optimum(small_pass):
+    sc, p = small_pass
+    # no DEM here: GTSAM's optimiser then sees exactly the same smooth problem
+    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=False))
+    ours = solve(pg.problem, TIGHT)
+    ref = solve_gtsam_lm(pg.problem, TIGHT)
+    assert ours.converged
+    assert ours.final_error == pytest.approx(ref.final_error, rel=1e-6)
+    # and the same solution, to well within the posterior sigma
+    m = marginal_covariances(pg.problem, ours.values)
+    z = [np.max(np.abs(ours.values.atVector(k) - ref.values.atVector(k)) / np.sqrt(np.diag(m[k]))) for k in pg.problem.dims]
+    assert max(z) < 1e-3
+
+
+def test_marginals_equal_gtsam_marginals(noisy_graph):
+    prob = noisy_graph.problem
+    res = solve(prob)
+    mine = marginal_covariances(prob, res.values)
+    for b in prob.batches:
+        b.evaluate(res.values, True)
+    try:
+        ref = gtsam.Marginals(prob.graph, res.values)
+        keys = list(prob.dims)[::7] + noisy_graph.knot_keys(1)[:3] + noisy_graph.ephemeris_keys()
+        for k in keys:
+            np.testing.assert_allclose(mine[k], ref.marginalCovariance(k), rtol=1e-6, atol=1e-12 * np.max(np.abs(mine[k])))
+    finally:
+        for b in prob.batches:
+            b.clear()
+
+
+def test_error_decreases_monotonically(noisy_graph):
+    res = solve(noisy_graph.problem)
+    h = np.array(res.history)
+    assert np.all(np.diff(h) <= 1e-9 * h[0])
+    assert res.iterations < 40
+
+
+def test_degenerate_inputs_are_diagnosed(small_pass):
+    sc, p = small_pass
+    o = p.observations
+    none = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
+                     o.subset(np.zeros(len(o), bool)), p.temperature_c, p.truth)
+    with pytest.raises(DegenerateProblemError, match="no tie-point or GCP observations"):
+        build_pass_graph(none, sc.camera_model, sc.dem, sc.gcps)
+    one = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
+                    o.subset(o.camera == 4), p.temperature_c, p.truth)
+    with pytest.raises(DegenerateProblemError, match="single camera"):
+        build_pass_graph(one, sc.camera_model, sc.dem, sc.gcps)
+    assert isinstance(o, Observations)
+
+
+def test_flat_problem_matches_the_graph_and_its_jacobian(noisy_graph):
+    from misrgraph.estimate.flat import FlatProblem
+    from misrgraph.estimate.solver import error
+
+    prob = noisy_graph.problem
+    flat = FlatProblem(prob)
+    x = flat.initial()
+    assert flat.cost(x) == pytest.approx(error(prob, prob.initial), rel=1e-10)
+    j = flat.jacobian(x).toarray()
+    rng = np.random.default_rng(0)
+    for c in rng.choice(flat.n, 12, replace=False):
+        h = 1e-3 if c < 3 * len(prob.eliminate_first) else 1e-9
+        e = np.zeros(flat.n)
+        e[c] = h
+        num = (flat.residual(x + e) - flat.residual(x - e)) / (2 * h)
+        assert np.max(np.abs(num - j[:, c])) <= 1e-5 * max(np.max(np.abs(j[:, c])), 1e-12)
+    blk, hlc, hcc, g, cost = flat.normal_equations(x)
+    h = j.T @ j
+    n_l = 3 * len(prob.eliminate_first)
+    np.testing.assert_allclose(hcc, h[n_l:, n_l:], rtol=1e-9, atol=1e-9 * np.abs(h).max())
+    np.testing.assert_allclose(hlc.reshape(n_l, -1), h[:n_l, n_l:], rtol=1e-9, atol=1e-9 * np.abs(h).max())
+    np.testing.assert_allclose(g, j.T @ flat.residual(x), rtol=1e-9, atol=1e-9 * np.abs(g).max())
+    assert cost == pytest.approx(flat.cost(x), rel=1e-12)
+
+
+def test_numba_and_numpy_normal_equations_agree(noisy_graph):
+    from misrgraph.estimate._kernels import HAVE_NUMBA
+    from misrgraph.estimate.flat import FlatProblem
+
+    flat = FlatProblem(noisy_graph.problem)
+    x = flat.initial()
+    a = flat.normal_equations(x, use_numba=False)
+    b = flat.normal_equations(x, use_numba=True)
+    assert HAVE_NUMBA  # a dependency; the numpy path is the fallback
+    for u, v in zip(a[:4], b[:4]):
+        np.testing.assert_allclose(u, v, rtol=1e-10, atol=1e-10 * np.abs(u).max())
+    assert a[4] == pytest.approx(b[4], rel=1e-12)
+
+
+def test_schur_backend_equals_gtsam_elimination(noisy_graph):
+    prob = noisy_graph.problem
+    a = solve(prob, TIGHT.replace(backend="gtsam"))
+    # the same Gauss-Newton steps: the Schur backend's second-order DEM term off
+    b = solve(prob, TIGHT.replace(backend="schur", dem_second_order=False))
+    assert b.final_error == pytest.approx(a.final_error, rel=1e-8)
+    m = marginal_covariances(prob, a.values)
+    worst = max(float(np.max(np.abs(a.values.atVector(k) - b.values.atVector(k)) / np.sqrt(np.diag(m[k])))) for k in prob.dims)
+    assert worst < 1e-3
+
+
+def test_second_order_dem_term_is_the_exact_hessian_of_the_dem_cost(noisy_graph, small_pass):
+    from factors.dem_height import dem_residual
+    from misrgraph.model.frames import ecef_to_geodetic
+
+    dem = small_pass[0].dem
+    flat = FlatProblem(noisy_graph.problem)
+    x = flat.initial()
+    gn = flat.normal_equations(x)[0]
+    full = flat.normal_equations(x, second_order=True)[0]
+    changed = np.flatnonzero(np.any(np.abs(full - gn) > 0, axis=(1, 2)))
+    assert changed.size > 0.5 * len(flat.dem)  # applied wherever the block stays positive definite
+    # the surface is C1, piecewise cubic between postings (~90 m): keep landmarks more than 3 m
+    # from a posting line, so that both difference stencils stay inside one cubic piece
+    lat, lon, _ = ecef_to_geodetic(x[flat._dem_cols])
+    t = dem.tile_of(lat, lon)
+    fr = (lat - dem.lat0[t]) / dem.posting_deg % 1.0
+    fc = (lon - dem.lon0[t]) / dem.posting_deg % 1.0
+    away = np.minimum(np.minimum(fr, 1 - fr), np.minimum(fc, 1 - fc)) * 90.0 * np.cos(np.radians(lat)) > 3.0
+    # independent: second differences of the DEM part of the cost, 0.5 (r / sigma)^2, per landmark
+    rows = np.flatnonzero(np.isin(flat._dem_lm, changed) & away)[:30]
+    assert rows.size == 30
+    p = x[flat._dem_cols[rows]]
+    sig = flat.dem.sigma_m[rows]
+
+    def cost(q):
+        return 0.5 * (dem_residual(q, flat.dem.surface, False)[0] / sig) ** 2
+
+    _, jd = dem_residual(p, flat.dem.surface, True)
+    jd = jd[:, 0, :] / sig[:, None]
+    s = 0.5  # m; the surface is piecewise cubic over ~90 m cells
+    num = np.empty((rows.size, 3, 3))
+    for a in range(3):
+        for b in range(3):
+            ea, eb = np.eye(3)[a] * s, np.eye(3)[b] * s
+            num[:, a, b] = (cost(p + ea + eb) - cost(p + ea - eb) - cost(p - ea + eb) + cost(p - ea - eb)) / (4 * s * s)
+    mine = full[flat._dem_lm[rows]] - gn[flat._dem_lm[rows]] + np.einsum("ni,nj->nij", jd, jd)
+    np.testing.assert_allclose(mine, num, rtol=1e-3, atol=1e-3 * np.abs(num).max())
+
+
+def test_second_order_dem_term_reaches_a_stationary_point(noisy_graph):
+    prob = noisy_graph.problem
+    gn = solve(prob, TIGHT.replace(backend="schur", dem_second_order=False))
+    so = solve(prob, TIGHT.replace(backend="schur"))
+    assert so.converged
+    assert so.final_error <= gn.final_error * (1 + 1e-12)
+    # first-order optimality from the sparse Jacobian (not the normal-equation code): the
+    # Gauss-Newton decrement g^T (J^T J)^-1 g, the cost decrease a further step would promise
+    import scipy.sparse.linalg as spla
+
+    flat = FlatProblem(prob)
+    x = flat.from_values(so.values)
+    j, r = flat.jacobian(x), flat.residual(x)
+    g = j.T @ r
+    dec = float(g @ spla.spsolve((j.T @ j).tocsc(), g))
+    assert dec < 1e-6 * so.final_error
+
+
+def test_backend_choices_that_cannot_apply_are_errors(noisy_graph, small_pass):
+    """An explicit backend is used or refused, never silently replaced; 'auto' says what ran."""
+    from misrgraph.errors import InputError
+    from misrgraph.estimate.graph import build_pass_graph
+
+    sc, p = small_pass
+    robust = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True, robust="cauchy"))
+    with pytest.raises(InputError, match=r"backend.*Schur backend cannot solve it.*robust"):
+        solve(robust.problem, TIGHT.replace(backend="schur"))
+    with pytest.raises(InputError, match="dem_second_order"):
+        solve(robust.problem, TIGHT.replace(dem_second_order=True))
+    with pytest.raises(InputError, match="dem_second_order"):
+        SolverParams(backend="gtsam", dem_second_order=True)
+    assert solve(robust.problem, SolverParams(max_iterations=3)).backend == "gtsam"
+    assert solve(noisy_graph.problem, SolverParams(max_iterations=3)).backend == "schur"
+    assert solve(noisy_graph.problem, SolverParams(backend="gtsam", max_iterations=3)).backend == "gtsam"

@@ -1,0 +1,123 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from misrgraph.model.errormodels import (
+    AttitudeErrorModel,
+    EphemerisErrorModel,
+    interval_counts,
+    knots_to_remove,
+    uniform_knots,
+)
+from misrgraph.errors import InputError
+
+
+def test_ephemeris_closed_form_and_jacobian(rng):
+    m = EphemerisErrorModel(np.array([0.0, 100.0, 300.0]), rng.normal(size=(2, 6)))
+    t = np.array([0.0, 50.0, 99.0, 100.0, 250.0, 300.0])
+    e = m.evaluate(t)
+    a, b = m.params[:, :3], m.params[:, 3:]
+    expect = np.stack([a[0] * 0 + b[0], a[0] * 50 + b[0], a[0] * 99 + b[0], b[1], a[1] * 150 + b[1], a[1] * 200 + b[1]])
+    np.testing.assert_allclose(e, expect)
+    seg, d = m.design(t)
+    h = 1e-6
+    for j in range(6):
+        p2 = m.params.copy()
+        p2[seg[2], j] += h
+        num = (EphemerisErrorModel(m.boundaries, p2).evaluate(t[2:3]) - e[2:3]) / h
+        np.testing.assert_allclose(d[2, :, j], num[0], atol=1e-6)
+
+
+def test_ephemeris_validation():
+    with pytest.raises(InputError, match="params"):
+        EphemerisErrorModel(np.array([0.0, 1.0]), np.zeros((2, 6)))
+    with pytest.raises(InputError, match="boundaries"):
+        EphemerisErrorModel(np.array([1.0, 0.0]), np.zeros((1, 6)))
+
+
+@pytest.fixture
+def spline(rng):
+    kt = [uniform_knots(0, 600, s) for s in (120, 60, 120)]
+    return AttitudeErrorModel(kt, [rng.normal(size=(k.size, 2)) * [1e-4, 1e-6] for k in kt])
+
+
+def test_spline_continuity_of_value_and_rate_at_knots(spline):
+    for a in range(3):
+        for tk in spline.knot_times[a][1:-1]:
+            eps = 1e-7
+            lo, hi = spline.evaluate([tk - eps])[0, a], spline.evaluate([tk + eps])[0, a]
+            assert lo == pytest.approx(hi, abs=1e-12)
+            rlo, rhi = spline.rate([tk - eps])[0, a], spline.rate([tk + eps])[0, a]
+            assert rlo == pytest.approx(rhi, abs=1e-12)
+        # knot value and rate are interpolated exactly
+        np.testing.assert_allclose(spline.evaluate(spline.knot_times[a])[:, a], spline.knots[a][:, 0], atol=1e-15)
+        np.testing.assert_allclose(spline.rate(spline.knot_times[a])[:, a], spline.knots[a][:, 1], rtol=1e-9, atol=1e-15)
+
+
+def test_spline_rate_is_derivative(spline, rng):
+    t = rng.uniform(1, 599, 20)
+    h = 1e-4
+    num = (spline.evaluate(t + h) - spline.evaluate(t - h)) / (2 * h)
+    np.testing.assert_allclose(spline.rate(t), num, rtol=1e-6, atol=1e-13)
+
+
+def test_spline_jacobian_wrt_knots(spline, rng):
+    t = rng.uniform(0, 600, 15)
+    for a in range(3):
+        i, w = spline.bracket(a, t)
+        base = spline.evaluate(t)[:, a]
+        for col, (off, comp) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
+            for n in range(t.size):
+                kn = [k.copy() for k in spline.knots]
+                kn[a][i[n] + off, comp] += 1e-3
+                num = (AttitudeErrorModel(spline.knot_times, kn).evaluate(t[n:n + 1])[0, a] - base[n]) / 1e-3
+                assert w[n, col] == pytest.approx(num, rel=1e-6, abs=1e-9)
+
+
+def test_constant_and_linear_error_are_reproduced():
+    kt = [np.array([0.0, 60, 120, 180])] * 3
+    # a straight line E = c + r t is a cubic with zero c2, c3
+    kn = [np.stack([2e-5 + 1e-7 * k, np.full(4, 1e-7)], -1) for k in kt]
+    m = AttitudeErrorModel(kt, kn)
+    t = np.linspace(0, 180, 37)
+    np.testing.assert_allclose(m.evaluate(t)[:, 1], 2e-5 + 1e-7 * t, atol=1e-18)
+
+
+def test_interval_counts_and_knot_removal_eq28_29():
+    kt = np.array([0.0, 60, 120, 180, 240, 300])
+    # interval 0: 30 obs over 5 cameras; interval 1: 3 obs (eq. 28 fails with T1=10);
+    # interval 2: 40 obs but only 2 cameras (eq. 29 fails with T2=3); interval 3: nothing; 4: fine
+    t = np.r_[np.full(30, 10.0), np.full(3, 70.0), np.full(40, 130.0), np.full(25, 250.0)]
+    cam = np.r_[np.arange(30) % 5, [0, 1, 2], np.arange(40) % 2, np.arange(25) % 9]
+    c = interval_counts(kt, t, cam)
+    assert c.shape == (5, 9)
+    np.testing.assert_array_equal(c.sum(1), [30, 3, 40, 0, 25])
+    removed = knots_to_remove(c, threshold1=10, threshold2=3)
+    np.testing.assert_array_equal(removed, [1, 2, 3])
+    # the first knot is kept even when its interval is empty
+    c0 = c.copy()
+    c0[0] = 0
+    assert 0 not in knots_to_remove(c0, 10, 3)
+
+
+def test_support_rule_judges_both_segments_of_a_knot():
+    # interval counts: 0: 30, 1: 0, 2: 0, 3: 25, 4: 0 (all with >= 3 cameras where non-zero)
+    c = np.zeros((5, 9), int)
+    c[0, :5] = 6
+    c[3, :5] = 5
+    # literal rule: knots 1, 2, 4 fail (their own interval is empty); 4 is the last interval's knot
+    np.testing.assert_array_equal(knots_to_remove(c, 1, 1, "interval"), [1, 2, 4])
+    # support rule: knot 1 sees intervals 0+1 (data), knot 2 sees 1+2 (empty), knot 3 sees 2+3,
+    # knot 4 sees 3+4 -> only knot 2 goes, so the merged segment [t_1, t_3) holds no data
+    np.testing.assert_array_equal(knots_to_remove(c, 1, 1, "support"), [2])
+    with pytest.raises(InputError, match="rule"):
+        knots_to_remove(c, 1, 1, "both")
+
+
+def test_spline_spans_neighbours_after_removal(spline):
+    m = spline.without([np.array([], int), np.array([3, 4]), np.array([])])
+    kt = m.knot_times[1]
+    assert 180.0 not in kt and 240.0 not in kt
+    i, w = m.bracket(1, np.array([200.0]))
+    assert kt[i[0]] == 120.0 and kt[i[0] + 1] == 300.0

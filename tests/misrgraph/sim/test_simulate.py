@@ -1,0 +1,246 @@
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from misrgraph.model.constants import ARCSEC, CAMERAS
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.model.frames import ecef_to_geodetic
+from misrgraph.io.h5 import DIGEST_ATTR, atomic_h5, reseal, stamp_content_digest
+from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
+from misrgraph.sim.simulate import (
+    ScenarioConfig,
+    draw_attitude_error,
+    draw_ephemeris_error,
+    load_scenario,
+    run_simulate,
+)
+
+
+def test_config_rejects_unknown_and_bad_values():
+    with pytest.raises(InputError, match="ScenarioConfig.tie_sigma"):
+        ScenarioConfig.from_dict({"tie_sigma": 0.2})
+    with pytest.raises(InputError, match="scenario"):
+        ScenarioConfig(scenario="week")
+    with pytest.raises(InputError, match="gcp_blunder_rate"):
+        ScenarioConfig(gcp_blunder_rate=1.5)
+
+
+def test_noise_free_observations_reproject_exactly(tmp_path):
+    out = tmp_path / "nf"
+    run_simulate(ScenarioConfig(scenario="pass", seed=2, n_tie_points=60, n_check_points=5, duration_s=900.0,
+                                start_lat_deg=55.0, noise_free=True), out)
+    sc = load_scenario(out)
+    p = sc.load_pass(0)
+    o = p.observations
+    geo = p.geometry(sc.camera_truth, truth=True)
+    truth = p.truth.landmark_ecef[o.landmark]
+    h = ecef_to_geodetic(truth)[2]
+    g = geo.pixel_to_ground(o.camera, o.band, o.line, o.sample, height=h, exposure=o.exposure)
+    assert np.max(np.linalg.norm(g - truth, axis=1)) < 1e-4
+    assert not p.truth.blunder.any()
+
+
+def test_observation_noise_matches_sigma(small_pass):
+    sc, p = small_pass
+    o = p.observations
+    geo = p.geometry(sc.camera_truth, truth=True)
+    truth = p.truth.landmark_ecef
+    resid_l, resid_s, sig = [], [], []
+    for c in range(len(CAMERAS)):
+        m = (o.camera == c) & ~p.truth.blunder
+        ln, sm, vis, ex, _ = geo.ground_to_pixel(c, 2, truth[o.landmark[m]])
+        same = ex == o.exposure[m]  # noise never changes the exposure index
+        assert same.all()
+        resid_l.append(o.line[m] - ln)
+        resid_s.append(o.sample[m] - sm)
+        sig.append(o.sigma_px[m])
+    z = np.concatenate(resid_l + resid_s) / np.concatenate(sig + sig)
+    k = z.size
+    assert abs(np.sum(z**2) - k) < 4 * np.sqrt(2 * k)
+    assert abs(np.mean(z)) < 4 / np.sqrt(k)
+
+
+def test_pass_contents(small_pass):
+    sc, p = small_pass
+    kinds = np.bincount(p.landmarks.kind, minlength=3)
+    assert kinds[KIND_TIE] == 150 or kinds[KIND_TIE] > 120  # a few may be seen by < 3 cameras
+    assert kinds[KIND_CHECK] > 0
+    # every tie point is seen in at least three cameras
+    counts = np.bincount(p.observations.landmark, minlength=len(p.landmarks))
+    assert np.all(counts[p.landmarks.kind == KIND_TIE] >= 3)
+    # tie points are on land, on the true terrain
+    lat, lon, h = ecef_to_geodetic(p.truth.landmark_ecef)
+    from misrgraph.model.dem import SyntheticTerrain, land_mask
+
+    assert land_mask(lat, lon).all()
+    np.testing.assert_allclose(h[p.landmarks.kind == KIND_TIE],
+                               SyntheticTerrain(seed=11).height(lat, lon)[p.landmarks.kind == KIND_TIE], atol=1e-3)
+    # blunders: configured rate 2 % on tie points
+    tie_obs = p.landmarks.kind[p.observations.landmark] == KIND_TIE
+    rate = p.truth.blunder[tie_obs].mean()
+    n = tie_obs.sum()
+    assert abs(rate - 0.02) < 4 * np.sqrt(0.02 * 0.98 / n)
+
+
+def test_truth_draw_statistics():
+    cfg = ScenarioConfig()
+    rng = np.random.default_rng(0)
+    n = 400
+    p = np.stack([draw_ephemeris_error(rng, cfg, 0.0, 2700.0).params[0] for _ in range(n)])
+    sig = np.array([0.05, 0.01, 0.01, 50, 50, 50])
+    chi2 = np.sum((p / sig) ** 2, axis=0)
+    assert np.all(np.abs(chi2 - n) < 4 * np.sqrt(2 * n))
+    vals = [[], [], []]
+    for _ in range(150):
+        m = draw_attitude_error(rng, cfg, 0.0, 2700.0)
+        for a in range(3):
+            vals[a].append(m.knots[a][:, 0])
+    for a in range(3):
+        v = np.concatenate(vals[a]) / (cfg.attitude_sigma_arcsec[a] * ARCSEC)
+        # knots within a draw are correlated; 150 independent draws -> ~5 % tolerance is 4 sigma
+        assert abs(np.std(v) - 1.0) < 0.15
+
+
+def test_month_scenario_gcps_seen_three_times(tmp_path):
+    out = tmp_path / "month"
+    s = run_simulate(ScenarioConfig(scenario="month", seed=3, n_gcps=24, month_days=30), out)
+    assert s["gcps_seen"] >= 22
+    assert s["gcps_seen_in_3_or_more_passes"] >= 0.85 * s["gcps_seen"]
+    sc = load_scenario(out)
+    p = sc.load_pass(0)
+    assert np.all(p.landmarks.kind == KIND_GCP)
+    # the supplied model is the nominal one; the truth is misaligned by tens of arcsec
+    d = np.abs(sc.camera_truth.beta - sc.camera_model.beta) / ARCSEC
+    assert 5 < np.median(d) < 200
+
+
+# ------------------------------------------------------------------------ file robustness
+def test_corrupt_truncated_wrong_version_and_missing_fields(small_pass_dir, tmp_path):
+    src = sorted((small_pass_dir / "passes").glob("*.h5"))[0]
+    data = src.read_bytes()
+    (tmp_path / "trunc.h5").write_bytes(data[: len(data) // 3])
+    with pytest.raises(FileFormatError, match="file checksum mismatch"):
+        OrbitPass.load(tmp_path / "trunc.h5")
+    (tmp_path / "junk.h5").write_bytes(b"\x00" * 1000)
+    with pytest.raises(FileFormatError, match="no misrgraph checksum block"):
+        OrbitPass.load(tmp_path / "junk.h5")
+    import shutil
+
+    for case in ("version", "missing_group", "missing_ds", "bad_shape", "edited", "no_digest", "raw_edit"):
+        f = tmp_path / f"{case}.h5"
+        shutil.copy(src, f)
+        with h5py.File(f, "a") as h:
+            if case == "version":
+                h.attrs["format_version"] = 99
+            elif case == "missing_group":
+                del h["timing"]
+            elif case in ("missing_ds", "edited", "raw_edit"):
+                del h["observations/sample"]
+            elif case == "no_digest":
+                del h.attrs[DIGEST_ATTR]
+            else:
+                del h["timing/t0"]
+                h["timing/t0"] = np.zeros((9, 3))
+            if case in ("missing_group", "missing_ds", "bad_shape"):
+                # a well-formed file (valid digest) from a writer that got the layout wrong
+                stamp_content_digest(h)
+        if case != "raw_edit":
+            reseal(f)  # past the whole-file checksum, to reach the check under test
+        pattern = {"version": "format_version is 99", "missing_group": "missing group /timing",
+                   "missing_ds": "missing dataset /observations/sample", "bad_shape": r"t0 has shape \(9, 3\)",
+                   "edited": "content digest mismatch", "no_digest": "no content_sha256",
+                   "raw_edit": "file checksum mismatch"}[case]
+        with pytest.raises(FileFormatError, match=pattern):
+            OrbitPass.load(f)
+
+
+def test_zeroed_bytes_in_a_pass_file_are_refused(small_pass_dir, tmp_path):
+    """The reported case: 4000 zero bytes in the middle of a pass file. Refused on read with one
+    error naming the file (a checksum or the content digest), never a silent result."""
+    src = sorted((small_pass_dir / "passes").glob("*.h5"))[0]
+    data = bytearray(src.read_bytes())
+    mid = len(data) // 2
+    data[mid: mid + 4000] = bytes(4000)
+    bad = tmp_path / "zeroed.h5"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(FileFormatError, match="zeroed.h5"):
+        OrbitPass.load(bad)
+
+
+def test_files_are_written_with_checksums_and_the_umask_mode(tmp_path):
+    import os
+
+    old = os.umask(0o027)
+    try:
+        with atomic_h5(tmp_path / "x.h5", "dem") as f:
+            f.create_group("g")
+            from misrgraph.io.h5 import write_dataset
+
+            write_dataset(f["g"], "a", np.arange(10.0))
+    finally:
+        os.umask(old)
+    assert (os.stat(tmp_path / "x.h5").st_mode & 0o777) == 0o640
+    with h5py.File(tmp_path / "x.h5", "r") as h:
+        assert h["g/a"].fletcher32 and len(h.attrs[DIGEST_ATTR]) == 64
+
+
+def test_crash_during_write_leaves_no_file(tmp_path):
+    target = tmp_path / "x.h5"
+    with pytest.raises(RuntimeError):
+        with atomic_h5(target, "dem") as f:
+            f.create_dataset("a", data=np.arange(10))
+            raise RuntimeError("simulated crash")
+    assert not target.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_crash_during_simulation_leaves_no_directory(tmp_path, monkeypatch):
+    import misrgraph.sim.simulate as sim
+
+    def boom(*a, **k):
+        raise RuntimeError("simulated crash")
+
+    monkeypatch.setattr(sim.DemTiles, "around", boom)
+    with pytest.raises(RuntimeError):
+        run_simulate(ScenarioConfig(scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0,
+                                    start_lat_deg=45.0), tmp_path / "out")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_scenario_directory_validation(tmp_path):
+    with pytest.raises(FileFormatError, match="scenario.json"):
+        load_scenario(tmp_path)
+    (tmp_path / "scenario.json").write_text("{not json")
+    with pytest.raises(FileFormatError, match="invalid JSON"):
+        load_scenario(tmp_path)
+
+
+def test_refuses_to_overwrite_foreign_directory(tmp_path):
+    (tmp_path / "precious.txt").write_text("data")
+    with pytest.raises(InputError, match="--out"):
+        run_simulate(ScenarioConfig(n_tie_points=5), tmp_path)
+    assert (tmp_path / "precious.txt").read_text() == "data"
+    assert not (tmp_path / "scenario.json").exists() and json.loads("{}") == {}
+
+
+def test_replacing_a_scenario_keeps_user_files_and_leaves_no_debris(tmp_path):
+    """A scenario directory is replaced only if it holds nothing but what simulate writes; the
+    replacement swaps directories (the old one is deleted after the new one is in place)."""
+    cfg = ScenarioConfig(scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0, start_lat_deg=45.0)
+    out = tmp_path / "scen"
+    run_simulate(cfg, out)
+    first = (out / "scenario.json").read_text()
+    (out / "my_notes.txt").write_text("keep me")
+    with pytest.raises(InputError, match="my_notes.txt"):
+        run_simulate(dataclasses.replace(cfg, seed=cfg.seed + 1), out)
+    assert (out / "my_notes.txt").read_text() == "keep me" and (out / "scenario.json").read_text() == first
+    (out / "my_notes.txt").unlink()
+    run_simulate(dataclasses.replace(cfg, seed=cfg.seed + 1), out)
+    assert json.loads((out / "scenario.json").read_text())["config"]["seed"] == cfg.seed + 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scen"]  # no temporary or old directories left
+    load_scenario(out)
