@@ -189,8 +189,31 @@ def skew(v: ArrayLike) -> Array:
     return _stack([[z, -v[..., 2], v[..., 1]], [v[..., 2], z, -v[..., 0]], [-v[..., 1], v[..., 0], z]])
 
 
+#: WGS84 ellipsoid: semi-major axis (m), flattening, semi-minor axis (m), first eccentricity squared.
+#: The project's one definition (:mod:`misrgraph.model.frames` re-exports it).
 WGS84_A = 6378137.0
-WGS84_E2 = (1.0 / 298.257223563) * (2.0 - 1.0 / 298.257223563)
+WGS84_F = 1.0 / 298.257223563
+WGS84_B = WGS84_A * (1.0 - WGS84_F)
+WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
+
+
+def enu_basis(lat: ArrayLike, lon: ArrayLike) -> Array:
+    """Local East-North-Up unit vectors in ECEF at geodetic ``lat, lon`` (rad): ``(..., 3, 3)``
+    with columns E, N, U."""
+    sl, cl = np.sin(np.asarray(lat, dtype=float)), np.cos(np.asarray(lat, dtype=float))
+    so, co = np.sin(np.asarray(lon, dtype=float)), np.cos(np.asarray(lon, dtype=float))
+    e = np.stack(np.broadcast_arrays(-so, co, np.zeros_like(so)), axis=-1)
+    n = np.stack(np.broadcast_arrays(-sl * co, -sl * so, cl), axis=-1)
+    u = np.stack(np.broadcast_arrays(cl * co, cl * so, sl), axis=-1)
+    return np.stack(np.broadcast_arrays(e, n, u), axis=-1)
+
+
+def enu_covariance(lat: ArrayLike, lon: ArrayLike, sigma_enu: ArrayLike) -> Array:
+    """ECEF covariance ``C = R diag(s^2) R^T`` (m^2) from 1 sigma per ENU axis (m; ``(..., 3)`` or
+    broadcastable) at geodetic ``lat, lon`` (rad); ``R`` is :func:`enu_basis`. Shape ``(..., 3, 3)``."""
+    r = enu_basis(lat, lon)
+    s2 = np.broadcast_to(np.asarray(sigma_enu, dtype=float), r.shape[:-1]) ** 2
+    return np.einsum("...ij,...j,...kj->...ik", r, s2, r)
 
 
 def geodetic_from_ecef(xyz: ArrayLike, iterations: int = 6) -> tuple[Array, Array, Array]:

@@ -2,7 +2,7 @@
 
 These are GTSAM's own C++ ``PriorFactorVector`` (no Python callback). The GCP prior's noise is
 30 m per ENU axis rotated to ECEF as a full covariance: ``C = R diag(s^2) R^T`` with ``R`` the
-ENU basis at the GCP.
+ENU basis at the GCP (:func:`factors.geometry.enu_covariance`).
 """
 
 from __future__ import annotations
@@ -11,15 +11,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["gcp_prior", "vector_prior", "enu_covariance"]
-
-
-def enu_covariance(lat_rad: float, lon_rad: float, sigma_enu: ArrayLike) -> np.ndarray:
-    """ECEF covariance (3, 3) from 1-sigma per ENU axis at geodetic (lat, lon)."""
-    sl, cl, so, co = np.sin(lat_rad), np.cos(lat_rad), np.sin(lon_rad), np.cos(lon_rad)
-    r = np.array([[-so, -sl * co, cl * co], [co, -sl * so, cl * so], [0.0, cl, sl]])
-    s = np.broadcast_to(np.asarray(sigma_enu, dtype=float), (3,))
-    return r @ np.diag(s**2) @ r.T
+__all__ = ["gcp_prior", "vector_prior"]
 
 
 def gcp_prior(key: int, position_ecef: ArrayLike, covariance: ArrayLike) -> gtsam.PriorFactorVector:

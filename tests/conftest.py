@@ -9,6 +9,7 @@ from hypothesis import settings
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.geolocation import PassGeometry
 from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
+from misrgraph.model.nominal import nominal_camera_model
 
 settings.register_profile("ci", max_examples=40, deadline=None, derandomize=True)
 settings.load_profile("ci")
@@ -16,7 +17,7 @@ settings.load_profile("ci")
 
 @pytest.fixture(scope="session")
 def nominal_camera() -> CameraModel:
-    return CameraModel.nominal()
+    return nominal_camera_model()
 
 
 @pytest.fixture(scope="session")
@@ -45,6 +46,17 @@ def small_pass_dir(tmp_path_factory):
     cfg = ScenarioConfig(scenario="pass", seed=11, n_tie_points=150, n_check_points=20, duration_s=900.0,
                          start_lat_deg=55.0, tie_blunder_rate=0.02)
     run_simulate(cfg, out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def path_dir(tmp_path_factory):
+    """A repeat-path scenario (seed 41): ten 10-minute passes of one path, 40 tie points each."""
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+
+    out = tmp_path_factory.mktemp("scen") / "path"
+    run_simulate(ScenarioConfig(scenario="path", seed=41, n_passes=10, n_tie_points=40, n_check_points=5,
+                                duration_s=600.0, start_lat_deg=52.0), out)
     return out
 
 

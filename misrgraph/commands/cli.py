@@ -216,7 +216,8 @@ def adjust(
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
-    from misrgraph.estimate.adjust import AdjustConfig, run_adjust
+    from misrgraph.estimate.adjust import AdjustConfig
+    from misrgraph.runs.adjust import run_adjust
 
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
@@ -278,7 +279,8 @@ def calibrate(
 ) -> None:
     """Camera calibration by space resection over GCP passes (per-pass navigation errors as nuisance)."""
     from factors.collinearity import CAMERA_PARAMS
-    from misrgraph.estimate.calibrate import CalibrateConfig, run_calibrate
+    from misrgraph.estimate.calibrate import CalibrateConfig
+    from misrgraph.runs.calibrate import run_calibrate
 
     names = [p.strip() for p in params.split(",") if p.strip()]
     omega = "omega" in names
@@ -345,7 +347,7 @@ def update(
     """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
     import numpy as np
 
-    from misrgraph.estimate.incremental import run_update
+    from misrgraph.runs.update import run_update
 
     with err_console.status("updating...") as st:
         if not passes and report is None:
@@ -403,7 +405,7 @@ def bench_solver(
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Solver core vs gtsam.LevenbergMarquardtOptimizer on the same graph (per linearisation, per iteration)."""
-    from misrgraph.evaluate.bench import run_bench_solver
+    from misrgraph.bench.studies import run_bench_solver
 
     if tie_points < 10:
         _fail(f"--tie-points: got {tie_points}; expected at least 10")
@@ -435,7 +437,7 @@ def bench_sba(
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Time to equal final cost (with knot marginals): misrgraph vs gtsam LM vs scipy least_squares vs Ceres."""
-    from misrgraph.evaluate.bench import run_bench_sba
+    from misrgraph.bench.studies import run_bench_sba
 
     if not (0.0 < target_rel < 1.0):
         _fail(f"--target-rel: got {target_rel}; expected a relative cost tolerance in (0, 1), e.g. 1e-6")
@@ -485,7 +487,7 @@ def bench_scaling(
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Time per pass against tie points, with a fitted exponent, and peak memory."""
-    from misrgraph.evaluate.bench import run_bench_scaling
+    from misrgraph.bench.studies import run_bench_scaling
 
     try:
         ns = tuple(int(x) for x in sizes.split(","))
@@ -519,7 +521,7 @@ def bench_incremental(
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Cost of adding the k-th pass with iSAM2 against a batch re-solve of all k passes."""
-    from misrgraph.evaluate.bench import run_bench_incremental
+    from misrgraph.bench.studies import run_bench_incremental
 
     with err_console.status("simulating and solving..."):
         res = run_bench_incremental(passes, tie_points, seed, workdir, linearization_tol)
@@ -548,7 +550,7 @@ def bench_nees(
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Covariance honesty: NEES over seeded runs against its 95 % chi-square band (reduced sizes)."""
-    from misrgraph.evaluate.bench import run_bench_nees
+    from misrgraph.bench.studies import run_bench_nees
 
     if runs < 1:
         _fail(f"--runs: got {runs}; expected at least 1")
@@ -574,7 +576,7 @@ def bench_kill(
 ) -> None:
     """Fault tolerance: SIGKILL each command at random points; every file must be the old one or
     a complete new one, no pass counted twice, and a rerun must complete. Exit 1 on any failure."""
-    from misrgraph.evaluate.faults import run_kill_trials
+    from misrgraph.bench.faults import run_kill_trials
 
     with err_console.status("kill trials...") as st:
         res = run_kill_trials(tuple(c.strip() for c in commands.split(",") if c.strip()), trials, seed, workdir,
@@ -605,7 +607,7 @@ def demo(
     """The whole workflow on simulated data: calibrate, adjust, update, record; prints a summary."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from misrgraph.demo import STAGES, run_demo
+    from misrgraph.runs.demo import STAGES, run_demo
 
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=err_console) as bar:

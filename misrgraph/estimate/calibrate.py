@@ -24,12 +24,9 @@ reported as poorly determined (the data hardly constrain it).
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
-import os
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Callable
 
 import gtsam
@@ -39,19 +36,19 @@ from numpy.typing import NDArray
 from factors import keys as K
 from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
 from misrgraph import __version__
-from misrgraph.model.camera import CameraModel, TabulatedCameraModel, load_camera_model
+from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.config import Config
 from misrgraph.model.constants import BANDS, CAMERAS
-from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError
+from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.estimate.graph import CAMERA_PRIOR_SIGMA, GraphConfig, PassGraph, Problem, build_pass_graph, merge_problems
-from misrgraph.io.h5 import atomic_h5, write_dataset
 from misrgraph.io.results import capped_list
 from misrgraph.io.passes import KIND_GCP, OrbitPass
 from misrgraph.estimate.solver import SolverParams, linearize, solve
 
-__all__ = ["CalibrateConfig", "CalibrationResult", "calibrate_passes", "run_calibrate", "pointing_error_px",
-           "temperature_bins", "thermal_slopes"]
+__all__ = ["CalibrateConfig", "CalibrationResult", "calibrate_passes", "pointing_error_px", "temperature_bins",
+           "thermal_slopes", "slope_estimates", "SlopeEstimates", "summarise", "evaluation_grid", "calibrated_models",
+           "supplied_models_at", "calibrated_bands", "camera_keys", "decode_camera_key", "param_value"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -124,7 +121,7 @@ def _build(passes: list[OrbitPass], camera: CameraModel, gcps: GcpDatabase, cfg:
     return merge_problems([g.problem for g in graphs]), graphs
 
 
-def _decode(ck: int, cfg: CalibrateConfig) -> tuple[int, int, int | None]:
+def decode_camera_key(ck: int, cfg: CalibrateConfig) -> tuple[int, int, int | None]:
     """(temperature bin, camera, band or None) of a camera code of ``PassGraph.camera_keys``."""
     code = ck % 1000
     return ck // 1000, *((code // 10, code % 10) if cfg.per_band else (code, None))
@@ -137,7 +134,7 @@ def _camera_keys_labels(graphs: list[PassGraph], cfg: CalibrateConfig,
         keys.update(g.camera_keys)
     out_k, labels, cams = [], [], []
     for ck in sorted(keys):
-        t_bin, c, b = _decode(ck, cfg)
+        t_bin, c, b = decode_camera_key(ck, cfg)
         name = CAMERAS[c] + (f"/{BANDS[b]}" if b is not None else "")
         if cfg.temperature_bins > 1 and bin_temps is not None:
             name += f"@{bin_temps[t_bin]:+.1f}C"
@@ -161,7 +158,7 @@ def _apply(camera: CameraModel, cams: list[int], cfg: CalibrateConfig, x: Array,
     m = camera.copy()
     n = len(cfg.params)
     for i, ck in enumerate(cams):
-        t_bin, c, band = _decode(ck, cfg)
+        t_bin, c, band = decode_camera_key(ck, cfg)
         if t_bin != temperature_bin:
             continue
         for j, p in enumerate(cfg.params):
@@ -285,41 +282,55 @@ def pointing_error_px(estimated: CameraModel, reference: CameraModel, c: int, b:
     return float(np.sqrt(np.mean((ang / estimated.ifov_cross_rad(c, b, s)) ** 2)))
 
 
-def _at(model: "CameraModel | TabulatedCameraModel", t: float) -> CameraModel:
-    return model.at_temperature(t)
+def evaluation_grid(res: CalibrationResult, supplied: CameraModel, thermal: bool = False) -> Array:
+    """Temperatures (deg C) at which a calibration is summarised: five across the passes' range
+    when anything is thermal (``thermal`` or a temperature-binned or tabulated calibration), else
+    the passes' median (every temperature gives the same numbers)."""
+    temps = res.pass_temperatures_c if res.pass_temperatures_c.size else np.array([supplied.temperature_c])
+    thermal = thermal or len(res.supplied_models or [supplied]) > 1 or res.supplied_table is not None
+    return np.linspace(temps.min(), temps.max(), 5) if thermal and np.ptp(temps) > 0 else np.array([float(np.median(temps))])
 
 
-def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel,
-              truth: "CameraModel | TabulatedCameraModel | None", draws: int = 60) -> dict[str, Any]:
-    """The JSON summary of the calibration issue (see ``misrgraph calibrate --help``).
+def calibrated_models(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel, grid: Array,
+                      x: Array | None = None) -> list[CameraModel]:
+    """The calibrated model at each temperature of ``grid`` for corrections ``x`` (default: the
+    estimate); with temperature bins, through the fitted thermal table."""
+    x = res.values if x is None else x
+    cams = camera_keys(res, cfg)
+    sup_model: CameraModel | TabulatedCameraModel = res.supplied_table if res.supplied_table is not None else (res.supplied_models or [supplied])[0]
+    if len(res.supplied_models or [supplied]) == 1:
+        return [_apply(sup_model.at_temperature(t), cams, cfg, x, 0) for t in grid]
+    tab = _fit_table(res, cfg, x, sup_model)
+    return [tab.at_temperature(t) for t in grid]
 
-    With temperature bins, pointing errors are the worst over the passes' temperature range (the
-    calibrated table against the truth at each temperature), and ``"thermal"`` gives the slope of
-    every estimated parameter (per deg C) with its sigma and, with a truth, its error and NEES.
+
+def supplied_models_at(res: CalibrationResult, supplied: CameraModel, grid: Array) -> list[CameraModel]:
+    """The supplied (uncalibrated) model at each temperature of ``grid``."""
+    sup_model: CameraModel | TabulatedCameraModel = res.supplied_table if res.supplied_table is not None else (res.supplied_models or [supplied])[0]
+    return [sup_model.at_temperature(t) for t in grid]
+
+
+def calibrated_bands(res: CalibrationResult, cfg: CalibrateConfig, c: int) -> list[int]:
+    """The bands of camera ``c`` that have their own corrections (``[red]`` for camera-level ones)."""
+    return sorted({decode_camera_key(ck, cfg)[2] for ck in camera_keys(res, cfg) if decode_camera_key(ck, cfg)[1] == c} - {None}) or [RED]
+
+
+def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel, draws: int = 60) -> dict[str, Any]:
+    """The JSON summary of a calibration from the estimate alone (see ``misrgraph calibrate --help``):
+    corrections with sigma, each camera's posterior pointing spread ``sigma_px`` (the calibrated
+    model's pointing under draws from the posterior, RMS against the estimate, over the swath and
+    the temperature grid of :func:`evaluation_grid`), poorly determined parameters, the correlation
+    matrix, and with temperature bins the thermal slopes (:func:`thermal_slopes`). Scores against a
+    simulated truth are added by :func:`misrgraph.evaluate.calibration.score_calibration`.
     """
     sig = np.sqrt(np.diag(res.covariance))
     corr = res.covariance / np.outer(sig, sig)
     rng = np.random.default_rng(0)
     chol = np.linalg.cholesky(0.5 * (res.covariance + res.covariance.T))
-    cams = _cams(res, cfg)
-    bases = res.supplied_models or [supplied]
-    nb = len(bases)
-    temps = res.pass_temperatures_c if res.pass_temperatures_c.size else np.array([supplied.temperature_c])
-    # worst case over the passes' temperatures (a thermal truth makes one model wrong at the ends);
-    # with nothing thermal every temperature gives the same numbers, so one suffices
-    thermal = nb > 1 or res.supplied_table is not None or isinstance(truth, TabulatedCameraModel)
-    grid = np.linspace(temps.min(), temps.max(), 5) if thermal and np.ptp(temps) > 0 else np.array([float(np.median(temps))])
-    sup_model: CameraModel | TabulatedCameraModel = res.supplied_table if res.supplied_table is not None else bases[0]
-
-    def models_of(x: Array) -> list[CameraModel]:
-        if nb == 1:
-            return [_apply(sup_model.at_temperature(t), cams, cfg, x, 0) for t in grid]
-        tab = _fit_table(res, cfg, x, sup_model)
-        return [tab.at_temperature(t) for t in grid]
-
-    est_at = models_of(res.values)
-    samples = [models_of(res.values + chol @ rng.standard_normal(res.values.size)) for _ in range(draws)]
-    sup_at = [sup_model.at_temperature(t) for t in grid]
+    grid = evaluation_grid(res, supplied)
+    est_at = calibrated_models(res, cfg, supplied, grid)
+    samples = [calibrated_models(res, cfg, supplied, grid, res.values + chol @ rng.standard_normal(res.values.size))
+               for _ in range(draws)]
     cams_out: dict[str, Any] = {}
     poorly = []
     for i, label in enumerate(res.labels):
@@ -334,12 +345,7 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
                     "value": float(res.values[i]), "sigma": float(sig[i])}
         if not entry["params"]:
             continue
-        # per-band calibration: the worst of the camera's calibrated bands
-        bands = sorted({_decode(ck, cfg)[2] for ck in cams if _decode(ck, cfg)[1] == c} - {None}) or [RED]
-        if truth is not None:
-            entry["pointing_error_px"] = max(pointing_error_px(e, _at(truth, t), c, b) for e, t in zip(est_at, grid) for b in bands)
-            entry["pointing_error_before_px"] = max(pointing_error_px(m, _at(truth, t), c, b)
-                                                    for m, t in zip(sup_at, grid) for b in bands)
+        bands = calibrated_bands(res, cfg, c)
         entry["sigma_px"] = float(np.sqrt(np.mean([pointing_error_px(sm[j], est_at[j], c, b) ** 2
                                                    for sm in samples for j in range(grid.size) for b in bands])))
         cams_out[name] = entry
@@ -350,15 +356,9 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
                                None),
                            "poorly_determined": poorly,
                            "correlation": {"labels": res.labels, "matrix": np.round(corr, 4).tolist()}}
-    if nb > 1:
+    if len(res.supplied_models or [supplied]) > 1:
         out["temperature_bins_c"] = [float(t) for t in res.bin_temperatures_c]
-        out["thermal"] = thermal_slopes(res, cfg, truth)
-    if truth is not None:
-        out["max_pointing_error_px"] = max(v["pointing_error_px"] for v in cams_out.values())
-        true_x = _true_corrections(res, cfg, supplied, truth)
-        e = res.values - true_x
-        out["nees"] = float(e @ np.linalg.solve(res.covariance, e) / e.size)
-        out["nees_dim"] = int(e.size)
+        out["thermal"] = thermal_slopes(res, cfg)
     return out
 
 
@@ -378,7 +378,7 @@ def _add_correction(m: CameraModel, p: str, c: int, band: int | None, v: float) 
         m.alpha[c, b, int(p[-1])] += v
 
 
-def _param_value(m: CameraModel, p: str, c: int, b: int) -> float:
+def param_value(m: CameraModel, p: str, c: int, b: int) -> float:
     """A parameter's value for camera ``c`` and band ``b`` (angles include the band's offset)."""
     if p in ("delta", "beta", "epsilon"):
         return float(getattr(m, p)[c] + getattr(m, "band_" + p)[c, b])
@@ -390,16 +390,16 @@ def _param_value(m: CameraModel, p: str, c: int, b: int) -> float:
 def _gls_groups(res: CalibrationResult, cfg: CalibrateConfig) -> list[tuple[int, int | None, int, list[int], Array, Array]]:
     """Per (camera, band, parameter): (camera, band, param index, indices into ``res.values``,
     bin temperatures, GLS weights (2, k)) of the line ``a + s (T - mean T)`` through the bins."""
-    cams = _cams(res, cfg)
+    cams = camera_keys(res, cfg)
     n = len(cfg.params)
     col = {ck: i for i, ck in enumerate(cams)}
     groups: dict[tuple[int, int | None], list[int]] = {}
     for ck in cams:
-        _, c, band = _decode(ck, cfg)
+        _, c, band = decode_camera_key(ck, cfg)
         groups.setdefault((c, band), []).append(ck)
     out = []
     for (c, band), cks in sorted(groups.items(), key=lambda kv: (kv[0][0], -1 if kv[0][1] is None else kv[0][1])):
-        t = res.bin_temperatures_c[[_decode(ck, cfg)[0] for ck in cks]]
+        t = res.bin_temperatures_c[[decode_camera_key(ck, cfg)[0] for ck in cks]]
         a = np.stack([np.ones(len(t)), t - t.mean()], 1)
         for j in range(n):
             idx = [col[ck] * n + j for ck in cks]
@@ -428,23 +428,28 @@ def _fit_table(res: CalibrationResult, cfg: CalibrateConfig, x: Array,
     return TabulatedCameraModel(models)
 
 
-def thermal_slopes(res: CalibrationResult, cfg: CalibrateConfig,
-                   truth: "CameraModel | TabulatedCameraModel | None" = None) -> dict[str, Any]:
-    """Slope (per deg C) of every estimated parameter across the temperature bins, with its sigma.
+@dataclass
+class SlopeEstimates:
+    """Slopes (per deg C) of the estimated parameters across the temperature bins: ``names``
+    (camera label, parameter), ``groups`` (camera, band or None, parameter index, bin
+    temperatures) in the same order, ``slope (S,)``, covariance ``cov (S, S)``, and the linearity
+    chi-square with its degrees of freedom."""
 
-    For each camera (and band) and parameter, the bins' corrections ``x_j`` are fitted with
+    names: list[tuple[str, str]]
+    groups: list[tuple[int, int | None, int, Array]]
+    slope: Array
+    cov: Array
+    chi2: float
+    dof: int
+
+
+def slope_estimates(res: CalibrationResult, cfg: CalibrateConfig) -> SlopeEstimates:
+    """For each camera (and band) and parameter, the bins' corrections ``x_j`` fitted with
     ``a + s (T_j - T_mean)`` by generalised least squares with their joint covariance; the slope
     of the parameter is that ``s`` plus the supplied model's own slope across the bins. ``s`` is a
-    linear function ``L x`` of the corrections, so the slopes' covariance is ``L C L^T``.
-    ``linearity`` is the chi-square of the bins about their lines (dof: bins - 2 per line;
-    only with >= 3 bins): a large value says a line does not describe the thermal behaviour.
-    With a truth, the true slope is the truth's change across the bins' extreme temperatures
-    (exact for a truth linear in temperature) and ``nees`` is over all slopes jointly. Angles are
-    also given in arcsec per deg C.
-    """
-    from misrgraph.model.constants import ARCSEC
-
-    rows, names, offsets, true_s = [], [], [], []
+    linear function ``L x`` of the corrections, so the slopes' covariance is ``L C L^T``; the
+    chi-square of the bins about their lines (dof: bins - 2 per line) tests linearity."""
+    rows, names, offsets, groups = [], [], [], []
     chi2, dof = 0.0, 0
     for c, band, j, idx, t, gls in _gls_groups(res, cfg):
         p = cfg.params[j]
@@ -452,117 +457,43 @@ def thermal_slopes(res: CalibrationResult, cfg: CalibrateConfig,
         row[idx] = gls[1]
         b = RED if band is None else band
         bins_here = [int(np.argmin(np.abs(res.bin_temperatures_c - tt))) for tt in t]
-        sup = np.array([_param_value(res.supplied_models[k], p, c, b) for k in bins_here])
+        sup = np.array([param_value(res.supplied_models[k], p, c, b) for k in bins_here])
         rows.append(row)
         offsets.append(float(gls[1] @ sup))
         names.append((CAMERAS[c] + (f"/{BANDS[band]}" if band is not None else ""), p))
+        groups.append((c, band, j, t))
         if len(t) > 2:
             xa = res.values[idx]
             r = xa - np.stack([np.ones(len(t)), t - t.mean()], 1) @ (gls @ xa)
             chi2 += float(r @ np.linalg.solve(res.covariance[np.ix_(idx, idx)], r))
             dof += len(t) - 2
-        if truth is not None:
-            lo, hi = truth.at_temperature(float(t.min())), truth.at_temperature(float(t.max()))
-            true_s.append((_param_value(hi, p, c, b) - _param_value(lo, p, c, b)) / (t.max() - t.min()))
     lmat = np.array(rows)
-    slope = lmat @ res.values + np.array(offsets)
-    cov_s = lmat @ res.covariance @ lmat.T
-    sig_s = np.sqrt(np.diag(cov_s))
+    return SlopeEstimates(names, groups, lmat @ res.values + np.array(offsets), lmat @ res.covariance @ lmat.T, chi2, dof)
+
+
+def thermal_slopes(res: CalibrationResult, cfg: CalibrateConfig) -> dict[str, Any]:
+    """Slope (per deg C) of every estimated parameter across the temperature bins, with its sigma
+    (:func:`slope_estimates`); ``linearity``: the chi-square test (only with >= 3 bins). Angles are
+    also given in arcsec per deg C."""
+    from misrgraph.model.constants import ARCSEC
+
+    est = slope_estimates(res, cfg)
+    sig_s = np.sqrt(np.diag(est.cov))
     out: dict[str, Any] = {"bins_c": [float(x) for x in res.bin_temperatures_c], "slopes": {}}
-    if dof:
+    if est.dof:
         from scipy import stats
 
-        out["linearity"] = {"chi2": chi2, "dof": dof, "p_value": float(stats.chi2.sf(chi2, dof))}
-    for i, (cam, p) in enumerate(names):
-        e: dict[str, Any] = {"slope_per_c": float(slope[i]), "sigma_per_c": float(sig_s[i])}
+        out["linearity"] = {"chi2": est.chi2, "dof": est.dof, "p_value": float(stats.chi2.sf(est.chi2, est.dof))}
+    for i, (cam, p) in enumerate(est.names):
+        e: dict[str, Any] = {"slope_per_c": float(est.slope[i]), "sigma_per_c": float(sig_s[i])}
         if p in ("delta", "beta", "epsilon"):
-            e.update(slope_arcsec_per_c=float(slope[i] / ARCSEC), sigma_arcsec_per_c=float(sig_s[i] / ARCSEC))
-        if true_s:
-            e.update(true_slope_per_c=float(true_s[i]), z=float((slope[i] - true_s[i]) / sig_s[i]))
+            e.update(slope_arcsec_per_c=float(est.slope[i] / ARCSEC), sigma_arcsec_per_c=float(sig_s[i] / ARCSEC))
         out["slopes"].setdefault(cam, {})[p] = e
-    if true_s:
-        err = slope - np.array(true_s)
-        out["nees"] = float(err @ np.linalg.solve(cov_s, err) / err.size)
-        out["nees_dim"] = int(err.size)
     return out
 
 
-def _cams(res: CalibrationResult, cfg: CalibrateConfig) -> list[int]:
+def camera_keys(res: CalibrationResult, cfg: CalibrateConfig) -> list[int]:
     keys: dict[int, int] = {}
     for g in res.graphs:
         keys.update(g.camera_keys)
     return sorted(keys)
-
-
-def _true_corrections(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel,
-                      truth: "CameraModel | TabulatedCameraModel") -> Array:
-    """Truth minus supplied model for every estimated correction, each bin at its temperature."""
-    out = []
-    bases = res.supplied_models or [supplied]
-    for ck in _cams(res, cfg):
-        t_bin, c, band = _decode(ck, cfg)
-        b = RED if band is None else band
-        base = bases[t_bin]
-        tm = truth.at_temperature(float(res.bin_temperatures_c[t_bin]))
-        for p in cfg.params:
-            out.append(_param_value(tm, p, c, b) - _param_value(base, p, c, b))
-    if cfg.estimate_omega:
-        tm = truth.at_temperature(float(res.bin_temperatures_c[0]))
-        out += list(tm.omega - bases[0].omega)
-    return np.array(out)
-
-
-def run_calibrate(
-    scenario_dir: str | os.PathLike[str],
-    camera_model: str | os.PathLike[str] | None = None,
-    gcp_file: str | os.PathLike[str] | None = None,
-    out: str | os.PathLike[str] | None = None,
-    cfg: CalibrateConfig = CalibrateConfig(),
-    max_passes: int | None = None,
-    progress: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
-    """Calibrate from every pass of a scenario directory; write the recalibrated model when ``out``."""
-    d = Path(scenario_dir)
-    if not d.is_dir():
-        raise InputError("SCENARIO_DIR", str(d), "a directory written by 'misrgraph simulate --scenario month'")
-    files = sorted((d / "passes").glob("*.h5"))
-    if not files:
-        raise FileFormatError(d / "passes", "no pass files (*.h5)")
-    if max_passes is not None:
-        files = files[:max_passes]
-    cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
-    table = load_camera_model(cam_path)
-    gcps = GcpDatabase.load(gcp_file or d / "gcp.h5")
-    passes = []
-    for i, f in enumerate(files):
-        if progress and i % 25 == 0:
-            progress(f"reading pass {i + 1}/{len(files)}")
-        passes.append(OrbitPass.load(f))
-    supplied = table if isinstance(table, CameraModel) else table.at_temperature(
-        float(np.median([p.temperature_c for p in passes])))
-    truth_path = d / "camera_truth.h5"
-    truth = load_camera_model(truth_path) if truth_path.exists() else None
-    res = calibrate_passes(passes, supplied, gcps, cfg, progress, table=None if isinstance(table, CameraModel) else table)
-    summary = summarise(res, cfg, supplied, truth)
-    if out is not None:
-        summary["rejected_observations"]["full_list"] = f"{out}:/calibration/rejected"
-        with atomic_h5(out, "camera_model") as f:
-            for m in (res.table.models if res.table is not None else [res.camera]):
-                m.provenance.update({"scenario": str(d), "camera_model_in": str(cam_path),
-                                     "config": json.dumps(dataclasses.asdict(cfg))})
-            if res.table is not None:  # thermal: one model per temperature bin
-                res.table.write_groups(f)
-            else:
-                res.camera.write_group(f.create_group("camera_model"))
-            g = f.create_group("calibration")
-            g.create_dataset("labels", data=np.array(res.labels, dtype=object), dtype=__import__("h5py").string_dtype())
-            write_dataset(g, "corrections", res.values, units="rad (angles), m (f), pixel^-i (alpha_i)")
-            write_dataset(g, "covariance", res.covariance)
-            write_dataset(g, "correlation", np.asarray(summary["correlation"]["matrix"]))
-            rej = np.array([(p, o, r) for p, o, r in res.rejected], float).reshape(-1, 3)
-            r = g.create_group("rejected")
-            write_dataset(r, "pass_index", rej[:, 0].astype(np.int64), meaning="index of the pass in the month (file order)")
-            write_dataset(r, "observation", rej[:, 1].astype(np.int64), meaning="observation index within the pass")
-            write_dataset(r, "normalised_residual", rej[:, 2], units="sigma")
-            g.attrs["summary_json"] = json.dumps({k: v for k, v in summary.items() if k != "correlation"})
-    return summary

@@ -28,6 +28,7 @@ from misrgraph.model.constants import ARCSEC, ANGLES, CAMERAS
 from misrgraph.errors import InputError
 from misrgraph.model.geolocation import PassGeometry
 from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
+from misrgraph.model.nominal import nominal_camera_model
 
 __all__ = ["run_sensitivity", "reference_geometry"]
 
@@ -35,7 +36,7 @@ __all__ = ["run_sensitivity", "reference_geometry"]
 def reference_geometry(camera: CameraModel | None = None) -> PassGeometry:
     """The standard reference pass used by the sensitivity study (perfect navigation)."""
     eph = terra_like_orbit(epoch_date="2001-06-15", path=37, start_lat_deg=60.0, duration_s=1800.0)
-    return PassGeometry(eph, AttitudeSeries.zeros(eph.t), camera or CameraModel.nominal())
+    return PassGeometry(eph, AttitudeSeries.zeros(eph.t), camera or nominal_camera_model())
 
 
 def _const(vec: np.ndarray):

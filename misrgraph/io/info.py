@@ -8,6 +8,10 @@ from typing import Any
 import numpy as np
 
 from misrgraph.io.h5 import open_h5, read_attr
+from misrgraph.io.camera import load_camera_model
+from misrgraph.io.truth import has_truth
+from misrgraph.io.gcp import read_gcp_database
+from misrgraph.io.dem import read_dem
 
 __all__ = ["run_info"]
 
@@ -27,10 +31,10 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
             "pass_id": p.pass_id, "path": p.path, "orbit": p.orbit, "epoch_utc": p.ephemeris.epoch_utc,
             "time_span_s": [t0, t1], "duration_s": t1 - t0, "ephemeris_samples": int(p.ephemeris.t.size),
             "landmarks": {KIND_NAMES[k]: int(np.sum(p.landmarks.kind == k)) for k in KIND_NAMES},
-            "observations": len(p.observations), "temperature_c": p.temperature_c, "has_truth": p.truth is not None,
+            "observations": len(p.observations), "temperature_c": p.temperature_c, "has_truth": has_truth(path, "orbit_pass"),
         })
     elif kind == "camera_model":
-        from misrgraph.model.camera import CameraModel, load_camera_model
+        from misrgraph.model.camera import CameraModel
 
         lm = load_camera_model(path)
         m = lm if isinstance(lm, CameraModel) else lm.models[0]
@@ -39,16 +43,12 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
             out.update({"temperature_table_c": [float(t) for t in lm.temperatures_c],
                         "valid_range_c": list(lm.valid_range_c)})
     elif kind == "gcp_database":
-        from misrgraph.model.gcp import GcpDatabase
-
-        g = GcpDatabase.load(path)
+        g = read_gcp_database(path)
         regions, counts = np.unique(g.region, return_counts=True)
         out.update({"gcps": len(g), "regions": {str(r): int(c) for r, c in zip(regions, counts)},
-                    "has_chips": g.chips is not None, "has_truth": g.truth_ecef is not None})
+                    "has_chips": g.chips is not None, "has_truth": has_truth(path, "gcp_database")})
     elif kind == "dem":
-        from misrgraph.model.dem import DemTiles
-
-        d = DemTiles.load(path)
+        d = read_dem(path)
         out.update({"tiles": int(d.lat0.size), "postings_per_side": d.size, "posting_arcsec": d.posting_deg * 3600,
                     "dted1_fraction": float(np.mean(d.quality == 1)) if d.lat0.size else 0.0})
     else:

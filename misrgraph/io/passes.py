@@ -1,4 +1,4 @@
-"""One orbit pass as data: supplied navigation, camera/band timing, observations, optional truth.
+"""One orbit pass as data: supplied navigation, camera/band timing, observations.
 
 HDF5 layout (kind ``orbit_pass``, see docs/data-model.md)::
 
@@ -9,9 +9,8 @@ HDF5 layout (kind ``orbit_pass``, see docs/data-model.md)::
     /landmarks        id (M,), kind (M,) 0 tie / 1 GCP / 2 check point, gcp_index (M,) (-1 if not a GCP)
     /observations     landmark (N,) row into /landmarks, camera (N,), band (N,), line, sample,
                       exposure (N,) integer exposure index, sigma_px (N,)
-    /truth            (optional) ephemeris_error/{boundaries, params}, attitude_error/{roll,pitch,
-                      yaw}/{knot_times, knots}, landmark_ecef (M, 3), blunder (N,) bool,
-                      camera_model (group, as in a camera_model file)
+    /truth            (simulated passes only) written and read by :mod:`misrgraph.io.truth`,
+                      never by :meth:`OrbitPass.load`
 """
 
 from __future__ import annotations
@@ -26,14 +25,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph.model.camera import CameraModel
-from misrgraph.model.constants import ANGLES, BANDS, CAMERAS
-from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel
+from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.model.geolocation import PassGeometry
-from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, require_group, write_dataset
+from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris
 
-__all__ = ["PASS_ID_PATTERN", "Observations", "Landmarks", "PassTruth", "OrbitPass", "KIND_TIE", "KIND_GCP", "KIND_CHECK", "KIND_NAMES"]
+__all__ = ["PASS_ID_PATTERN", "Observations", "Landmarks", "OrbitPass", "KIND_TIE", "KIND_GCP", "KIND_CHECK", "KIND_NAMES"]
 
 Array = NDArray[np.float64]
 KIND_TIE, KIND_GCP, KIND_CHECK = 0, 1, 2
@@ -115,19 +113,9 @@ class Landmarks:
 
 
 @dataclass
-class PassTruth:
-    """What the simulator injected (present only for simulated passes)."""
-
-    ephemeris_error: EphemerisErrorModel
-    attitude_error: AttitudeErrorModel
-    landmark_ecef: Array
-    blunder: NDArray[np.bool_]
-    camera_model: CameraModel
-
-
-@dataclass
 class OrbitPass:
-    """One orbit pass: supplied navigation, timing, observations, optional truth."""
+    """One orbit pass: supplied navigation, timing, observations (what the estimator sees; a
+    simulated pass's truth is read separately, :mod:`misrgraph.io.truth`)."""
 
     pass_id: str
     path: int
@@ -139,7 +127,6 @@ class OrbitPass:
     landmarks: Landmarks
     observations: Observations
     temperature_c: float = 5.0
-    truth: PassTruth | None = None
 
     def __post_init__(self) -> None:
         self.t0 = np.asarray(self.t0, dtype=float)
@@ -156,17 +143,9 @@ class OrbitPass:
             raise InputError("pass_id", self.pass_id, "letters, digits, '_', '-' or '.' (1-64 characters, not starting with '.'; it names files)")
 
     # ------------------------------------------------------------------ geometry
-    def geometry(self, camera: CameraModel, truth: bool = False) -> PassGeometry:
-        """Pass geometry with the supplied navigation, or with the injected errors removed."""
-        att_delta = pos_delta = None
-        if truth:
-            if self.truth is None:
-                raise InputError("truth", None, "a simulated pass carrying /truth")
-            e, a = self.truth.ephemeris_error, self.truth.attitude_error
-            pos_delta = lambda t: -e.evaluate(t)
-            att_delta = lambda t: -a.evaluate(t)
-        return PassGeometry(self.ephemeris, self.attitude, camera, t0=self.t0,
-                            attitude_delta=att_delta, position_delta=pos_delta)
+    def geometry(self, camera: CameraModel) -> PassGeometry:
+        """Pass geometry with the supplied navigation."""
+        return PassGeometry(self.ephemeris, self.attitude, camera, t0=self.t0)
 
     def observation_times(self) -> Array:
         """Exposure time (s) of every observation."""
@@ -179,50 +158,41 @@ class OrbitPass:
 
     # ------------------------------------------------------------------ I/O
     def save(self, path: str | os.PathLike[str]) -> None:
+        """Write the pass atomically (a simulated pass with its truth: :func:`misrgraph.io.truth.save_pass_with_truth`)."""
         with atomic_h5(path, "orbit_pass") as f:
-            f.attrs.update({"pass_id": self.pass_id, "path": int(self.path), "orbit": int(self.orbit),
-                            "temperature_c": float(self.temperature_c), "epoch_utc": self.ephemeris.epoch_utc})
-            g = f.create_group("ephemeris")
-            g.attrs["epoch_utc"] = self.ephemeris.epoch_utc
-            g.attrs["frame"] = "J2000"
-            write_dataset(g, "t", self.ephemeris.t, units="s from epoch_utc")
-            write_dataset(g, "position", self.ephemeris.position, units="m")
-            write_dataset(g, "velocity", self.ephemeris.velocity, units="m/s")
-            g = f.create_group("attitude")
-            g.attrs["angles"] = "roll,pitch,yaw (spacecraft vs orbital frame, eq. 5)"
-            write_dataset(g, "t", self.attitude.t, units="s from epoch_utc")
-            write_dataset(g, "angles", self.attitude.angles, units="rad")
-            write_dataset(g, "rates", self.attitude.rates, units="rad/s")
-            g = f.create_group("timing")
-            write_dataset(g, "t0", self.t0, units="s from epoch_utc", meaning="time of line 0 per camera (row) and band (column)")
-            g.attrs["line_time"] = float(self.line_time)
-            g = f.create_group("landmarks")
-            write_dataset(g, "id", self.landmarks.id)
-            write_dataset(g, "kind", self.landmarks.kind, meaning="0 tie point, 1 GCP, 2 check point")
-            write_dataset(g, "gcp_index", self.landmarks.gcp_index, meaning="row in the GCP database, -1 if not a GCP")
-            g = f.create_group("observations")
-            o = self.observations
-            write_dataset(g, "landmark", o.landmark, meaning="row in /landmarks")
-            write_dataset(g, "camera", o.camera.astype(np.int8), order=",".join(CAMERAS))
-            write_dataset(g, "band", o.band.astype(np.int8), order=",".join(BANDS))
-            write_dataset(g, "line", o.line, units="pixel")
-            write_dataset(g, "sample", o.sample, units="pixel")
-            write_dataset(g, "exposure", o.exposure.astype(np.int64), units="line", meaning="integer exposure index L")
-            write_dataset(g, "sigma_px", o.sigma_px, units="pixel")
-            if self.truth is not None:
-                t = f.create_group("truth")
-                e = t.create_group("ephemeris_error")
-                write_dataset(e, "boundaries", self.truth.ephemeris_error.boundaries, units="s")
-                write_dataset(e, "params", self.truth.ephemeris_error.params, units="m/s (a), m (b)",
-                              order="a_x,a_y,a_z,b_x,b_y,b_z (orbital frame; z toward nadir)")
-                a = t.create_group("attitude_error")
-                for i, name in enumerate(ANGLES):
-                    ga = a.create_group(name)
-                    write_dataset(ga, "knot_times", self.truth.attitude_error.knot_times[i], units="s")
-                    write_dataset(ga, "knots", self.truth.attitude_error.knots[i], units="rad, rad/s")
-                write_dataset(t, "landmark_ecef", self.truth.landmark_ecef, units="m", frame="ECEF")
-                write_dataset(t, "blunder", self.truth.blunder.astype(np.uint8))
-                self.truth.camera_model.write_group(t.create_group("camera_model"))
+            self.write_into(f)
+
+    def write_into(self, f: Any) -> None:
+        """Write the pass's groups into an open ``orbit_pass`` file."""
+        f.attrs.update({"pass_id": self.pass_id, "path": int(self.path), "orbit": int(self.orbit),
+                        "temperature_c": float(self.temperature_c), "epoch_utc": self.ephemeris.epoch_utc})
+        g = f.create_group("ephemeris")
+        g.attrs["epoch_utc"] = self.ephemeris.epoch_utc
+        g.attrs["frame"] = "J2000"
+        write_dataset(g, "t", self.ephemeris.t, units="s from epoch_utc")
+        write_dataset(g, "position", self.ephemeris.position, units="m")
+        write_dataset(g, "velocity", self.ephemeris.velocity, units="m/s")
+        g = f.create_group("attitude")
+        g.attrs["angles"] = "roll,pitch,yaw (spacecraft vs orbital frame, eq. 5)"
+        write_dataset(g, "t", self.attitude.t, units="s from epoch_utc")
+        write_dataset(g, "angles", self.attitude.angles, units="rad")
+        write_dataset(g, "rates", self.attitude.rates, units="rad/s")
+        g = f.create_group("timing")
+        write_dataset(g, "t0", self.t0, units="s from epoch_utc", meaning="time of line 0 per camera (row) and band (column)")
+        g.attrs["line_time"] = float(self.line_time)
+        g = f.create_group("landmarks")
+        write_dataset(g, "id", self.landmarks.id)
+        write_dataset(g, "kind", self.landmarks.kind, meaning="0 tie point, 1 GCP, 2 check point")
+        write_dataset(g, "gcp_index", self.landmarks.gcp_index, meaning="row in the GCP database, -1 if not a GCP")
+        g = f.create_group("observations")
+        o = self.observations
+        write_dataset(g, "landmark", o.landmark, meaning="row in /landmarks")
+        write_dataset(g, "camera", o.camera.astype(np.int8), order=",".join(CAMERAS))
+        write_dataset(g, "band", o.band.astype(np.int8), order=",".join(BANDS))
+        write_dataset(g, "line", o.line, units="pixel")
+        write_dataset(g, "sample", o.sample, units="pixel")
+        write_dataset(g, "exposure", o.exposure.astype(np.int64), units="line", meaning="integer exposure index L")
+        write_dataset(g, "sigma_px", o.sigma_px, units="pixel")
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> "OrbitPass":
@@ -249,18 +219,5 @@ class OrbitPass:
             obs = Observations(n, *(read_dataset(g, k, (n.size,), dtype=dt) for k, dt in (
                 ("camera", np.int64), ("band", np.int64), ("line", float), ("sample", float),
                 ("exposure", float), ("sigma_px", float))))
-            truth = None
-            if "truth" in f:
-                tg = require_group(f, "truth")
-                e = require_group(tg, "ephemeris_error")
-                eem = EphemerisErrorModel(read_dataset(e, "boundaries", (None,)), read_dataset(e, "params", (None, 6)))
-                a = require_group(tg, "attitude_error")
-                aem = AttitudeErrorModel(
-                    [read_dataset(require_group(a, name), "knot_times", (None,)) for name in ANGLES],
-                    [read_dataset(require_group(a, name), "knots", (None, 2)) for name in ANGLES],
-                )
-                truth = PassTruth(eem, aem, read_dataset(tg, "landmark_ecef", (lid.size, 3)),
-                                  read_dataset(tg, "blunder", (n.size,), dtype=bool),
-                                  CameraModel.read_group(require_group(tg, "camera_model")))
             return cls(str(read_attr(f, "pass_id")), int(read_attr(f, "path")), int(read_attr(f, "orbit")), eph, att,
-                       t0, line_time, lm, obs, float(read_attr(f, "temperature_c")), truth)
+                       t0, line_time, lm, obs, float(read_attr(f, "temperature_c")))

@@ -11,8 +11,8 @@ Axes: x along track (forward), y right of the flight direction, z nadir. Units: 
 ``f * alpha_1 = 21 um`` is the cross-track pitch and ``f * sum alpha_i (s - c_y)^i`` is the
 cross-track focal-plane coordinate in metres.
 
-The parameters are data: :class:`CameraModel` is a dataclass that saves to and loads from HDF5
-(kind ``camera_model``). Camera arrays are indexed in the order of
+The parameters are data: :class:`CameraModel` is a dataclass; :mod:`misrgraph.io.camera` reads and
+writes it as HDF5 (kind ``camera_model``). Camera arrays are indexed in the order of
 :data:`misrgraph.model.constants.CAMERAS`, band arrays in the order of :data:`~misrgraph.model.constants.BANDS`.
 A model tabulated at several temperatures is a :class:`TabulatedCameraModel`, whose
 ``at_temperature`` interpolates linearly; a plain model's ``at_temperature`` returns itself.
@@ -21,20 +21,16 @@ A model tabulated at several temperatures is a :class:`TabulatedCameraModel`, wh
 from __future__ import annotations
 
 import dataclasses
-import os
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.geometry import detector_vector, rot_x, rot_y, rot_z
 from misrgraph.model.constants import BANDS, CAMERAS, LINE_TIME_S, N_PIXELS, PITCH_ALONG_M, PITCH_CROSS_M
-from misrgraph.errors import FileFormatError, InputError
-from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
+from misrgraph.errors import InputError
 
-__all__ = ["CameraModel", "TabulatedCameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "MODEL_NAMES", "load_camera_model",
-           "validate_pixel_inputs"]
+__all__ = ["CameraModel", "TabulatedCameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "validate_pixel_inputs"]
 
 Array = NDArray[np.float64]
 N_ALPHA = 6
@@ -93,21 +89,6 @@ class CameraModel:
             raise InputError("CameraModel.focal_length", self.focal_length.min(), "positive metres")
 
     # ------------------------------------------------------------------ construction
-    @classmethod
-    def nominal(cls) -> "CameraModel":
-        """The nominal (design) model, derived from the nominal instrument geometry; see :mod:`misrgraph.model.nominal`."""
-        from misrgraph.model.nominal import nominal_camera_model
-
-        return nominal_camera_model().copy()
-
-    @classmethod
-    def preflight(cls) -> "CameraModel":
-        """The pre-flight model: Table 1's printed values for Df, An, Da, the other cameras derived
-        consistently; see :func:`misrgraph.model.nominal.preflight_camera_model`."""
-        from misrgraph.model.nominal import preflight_camera_model
-
-        return preflight_camera_model()
-
     def copy(self) -> "CameraModel":
         """Deep copy."""
         return dataclasses.replace(
@@ -199,69 +180,6 @@ class CameraModel:
         """This model (single temperature) unchanged; tabulated models override (see TabulatedCameraModel)."""
         return self
 
-    # ------------------------------------------------------------------ I/O
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write to HDF5 (kind ``camera_model``), atomically."""
-        with atomic_h5(path, "camera_model") as f:
-            self.write_group(f.create_group("camera_model"))
-
-    def write_group(self, g: Any) -> None:
-        """Write the parameters into an open HDF5 group."""
-        g.attrs["cameras"] = ",".join(CAMERAS)
-        g.attrs["bands"] = ",".join(BANDS)
-        units = {"focal_length": "m", "k": "m", "cy": "pixel", "alpha": "pixel^-i", "omega": "rad"}
-        for name in self._SHAPES:
-            write_dataset(g, name, getattr(self, name), units=units.get(name, "rad"))
-        g["omega"].attrs["order"] = "wx,wy,wz"
-        for name in ("dx", "dy"):
-            g.attrs[name] = float(getattr(self, name))
-        g.attrs["line_time"] = float(self.line_time)
-        g.attrs["temperature_c"] = float(self.temperature_c)
-        prov = g.create_group("provenance")
-        for key, value in self.provenance.items():
-            prov.attrs[key] = str(value)
-
-    @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> "CameraModel":
-        """Read a model written by :meth:`save`, validating every field."""
-        with open_h5(path, "camera_model") as f:
-            if "camera_model" not in f:
-                raise FileFormatError(path, "missing group /camera_model")
-            return cls.read_group(f["camera_model"])
-
-    @classmethod
-    def read_group(cls, g: Any) -> "CameraModel":
-        """Read parameters from an open HDF5 group (see :meth:`write_group`)."""
-        cams = str(read_attr(g, "cameras")).split(",")
-        if tuple(cams) != CAMERAS:
-            raise FileFormatError(g.file.filename, f"camera order {cams}; expected {list(CAMERAS)}")
-        values = {name: read_dataset(g, name, shape) for name, shape in cls._SHAPES.items()}
-        prov = {k: str(v) for k, v in g["provenance"].attrs.items()} if "provenance" in g else {}
-        return cls(
-            **values,
-            dx=float(read_attr(g, "dx")),
-            dy=float(read_attr(g, "dy")),
-            line_time=float(read_attr(g, "line_time")),
-            temperature_c=float(read_attr(g, "temperature_c")),
-            provenance=prov,
-        )
-
-
-#: Built-in models a user can name instead of a file (``--camera-model preflight``).
-MODEL_NAMES = ("preflight", "nominal")
-
-
-def load_camera_model(spec: str | os.PathLike[str]) -> "CameraModel | TabulatedCameraModel":
-    """A camera model by name (:data:`MODEL_NAMES`) or from a ``camera_model`` HDF5 file.
-
-    A file with a ``/temperature_table`` gives a :class:`TabulatedCameraModel`. A name wins over a
-    file of the same name only when no such file exists.
-    """
-    text = os.fspath(spec)
-    if text in MODEL_NAMES and not os.path.exists(text):
-        return CameraModel.preflight() if text == "preflight" else CameraModel.nominal()
-    return TabulatedCameraModel.load_any(text)
-
 
 def validate_pixel_inputs(camera: str, band: str, sample: float | None = None) -> tuple[int, int]:
     """Validate a (camera, band, sample) triple from a user; return indices or raise InputError."""
@@ -341,27 +259,3 @@ class TabulatedCameraModel:
         out.temperature_c = t
         out.provenance = dict(a.provenance, interpolated_at_c=f"{t:.3f}")
         return out
-
-    def save(self, path: str | os.PathLike[str]) -> None:
-        with atomic_h5(path, "camera_model") as f:
-            self.write_groups(f)
-
-    def write_groups(self, f: Any) -> None:
-        """Write ``/camera_model`` (the first entry) and ``/temperature_table`` into an open file."""
-        self.models[0].write_group(f.create_group("camera_model"))
-        g = f.create_group("temperature_table")
-        g.attrs["valid_range_c"] = np.asarray(self.valid_range_c, float)
-        for i, m in enumerate(self.models):
-            m.write_group(g.create_group(str(i)))
-
-    @staticmethod
-    def load_any(path: str | os.PathLike[str]) -> "CameraModel | TabulatedCameraModel":
-        """A plain model, or a tabulated one when the file has ``/temperature_table``."""
-        with open_h5(path, "camera_model") as f:
-            if "temperature_table" in f:
-                g = f["temperature_table"]
-                rng = tuple(float(v) for v in g.attrs["valid_range_c"]) if "valid_range_c" in g.attrs else None
-                return TabulatedCameraModel([CameraModel.read_group(g[k]) for k in sorted(g, key=int)], rng)
-            if "camera_model" not in f:
-                raise FileFormatError(path, "missing group /camera_model")
-            return CameraModel.read_group(f["camera_model"])

@@ -9,8 +9,10 @@ Conventions (docs/conventions.md):
   UT1-UTC and polar motion are optional inputs (default 0).
 * Times are float64 seconds from a per-pass epoch given as a UTC ISO-8601 string. Leap seconds
   inside a pass are not modelled (a pass is under two hours).
-* Geodetic <-> ECEF is WGS84 through ``pyproj`` (eq. 9): latitude/longitude in degrees at the
-  interface, ellipsoidal height in metres.
+* Geodetic -> ECEF is WGS84 through ``pyproj`` (eq. 9); ECEF -> geodetic is the numpy iteration
+  of :func:`factors.geometry.geodetic_from_ecef` (the one the DEM factor differentiates; tested
+  against pyproj to 1e-9 m). Latitude/longitude in degrees at this interface, ellipsoidal height
+  in metres. The WGS84 constants are defined once, in :mod:`factors.geometry`.
 
 Performance: ``Q`` (precession-nutation) changes by less than 1e-10 rad in a minute, so it is
 computed on a 60 s grid and interpolated linearly; ERA is evaluated exactly at every time. The
@@ -29,7 +31,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pyproj import Transformer
 
-from factors.geometry import rot_z
+from factors.geometry import WGS84_A, WGS84_B, WGS84_E2, WGS84_F, geodetic_from_ecef, rot_z
+from factors.geometry import enu_basis as _enu_basis
 from misrgraph.errors import InputError
 
 __all__ = [
@@ -48,10 +51,6 @@ __all__ = [
 
 Array = NDArray[np.float64]
 
-WGS84_A = 6378137.0
-WGS84_F = 1.0 / 298.257223563
-WGS84_B = WGS84_A * (1.0 - WGS84_F)
-WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
 OMEGA_EARTH = 7.292115e-5  # rad/s
 GM_EARTH = 3.986004418e14  # m^3/s^2
 
@@ -59,11 +58,6 @@ GM_EARTH = 3.986004418e14  # m^3/s^2
 @functools.lru_cache(maxsize=1)
 def _to_ecef() -> Transformer:
     return Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
-
-
-@functools.lru_cache(maxsize=1)
-def _to_geodetic() -> Transformer:
-    return Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
 
 
 def geodetic_to_ecef(lat_deg: ArrayLike, lon_deg: ArrayLike, h_m: ArrayLike = 0.0) -> Array:
@@ -80,20 +74,13 @@ def ecef_to_geodetic(xyz: ArrayLike) -> tuple[Array, Array, Array]:
     p = np.asarray(xyz, dtype=float)
     if p.shape[-1:] != (3,):
         raise InputError("xyz", p.shape, "an array of shape (..., 3)")
-    lon, lat, h = _to_geodetic().transform(p[..., 0].ravel(), p[..., 1].ravel(), p[..., 2].ravel())
-    shape = p.shape[:-1]
-    return np.reshape(lat, shape), np.reshape(lon, shape), np.reshape(h, shape)
+    lat, lon, h = geodetic_from_ecef(p)
+    return np.degrees(lat), np.degrees(lon), h
 
 
 def enu_basis(lat_deg: ArrayLike, lon_deg: ArrayLike) -> Array:
     """Local East-North-Up unit vectors in ECEF; returns ``(..., 3, 3)`` with columns E, N, U."""
-    lat = np.radians(np.asarray(lat_deg, dtype=float))
-    lon = np.radians(np.asarray(lon_deg, dtype=float))
-    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    e = np.stack([-so, co, np.zeros_like(so)], axis=-1)
-    n = np.stack([-sl * co, -sl * so, cl], axis=-1)
-    u = np.stack([cl * co, cl * so, sl], axis=-1)
-    return np.stack([e, n, u], axis=-1)
+    return _enu_basis(np.radians(np.asarray(lat_deg, dtype=float)), np.radians(np.asarray(lon_deg, dtype=float)))
 
 
 def parse_epoch(epoch_utc: str) -> tuple[float, float]:

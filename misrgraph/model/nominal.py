@@ -40,7 +40,10 @@ from misrgraph.model.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, PITCH_CROS
 from misrgraph.errors import ConvergenceError
 
 __all__ = ["nominal_camera_model", "derive_camera_model", "preflight_camera_model", "TABLE1", "TABLE1_OMEGA_DEG",
-           "REFERENCE_LAT_DEG", "compensation_miss_km"]
+           "REFERENCE_LAT_DEG", "compensation_miss_km", "MODEL_NAMES", "builtin_camera_model"]
+
+#: Built-in models a user can name instead of a file (``--camera-model preflight``).
+MODEL_NAMES = ("preflight", "nominal")
 
 TABLE1_OMEGA_DEG = (-0.0658333, -0.041111, 0.006666)  # wx, wy, wz
 REFERENCE_LAT_DEG = 30.0
@@ -235,9 +238,13 @@ def preflight_camera_model() -> CameraModel:
 
 
 @functools.lru_cache(maxsize=1)
-def nominal_camera_model() -> CameraModel:
-    """The default nominal model (cached; copy before modifying)."""
+def _derived_nominal() -> CameraModel:
     return derive_camera_model()
+
+
+def nominal_camera_model() -> CameraModel:
+    """The nominal (design) model (a fresh copy of the model derived once per process)."""
+    return _derived_nominal().copy()
 
 
 def compensation_miss_km(
@@ -284,3 +291,12 @@ def compensation_miss_km(
                                 exposure=ip.exposure)
         out[cam] = np.sign(ip.sample - model.cy[an, red]) * np.linalg.norm(p - q, axis=-1) / 1e3
     return out
+
+
+def builtin_camera_model(name: str) -> CameraModel:
+    """A built-in model by name (:data:`MODEL_NAMES`): ``"preflight"`` or ``"nominal"``."""
+    if name not in MODEL_NAMES:
+        from misrgraph.errors import InputError
+
+        raise InputError("camera model", name, MODEL_NAMES)
+    return preflight_camera_model() if name == "preflight" else nominal_camera_model()

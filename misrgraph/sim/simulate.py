@@ -36,18 +36,25 @@ import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph import __version__
-from misrgraph.model.camera import CameraModel, TabulatedCameraModel, load_camera_model
+from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.config import Config
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS, NODAL_PERIOD_S, REPEAT_PATHS
-from misrgraph.model.dem import DemTiles, Geoid, SyntheticTerrain, land_mask
+from misrgraph.model.dem import DemTiles, Geoid
+from misrgraph.sim.terrain import SyntheticTerrain, land_mask, simulate_dem_tiles
+from misrgraph.io.dem import read_dem, save_dem
+from misrgraph.io.gcp import read_gcp_database, save_gcp_database
+from misrgraph.io.truth import PassTruth, read_gcp_truth, read_pass_truth, save_pass_with_truth
 from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel, uniform_knots
-from misrgraph.errors import InputError
+from misrgraph.errors import FileFormatError, InputError
 from misrgraph.model.frames import ecef_to_geodetic
-from misrgraph.model.gcp import GcpDatabase, generate_gcp_database
+from misrgraph.model.gcp import GcpDatabase
+from misrgraph.sim.gcps import generate_gcp_database
 from misrgraph.model.geolocation import PassGeometry
 from misrgraph.io.h5 import atomic_file, fsync_directory
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris, path_node_longitude, terra_like_orbit
-from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass, PassTruth
+from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
+from misrgraph.io.camera import load_camera_model, save_camera_model
+from misrgraph.model.nominal import nominal_camera_model
 
 __all__ = [
     "ScenarioConfig",
@@ -282,6 +289,7 @@ def simulate_pass(
     terrain: SyntheticTerrain,
     geoid: Geoid,
     gcps: GcpDatabase,
+    gcp_truth_ecef: Array | None,
     pass_id: str,
     path: int,
     orbit: int,
@@ -290,8 +298,9 @@ def simulate_pass(
     temperature_c: float = 5.0,
     features: list[_Landmark] | None = None,
     feature_fraction: float = 1.0,
-) -> OrbitPass:
-    """Simulate one pass: navigation errors, landmarks, observations with noise and blunders.
+) -> tuple[OrbitPass, PassTruth]:
+    """Simulate one pass: navigation errors, landmarks, observations with noise and blunders; returns
+    the pass (what the estimator sees) and its truth.
 
     With ``features`` (tie/check points of an earlier pass of the same path) no new features are
     drawn: each given feature is kept with probability ``feature_fraction`` (clouds) and keeps
@@ -309,10 +318,10 @@ def simulate_pass(
 
     lms: list[_Landmark] = []
     # GCPs seen by the nadir camera during the pass
-    if len(gcps) and gcps.truth_ecef is not None:
-        _, _, vis, _, _ = geo.ground_to_pixel(CAMERAS.index("An"), RED, gcps.truth_ecef)
+    if len(gcps) and gcp_truth_ecef is not None:
+        _, _, vis, _, _ = geo.ground_to_pixel(CAMERAS.index("An"), RED, gcp_truth_ecef)
         for gi in np.flatnonzero(vis):
-            lms.append(_Landmark(gcps.truth_ecef[gi], KIND_GCP, int(gcps.id[gi]), int(gi)))
+            lms.append(_Landmark(gcp_truth_ecef[gi], KIND_GCP, int(gcps.id[gi]), int(gi)))
     # tie and check points over textured land, inside the common swath
     an = CAMERAS.index("An")
     n_lines = geo.lines_in_pass(an, RED)
@@ -370,7 +379,7 @@ def simulate_pass(
     )
     obs = Observations(obs_lm, cols[1], cols[2], line, sample, cols[5], sigma)
     truth = PassTruth(e_eph, e_att, np.stack([lm.ecef for lm in kept]) if kept else np.zeros((0, 3)), blunder, camera_truth)
-    return OrbitPass(pass_id, path, orbit, eph, att_meas, t0, camera_truth.line_time, landmarks, obs, temperature_c, truth)
+    return OrbitPass(pass_id, path, orbit, eph, att_meas, t0, camera_truth.line_time, landmarks, obs, temperature_c), truth
 
 
 # ---------------------------------------------------------------------------- scenarios
@@ -380,7 +389,7 @@ def _month_passes(cfg: ScenarioConfig, gcps: GcpDatabase) -> list[tuple[int, int
 
     ref_path = cfg.path
     ref = terra_like_orbit(epoch_date=cfg.epoch_date, path=ref_path, start_lat_deg=80.0, duration_s=2950.0, step_s=8.192)
-    geo = PassGeometry(ref, AttitudeSeries.zeros(ref.t), CameraModel.nominal())
+    geo = PassGeometry(ref, AttitudeSeries.zeros(ref.t), nominal_camera_model())
     nav = geo.nav_state(ref.t)
     track = np.einsum("nij,nj->ni", nav.eci_to_ecef, nav.position)
     tlat, tlon, _ = ecef_to_geodetic(track)
@@ -425,12 +434,26 @@ class Scenario:
     pass_files: list[Path]
 
     def load_pass(self, i: int) -> OrbitPass:
+        """Pass ``i`` as the estimator sees it (no truth)."""
         return OrbitPass.load(self.pass_files[i])
+
+    def load_truth(self, i: int) -> PassTruth:
+        """The simulator's truth of pass ``i``."""
+        t = read_pass_truth(self.pass_files[i])
+        if t is None:
+            raise FileFormatError(self.pass_files[i], "no /truth group (not a simulated pass)")
+        return t
+
+    def gcp_truth(self) -> Array:
+        """True GCP positions ``(G, 3)`` m ECEF."""
+        t = read_gcp_truth(self.directory / "gcp.h5")
+        if t is None:
+            raise FileFormatError(self.directory / "gcp.h5", "no /truth group (not a simulated database)")
+        return t
 
 
 def load_scenario(directory: str | os.PathLike[str]) -> Scenario:
     """Load a directory written by :func:`run_simulate`, validating every file."""
-    from misrgraph.errors import FileFormatError
 
     d = Path(directory)
     meta = d / "scenario.json"
@@ -447,7 +470,7 @@ def load_scenario(directory: str | os.PathLike[str]) -> Scenario:
     return Scenario(
         d, config, load_camera_model(d / "camera_model.h5"),
         load_camera_model(truth_path) if truth_path.exists() else None,
-        GcpDatabase.load(d / "gcp.h5"), DemTiles.load(d / "dem.h5"), passes,
+        read_gcp_database(d / "gcp.h5"), read_dem(d / "dem.h5"), passes,
     )
 
 
@@ -459,8 +482,8 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     rng = np.random.default_rng(cfg.seed)
     terrain = SyntheticTerrain(seed=cfg.seed)
     geoid = Geoid("zero")
-    nominal = CameraModel.nominal()
-    gcps = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips)
+    nominal = nominal_camera_model()
+    gcps, gcp_truth = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips)
     truth_cam = draw_camera_misalignment(rng, nominal, cfg.camera_misalignment_arcsec * ARCSEC)
     truth_cam.provenance = {"source": "simulator truth", "seed": str(cfg.seed)}
     truth_model: CameraModel | TabulatedCameraModel = truth_cam
@@ -510,33 +533,32 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                 progress(f"pass {k + 1}/{len(plan)}", k, len(plan))
             eph = terra_like_orbit(epoch_date=date, path=path, start_lat_deg=start_lat, duration_s=duration)
             temp = 5.0 + 3.0 * np.sin(2 * np.pi * orbit / 437.0) + 0.5 * rng.standard_normal()
-            p = simulate_pass(rng, cfg, eph, truth_model.at_temperature(float(temp)), terrain, geoid, gcps, f"P{path:03d}_O{orbit:04d}", path, orbit,
+            p, p_truth = simulate_pass(rng, cfg, eph, truth_model.at_temperature(float(temp)), terrain, geoid, gcps, gcp_truth,
+                                       f"P{path:03d}_O{orbit:04d}", path, orbit,
                               n_tie, n_check, float(temp), features=path_features,
                               feature_fraction=cfg.repeat_visibility if path_features is not None else 1.0)
             if cfg.scenario == "path" and path_features is None:
-                assert p.truth is not None
-                path_features = [_Landmark(p.truth.landmark_ecef[i], int(p.landmarks.kind[i]), int(p.landmarks.id[i]), -1)
+                path_features = [_Landmark(p_truth.landmark_ecef[i], int(p.landmarks.kind[i]), int(p.landmarks.id[i]), -1)
                                  for i in range(len(p.landmarks)) if p.landmarks.kind[i] != KIND_GCP]
             if cfg.scenario == "month" and not np.any(p.landmarks.kind == KIND_GCP):
                 continue
-            p.save(tmp / "passes" / f"{p.pass_id}.h5")
+            save_pass_with_truth(p, p_truth, tmp / "passes" / f"{p.pass_id}.h5")
             gi = p.landmarks.gcp_index[p.landmarks.kind == KIND_GCP]
             seen_count[gi] += 1
             n_obs += len(p.observations)
-            assert p.truth is not None
-            all_lm.append(p.truth.landmark_ecef)
+            all_lm.append(p_truth.landmark_ecef)
             summaries.append({"pass_id": p.pass_id, "observations": len(p.observations),
                               "tie_points": int(np.sum(p.landmarks.kind == KIND_TIE)),
                               "gcps": int(np.sum(p.landmarks.kind == KIND_GCP)),
                               "check_points": int(np.sum(p.landmarks.kind == KIND_CHECK))})
         if progress:
             progress("DEM tiles", len(plan), len(plan))
-        lm = np.concatenate(all_lm + [gcps.truth_ecef]) if all_lm else gcps.truth_ecef
+        lm = np.concatenate(all_lm + [gcp_truth])
         lat, lon, _ = ecef_to_geodetic(lm)
-        DemTiles.around(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction).save(tmp / "dem.h5")
-        supplied.save(tmp / "camera_model.h5")
-        truth_model.save(tmp / "camera_truth.h5")
-        gcps.save(tmp / "gcp.h5")
+        save_dem(simulate_dem_tiles(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction), tmp / "dem.h5")
+        save_camera_model(supplied, tmp / "camera_model.h5")
+        save_camera_model(truth_model, tmp / "camera_truth.h5")
+        save_gcp_database(gcps, tmp / "gcp.h5", truth_ecef=gcp_truth)
         summary = {
             "software": f"misrgraph {__version__}",
             "config": dataclasses.asdict(cfg),

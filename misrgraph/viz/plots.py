@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
+from misrgraph.io.truth import read_pass_truth
 
 __all__ = ["plot_adjustment", "plot_calibration"]
 
@@ -29,14 +30,12 @@ def plot_adjustment(result_h5: str | os.PathLike[str], out_dir: str | os.PathLik
     """Attitude error vs truth with 1-sigma bands, residual histograms, check-point errors."""
     import json
 
-    import h5py
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from misrgraph.model.errormodels import AttitudeErrorModel
-    from misrgraph.io.passes import OrbitPass
 
     out = Path(out_dir)
     paths = []
@@ -53,7 +52,7 @@ def plot_adjustment(result_h5: str | os.PathLike[str], out_dir: str | os.PathLik
     model = AttitudeErrorModel(kt, kv)
     truth = None
     if pass_file is not None and Path(str(pass_file)).exists():
-        truth = OrbitPass.load(str(pass_file)).truth
+        truth = read_pass_truth(str(pass_file))
     t = np.arange(kt[0][0], kt[0][-1], 4.096)
     est = model.evaluate(t)
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)

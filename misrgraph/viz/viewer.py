@@ -35,6 +35,8 @@ from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.model.frames import geodetic_to_ecef
 from misrgraph.io.h5 import open_h5, read_attr, read_dataset
+from misrgraph.io.camera import read_camera_group
+from misrgraph.io.truth import read_pass_truth
 
 __all__ = ["run_view", "ellipsoid_axes", "DEFAULT_EXAGGERATION"]
 
@@ -75,6 +77,7 @@ def _view_adjustment(rec, rr, f: h5py.File, exaggeration: float, counts: dict[st
 
     prov = {k: (v.decode() if isinstance(v, bytes) else str(v)) for k, v in f["provenance"].attrs.items()}
     orbit_pass = OrbitPass.load(prov["pass_file"]) if "pass_file" in prov and Path(prov["pass_file"]).exists() else None
+    truth = read_pass_truth(prov["pass_file"]) if orbit_pass is not None else None
     # globe and orbit
     rec.log("world/globe", rr.LineStrips3D(_graticule(), colors=[[90, 90, 90]], radii=2000.0), static=True)
     counts["world/globe"] = 1
@@ -112,10 +115,10 @@ def _view_adjustment(rec, rr, f: h5py.File, exaggeration: float, counts: dict[st
         counts[f"world/landmarks/{name}"] = 1  # one static row holding every landmark of the kind
         counts[f"world/landmarks/{name}/ellipsoids"] = 1
         instances[f"world/landmarks/{name}"] = int(sel.sum())
-    if orbit_pass is not None and orbit_pass.truth is not None:
+    if orbit_pass is not None and truth is not None:
         chk = orbit_pass.landmarks.kind == 2
         if chk.any():
-            rec.log("world/landmarks/check", rr.Points3D(orbit_pass.truth.landmark_ecef[chk], colors=[KIND_COLORS["check"]],
+            rec.log("world/landmarks/check", rr.Points3D(truth.landmark_ecef[chk], colors=[KIND_COLORS["check"]],
                                                          radii=1500.0), static=True)
             counts["world/landmarks/check"] = 1
             instances["world/landmarks/check"] = int(chk.sum())
@@ -150,8 +153,8 @@ def _view_adjustment(rec, rr, f: h5py.File, exaggeration: float, counts: dict[st
             times = t0 + removed * _grid_spacing(att_t[i], removed)
             _log_series(rec, rr, f"{base}/removed_knots", times, np.zeros(times.size))
             counts[f"{base}/removed_knots"] = int(times.size)
-        if orbit_pass is not None and orbit_pass.truth is not None:
-            _log_series(rec, rr, f"{base}/truth", t, orbit_pass.truth.attitude_error.evaluate(t)[:, i] / ARCSEC)
+        if orbit_pass is not None and truth is not None:
+            _log_series(rec, rr, f"{base}/truth", t, truth.attitude_error.evaluate(t)[:, i] / ARCSEC)
             counts[f"{base}/truth"] = t.size
     # ephemeris
     eg = f["ephemeris_error"]
@@ -167,8 +170,8 @@ def _view_adjustment(rec, rr, f: h5py.File, exaggeration: float, counts: dict[st
         _log_series(rec, rr, f"{base}/lower", t, e[:, i] - esig[:, i])
         for s in ("estimate", "upper", "lower"):
             counts[f"{base}/{s}"] = t.size
-        if orbit_pass is not None and orbit_pass.truth is not None:
-            _log_series(rec, rr, f"{base}/truth", t, orbit_pass.truth.ephemeris_error.evaluate(t)[:, i])
+        if orbit_pass is not None and truth is not None:
+            _log_series(rec, rr, f"{base}/truth", t, truth.ephemeris_error.evaluate(t)[:, i])
             counts[f"{base}/truth"] = t.size
     # residuals
     res = read_dataset(f["observations"], "residual_px", (None, 2))
@@ -194,9 +197,7 @@ def _grid_spacing(kept_times: np.ndarray, removed: np.ndarray) -> float:
 
 
 def _camera_of(f: h5py.File):
-    from misrgraph.model.camera import CameraModel
-
-    return CameraModel.read_group(f["camera_model"])
+    return read_camera_group(f["camera_model"])
 
 
 def _view_calibration(rec, rr, f: h5py.File, counts: dict[str, int]) -> None:

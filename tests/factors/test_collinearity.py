@@ -20,16 +20,17 @@ def graph(exact_pass):
 
 def _truth_values(sc, p, pg) -> gtsam.Values:
     v = gtsam.Values()
+    truth = sc.load_truth(0)
     for key, row in zip(pg.landmark_keys, pg.landmark_rows):
-        v.insert(int(key), p.truth.landmark_ecef[row])
-    tr = p.truth.attitude_error
+        v.insert(int(key), truth.landmark_ecef[row])
+    tr = truth.attitude_error
     for a in range(3):
         np.testing.assert_allclose(tr.knot_times[a], pg.attitude_model.knot_times[a])
         for j, k in enumerate(pg.knot_keys(a)):
             v.insert(k, tr.knots[a][j])
     for s, k in enumerate(pg.ephemeris_keys()):
-        v.insert(k, p.truth.ephemeris_error.params[s])
-    t, m = p.truth.camera_model, sc.camera_model
+        v.insert(k, truth.ephemeris_error.params[s])
+    t, m = truth.camera_model, sc.camera_model
     for c, k in pg.camera_keys.items():
         v.insert(k, np.array([t.delta[c] - m.delta[c], t.beta[c] - m.beta[c], t.epsilon[c] - m.epsilon[c]]))
     return v

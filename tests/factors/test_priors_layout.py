@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from factors.layout import BlockLayout
-from factors.priors import enu_covariance, gcp_prior, vector_prior
+from factors.priors import gcp_prior, vector_prior
+from factors.geometry import enu_covariance
 from misrgraph.model.frames import enu_basis
 
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 from typer.testing import CliRunner
 
 from misrgraph.commands.cli import app
-from misrgraph.demo import STAGES
+from misrgraph.runs.demo import STAGES
 
 
 def test_small_demo_runs_every_stage(tmp_path):

@@ -10,7 +10,8 @@ import pytest
 from scipy import stats
 from typer.testing import CliRunner
 
-from misrgraph.estimate.adjust import AdjustConfig, adjust_pass, run_adjust
+from misrgraph.estimate.adjust import AdjustConfig, adjust_pass
+from misrgraph.runs.adjust import run_adjust
 from misrgraph.commands.cli import app
 from misrgraph.model.constants import CAMERAS
 from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
@@ -123,7 +124,7 @@ def test_knots_are_removed_where_tie_points_are_missing(small_pass):
     o = p.observations.subset(~gap)
     keep_lm = p.landmarks
     q = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, keep_lm, o,
-                  p.temperature_c, None)
+                  p.temperature_c)
     res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none"))
     pg = res.pass_graph
     from misrgraph.model.errormodels import AttitudeErrorModel, interval_counts

@@ -9,13 +9,15 @@ import pytest
 from scipy import stats
 from typer.testing import CliRunner
 
-from misrgraph.estimate.calibrate import CalibrateConfig, calibrate_passes, run_calibrate, summarise
-from misrgraph.model.camera import CameraModel
+from misrgraph.estimate.calibrate import CalibrateConfig, calibrate_passes, summarise
+from misrgraph.runs.calibrate import run_calibrate
 from misrgraph.commands.cli import app
 from misrgraph.model.constants import CAMERAS
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.io.passes import OrbitPass
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
+from misrgraph.io.camera import read_camera_file
+from misrgraph.evaluate.calibration import score_calibration
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +44,7 @@ def test_recovers_the_misalignments_within_their_sigma(small_month_dir, tmp_path
         assert v["pointing_error_px"] < 3 * v["sigma_px"], cam
         assert v["pointing_error_px"] < v["pointing_error_before_px"], cam
     # the written model is a camera model the adjustment can consume
-    m = CameraModel.load(out)
+    m = read_camera_file(out)
     assert m.provenance["source"] == "misrgraph calibrate"
     corr = np.asarray(s["correlation"]["matrix"])
     assert corr.shape == (27, 27) and np.allclose(np.diag(corr), 1.0)
@@ -66,15 +68,16 @@ def test_blunders_found_and_harmless(month):
     than its sigma against an oracle run that never saw the blunders."""
     sc, passes = month
     res = calibrate_passes(passes, sc.camera_model, sc.gcps, CalibrateConfig())
-    injected = sum(int(p.truth.blunder.sum()) for p in passes)
-    true_pos = sum(1 for pi, o, _ in res.rejected if res.graphs and _pass_of(res, passes, pi).truth.blunder[o])
+    truths = {p.pass_id: sc.load_truth(i) for i, p in enumerate(passes)}
+    injected = sum(int(t.blunder.sum()) for t in truths.values())
+    true_pos = sum(1 for pi, o, _ in res.rejected if res.graphs and truths[_pass_of(res, passes, pi).pass_id].blunder[o])
     assert true_pos == len(res.rejected)
     assert len(res.rejected) >= 0.9 * injected
     clean = []
     for p in passes:
-        keep = ~p.truth.blunder
+        keep = ~truths[p.pass_id].blunder
         clean.append(OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
-                               p.observations.subset(keep), p.temperature_c, p.truth))
+                               p.observations.subset(keep), p.temperature_c))
     oracle = calibrate_passes(clean, sc.camera_model, sc.gcps, CalibrateConfig(robust="none"))
     sig = np.sqrt(np.diag(oracle.covariance))
     assert np.all(np.abs(res.values - oracle.values) < sig)
@@ -89,7 +92,7 @@ def test_undeterminable_parameters_are_reported(month):
     sc, passes = month
     cfg = CalibrateConfig(params=("delta", "beta", "epsilon", "alpha2", "alpha3", "alpha4", "alpha5"))
     res = calibrate_passes(passes[:4], sc.camera_model, sc.gcps, cfg)
-    s = summarise(res, cfg, sc.camera_model, sc.camera_truth, draws=5)
+    s = summarise(res, cfg, sc.camera_model, draws=5)
     flagged = {p["parameter"] for p in s["poorly_determined"]}
     assert any(".alpha5" in f for f in flagged)
     # T_ic = Ry(beta) Rx(delta): at An (beta = 0) delta is a roll about the line axis (a cross-track
@@ -115,7 +118,7 @@ def test_json_caps_the_rejected_list_and_the_file_holds_it_all(small_month_dir, 
     the result file holds every one of them."""
     import h5py
 
-    from misrgraph.estimate.calibrate import run_calibrate
+    from misrgraph.runs.calibrate import run_calibrate
     from misrgraph.io.results import capped_list
 
     out = tmp_path / "cal.h5"
@@ -145,7 +148,7 @@ def test_supplied_thermal_table_is_applied_per_pass(thermal_month_dir):
     nees = res.values @ np.linalg.solve(res.covariance, res.values)
     lo, hi = stats.chi2.ppf([0.025, 0.975], res.values.size)
     assert lo <= nees <= hi
-    s = summarise(res, cfg, res.camera, truth, draws=20)
+    s = score_calibration(summarise(res, cfg, res.camera, draws=20), res, cfg, res.camera, truth)
     for v in s["cameras"].values():
         assert v["pointing_error_px"] < 3 * v["sigma_px"]
 
@@ -155,7 +158,8 @@ def test_thermal_truth_recovered_by_temperature_bins(thermal_month_dir, tmp_path
     of the temperature range; three bins with the fitted line stay within 3 sigma, recover every
     camera's slopes with an honest covariance (NEES in its 95 % chi-square band), and write a
     temperature table that loads."""
-    from misrgraph.model.camera import TabulatedCameraModel, load_camera_model
+    from misrgraph.model.camera import TabulatedCameraModel
+    from misrgraph.io.camera import load_camera_model
 
     one = run_calibrate(thermal_month_dir, cfg=CalibrateConfig(temperature_bins=1))
     assert max(v["pointing_error_px"] / v["sigma_px"] for v in one["cameras"].values()) > 3.0
@@ -189,7 +193,7 @@ def test_per_band_truth_recovered_per_band(band_month_dir, tmp_path):
     corrections with an honest covariance (NEES in its 95 % chi-square band) and stores them as
     that band's offsets, leaving the camera-level angles as supplied; one correction per camera
     cannot describe this truth."""
-    from misrgraph.model.camera import load_camera_model
+    from misrgraph.io.camera import load_camera_model
     from misrgraph.model.constants import BANDS
 
     sc = load_scenario(band_month_dir)

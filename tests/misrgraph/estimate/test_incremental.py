@@ -9,17 +9,11 @@ import pytest
 from typer.testing import CliRunner
 
 from misrgraph.commands.cli import app
-from misrgraph.estimate.incremental import IncrementalSolver, batch_solution, load_state, run_update
-from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
+from misrgraph.estimate.incremental import IncrementalSolver, batch_solution
+from misrgraph.runs.update import load_state, run_update
+from misrgraph.sim.simulate import load_scenario
 from misrgraph.estimate.solver import marginal_covariances
 
-
-@pytest.fixture(scope="module")
-def path_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("scen") / "path"
-    run_simulate(ScenarioConfig(scenario="path", seed=41, n_passes=10, n_tie_points=40, n_check_points=5,
-                                duration_s=600.0, start_lat_deg=52.0), out)
-    return out
 
 
 def test_incremental_over_ten_passes_equals_batch(path_dir):

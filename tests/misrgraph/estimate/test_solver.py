@@ -60,11 +60,11 @@ def test_degenerate_inputs_are_diagnosed(small_pass):
     sc, p = small_pass
     o = p.observations
     none = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
-                     o.subset(np.zeros(len(o), bool)), p.temperature_c, p.truth)
+                     o.subset(np.zeros(len(o), bool)), p.temperature_c)
     with pytest.raises(DegenerateProblemError, match="no tie-point or GCP observations"):
         build_pass_graph(none, sc.camera_model, sc.dem, sc.gcps)
     one = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
-                    o.subset(o.camera == 4), p.temperature_c, p.truth)
+                    o.subset(o.camera == 4), p.temperature_c)
     with pytest.raises(DegenerateProblemError, match="single camera"):
         build_pass_graph(one, sc.camera_model, sc.dem, sc.gcps)
     assert isinstance(o, Observations)

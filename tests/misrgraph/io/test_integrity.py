@@ -13,17 +13,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from misrgraph.model.camera import load_camera_model
-from misrgraph.model.dem import DemTiles
+from misrgraph.io.camera import load_camera_model
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.model.gcp import GcpDatabase
 from misrgraph.io.h5 import DIGEST_ATTR, content_digest
 from misrgraph.io.passes import Observations, OrbitPass
+from misrgraph.io.truth import PassTruth, read_pass_truth, save_pass_with_truth
+from misrgraph.io.gcp import read_gcp_database
+from misrgraph.io.dem import read_dem
 
 LOADERS = {
     "orbit_pass": lambda d: (sorted((d / "passes").glob("*.h5"))[0], OrbitPass.load),
-    "gcp_database": lambda d: (d / "gcp.h5", GcpDatabase.load),
-    "dem": lambda d: (d / "dem.h5", DemTiles.load),
+    "gcp_database": lambda d: (d / "gcp.h5", read_gcp_database),
+    "dem": lambda d: (d / "dem.h5", read_dem),
     "camera_model": lambda d: (d / "camera_model.h5", load_camera_model),
 }
 
@@ -134,23 +135,22 @@ def test_a_file_without_the_checksum_block_is_refused_before_hdf5_parses_it(tmp_
         h.attrs["misrgraph_kind"] = "dem"
         h.attrs["format_version"] = 2
     with pytest.raises(FileFormatError, match="no misrgraph checksum block"):
-        DemTiles.load(f)
+        read_dem(f)
 
 
 def _edited_pass(small_pass_dir: Path, tmp_path: Path, name: str, edit) -> Path:
     d = tmp_path / name
     shutil.copytree(small_pass_dir, d)
     f = sorted((d / "passes").glob("*.h5"))[0]
-    p = OrbitPass.load(f)
-    edit(p)
-    p.save(f)
+    p, t = OrbitPass.load(f), read_pass_truth(f)
+    t = edit(p, t)
+    save_pass_with_truth(p, t, f)
     return d
 
 
-def _keep(p: OrbitPass, mask: np.ndarray) -> None:
+def _keep(p: OrbitPass, t: PassTruth, mask: np.ndarray) -> PassTruth:
     p.observations = p.observations.subset(mask)
-    if p.truth is not None:
-        p.truth.blunder = p.truth.blunder[mask]
+    return t.subset(mask)
 
 
 @pytest.mark.parametrize("case,pattern", [
@@ -163,9 +163,9 @@ def test_degenerate_passes_end_in_one_line(small_pass_dir, tmp_path, case, patte
     output file."""
     rng = np.random.default_rng(3)
     edits = {
-        "empty": lambda p: _keep(p, np.zeros(len(p.observations), bool)),
-        "single_camera": lambda p: _keep(p, p.observations.camera == 4),
-        "all_blunders": lambda p: p.observations.line.__iadd__(rng.normal(0, 50, len(p.observations))),
+        "empty": lambda p, t: _keep(p, t, np.zeros(len(p.observations), bool)),
+        "single_camera": lambda p, t: _keep(p, t, p.observations.camera == 4),
+        "all_blunders": lambda p, t: (p.observations.line.__iadd__(rng.normal(0, 50, len(p.observations))), t)[1],
     }
     d = _edited_pass(small_pass_dir, tmp_path, case, edits[case])
     out = tmp_path / f"{case}.h5"
@@ -180,15 +180,14 @@ def test_degenerate_passes_end_in_one_line(small_pass_dir, tmp_path, case, patte
 def test_a_pass_across_the_antimeridian_adjusts(tmp_path):
     """Path 91 from 72 N crosses 180 deg over Chukotka: tie points on both sides, DEM tiles
     across it; the adjustment completes and its check points improve."""
-    from misrgraph.estimate.adjust import run_adjust
+    from misrgraph.runs.adjust import run_adjust
     from misrgraph.model.frames import ecef_to_geodetic
     from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
     d = tmp_path / "am"
     run_simulate(ScenarioConfig(scenario="pass", seed=6, path=91, n_tie_points=60, n_check_points=10,
                                 duration_s=300.0, start_lat_deg=72.0), d)
-    p = load_scenario(d).load_pass(0)
-    _, lon, _ = ecef_to_geodetic(p.truth.landmark_ecef)
+    _, lon, _ = ecef_to_geodetic(load_scenario(d).load_truth(0).landmark_ecef)
     assert np.sum(lon > 179.0) > 3 and np.sum(lon < -179.0) > 3
     s = run_adjust(d)
     cp = s["checkpoint_geolocation_m"]

@@ -10,6 +10,8 @@ from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, PITCH_CROSS_M
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.h5 import reseal
+from misrgraph.io.camera import read_camera_file, save_camera_model
+from misrgraph.model.nominal import nominal_camera_model, preflight_camera_model
 
 
 def test_nominal_beta_matches_table1_df(nominal_camera):
@@ -36,7 +38,7 @@ def test_nominal_delta_compensates_earth_rotation_by_roll(nominal_camera):
 
 def test_boresight_cross_track_component_is_minus_sin_delta(rng):
     # closed form of Ry(beta) Rx(delta) [0, 0, 1] = [sin b cos d, -sin d, cos b cos d] for any beta
-    m = CameraModel.nominal().copy()
+    m = nominal_camera_model().copy()
     m.omega[:] = 0.0
     m.epsilon[:] = 0.0
     m.delta[:] = np.radians(rng.uniform(-4, 4, 9))
@@ -47,7 +49,7 @@ def test_boresight_cross_track_component_is_minus_sin_delta(rng):
 
 
 def test_preflight_model_holds_table1_as_printed():
-    from misrgraph.model.camera import load_camera_model
+    from misrgraph.io.camera import load_camera_model
     from misrgraph.model.nominal import TABLE1
 
     m = load_camera_model("preflight")
@@ -75,7 +77,7 @@ def test_table1_tracks_meet_near_30_degrees_and_cross_over():
     # fore and aft lie on opposite sides at both.
     from misrgraph.model.nominal import compensation_miss_km
 
-    miss = compensation_miss_km(CameraModel.preflight(), [0.0, 30.0, 60.0])
+    miss = compensation_miss_km(preflight_camera_model(), [0.0, 30.0, 60.0])
     df, da = miss["Df"], miss["Da"]
     assert abs(df[1]) < 5.0 and abs(da[1]) < 5.0
     assert np.sign(df[0]) == -np.sign(da[0]) and np.sign(df[2]) == -np.sign(da[2])
@@ -85,12 +87,12 @@ def test_table1_tracks_meet_near_30_degrees_and_cross_over():
 
 def test_old_convention_files_are_refused(nominal_camera, tmp_path):
     path = tmp_path / "old.h5"
-    nominal_camera.save(path)
+    save_camera_model(nominal_camera, path)
     with h5py.File(path, "r+") as f:
         f.attrs["format_version"] = 1
     reseal(path)
     with pytest.raises(FileFormatError, match=r"format_version is 1.*Rz\(delta\) Ry\(beta\)"):
-        CameraModel.load(path)
+        read_camera_file(path)
 
 
 def test_nominal_ifov_matches_seed_ground_sampling(nominal_camera):
@@ -127,8 +129,8 @@ def test_focal_plane_inverse(nominal_camera, rng):
 
 def test_save_load_round_trip(nominal_camera, tmp_path):
     path = tmp_path / "cgm.h5"
-    nominal_camera.save(path)
-    back = CameraModel.load(path)
+    save_camera_model(nominal_camera, path)
+    back = read_camera_file(path)
     for name in CameraModel._SHAPES:
         np.testing.assert_array_equal(getattr(back, name), getattr(nominal_camera, name))
     assert back.provenance["source"] == "misrgraph.model.nominal.derive_camera_model"
@@ -142,28 +144,28 @@ def test_bad_shape_rejected(nominal_camera):
 
 def test_missing_field_and_wrong_kind(nominal_camera, tmp_path):
     path = tmp_path / "cgm.h5"
-    nominal_camera.save(path)
+    save_camera_model(nominal_camera, path)
     from misrgraph.io.h5 import stamp_content_digest
 
     with h5py.File(path, "a") as f:
         del f["camera_model/beta"]
     with pytest.raises(FileFormatError, match="file checksum mismatch"):  # an edit is damage
-        CameraModel.load(path)
+        read_camera_file(path)
     reseal(path)
     with pytest.raises(FileFormatError, match="content digest mismatch"):  # ... at both levels
-        CameraModel.load(path)
+        read_camera_file(path)
     with h5py.File(path, "a") as f:
         stamp_content_digest(f)  # a well-formed file whose writer left a field out
     reseal(path)
     with pytest.raises(FileFormatError, match="camera_model/beta"):
-        CameraModel.load(path)
+        read_camera_file(path)
     with h5py.File(path, "a") as f:
         f.attrs["misrgraph_kind"] = "dem"
     reseal(path)
     with pytest.raises(FileFormatError, match="misrgraph_kind"):
-        CameraModel.load(path)
+        read_camera_file(path)
     with pytest.raises(FileFormatError, match="does not exist"):
-        CameraModel.load(tmp_path / "nope.h5")
+        read_camera_file(tmp_path / "nope.h5")
 
 
 def test_tabulated_model_interpolates_linearly_and_round_trips(nominal_camera, tmp_path):
@@ -178,10 +180,10 @@ def test_tabulated_model_interpolates_linearly_and_round_trips(nominal_camera, t
     np.testing.assert_allclose(mid.focal_length, cold.focal_length + 5e-6, atol=1e-15)
     np.testing.assert_allclose(mid.beta, cold.beta + 2.5e-6, atol=1e-15)
     np.testing.assert_allclose(table.at_temperature(40.0).beta, warm.beta)  # clamped
-    table.save(tmp_path / "t.h5")
-    back = TabulatedCameraModel.load_any(tmp_path / "t.h5")
+    save_camera_model(table, tmp_path / "t.h5")
+    back = read_camera_file(tmp_path / "t.h5")
     np.testing.assert_allclose(back.at_temperature(0.0).beta, mid.beta)
-    assert isinstance(TabulatedCameraModel.load_any(tmp_path / "t.h5"), TabulatedCameraModel)
+    assert isinstance(read_camera_file(tmp_path / "t.h5"), TabulatedCameraModel)
     with pytest.raises(InputError, match="temperature table"):
         TabulatedCameraModel([cold])
 
@@ -210,11 +212,12 @@ def test_linear_thermal_table_is_exact_and_extrapolates_within_its_range(nominal
 
 
 def test_thermal_table_round_trips_through_a_file(nominal_camera, tmp_path):
-    from misrgraph.model.camera import TabulatedCameraModel, load_camera_model
+    from misrgraph.model.camera import TabulatedCameraModel
+    from misrgraph.io.camera import load_camera_model
 
     t = TabulatedCameraModel([nominal_camera.copy(), dataclasses.replace(nominal_camera.copy(), temperature_c=9.0)],
                              valid_range_c=(0.0, 12.0))
-    t.save(tmp_path / "t.h5")
+    save_camera_model(t, tmp_path / "t.h5")
     back = load_camera_model(tmp_path / "t.h5")
     assert isinstance(back, TabulatedCameraModel) and back.valid_range_c == (0.0, 12.0)
     np.testing.assert_array_equal(back.temperatures_c, [5.0, 9.0])

@@ -3,18 +3,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from misrgraph.model.dem import (
-    FLAG_BOUNDARY,
-    FLAG_LAND,
-    FLAG_WATER,
-    POSTING_DEG,
-    DemTiles,
-    Geoid,
-    SyntheticTerrain,
-    fit_grid_surface,
-    fit_local_surface,
-)
+from misrgraph.model.dem import FLAG_BOUNDARY, FLAG_LAND, FLAG_WATER, POSTING_DEG, DemTiles, Geoid, fit_grid_surface, fit_local_surface
+from misrgraph.sim.terrain import SyntheticTerrain
 from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.dem import read_dem, save_dem
+from misrgraph.sim.terrain import simulate_dem_tiles
 
 
 def _grid(fun, n=20):
@@ -95,7 +88,7 @@ def test_real_terrain_held_out_postings():
 def test_tiles_surface_and_sigma(rng):
     terrain = SyntheticTerrain(seed=1)
     lat, lon = np.array([40.0, -20.0]), np.array([-105.0, 25.0])
-    dem = DemTiles.around(lat, lon, terrain, rng, size=32)
+    dem = simulate_dem_tiles(lat, lon, terrain, rng, size=32)
     assert set(np.unique(dem.flags)) <= {FLAG_LAND, FLAG_WATER, FLAG_BOUNDARY}
     s = fit_local_surface(dem, lat + 1e-4, lon - 2e-4)
     assert s.valid.all()
@@ -113,7 +106,7 @@ def test_dem_error_statistics_match_quality_sigma():
     n = 400
     lat = rng.uniform(30, 45, n)
     lon = rng.uniform(-110, -90, n)
-    dem = DemTiles.around(lat, lon, terrain, rng, size=8)
+    dem = simulate_dem_tiles(lat, lon, terrain, rng, size=8)
     # one sample per point (the points are ~100 km apart, far beyond the error's ~5 km correlation):
     # the posting nearest to each point, in the tile that covers it
     t = dem.tile_of(lat, lon)
@@ -135,13 +128,13 @@ def test_dem_error_statistics_match_quality_sigma():
 
 
 def test_dem_save_load(tmp_path, rng):
-    dem = DemTiles.around([10.0], [20.0], SyntheticTerrain(), rng, size=8)
-    dem.save(tmp_path / "d.h5")
-    back = DemTiles.load(tmp_path / "d.h5")
+    dem = simulate_dem_tiles([10.0], [20.0], SyntheticTerrain(), rng, size=8)
+    save_dem(dem, tmp_path / "d.h5")
+    back = read_dem(tmp_path / "d.h5")
     np.testing.assert_allclose(back.heights, dem.heights, atol=1e-3)  # stored as float32
     np.testing.assert_array_equal(back.flags, dem.flags)
     with pytest.raises(FileFormatError):
-        DemTiles.load(tmp_path / "missing.h5")
+        read_dem(tmp_path / "missing.h5")
 
 
 def test_geoid_options():
@@ -171,7 +164,7 @@ def test_tiles_are_one_continuous_dem(rng):
     # tiles of one column, 10 postings apart; feature 1 repeats feature 0 (a repeat pass)
     lat = np.array([48024.3, 48024.3, 48034.6, 48110.0]) * p
     lon = np.array([-125989.6, -125989.6, -125989.6, -125950.0]) * p
-    dem = DemTiles.around(lat, lon, terrain, rng, size=32)
+    dem = simulate_dem_tiles(lat, lon, terrain, rng, size=32)
     origins = np.stack([dem.lat0, dem.lon0], -1)
     assert len(np.unique(origins, axis=0)) == len(origins)  # the repeated feature has one tile
     # overlapping tiles hold the same heights at their shared postings
@@ -205,7 +198,7 @@ def test_tile_hint_reads_the_same_dem(rng):
     terrain = SyntheticTerrain(seed=4)
     lat = rng.uniform(40.0, 40.5, 60)
     lon = rng.uniform(-105.5, -105.0, 60)
-    dem = DemTiles.around(lat, lon, terrain, rng, size=32)
+    dem = simulate_dem_tiles(lat, lon, terrain, rng, size=32)
     first = fit_local_surface(dem, lat, lon)
     # the points move by up to ~10 postings: some hinted tiles still hold them, some not
     la2 = lat + rng.normal(0, 5 * POSTING_DEG, 60)
@@ -238,7 +231,7 @@ def test_tiles_across_the_antimeridian_and_at_high_latitude(rng, lat0):
     lo = np.linspace(179.99, 180.01, n)  # 0.02 deg: ~2.2 km at the equator
     lo = (lo + 180.0) % 360.0 - 180.0
     la = np.full(n, lat0)
-    dem = DemTiles.around(la, lo, terrain, rng, size=32)
+    dem = simulate_dem_tiles(la, lo, terrain, rng, size=32)
     np.testing.assert_allclose(dem.lon_posting, dted_lon_posting_deg(lat0))
     assert np.all((dem.lon0 >= -180.0) & (dem.lon0 < 180.0))
     s = fit_local_surface(dem, la, lo)
@@ -262,7 +255,7 @@ def test_tiles_across_the_antimeridian_and_at_high_latitude(rng, lat0):
 def test_tiles_stop_at_the_pole(rng):
     terrain = SyntheticTerrain(seed=6)
     lat, lon = np.array([89.9985, 89.9]), np.array([10.0, -170.0])  # 1.8 postings from the pole; 120
-    dem = DemTiles.around(lat, lon, terrain, rng, size=32)
+    dem = simulate_dem_tiles(lat, lon, terrain, rng, size=32)
     assert np.all(dem.lat0 + 31 * POSTING_DEG <= 90.0 + 1e-9)
     s = fit_local_surface(dem, lat, lon)
     assert not s.valid[0] and s.valid[1]  # within 3 postings of the pole: no tile holds it
@@ -272,8 +265,8 @@ def test_tiles_stop_at_the_pole(rng):
 
 def test_dem_file_keeps_the_longitude_spacing(rng, tmp_path):
     terrain = SyntheticTerrain(seed=7)
-    dem = DemTiles.around(np.array([20.0, 60.0]), np.array([5.0, 5.0]), terrain, rng, size=16)
-    dem.save(tmp_path / "d.h5")
-    back = DemTiles.load(tmp_path / "d.h5")
+    dem = simulate_dem_tiles(np.array([20.0, 60.0]), np.array([5.0, 5.0]), terrain, rng, size=16)
+    save_dem(dem, tmp_path / "d.h5")
+    back = read_dem(tmp_path / "d.h5")
     np.testing.assert_array_equal(back.lon_posting, dem.lon_posting)
     assert sorted(set(np.round(dem.lon_posting * 3600, 6))) == [3.0, 6.0]

@@ -3,15 +3,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from misrgraph.model.dem import SyntheticTerrain, land_mask
+from misrgraph.sim.terrain import SyntheticTerrain, land_mask
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.model.frames import enu_basis
-from misrgraph.model.gcp import GcpDatabase, generate_gcp_database
+from misrgraph.model.gcp import GcpDatabase
+from misrgraph.sim.gcps import generate_gcp_database
+from misrgraph.io.truth import read_gcp_truth
+from misrgraph.io.gcp import read_gcp_database, save_gcp_database
 
 
 @pytest.fixture(scope="module")
-def db():
+def db_truth():
     return generate_gcp_database(np.random.default_rng(5), SyntheticTerrain(seed=5), 120, with_chips=True)
+
+
+@pytest.fixture(scope="module")
+def db(db_truth):
+    return db_truth[0]
 
 
 def test_distribution_follows_the_seed(db):
@@ -24,8 +32,9 @@ def test_distribution_follows_the_seed(db):
     assert land_mask(db.lat, db.lon).mean() > 0.95  # positions carry 30 m errors; truth is on land
 
 
-def test_database_errors_have_30m_sigma_per_enu_axis(db):
-    err = db.ecef() - db.truth_ecef
+def test_database_errors_have_30m_sigma_per_enu_axis(db_truth):
+    db, truth = db_truth
+    err = db.ecef() - truth
     enu = np.einsum("gji,gj->gi", enu_basis(db.lat, db.lon), err)
     k = enu.size
     chi2 = np.sum((enu / 30.0) ** 2)
@@ -34,13 +43,16 @@ def test_database_errors_have_30m_sigma_per_enu_axis(db):
     np.testing.assert_allclose(np.linalg.eigvalsh(cov), 900.0, rtol=1e-9)
 
 
-def test_round_trip(db, tmp_path):
-    db.save(tmp_path / "g.h5")
-    back = GcpDatabase.load(tmp_path / "g.h5")
+def test_round_trip(db_truth, tmp_path):
+    db, truth = db_truth
+    save_gcp_database(db, tmp_path / "g.h5", truth_ecef=truth)
+    back = read_gcp_database(tmp_path / "g.h5")
     np.testing.assert_array_equal(back.lat, db.lat)
     np.testing.assert_array_equal(back.region, db.region)
     assert back.chips.shape == (120, 9, 64, 64)
-    np.testing.assert_array_equal(back.truth_ecef, db.truth_ecef)
+    np.testing.assert_array_equal(read_gcp_truth(tmp_path / "g.h5"), truth)
+    save_gcp_database(db, tmp_path / "real.h5")
+    assert read_gcp_truth(tmp_path / "real.h5") is None
 
 
 def test_validation():
@@ -49,4 +61,4 @@ def test_validation():
     with pytest.raises(InputError, match="gcp.sigma_m"):
         GcpDatabase(np.arange(1), [5.0], [0.0], [0.0], [0.0], ["x"])
     with pytest.raises(FileFormatError):
-        GcpDatabase.load("/nonexistent.h5")
+        read_gcp_database("/nonexistent.h5")

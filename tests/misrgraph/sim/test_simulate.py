@@ -35,24 +35,25 @@ def test_noise_free_observations_reproject_exactly(tmp_path):
     run_simulate(ScenarioConfig(scenario="pass", seed=2, n_tie_points=60, n_check_points=5, duration_s=900.0,
                                 start_lat_deg=55.0, noise_free=True), out)
     sc = load_scenario(out)
-    p = sc.load_pass(0)
+    p, tp = sc.load_pass(0), sc.load_truth(0)
     o = p.observations
-    geo = p.geometry(sc.camera_truth, truth=True)
-    truth = p.truth.landmark_ecef[o.landmark]
+    geo = tp.geometry(p, sc.camera_truth)
+    truth = tp.landmark_ecef[o.landmark]
     h = ecef_to_geodetic(truth)[2]
     g = geo.pixel_to_ground(o.camera, o.band, o.line, o.sample, height=h, exposure=o.exposure)
     assert np.max(np.linalg.norm(g - truth, axis=1)) < 1e-4
-    assert not p.truth.blunder.any()
+    assert not tp.blunder.any()
 
 
 def test_observation_noise_matches_sigma(small_pass):
     sc, p = small_pass
+    tp = sc.load_truth(0)
     o = p.observations
-    geo = p.geometry(sc.camera_truth, truth=True)
-    truth = p.truth.landmark_ecef
+    geo = tp.geometry(p, sc.camera_truth)
+    truth = tp.landmark_ecef
     resid_l, resid_s, sig = [], [], []
     for c in range(len(CAMERAS)):
-        m = (o.camera == c) & ~p.truth.blunder
+        m = (o.camera == c) & ~tp.blunder
         ln, sm, vis, ex, _ = geo.ground_to_pixel(c, 2, truth[o.landmark[m]])
         same = ex == o.exposure[m]  # noise never changes the exposure index
         assert same.all()
@@ -67,6 +68,7 @@ def test_observation_noise_matches_sigma(small_pass):
 
 def test_pass_contents(small_pass):
     sc, p = small_pass
+    tp = sc.load_truth(0)
     kinds = np.bincount(p.landmarks.kind, minlength=3)
     assert kinds[KIND_TIE] == 150 or kinds[KIND_TIE] > 120  # a few may be seen by < 3 cameras
     assert kinds[KIND_CHECK] > 0
@@ -74,15 +76,15 @@ def test_pass_contents(small_pass):
     counts = np.bincount(p.observations.landmark, minlength=len(p.landmarks))
     assert np.all(counts[p.landmarks.kind == KIND_TIE] >= 3)
     # tie points are on land, on the true terrain
-    lat, lon, h = ecef_to_geodetic(p.truth.landmark_ecef)
-    from misrgraph.model.dem import SyntheticTerrain, land_mask
+    lat, lon, h = ecef_to_geodetic(tp.landmark_ecef)
+    from misrgraph.sim.terrain import SyntheticTerrain, land_mask
 
     assert land_mask(lat, lon).all()
     np.testing.assert_allclose(h[p.landmarks.kind == KIND_TIE],
                                SyntheticTerrain(seed=11).height(lat, lon)[p.landmarks.kind == KIND_TIE], atol=1e-3)
     # blunders: configured rate 2 % on tie points
     tie_obs = p.landmarks.kind[p.observations.landmark] == KIND_TIE
-    rate = p.truth.blunder[tie_obs].mean()
+    rate = tp.blunder[tie_obs].mean()
     n = tie_obs.sum()
     assert abs(rate - 0.02) < 4 * np.sqrt(0.02 * 0.98 / n)
 
@@ -205,7 +207,7 @@ def test_crash_during_simulation_leaves_no_directory(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise RuntimeError("simulated crash")
 
-    monkeypatch.setattr(sim.DemTiles, "around", boom)
+    monkeypatch.setattr(sim, "simulate_dem_tiles", boom)
     with pytest.raises(RuntimeError):
         run_simulate(ScenarioConfig(scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0,
                                     start_lat_deg=45.0), tmp_path / "out")

@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from misrgraph.estimate.adjust import run_adjust
+from misrgraph.runs.adjust import run_adjust
 from misrgraph.model.constants import ANGLES, CAMERAS
 from misrgraph.errors import InputError
 from misrgraph.viz.viewer import run_view
@@ -66,7 +66,7 @@ def test_ellipsoid_sizes_match_covariances(recording):
 
 
 def test_calibration_recording(small_month_dir, tmp_path):
-    from misrgraph.estimate.calibrate import run_calibrate
+    from misrgraph.runs.calibrate import run_calibrate
 
     run_calibrate(small_month_dir, out=tmp_path / "cgm.h5", max_passes=15)
     out = run_view(tmp_path / "cgm.h5", save=tmp_path / "c.rrd")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from misrgraph.evaluate.bench import run_bench_incremental, run_bench_sba
+from misrgraph.bench.studies import run_bench_incremental, run_bench_sba
 from misrgraph.commands.cli import app
 
 

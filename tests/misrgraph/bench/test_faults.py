@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from misrgraph.errors import InputError
-from misrgraph.evaluate.faults import KILL_COMMANDS, run_kill_trials
+from misrgraph.bench.faults import KILL_COMMANDS, run_kill_trials
 
 
 def test_kill_trials_leave_old_or_complete_new_files(tmp_path):
@@ -22,7 +22,7 @@ def test_kill_trials_leave_old_or_complete_new_files(tmp_path):
 
 def test_kill_study_judges_a_half_written_file_as_a_failure(tmp_path):
     """The judge is not vacuous: a truncated output is half-written, a missing one lost."""
-    from misrgraph.evaluate.faults import _Adjust
+    from misrgraph.bench.faults import _Adjust
 
     t = _Adjust(tmp_path, {})
     t.out.write_bytes(b"\x00" * 2000)

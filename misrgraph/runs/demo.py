@@ -36,7 +36,7 @@ def _simulate_month(out: Path, st: dict[str, Any]) -> str:
 
 
 def _calibrate(out: Path, st: dict[str, Any]) -> str:
-    from misrgraph.estimate.calibrate import run_calibrate
+    from misrgraph.runs.calibrate import run_calibrate
     from misrgraph.viz.plots import plot_calibration
 
     s = run_calibrate(out / "month", out=out / "camera_calibrated.h5")
@@ -57,7 +57,7 @@ def _simulate_pass(out: Path, st: dict[str, Any]) -> str:
 
 
 def _adjust(out: Path, st: dict[str, Any]) -> str:
-    from misrgraph.estimate.adjust import run_adjust
+    from misrgraph.runs.adjust import run_adjust
     from misrgraph.viz.plots import plot_adjustment
 
     s = run_adjust(out / "pass", camera_model=out / "camera_calibrated.h5", out=out / "pass_result.h5")
@@ -73,7 +73,7 @@ def _adjust(out: Path, st: dict[str, Any]) -> str:
 def _incremental(out: Path, st: dict[str, Any]) -> str:
     import shutil
 
-    from misrgraph.estimate.incremental import run_update
+    from misrgraph.runs.update import run_update
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     n_pass = 3 if st["small"] else 4

@@ -228,7 +228,7 @@ class _Update(_Target):
         return list(json.loads((self.state / "state.json").read_text())["passes"])
 
     def _ids(self) -> list[str] | None:
-        from misrgraph.estimate.incremental import _checked_file, load_state
+        from misrgraph.runs.update import _checked_file, load_state
 
         try:
             st = load_state(self.state)

@@ -358,8 +358,8 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
     """
     from scipy import stats
 
-    from misrgraph.estimate.adjust import run_adjust
-    from misrgraph.estimate.calibrate import run_calibrate
+    from misrgraph.runs.adjust import run_adjust
+    from misrgraph.runs.calibrate import run_calibrate
     from misrgraph.errors import InputError
 
     if study not in ("calibration", "adjust"):

@@ -1,0 +1,174 @@
+"""Scoring a pass adjustment against the simulator's truth.
+
+:func:`score_pass` gives attitude and ephemeris RMS over the pass, check-point geolocation
+before/after (exact image coordinates of the check points from the true geometry, geolocated onto
+their true height with the supplied and with the corrected navigation, so the figure measures the
+navigation/camera model only), co-registration of every camera against An in pixels, the
+check-point RMS the posterior covariance predicts (:func:`predicted_checkpoint_rms`), and NEES
+(divided by its dimension) of the knots (joint covariance), the landmarks and the whole state.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from misrgraph.estimate.adjust import AdjustResult, corrected_geometry, estimated_models, supplied_camera_of
+from misrgraph.estimate.solver import information_norm, linearize
+from misrgraph.io.passes import KIND_CHECK, OrbitPass
+from misrgraph.io.truth import PassTruth
+from misrgraph.model.camera import CameraModel
+from misrgraph.model.constants import ANGLES, ARCSEC, BANDS, CAMERAS
+from misrgraph.model.frames import ecef_to_geodetic, enu_basis
+from misrgraph.model.geolocation import PassGeometry
+
+__all__ = ["score_pass", "predicted_checkpoint_rms", "horizontal_error"]
+
+Array = NDArray[np.float64]
+RED = BANDS.index("red")
+
+
+def horizontal_error(est: Array, truth: Array) -> Array:
+    lat, lon, _ = ecef_to_geodetic(truth)
+    enu = np.einsum("nji,nj->ni", enu_basis(lat, lon), est - truth)
+    return np.hypot(enu[:, 0], enu[:, 1])
+
+
+def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel,
+               whole_state: bool = True) -> dict[str, Any]:
+    """Accuracy against the simulator's truth (see the module docstring). ``whole_state``: also the
+    joint NEES of the pass's whole state (only meaningful when the pass is the whole problem)."""
+    pg = res.pass_graph
+    out: dict[str, Any] = {}
+    t = np.arange(*orbit_pass.span, 1.024)
+    d_att = res.attitude.evaluate(t) - truth.attitude_error.evaluate(t)
+    out["attitude_rms_arcsec"] = {a: float(np.sqrt(np.mean(d_att[:, i] ** 2)) / ARCSEC) for i, a in enumerate(ANGLES)}
+    # where the pass has data: within 30 s of an adjusted observation (elsewhere only the prior speaks)
+    t_obs = np.sort(orbit_pass.observation_times()[pg.obs_index])
+    j = np.clip(np.searchsorted(t_obs, t), 1, t_obs.size - 1)
+    near = np.minimum(np.abs(t - t_obs[j - 1]), np.abs(t - t_obs[j])) < 30.0
+    out["attitude_rms_arcsec_observed"] = {a: float(np.sqrt(np.mean(d_att[near, i] ** 2)) / ARCSEC) for i, a in enumerate(ANGLES)}
+    out["observed_fraction_of_pass"] = float(near.mean())
+    d_eph = res.ephemeris.evaluate(t) - truth.ephemeris_error.evaluate(t)
+    out["ephemeris_rms_m"] = float(np.sqrt(np.mean(np.sum(d_eph**2, axis=1))))
+    out["ephemeris_rms_m_axis"] = {ax: float(np.sqrt(np.mean(d_eph[:, i] ** 2))) for i, ax in enumerate(("along", "cross", "nadir"))}
+    # check points: exact image coordinates from the truth geometry
+    true_geo = truth.geometry(orbit_pass)
+    supplied = orbit_pass.geometry(supplied_camera)
+    corrected = corrected_geometry(orbit_pass, res.attitude, res.ephemeris, res.camera)
+    chk = np.flatnonzero(orbit_pass.landmarks.kind == KIND_CHECK)
+    cp: dict[str, Any] = {}
+    coreg: dict[str, float] = {}
+    if chk.size:
+        g = truth.landmark_ecef[chk]
+        h = ecef_to_geodetic(g)[2]
+        an = CAMERAS.index("An")
+        ln_an, sm_an, vis_an, ex_an, _ = true_geo.ground_to_pixel(an, RED, g)
+        for c, name in enumerate(CAMERAS):
+            ln, sm, vis, ex, cross_true = true_geo.ground_to_pixel(c, RED, g)
+            if not vis.any():
+                continue
+            before = horizontal_error(supplied.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
+            after = horizontal_error(corrected.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
+            cp[name] = {"n": int(vis.sum()), "before": {"mean": float(before.mean()), "std": float(before.std())},
+                        "after": {"mean": float(after.mean()), "std": float(after.std())},
+                        "ratio_before_over_after": float(before.mean() / max(after.mean(), 1e-9)),
+                        "_after_rms": float(np.sqrt(np.mean(after**2)))}
+            # co-registration: An's view of the point geolocated with the corrected model,
+            # projected into camera c with the corrected model, against the true pixel in c
+            both = vis & vis_an
+            if name != "An" and both.any():
+                p_an = corrected.pixel_to_ground(an, RED, ln_an[both], sm_an[both], height=h[both], exposure=ex_an[both])
+                _, s2, ok, _, cross2 = corrected.ground_to_pixel(c, RED, p_an)
+                # continuous along-track image position (lines) and sample, against the truth
+                dl = cross2[ok] - cross_true[both][ok]
+                ds = s2[ok] - sm[both][ok]
+                coreg[name] = float(np.sqrt(np.mean(dl**2 + ds**2)))
+    if chk.size and cp:
+        pred = predicted_checkpoint_rms(orbit_pass, res, g, h, true_geo)
+        for name, v in pred.items():
+            cp[name]["after"]["predicted_rms"] = v
+            cp[name]["after"]["rms"] = cp[name].pop("_after_rms")
+    out["checkpoint_geolocation_m"] = cp
+    out["coregistration_px"] = coreg
+    # NEES: knots with their joint covariance, landmarks with their 3x3 marginals
+    keys, err = [], []
+    for a in range(3):
+        kt = res.attitude.knot_times[a]
+        tv = np.stack([truth.attitude_error.evaluate(kt)[:, a], truth.attitude_error.rate(kt)[:, a]], -1)
+        for j, k in enumerate(pg.knot_keys(a)):
+            keys.append(k)
+            err.append(res.values.atVector(k) - tv[j])
+    e = np.concatenate(err)
+    cov = res.marginals.joint_of(keys)
+    nees_knots = float(e @ np.linalg.solve(cov, e) / e.size)
+    lm_nees = []
+    for key, row in zip(pg.landmark_keys, pg.landmark_rows):
+        d = res.values.atVector(int(key)) - truth.landmark_ecef[row]
+        lm_nees.append(d @ np.linalg.solve(res.marginals[int(key)], d))
+    out["nees"] = {"knots": nees_knots, "landmarks": float(np.mean(lm_nees) / 3.0),
+                   "knots_dim": int(e.size), "landmarks_dim": int(3 * len(lm_nees))}
+    if whole_state:
+        out["nees"].update(_state_nees(truth, res, supplied_camera))
+    blunders = truth.blunder
+    if blunders.any() or res.rejected.size:
+        rej = np.zeros(blunders.size, bool)
+        rej[res.rejected] = True
+        out["blunders"] = {"injected": int(blunders.sum()), "rejected": int(rej.sum()),
+                           "rejected_that_were_blunders": int((rej & blunders).sum())}
+    return out
+
+
+def _state_nees(truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel) -> dict[str, Any]:
+    """The whole state jointly: e^T H e / dim with H the information matrix at the solution."""
+    pg = res.pass_graph
+    delta: dict[int, Array] = {}
+    for a in range(3):
+        kt = res.attitude.knot_times[a]
+        tv = np.stack([truth.attitude_error.evaluate(kt)[:, a], truth.attitude_error.rate(kt)[:, a]], -1)
+        for j, k in enumerate(pg.knot_keys(a)):
+            delta[k] = res.values.atVector(k) - tv[j]
+    for s_, k in enumerate(pg.ephemeris_keys()):
+        delta[k] = res.values.atVector(k) - truth.ephemeris_error.params[s_]
+    for c, k in pg.camera_keys.items():
+        tc, sc_ = truth.camera_model, supplied_camera
+        delta[k] = res.values.atVector(k) - np.array([tc.delta[c] - sc_.delta[c], tc.beta[c] - sc_.beta[c], tc.epsilon[c] - sc_.epsilon[c]])
+    for key, row in zip(pg.landmark_keys, pg.landmark_rows):
+        delta[int(key)] = res.values.atVector(int(key)) - truth.landmark_ecef[row]
+    state_dim = sum(pg.problem.dims.values())
+    nees_state = information_norm(pg.problem, linearize(pg.problem, res.values), delta) / state_dim
+    return {"state": nees_state, "state_dim": int(state_dim)}
+
+
+def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array, h: Array, true_geo: PassGeometry,
+                             draws: int = 40, seed: int = 0) -> dict[str, float]:
+    """Horizontal RMS geolocation error of the check points predicted by the posterior covariance
+    of the navigation and camera variables (Monte Carlo through the geolocation, fixed seed)."""
+    pg = res.pass_graph
+    keys = [k for a in range(3) for k in pg.knot_keys(a)] + pg.ephemeris_keys() + list(pg.camera_keys.values())
+    cov = res.marginals.joint_of(keys)
+    mean = np.concatenate([res.values.atVector(k) for k in keys])
+    rng = np.random.default_rng(seed)
+    chol = np.linalg.cholesky(0.5 * (cov + cov.T) + 1e-30 * np.eye(cov.shape[0]))
+    base_geo = corrected_geometry(orbit_pass, res.attitude, res.ephemeris, res.camera)
+    supplied = supplied_camera_of(res)
+    sq: dict[str, list[Array]] = {}
+    pix = {c: true_geo.ground_to_pixel(c, RED, g) for c in range(len(CAMERAS))}
+    base = {c: base_geo.pixel_to_ground(c, RED, p.line[p.visible], p.sample[p.visible], height=h[p.visible],
+                                        exposure=p.exposure[p.visible]) for c, p in pix.items() if p.visible.any()}
+    for _ in range(draws):
+        x = mean + chol @ rng.standard_normal(mean.size)
+        v = gtsam.Values()
+        for k, seg in zip(keys, np.split(x, np.cumsum([res.values.atVector(k).size for k in keys])[:-1])):
+            v.insert(k, seg)
+        att, eph, cam = estimated_models(pg, v, supplied)
+        geo = corrected_geometry(orbit_pass, att, eph, cam)
+        for c, p in pix.items():
+            if c not in base:
+                continue
+            gd = geo.pixel_to_ground(c, RED, p.line[p.visible], p.sample[p.visible], height=h[p.visible], exposure=p.exposure[p.visible])
+            sq.setdefault(CAMERAS[c], []).append(horizontal_error(gd, base[c]) ** 2)
+    return {name: float(np.sqrt(np.mean(v))) for name, v in sq.items()}

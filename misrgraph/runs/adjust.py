@@ -1,0 +1,157 @@
+"""``run_adjust``: one pass from files to RESULT.h5 and a JSON summary (the action behind
+``misrgraph adjust``; notebooks import it too).
+
+Reads the pass, camera model, GCP database and DEM; adjusts (:func:`misrgraph.estimate.adjust.adjust_pass`,
+which never sees truth); for a simulated pass then scores the estimate against the truth
+(:mod:`misrgraph.evaluate.score`) and writes the result atomically.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from misrgraph import __version__
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, adjust_pass
+from misrgraph.evaluate.score import score_pass
+from misrgraph.io.camera import load_camera_model, write_camera_group
+from misrgraph.io.dem import read_dem
+from misrgraph.io.gcp import read_gcp_database
+from misrgraph.io.h5 import atomic_h5, write_dataset
+from misrgraph.io.passes import KIND_GCP, OrbitPass
+from misrgraph.io.results import capped_list
+from misrgraph.io.truth import PassTruth, read_pass_truth
+from misrgraph.model.constants import ANGLES, CAMERAS
+
+__all__ = ["run_adjust", "write_adjust_result"]
+
+
+def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, summary: dict[str, Any],
+                        provenance: dict[str, str], truth: PassTruth | None = None) -> None:
+    """Write RESULT.h5 (HDF5 kind ``adjustment_result``, docs/data-model.md) atomically; with
+    ``truth`` also ``/landmarks/truth_ecef`` for the views."""
+    pg = res.pass_graph
+    with atomic_h5(path, "adjustment_result") as f:
+        f.attrs["pass_id"] = orbit_pass.pass_id
+        f.attrs["software"] = f"misrgraph {__version__}"
+        f.attrs["summary_json"] = json.dumps(summary)
+        prov = f.create_group("provenance")
+        for k, v in provenance.items():
+            prov.attrs[k] = str(v)
+        a = f.create_group("attitude_error")
+        for i, name in enumerate(ANGLES):
+            g = a.create_group(name)
+            keys = pg.knot_keys(i)
+            write_dataset(g, "knot_times", res.attitude.knot_times[i], units="s")
+            write_dataset(g, "knots", res.attitude.knots[i], units="rad, rad/s")
+            write_dataset(g, "covariance", np.stack([res.marginals[k] for k in keys]), units="rad^2, rad^2/s, rad^2/s^2")
+            write_dataset(g, "joint_covariance", res.marginals.joint_of(keys), order="knot-major (value, rate)")
+            write_dataset(g, "removed_knots", pg.removed_knots[i], meaning="indices on the uniform grid, eqs. 28-29")
+            write_dataset(g, "grid_spacing", np.array(float(pg.attitude_model.knot_times[i][1] - pg.attitude_model.knot_times[i][0])
+                                                       if pg.removed_knots[i].size == 0 else np.nan), units="s")
+        e = f.create_group("ephemeris_error")
+        write_dataset(e, "boundaries", res.ephemeris.boundaries, units="s")
+        write_dataset(e, "params", res.ephemeris.params, units="m/s (a), m (b)", order="a_x,a_y,a_z,b_x,b_y,b_z")
+        write_dataset(e, "covariance", np.stack([res.marginals[k] for k in pg.ephemeris_keys()]))
+        c = f.create_group("camera_corrections")
+        cams = sorted(pg.camera_keys)
+        write_dataset(c, "camera", np.array(cams, np.int64))
+        write_dataset(c, "values", np.array([res.values.atVector(pg.camera_keys[k]) for k in cams]).reshape(-1, 3), units="rad", order="delta,beta,epsilon")
+        write_dataset(c, "covariance", np.array([res.marginals[pg.camera_keys[k]] for k in cams]).reshape(-1, 3, 3), units="rad^2")
+        lm = f.create_group("landmarks")
+        write_dataset(lm, "row", pg.landmark_rows)
+        write_dataset(lm, "kind", orbit_pass.landmarks.kind[pg.landmark_rows], meaning="0 tie, 1 GCP")
+        write_dataset(lm, "ecef", np.array([res.values.atVector(int(k)) for k in pg.landmark_keys]), units="m")
+        write_dataset(lm, "covariance", np.array([res.marginals[int(k)] for k in pg.landmark_keys]), units="m^2")
+        if truth is not None:
+            write_dataset(lm, "truth_ecef", truth.landmark_ecef[pg.landmark_rows], units="m")
+        o = f.create_group("observations")
+        write_dataset(o, "residual_px", res.residuals_px, units="pixel", order="along,cross; NaN = not adjusted")
+        write_dataset(o, "camera", orbit_pass.observations.camera.astype(np.int8))
+        write_dataset(o, "rejected", res.rejected, meaning="observation indices rejected as blunders")
+        write_dataset(o, "rejected_normalised_residual", res.rejected_norm, units="sigma")
+        h = f.create_group("convergence")
+        write_dataset(h, "error", np.asarray(res.history), meaning="0.5 * sum of squared whitened residuals per iteration")
+        write_camera_group(f.create_group("camera_model"), res.camera)
+
+
+def run_adjust(
+    scenario_dir: str | os.PathLike[str],
+    camera_model: str | os.PathLike[str] | None = None,
+    pass_file: str | os.PathLike[str] | None = None,
+    gcp_file: str | os.PathLike[str] | None = None,
+    dem_file: str | os.PathLike[str] | None = None,
+    out: str | os.PathLike[str] | None = None,
+    cfg: AdjustConfig = AdjustConfig(),
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Adjust one pass of a scenario directory; write RESULT.h5 when ``out`` is given; return the summary.
+
+    ``pass_file`` may be left out only when the scenario holds a single pass. When the pass file
+    carries the simulator's truth the summary adds its scores (:func:`misrgraph.evaluate.score.score_pass`);
+    the estimate itself never sees it."""
+    d = Path(scenario_dir)
+    if not d.is_dir():
+        raise InputError("SCENARIO_DIR", str(d), "a directory written by 'misrgraph simulate'")
+    cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
+    if pass_file is None:
+        passes = sorted((d / "passes").glob("*.h5"))
+        if not passes:
+            raise FileFormatError(d / "passes", "no pass files (*.h5)")
+        if len(passes) > 1:
+            names = ", ".join(p.name for p in passes[:5]) + (", ..." if len(passes) > 5 else "")
+            raise InputError("PASS_FILE", None, f"one of the scenario's {len(passes)} pass files ({names}): "
+                                                "name it with --pass-file")
+        pass_file = passes[0]
+    orbit_pass = OrbitPass.load(pass_file)
+    truth = read_pass_truth(pass_file)
+    camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
+    gcps = read_gcp_database(gcp_file or d / "gcp.h5")
+    dem = read_dem(dem_file or d / "dem.h5")
+    res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress)
+    pg = res.pass_graph
+    summary: dict[str, Any] = {
+        "pass_id": orbit_pass.pass_id,
+        "iterations": res.iterations,
+        "final_cost": res.final_cost,
+        "seconds": res.seconds,
+        "observations": int(len(pg.collinearity)),
+        "landmarks": int(pg.landmark_keys.size),
+        "dropped_tie_points": int(res.dropped_landmarks.size),
+        "knots": {a: {"kept": int(res.attitude.knot_times[i].size), "removed": int(pg.removed_knots[i].size)}
+                  for i, a in enumerate(ANGLES)},
+        "rejected_observations": capped_list(
+            [{"index": int(i), "camera": CAMERAS[int(orbit_pass.observations.camera[i])],
+              "landmark_kind": "gcp" if orbit_pass.landmarks.kind[orbit_pass.observations.landmark[i]] == KIND_GCP else "tie",
+              "normalised_residual": float(n)} for i, n in zip(res.rejected, res.rejected_norm)],
+            f"{out}:/observations/rejected" if out is not None else None, group_by=("camera", "landmark_kind")),
+        "ephemeris": {"params": res.ephemeris.params.tolist(),
+                      "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in pg.ephemeris_keys()]},
+    }
+    diagnostics = []
+    obs = orbit_pass.observations
+    is_gcp = orbit_pass.landmarks.kind[obs.landmark] == KIND_GCP
+    n_gcp = int(is_gcp.sum())
+    n_gcp_rej = int(is_gcp[res.rejected].sum()) if res.rejected.size else 0
+    if n_gcp == 0:
+        diagnostics.append("no GCP observations on this pass: absolute accuracy rests on the DEM and the navigation priors")
+    elif n_gcp_rej == n_gcp:
+        diagnostics.append(f"all {n_gcp} GCP observations were rejected as blunders: absolute accuracy rests on the DEM "
+                           "and the navigation priors; check the GCP database")
+    removed = sum(int(r.size) for r in pg.removed_knots)
+    if removed:
+        diagnostics.append(f"{removed} knots removed by eqs. 28-29 (too few tie points or cameras): the spline spans the gaps")
+    summary["diagnostics"] = diagnostics
+    if truth is not None:
+        summary.update(score_pass(orbit_pass, truth, res, camera))
+    if out is not None:
+        write_adjust_result(Path(out), orbit_pass, res, summary,
+                            {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
+                             "config": json.dumps(dataclasses.asdict(cfg)), "software": f"misrgraph {__version__}"}, truth)
+    return summary

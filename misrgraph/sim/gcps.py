@@ -1,0 +1,66 @@
+"""The simulated GCP database: true positions on the simulated terrain, database positions with
+30 m (1 sigma per ENU axis) errors, stand-in image chips."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from misrgraph.errors import InputError
+from misrgraph.model.dem import Geoid
+from misrgraph.model.frames import ecef_to_geodetic, enu_basis, geodetic_to_ecef
+from misrgraph.model.gcp import GCP_REGIONS, GcpDatabase
+from misrgraph.sim.terrain import SyntheticTerrain, land_mask
+
+__all__ = ["generate_gcp_database"]
+
+Array = NDArray[np.float64]
+
+
+def generate_gcp_database(
+    rng: np.random.Generator,
+    terrain: SyntheticTerrain,
+    n_total: int = 120,
+    sigma_m: float = 30.0,
+    geoid: Geoid | None = None,
+    with_chips: bool = False,
+) -> tuple[GcpDatabase, Array]:
+    """Draw GCPs on land in the seed's regions: the database (position = truth + N(0, sigma) per
+    ENU axis) and the true positions ``(G, 3)`` m ECEF."""
+    if n_total < len(GCP_REGIONS):
+        raise InputError("n_gcps", n_total, f"at least {len(GCP_REGIONS)}")
+    geoid = geoid or Geoid("zero")
+    weights = np.array([w for _, w, _ in GCP_REGIONS], float)
+    counts = np.floor(weights / weights.sum() * n_total).astype(int)
+    counts[0] += n_total - counts.sum()
+    lats, lons, regions = [], [], []
+    for (name, _, boxes), count in zip(GCP_REGIONS, counts):
+        got = 0
+        while got < count:
+            box = boxes[rng.integers(len(boxes))]
+            la = rng.uniform(box[0], box[1], 64)
+            lo = rng.uniform(box[2], box[3], 64)
+            ok = land_mask(la, lo)
+            take = min(count - got, int(ok.sum()))
+            lats += la[ok][:take].tolist()
+            lons += lo[ok][:take].tolist()
+            regions += [name] * take
+            got += take
+    lat = np.array(lats)
+    lon = np.array(lons)
+    h = terrain.height(lat, lon) + geoid.undulation(lat, lon)
+    truth = geodetic_to_ecef(lat, lon, h)
+    sig = np.full(lat.size, sigma_m)
+    enu = enu_basis(lat, lon)
+    measured = truth + np.einsum("gij,gj->gi", enu, rng.standard_normal((lat.size, 3)) * sigma_m)
+    mlat, mlon, mh = ecef_to_geodetic(measured)
+    chips = None
+    if with_chips:
+        # stand-in chips: textured patterns unique per GCP and camera (no real imagery offline)
+        yy, xx = np.mgrid[0:64, 0:64]
+        chips = np.empty((lat.size, 9, 64, 64), np.uint8)
+        for i in range(lat.size):
+            f = rng.uniform(0.05, 0.3, (9, 2))
+            ph = rng.uniform(0, 6.3, (9, 1, 1))
+            chips[i] = (127 + 100 * np.sin(f[:, 0, None, None] * xx + f[:, 1, None, None] * yy + ph)).astype(np.uint8)
+    return GcpDatabase(np.arange(lat.size, dtype=np.int64), mlat, mlon, mh, sig, np.array(regions), chips), truth

@@ -1,0 +1,45 @@
+"""``run_adjust``: the estimate does not depend on the truth a simulated pass file carries, and a
+scenario of several passes needs the pass named."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from misrgraph.errors import InputError
+from misrgraph.io.gcp import read_gcp_database, save_gcp_database
+from misrgraph.io.passes import OrbitPass
+from misrgraph.io.truth import has_truth
+from misrgraph.runs.adjust import run_adjust
+
+
+def test_the_estimate_is_the_same_with_the_truth_removed(small_pass_dir, tmp_path):
+    """The same pass with every truth group removed (pass, GCP database, true camera model) gives
+    bit-identical estimates; only the scores disappear. Together with tests/test_layout.py (no
+    ``truth`` anywhere in misrgraph/estimate) this shows the estimator never reads it."""
+    blind = tmp_path / "blind"
+    shutil.copytree(small_pass_dir, blind)
+    for f in (blind / "passes").glob("*.h5"):
+        OrbitPass.load(f).save(f)
+        assert not has_truth(f, "orbit_pass")
+    save_gcp_database(read_gcp_database(blind / "gcp.h5"), blind / "gcp.h5")
+    assert not has_truth(blind / "gcp.h5", "gcp_database")
+    (blind / "camera_truth.h5").unlink()
+    with_truth = run_adjust(small_pass_dir)
+    without = run_adjust(blind)
+    for key in ("iterations", "final_cost", "observations", "landmarks", "dropped_tie_points", "knots", "ephemeris"):
+        assert without[key] == with_truth[key], key
+    assert without["rejected_observations"]["count"] == with_truth["rejected_observations"]["count"] > 0
+    assert without["rejected_observations"]["largest"] == with_truth["rejected_observations"]["largest"]
+    for key in ("nees", "checkpoint_geolocation_m", "attitude_rms_arcsec"):
+        assert key in with_truth and key not in without
+
+
+def test_a_scenario_of_several_passes_needs_the_pass_named(path_dir):
+    with pytest.raises(InputError, match="PASS_FILE.*pass files.*--pass-file"):
+        run_adjust(path_dir)
+    first = sorted((path_dir / "passes").glob("*.h5"))[0]
+    s = run_adjust(path_dir, pass_file=first)
+    assert s["pass_id"] == first.stem and np.isfinite(s["final_cost"])
