@@ -99,12 +99,7 @@ def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -
     att = AttitudeErrorModel([t.copy() for t in pg.attitude_model.knot_times],
                              [np.array([values.atVector(k) for k in pg.knot_keys(a)]) for a in range(3)])
     eph = EphemerisErrorModel(pg.ephemeris_model.boundaries.copy(), np.array([values.atVector(k) for k in pg.ephemeris_keys()]))
-    cam = camera.copy()
-    for c, k in pg.camera_keys.items():
-        d = values.atVector(k)
-        cam.delta[c] += d[0]
-        cam.beta[c] += d[1]
-        cam.epsilon[c] += d[2]
+    cam = camera.corrected({c: values.atVector(k) for c, k in pg.camera_keys.items()})
     cam.provenance = dict(camera.provenance, adjusted="camera corrections estimated by misrgraph adjust")
     return att, eph, cam
 
@@ -196,12 +191,6 @@ def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_
 
 def supplied_camera_of(res: AdjustResult) -> CameraModel:
     """The camera model before this adjustment's corrections (corrections are stored in values)."""
-    cam = res.camera.copy()
-    for c, k in res.pass_graph.camera_keys.items():
-        d = res.values.atVector(k)
-        cam.delta[c] -= d[0]
-        cam.beta[c] -= d[1]
-        cam.epsilon[c] -= d[2]
-    return cam
+    return res.camera.corrected({c: res.values.atVector(k) for c, k in res.pass_graph.camera_keys.items()}, sign=-1.0)
 
 

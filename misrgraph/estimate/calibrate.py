@@ -162,7 +162,7 @@ def _apply(camera: CameraModel, cams: list[int], cfg: CalibrateConfig, x: Array,
         if t_bin != temperature_bin:
             continue
         for j, p in enumerate(cfg.params):
-            _add_correction(m, p, c, band, x[i * n + j])
+            m.add_correction(p, c, band, x[i * n + j])
     if cfg.estimate_omega:
         m.omega += x[len(cams) * n: len(cams) * n + 3]
     return m
@@ -362,22 +362,6 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
     return out
 
 
-def _add_correction(m: CameraModel, p: str, c: int, band: int | None, v: float) -> None:
-    """Add one estimated correction to a model in place. A per-band angle correction goes into
-    that band's offset (``band_delta`` ...), never into the camera-level angle the bands share;
-    a camera-level f or alpha correction applies to every band."""
-    b = slice(None) if band is None else band
-    if p in ("delta", "beta", "epsilon"):
-        if band is None:
-            getattr(m, p)[c] += v
-        else:
-            getattr(m, "band_" + p)[c, band] += v
-    elif p == "f":
-        m.focal_length[c, b] += v
-    else:
-        m.alpha[c, b, int(p[-1])] += v
-
-
 def param_value(m: CameraModel, p: str, c: int, b: int) -> float:
     """A parameter's value for camera ``c`` and band ``b`` (angles include the band's offset)."""
     if p in ("delta", "beta", "epsilon"):
@@ -422,7 +406,7 @@ def _fit_table(res: CalibrationResult, cfg: CalibrateConfig, x: Array,
         for c, band, j, idx, t, gls in _gls_groups(res, cfg):
             a, slope = gls @ x[idx]
             v = a + slope * (t_end - t.mean())
-            _add_correction(m, cfg.params[j], c, band, v)
+            m.add_correction(cfg.params[j], c, band, v)
         m.temperature_c = t_end
         models.append(m)
     return TabulatedCameraModel(models)

@@ -95,6 +95,36 @@ class CameraModel:
             self, **{n: np.array(getattr(self, n)) for n in self._SHAPES}, provenance=dict(self.provenance)
         )
 
+    def add_correction(self, param: str, camera: int, band: int | None, value: float) -> None:
+        """Add one estimated correction in place: ``param`` is ``delta``, ``beta``, ``epsilon``
+        (rad), ``f`` (m) or ``alpha0``..``alpha5`` (pixel^-i). A per-band angle correction
+        (``band`` given) goes into that band's offset (``band_delta`` ...), never into the
+        camera-level angle the bands share; a camera-level ``f`` or ``alpha`` correction
+        (``band=None``) applies to every band. The one place corrections meet a model: the
+        adjustment, the calibration and their scoring all go through it."""
+        b = slice(None) if band is None else band
+        if param in ("delta", "beta", "epsilon"):
+            if band is None:
+                getattr(self, param)[camera] += value
+            else:
+                getattr(self, "band_" + param)[camera, band] += value
+        elif param == "f":
+            self.focal_length[camera, b] += value
+        elif param.startswith("alpha") and param[5:].isdigit() and int(param[5:]) < N_ALPHA:
+            self.alpha[camera, b, int(param[5:])] += value
+        else:
+            raise InputError("camera parameter", param, "delta, beta, epsilon, f or alpha0..alpha5")
+
+    def corrected(self, corrections: "dict[int, ArrayLike]", params: tuple[str, ...] = ("delta", "beta", "epsilon"),
+                  sign: float = 1.0) -> "CameraModel":
+        """A copy with camera-level corrections added (``sign=-1``: removed): ``corrections`` maps a
+        camera index to its values in the order of ``params``."""
+        m = self.copy()
+        for c, values in corrections.items():
+            for p, v in zip(params, np.asarray(values, dtype=float)):
+                m.add_correction(p, int(c), None, sign * float(v))
+        return m
+
     # ------------------------------------------------------------------ geometry
     def t_si(self) -> Array:
         """Instrument -> spacecraft rotation ``Rz(wz) Ry(wy) Rx(wx)``, (3, 3)."""

@@ -130,17 +130,13 @@ class AttitudeErrorModel:
         return out
 
     def rate(self, t: ArrayLike) -> Array:
-        """``dE/dt`` (rad/s), ``(N, 3)``, by the analytic derivative of the Hermite basis."""
+        """``dE/dt`` (rad/s), ``(N, 3)``: the derivative of the same piecewise cubic Hermite
+        (``scipy.interpolate.CubicHermiteSpline``; end segments extended as in :meth:`evaluate`)."""
+        from scipy.interpolate import CubicHermiteSpline
+
         tt = np.ravel(np.asarray(t, dtype=float))
-        out = np.empty((tt.size, 3))
-        for a in range(3):
-            kt, k = self.knot_times[a], self.knots[a]
-            i = np.clip(np.searchsorted(kt, tt, side="right") - 1, 0, kt.size - 2)
-            dt = kt[i + 1] - kt[i]
-            u = (tt - kt[i]) / dt
-            dw = np.stack([(-6 * u + 6 * u**2) / dt, 1 - 4 * u + 3 * u**2, (6 * u - 6 * u**2) / dt, 3 * u**2 - 2 * u], -1)
-            out[:, a] = dw[:, 0] * k[i, 0] + dw[:, 1] * k[i, 1] + dw[:, 2] * k[i + 1, 0] + dw[:, 3] * k[i + 1, 1]
-        return out
+        return np.stack([CubicHermiteSpline(self.knot_times[a], self.knots[a][:, 0], self.knots[a][:, 1])(tt, 1)
+                         for a in range(3)], -1)
 
     def without(self, removed: list[NDArray[np.int64]]) -> "AttitudeErrorModel":
         """A copy with knots removed per angle (indices into the current knots)."""

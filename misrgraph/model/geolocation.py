@@ -182,7 +182,7 @@ class PassGeometry:
 
         Without ``surface`` the ground is the WGS84 ellipsoidal height ``height`` (m). With
         ``surface(lat_deg, lon_deg) -> h`` (ellipsoidal m) the ray is cast onto that height field
-        by a bracketed root search (Illinois method) between the heights ``surface`` can take,
+        by a bracketed root search (:func:`scipy.optimize.elementwise.find_root`) between the heights ``surface`` can take,
         which are estimated along the ray; the first crossing from above is not guaranteed where
         terrain occludes itself. Rays that miss the Earth give NaN.
         """
@@ -224,7 +224,7 @@ class PassGeometry:
 
         The continuous time ``t*`` at which the point crosses the band's line array (detector
         ``x = -k``) is bracketed on a coarse time grid (only where the point is in front of the
-        camera and above the local horizon) and refined by the Illinois method. The exposure is
+        camera and above the local horizon) and refined by a bracketed root search. The exposure is
         the line nearest that crossing, ``L = round((t* - t0) / dt_line)``, and eq. 2's fraction
         follows from the detector x at ``t(L)``: ``frac = -(x + k) / dx``.
 
@@ -260,7 +260,7 @@ class PassGeometry:
         crossing = np.full(n, np.nan)
         if idx.size:
             f_t = lambda tt, ii: self._along_cross(c[ii], b[ii], g[ii], tt)[0] + k[ii]
-            t_star = _illinois(f_t, grid[j[idx]], grid[j[idx] + 1], tol=1e-7, index=idx)
+            t_star = _find_root(f_t, grid[j[idx]], grid[j[idx] + 1], tol=1e-7, index=idx)
             assert self.t0 is not None
             dt = self.camera.line_time
             t0 = self.t0[c[idx], b[idx]]
@@ -296,36 +296,20 @@ class PassGeometry:
         return along, cross, up
 
 
-def _illinois(
+def _find_root(
     fun: Callable[[Array, Array], Array], a: Array, b: Array, tol: float, index: Array, max_iter: int = 100
 ) -> Array:
-    """Vectorised Illinois (modified regula falsi) root search of ``fun(t, index)`` on [a, b]."""
-    a = a.copy()
-    b = b.copy()
-    fa = fun(a, index)
-    fb = fun(b, index)
-    side = np.zeros(a.shape, int)
-    c = a.copy()
-    for _ in range(max_iter):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            c = np.where(fb != fa, (a * fb - b * fa) / (fb - fa), 0.5 * (a + b))
-        fc = fun(c, index)
-        left = np.sign(fc) == np.sign(fa)
-        # replace a where fc has the sign of fa, else b
-        a_new = np.where(left, c, a)
-        b_new = np.where(left, b, c)
-        fa_new = np.where(left, fc, fa)
-        fb_new = np.where(left, fb, fc)
-        fb_new = np.where(left & (side == 1), fb_new * 0.5, fb_new)
-        fa_new = np.where(~left & (side == -1), fa_new * 0.5, fa_new)
-        side = np.where(left, 1, -1)
-        done = np.abs(b_new - a_new) < tol
-        a, b, fa, fb = a_new, b_new, fa_new, fb_new
-        if np.all(done | (fc == 0)):
-            break
-    else:
-        raise ConvergenceError(f"root search did not converge in {max_iter} iterations (max bracket {np.max(np.abs(b - a)):.3g})")
-    return c
+    """Roots of ``fun(t, index)`` bracketed by ``[a, b]`` elementwise, to ``tol`` in ``t``
+    (scipy's vectorised Chandrupatla search, ``scipy.optimize.elementwise.find_root``)."""
+    from scipy.optimize.elementwise import find_root
+
+    res = find_root(lambda t, i: fun(t, i.astype(np.int64)), (a, b), args=(np.asarray(index, float),),
+                    tolerances={"xatol": tol, "xrtol": 0.0, "fatol": 0.0, "frtol": 0.0}, maxiter=max_iter)
+    if not np.all(res.success):
+        bad = ~np.asarray(res.success)
+        raise ConvergenceError(f"root search did not converge in {max_iter} iterations for {int(bad.sum())} of "
+                               f"{bad.size} points (status {sorted(set(np.asarray(res.status)[bad].tolist()))})")
+    return np.asarray(res.x, dtype=float)
 
 
 def _cast(
@@ -350,6 +334,6 @@ def _cast(
         lat, lon, h = ecef_to_geodetic(p)
         return h - h_fun(lat, lon, ii)
 
-    lam = _illinois(f, lam_a[idx], lam_b[idx], tol=tol_m, index=idx)
+    lam = _find_root(f, lam_a[idx], lam_b[idx], tol=tol_m, index=idx)
     out[idx] = origin[idx] + lam[:, None] * direction[idx]
     return out

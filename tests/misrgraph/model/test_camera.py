@@ -237,3 +237,21 @@ def test_band_offsets_act_on_their_band_only(nominal_camera, rng):
     np.testing.assert_allclose(m.direction_scs(0, 1, 0.0, s), ref.direction_scs(0, 1, 0.0, s), atol=1e-15)
     for b in (0, 2, 3):
         np.testing.assert_array_equal(m.direction_scs(0, b, 0.0, s), nominal_camera.direction_scs(0, b, 0.0, s))
+
+
+def test_corrections_add_and_remove(nominal_camera):
+    """Camera-level corrections move the camera angle, per-band ones only that band's offset, and
+    ``sign=-1`` undoes ``corrected`` exactly."""
+    m = nominal_camera.corrected({0: [1e-5, -2e-5, 3e-5], 8: [4e-6, 0.0, 0.0]})
+    np.testing.assert_allclose(m.delta[0] - nominal_camera.delta[0], 1e-5, rtol=1e-9)
+    np.testing.assert_allclose(m.epsilon[0] - nominal_camera.epsilon[0], 3e-5, rtol=1e-9)
+    back = m.corrected({0: [1e-5, -2e-5, 3e-5], 8: [4e-6, 0.0, 0.0]}, sign=-1.0)
+    for name in ("delta", "beta", "epsilon"):
+        np.testing.assert_allclose(getattr(back, name), getattr(nominal_camera, name), rtol=0, atol=1e-18)
+    b = nominal_camera.copy()
+    b.add_correction("beta", 2, 1, 7e-6)
+    assert b.beta[2] == nominal_camera.beta[2] and b.band_beta[2, 1] - nominal_camera.band_beta[2, 1] == pytest.approx(7e-6)
+    b.add_correction("alpha3", 2, None, 1e-12)
+    np.testing.assert_allclose(b.alpha[2, :, 3] - nominal_camera.alpha[2, :, 3], 1e-12, rtol=1e-6)
+    with pytest.raises(InputError, match="alpha0..alpha5"):
+        b.add_correction("alpha9", 0, None, 1.0)

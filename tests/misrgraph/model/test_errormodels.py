@@ -56,7 +56,10 @@ def test_spline_continuity_of_value_and_rate_at_knots(spline):
 
 
 def test_spline_rate_is_derivative(spline, rng):
-    t = rng.uniform(1, 599, 20)
+    """Inside the knots and where the end segments are extended (both sides)."""
+    lo = min(k[0] for k in spline.knot_times)
+    hi = max(k[-1] for k in spline.knot_times)
+    t = np.r_[rng.uniform(1, 599, 20), lo - 3.0, hi + 3.0]
     h = 1e-4
     num = (spline.evaluate(t + h) - spline.evaluate(t - h)) / (2 * h)
     np.testing.assert_allclose(spline.rate(t), num, rtol=1e-6, atol=1e-13)
