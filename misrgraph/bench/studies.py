@@ -141,8 +141,8 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
     (TRF, sparse Jacobian) and Ceres via pyceres (Python cost functions).
     """
     from misrgraph.estimate.backends import solve_ceres, solve_scipy
-    from misrgraph.estimate.flat import FlatProblem, knot_marginals_sparse
-    from misrgraph.estimate.solver import marginal_covariances
+    from misrgraph.estimate.problem import flat_marginals
+    from misrgraph.estimate.problem import marginal_covariances
 
     tmp = None
     if workdir is None:
@@ -152,7 +152,7 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
     pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig())
     prob = pg.problem
     knots = _knot_keys(pg)
-    flat = FlatProblem(prob)
+    flat = prob.flat()
     flat.normal_equations(flat.initial())  # warm-up: numba compilation or cache load, not timed
     tight = SolverParams(relative_error_tol=1e-10, absolute_error_tol=1e-10, max_iterations=200)
     runs: dict[str, dict[str, Any]] = {}
@@ -178,7 +178,7 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
         if res is None:
             finish(name, tr, None)
         elif params.backend == "schur":
-            finish(name, tr, lambda: knot_marginals_sparse(flat, flat.from_values(res.values), knots))
+            finish(name, tr, lambda: flat_marginals(flat, flat.from_values(res.values)))
         else:
             finish(name, tr, lambda: marginal_covariances(prob, res.values))
 
@@ -215,7 +215,7 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
         x_s = solve_scipy(flat, ftol=1e-10, max_nfev=1000, on_cost=tr.add)["x"]
     except _Budget:
         x_s = None
-    finish("scipy", tr, None if x_s is None else lambda: knot_marginals_sparse(flat, x_s, knots))
+    finish("scipy", tr, None if x_s is None else lambda: flat_marginals(flat, x_s))
     if not skip_ceres:
         try:
             import pyceres  # noqa: F401
@@ -226,7 +226,7 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
             tr.add(flat.cost(flat.initial()), False)
             c = solve_ceres(flat, ftol=1e-10, max_iterations=200, on_cost=lambda cost: tr.add(cost, False),
                             max_seconds=budget_s)
-            finish("ceres", tr, lambda: knot_marginals_sparse(flat, c["x"], knots))
+            finish("ceres", tr, lambda: flat_marginals(flat, c["x"]))
     best = min(r["trace"].points[-1][1] for r in runs.values() if "trace" in r)
     target = best * (1.0 + target_rel)
     results: dict[str, Any] = {}
@@ -275,7 +275,7 @@ def run_bench_scaling(sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000), see
     import resource
     import tracemalloc
 
-    from misrgraph.estimate.flat import FlatProblem, knot_marginals_sparse
+    from misrgraph.estimate.problem import flat_marginals
 
     tmp = None
     if workdir is None:
@@ -291,8 +291,8 @@ def run_bench_scaling(sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000), see
         tracemalloc.start()
         t0 = time.perf_counter()
         res = solve(pg.problem, SolverParams(backend="schur"))
-        flat = FlatProblem(pg.problem)
-        knot_marginals_sparse(flat, flat.from_values(res.values), _knot_keys(pg))
+        flat = pg.problem.flat()
+        flat_marginals(flat, flat.from_values(res.values))
         dt = time.perf_counter() - t0
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
@@ -334,7 +334,7 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
         rows.append({"pass": k + 1, "incremental_seconds": inc, "batch_seconds": batch, "ratio": inc / batch,
                      "relinearization_rounds": solver.last_rounds, "linearization_error_sigma": solver.last_linearization_error})
     # accuracy after the last pass, against a tightly converged batch (not timed)
-    from misrgraph.estimate.solver import marginal_covariances
+    from misrgraph.estimate.problem import marginal_covariances
 
     prob, tight, _ = batch_solution(solver)
     m = marginal_covariances(prob, tight.values)

@@ -1,4 +1,4 @@
-"""Optional numba kernel for the normal-equation accumulation of :mod:`misrgraph.estimate.flat`.
+"""Optional numba kernel for the normal-equation accumulation of :mod:`misrgraph.estimate.problem`.
 
 Measured reason (``misrgraph bench sba``, 2000 tie points): the vectorised numpy accumulation
 (batched matmul + ``np.bincount`` scatter of ~9 M Hessian contributions) took ~70 ms of each

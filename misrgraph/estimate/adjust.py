@@ -35,7 +35,8 @@ from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph
 from misrgraph.io.passes import KIND_TIE, OrbitPass
-from misrgraph.estimate.solver import Marginals, SolverParams, marginal_covariances, solve
+from misrgraph.estimate.solver import SolverParams, solve
+from misrgraph.estimate.problem import Marginals, marginal_covariances
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
            "supplied_camera_of", "drop_unsupported_landmarks"]

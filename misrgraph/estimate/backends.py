@@ -1,6 +1,6 @@
 """The same adjustment problem solved by the alternatives a user could pick (for ``misrgraph bench sba``).
 
-* :func:`solve_scipy` hands :class:`misrgraph.estimate.flat.FlatProblem` (vectorised whitened residuals
+* :func:`solve_scipy` hands :class:`misrgraph.estimate.problem.FlatProblem` (vectorised whitened residuals
   and a sparse Jacobian from the very same pure functions) to ``scipy.optimize.least_squares`` --
   what a good numpy user would write.
 * :func:`solve_ceres` gives the same residuals to Ceres through ``pyceres`` with Python cost
@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.dem_height import dem_residual
-from misrgraph.estimate.flat import FlatProblem
+from misrgraph.estimate.problem import FlatProblem
 
 __all__ = ["solve_scipy", "solve_ceres"]
 

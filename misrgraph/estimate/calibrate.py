@@ -16,7 +16,8 @@ docs/conventions.md); knots without data are held by their priors. ``misrgraph b
 separation`` measures how the camera error shrinks with the number of passes.
 
 Procedure: robust (Cauchy) solve -> reject observations above ``reject_sigma`` -> least-squares
-re-solve; marginal covariance of the camera parameters from ``gtsam.Marginals`` (joint); a
+re-solve; joint marginal covariance of the camera parameters (:func:`misrgraph.estimate.problem.marginal_covariances`,
+by a sparse solve of the Schur complement); a
 parameter whose posterior sigma is more than ``poorly_determined_ratio`` of its prior sigma is
 reported as poorly determined (the data hardly constrain it).
 """
@@ -29,7 +30,6 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
-import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
@@ -41,10 +41,12 @@ from misrgraph.config import Config
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.gcp import GcpDatabase
-from misrgraph.estimate.graph import CAMERA_PRIOR_SIGMA, GraphConfig, PassGraph, Problem, build_pass_graph, merge_problems
+from misrgraph.estimate.graph import CAMERA_PRIOR_SIGMA, GraphConfig, PassGraph, build_pass_graph, merge_problems
+from misrgraph.estimate.problem import Problem
 from misrgraph.io.results import capped_list
 from misrgraph.io.passes import KIND_GCP, OrbitPass
-from misrgraph.estimate.solver import SolverParams, linearize, solve
+from misrgraph.estimate.solver import SolverParams, solve
+from misrgraph.estimate.problem import marginal_covariances
 
 __all__ = ["CalibrateConfig", "CalibrationResult", "calibrate_passes", "pointing_error_px", "temperature_bins",
            "thermal_slopes", "slope_estimates", "SlopeEstimates", "summarise", "evaluation_grid", "calibrated_models",
@@ -147,13 +149,6 @@ def _camera_keys_labels(graphs: list[PassGraph], cfg: CalibrateConfig,
     return out_k, labels, cams
 
 
-def _joint_marginal(problem: Problem, values: gtsam.Values, keys: list[int]) -> Array:
-    lin = linearize(problem, values)
-    marg = gtsam.Marginals(lin, values)
-    jm = marg.jointMarginalCovariance(gtsam.KeyVector(keys))
-    return np.asarray(jm.fullMatrix())
-
-
 def _apply(camera: CameraModel, cams: list[int], cfg: CalibrateConfig, x: Array, temperature_bin: int = 0) -> CameraModel:
     m = camera.copy()
     n = len(cfg.params)
@@ -214,7 +209,7 @@ def calibrate_passes(
     keys, labels, cams = _camera_keys_labels(graphs, cfg, bin_temps)
     if progress:
         progress("marginal covariance")
-    cov = _joint_marginal(prob, res.values, keys)
+    cov = marginal_covariances(prob, res.values, joint_keys=keys).joint
     x = np.concatenate([res.values.atVector(k) for k in keys])
     # from variable units (CAMERA_PARAM_SCALE) to SI
     unit = np.concatenate([CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in cfg.params]]] * (len(keys) - cfg.estimate_omega)

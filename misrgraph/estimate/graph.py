@@ -30,8 +30,9 @@ from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
+from misrgraph.estimate.problem import Problem
 
-__all__ = ["GraphConfig", "PassGraph", "Problem", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor",
+__all__ = ["GraphConfig", "PassGraph", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor",
            "CAMERA_PRIOR_SIGMA", "merge_problems"]
 
 log = logging.getLogger(__name__)
@@ -85,25 +86,6 @@ class GraphConfig(Config):
             raise InputError("knot_rule", self.knot_rule, ("interval", "support"))
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
             raise InputError("knot_spacing_s", self.knot_spacing_s, "three positive spacings (roll, pitch, yaw) in s")
-
-
-@dataclass
-class Problem:
-    """A nonlinear least-squares problem ready for the solver core."""
-
-    graph: gtsam.NonlinearFactorGraph
-    initial: gtsam.Values
-    batches: list
-    eliminate_first: list[int]
-    dims: dict[int, int]
-    eliminate_last: list[int] = field(default_factory=list)
-
-    @property
-    def other_keys(self) -> list[int]:
-        """Non-landmark keys: those not eliminated first, in insertion order, ``eliminate_last`` at the end."""
-        first = set(self.eliminate_first)
-        last = set(self.eliminate_last)
-        return [k for k in self.dims if k not in first and k not in last] + [k for k in self.eliminate_last if k in self.dims]
 
 
 @dataclass
@@ -260,9 +242,9 @@ def build_pass_graph(
     coll = CollinearityBatch(const, camera_parameter_matrix(camera, cam, band), camera.omega, obs.sigma_px[idx],
                              group, keys, select, robust)
     graph = gtsam.NonlinearFactorGraph()
-    for f in coll.factors():
-        graph.add(f)
-    values = gtsam.Values()
+    problem = Problem(graph, gtsam.Values(), [], [], {})
+    problem.add_batch(coll)
+    values = problem.initial
     dims: dict[int, int] = {}
 
     def add(key: int, value: Array) -> bool:
@@ -276,7 +258,6 @@ def build_pass_graph(
     # initial landmark positions: mean of each view's ray cast onto the DEM (supplied navigation)
     surface = dem_surface(dem, geoid, cfg.dem_method) if dem is not None else None
     init = _initial_landmarks(orbit_pass, geo, idx, lm_rows, dem, geoid, cfg.dem_method)
-    batches: list = [coll]
     dem_keys: list[int] = []
     dem_sig: list[float] = []
     dem_rows: list[int] = []
@@ -300,10 +281,7 @@ def build_pass_graph(
         dem_sig = [float(x) for x, ok in zip(s.sigma, s.valid) if ok]
     if dem_keys:
         assert surface is not None
-        dem_batch = DemBatch(np.array(dem_keys), np.array(dem_sig), surface)
-        for f in dem_batch.factors():
-            graph.add(f)
-        batches.append(dem_batch)
+        problem.add_batch(DemBatch(np.array(dem_keys), np.array(dem_sig), surface))
     # navigation variables and priors
     att_sig = np.asarray(cfg.attitude_sigma_arcsec) * ARCSEC
     for a in range(3):
@@ -331,7 +309,9 @@ def build_pass_graph(
     if cfg.estimate_omega and add(K.omega_key(), np.zeros(3)):
         graph.add(vector_prior(K.omega_key(), np.zeros(3), np.full(3, cfg.omega_prior_rad)))
     last = list(camera_keys.values()) + ([K.omega_key()] if cfg.estimate_omega else [])
-    problem = Problem(graph, values, batches, [int(lm_key_of[r]) for r in lm_rows], dims, last)
+    problem.eliminate_first = [int(lm_key_of[r]) for r in lm_rows]
+    problem.dims = dims
+    problem.eliminate_last = last
     log.info("pass %s: %d observations, %d landmarks, knots kept %s (removed %s)", orbit_pass.pass_id, idx.size,
              lm_rows.size, [t.size for t in att_kept.knot_times], [r.size for r in removed])
     return PassGraph(problem, pass_index, att_kept, removed, eph, lm_rows,
@@ -345,12 +325,15 @@ def merge_problems(problems: list[Problem]) -> Problem:
     values = gtsam.Values()
     dims: dict[int, int] = {}
     batches: list = []
+    positions: list[NDArray[np.int64]] = []
     first: list[int] = []
     last: list[int] = []
     for p in problems:
+        base = int(graph.size())
         graph.push_back(p.graph)
         values.insert(p.initial)
         batches += p.batches
+        positions += [base + pos for pos in p.batch_positions]
         for k in p.eliminate_first:
             if k not in dims:
                 first.append(k)
@@ -359,7 +342,7 @@ def merge_problems(problems: list[Problem]) -> Problem:
         for k in p.eliminate_last:
             if k not in last:
                 last.append(k)
-    return Problem(graph, values, batches, first, dims, last)
+    return Problem(graph, values, batches, first, dims, last, positions)
 
 
 def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, method) -> dict[int, Array]:

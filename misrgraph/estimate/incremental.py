@@ -46,11 +46,12 @@ from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, estimated_mode
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.dem import DemTiles
 from misrgraph.errors import InputError
-from misrgraph.estimate.flat import FlatProblem, NotFlat
+from misrgraph.estimate.problem import FlatProblem, NotFlat
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.estimate.graph import PassGraph, build_pass_graph, merge_problems
 from misrgraph.io.passes import OrbitPass
-from misrgraph.estimate.solver import Marginals, SolverParams, solve
+from misrgraph.estimate.solver import SolverParams, solve
+from misrgraph.estimate.problem import Marginals
 
 __all__ = ["IncrementalSolver", "batch_solution", "DEFAULT_LINEARIZATION_TOL"]
 
@@ -89,19 +90,6 @@ class _PassModel:
     c: dict[str, Array]
     position: dict[str, NDArray[np.int64]]
     record: dict[str, NDArray[np.int64]]
-
-
-def _row_positions(flat: FlatProblem) -> dict[str, NDArray[np.int64]]:
-    """Graph position of the factor behind each collinearity and DEM row of a pass's flat residual.
-
-    Rows are the collinearity observations (2 each, in the batch's order), then the DEM factors;
-    in the graph the collinearity factors come first among the custom factors, then the DEM
-    factors (:func:`misrgraph.estimate.graph.build_pass_graph`)."""
-    g = flat.problem.graph
-    custom = np.array([i for i in range(g.size()) if isinstance(g.at(i), gtsam.CustomFactor)], np.int64)
-    lay = flat.coll.layout
-    per_obs = np.repeat(np.arange(lay.n_factors), lay.obs_stop - lay.obs_start)
-    return {"collinearity": np.repeat(custom[per_obs], 2), "dem": custom[lay.n_factors:lay.n_factors + flat.m_dem]}
 
 
 class IncrementalSolver:
@@ -181,10 +169,10 @@ class IncrementalSolver:
 
     def _new_model(self, pg: PassGraph, first_record: int) -> _PassModel:
         try:
-            flat = FlatProblem(pg.problem)
+            flat = pg.problem.flat()
         except NotFlat as exc:  # pass graphs are plain least squares (blunders are screened before)
             raise InputError("pass graph", str(exc), "plain least-squares collinearity, DEM and prior factors") from exc
-        pos = _row_positions(flat)
+        pos = flat.row_positions()
         return _PassModel(flat, {f: sp.csr_matrix((p.size, flat.n)) for f, p in pos.items()},
                           {f: np.zeros(p.size) for f, p in pos.items()}, pos, {f: first_record + p for f, p in pos.items()})
 

@@ -12,7 +12,7 @@ copy. So the core:
    (``GaussianFactorGraph.optimize(ordering)``, landmarks first -- the classic Schur order --,
    the ordering computed once and reused); or, with ``backend="schur"`` (``"auto"``, the
    default, where the problem allows it), accumulates the normal
-   equations directly from the per-observation blocks (:mod:`misrgraph.estimate.flat`) and solves them by a
+   equations directly from the per-observation blocks (:meth:`misrgraph.estimate.problem.Problem.flat`) and solves them by a
    numpy Schur complement on the 3x3 landmark blocks -- no Python callback at all, ~4x faster
    than GTSAM's elimination at 2000 tie points, identical iterates with
    ``dem_second_order=False``; by default it adds the DEM factors' second-order term near the
@@ -20,10 +20,8 @@ copy. So the core:
 4. accepts/rejects the step and updates lambda exactly as ``gtsam.LevenbergMarquardtOptimizer``
    does (same initial lambda, factor 10, same convergence test), so both reach the same optimum.
 
-Marginal covariances (eq. 34 with lambda -> 0 at convergence) come from the undamped linearised
-system by a Schur complement on the landmark blocks: ``S = H_cc - sum H_cl H_ll^-1 H_lc``,
-``Sigma_cc = S^-1`` and ``Sigma_ll = H_ll^-1 + H_ll^-1 H_lc Sigma_cc H_cl H_ll^-1`` -- equal to
-``gtsam.Marginals`` (tested) and much faster than its per-key queries.
+Marginal covariances: :mod:`misrgraph.estimate.problem` (one Schur-complement routine for every
+solver, equal to ``gtsam.Marginals``).
 """
 
 from __future__ import annotations
@@ -39,11 +37,10 @@ from numpy.typing import NDArray
 
 from misrgraph.config import Config
 from misrgraph.errors import ConvergenceError, DegenerateProblemError, InputError
-from misrgraph.estimate.graph import Problem
+from misrgraph.estimate.problem import Problem
 
-__all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "marginal_covariances", "solve_gtsam_lm",
-           "gtsam_lm_params",
-           "Marginals", "information_norm", "check_converged"]
+__all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "solve_gtsam_lm", "gtsam_lm_params",
+           "information_norm", "check_converged"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -68,7 +65,7 @@ class SolverParams(Config):
     #: cannot apply is an error, never a silent substitute).
     backend: str = "auto"
     #: Add the DEM factors' second-order term (exact Hessian of the DEM part, see
-    #: :meth:`misrgraph.estimate.flat.FlatProblem.normal_equations`) once an accepted step decreased the
+    #: :meth:`misrgraph.estimate.problem.FlatProblem.normal_equations`) once an accepted step decreased the
     #: cost by less than ``second_order_below`` (relative). Gauss-Newton alone creeps on the DEM's
     #: sub-posting curvature (measured: 60 iterations still 1.5e-5 above the minimum). Only the
     #: Schur backend has it: None = wherever the backend that runs has it; True = required (an
@@ -141,7 +138,7 @@ def solve(
     ``params.backend`` chooses the linear solver of each step: ``"gtsam"`` (GTSAM's sparse
     elimination of the linearised factor graph, any problem), ``"schur"`` (the vectorised flat
     problem with a numpy Schur complement on the 3x3 landmark blocks; single-pass least squares
-    without robust losses, see :mod:`misrgraph.estimate.flat`; :class:`InputError` for any other problem)
+    without robust losses, see :mod:`misrgraph.estimate.problem`; :class:`InputError` for any other problem)
     or ``"auto"`` (Schur where it applies, else GTSAM; ``SolveResult.backend`` says which ran).
     Both apply the same damping, acceptance and convergence rules.
     """
@@ -159,7 +156,7 @@ class _NonFiniteStart(DegenerateProblemError):
 def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
            progress: Callable[[int, float, float], None] | None) -> SolveResult:
     if params.backend in ("schur", "auto"):
-        from misrgraph.estimate.flat import NotFlat
+        from misrgraph.estimate.problem import NotFlat
 
         try:
             res = _solve_schur(problem, params.replace(dem_second_order=params.dem_second_order is not False),
@@ -296,9 +293,7 @@ def _schur_step(sys: _SchurSystem, lam: float, n_l: int) -> Array:
 
 def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
                  progress: Callable[[int, float, float], None] | None) -> SolveResult:
-    from misrgraph.estimate.flat import FlatProblem
-
-    flat = FlatProblem(problem)
+    flat = problem.flat()
     n_l = 3 * len(problem.eliminate_first)
 
     def step(x: Array, system: _SchurSystem, lam: float) -> Array:
@@ -334,90 +329,6 @@ def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> S
     opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.initial, p)
     values = opt.optimize()
     return SolveResult(values, opt.iterations(), True, float(problem.graph.error(values)), [], time.perf_counter() - t0)
-
-
-@dataclass
-class Marginals:
-    """Marginal covariances of every variable (dict key -> (d, d)) and the joint of the
-    non-landmark variables (``joint``, ordered as ``joint_keys``)."""
-
-    cov: dict[int, Array]
-    joint: Array
-    joint_keys: list[int]
-    joint_offsets: dict[int, int]
-
-    def __getitem__(self, key: int) -> Array:
-        return self.cov[int(key)]
-
-    def joint_of(self, keys: list[int]) -> Array:
-        """Joint covariance of several non-landmark variables."""
-        idx = np.concatenate([np.arange(self.joint_offsets[k], self.joint_offsets[k] + self.cov[k].shape[0]) for k in keys])
-        return self.joint[np.ix_(idx, idx)]
-
-
-def marginal_covariances(problem: Problem, values: gtsam.Values, lin: gtsam.GaussianFactorGraph | None = None) -> Marginals:
-    """Marginal covariances by a Schur complement on the landmarks (see the module docstring)."""
-    lin = lin if lin is not None else linearize(problem, values)
-    lm_set = set(int(k) for k in problem.eliminate_first)
-    other = problem.other_keys
-    off: dict[int, int] = {}
-    n_c = 0
-    for k in other:
-        off[k] = n_c
-        n_c += problem.dims[k]
-    lm_index = {k: i for i, k in enumerate(problem.eliminate_first)}
-    n_l = len(lm_index)
-    h_ll = np.zeros((n_l, 3, 3))
-    h_lc = np.zeros((n_l, 3, n_c))
-    h_cc = np.zeros((n_c, n_c))
-    for i in range(lin.size()):
-        f = lin.at(i)
-        if f is None:
-            continue
-        a, _ = f.jacobian()
-        keys = [int(k) for k in f.keys()]
-        cols = []
-        c0 = 0
-        for k in keys:
-            d = problem.dims[k]
-            cols.append((k, c0, d))
-            c0 += d
-        lms = [(k, c, d) for k, c, d in cols if k in lm_set]
-        if len(lms) > 1:
-            raise DegenerateProblemError("marginals: a factor couples two landmarks; use gtsam.Marginals instead")
-        oth = [(k, c, d) for k, c, d in cols if k not in lm_set]
-        if oth:
-            a_c = np.zeros((a.shape[0], n_c))
-            for k, c, d in oth:
-                a_c[:, off[k]:off[k] + d] = a[:, c:c + d]
-            nz = np.flatnonzero(np.any(a_c != 0, axis=0))
-            h_cc[np.ix_(nz, nz)] += a_c[:, nz].T @ a_c[:, nz]
-        if lms:
-            k, c, d = lms[0]
-            j = lm_index[k]
-            a_l = a[:, c:c + 3]
-            h_ll[j] += a_l.T @ a_l
-            if oth:
-                h_lc[j] += a_l.T @ a_c
-    try:
-        h_ll_inv = np.linalg.inv(h_ll) if n_l else h_ll
-    except np.linalg.LinAlgError as exc:
-        raise DegenerateProblemError("a landmark is not determined (singular 3x3 information block)") from exc
-    g = h_ll_inv @ h_lc if n_l else np.zeros((0, 3, n_c))  # (L, 3, n_c)
-    s = h_cc - h_lc.reshape(3 * n_l, n_c).T @ g.reshape(3 * n_l, n_c) if n_l else h_cc
-    try:
-        chol = np.linalg.cholesky(0.5 * (s + s.T))
-    except np.linalg.LinAlgError as exc:
-        raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)") from exc
-    inv_l = np.linalg.inv(chol)
-    sigma_cc = inv_l.T @ inv_l
-    cov: dict[int, Array] = {k: sigma_cc[off[k]:off[k] + problem.dims[k], off[k]:off[k] + problem.dims[k]].copy() for k in other}
-    if n_l:
-        gs = (g.reshape(3 * n_l, n_c) @ sigma_cc).reshape(n_l, 3, n_c)
-        sl = h_ll_inv + np.einsum("lib,ljb->lij", gs, g)
-        for k, j in lm_index.items():
-            cov[k] = sl[j]
-    return Marginals(cov, sigma_cc, other, off)
 
 
 def information_norm(problem: Problem, lin: gtsam.GaussianFactorGraph, delta: dict[int, Array]) -> float:

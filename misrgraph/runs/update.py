@@ -352,7 +352,7 @@ def _run_update_locked(
             s.update(score_pass(p, truth, res, camera, whole_state=False))
         if compare_batch:
             prob, bres, bsec = batch_solution(solver)
-            from misrgraph.estimate.solver import marginal_covariances
+            from misrgraph.estimate.problem import marginal_covariances
 
             m = None
             try:

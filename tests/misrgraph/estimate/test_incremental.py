@@ -12,7 +12,7 @@ from misrgraph.commands.cli import app
 from misrgraph.estimate.incremental import IncrementalSolver, batch_solution
 from misrgraph.runs.update import load_state, run_update
 from misrgraph.sim.simulate import load_scenario
-from misrgraph.estimate.solver import marginal_covariances
+from misrgraph.estimate.problem import marginal_covariances
 
 
 

@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from misrgraph.errors import DegenerateProblemError
-from misrgraph.estimate.flat import FlatProblem
+from misrgraph.estimate.problem import FlatProblem
 from misrgraph.estimate.graph import GraphConfig, build_pass_graph
 from misrgraph.io.passes import Observations, OrbitPass
-from misrgraph.estimate.solver import SolverParams, marginal_covariances, solve, solve_gtsam_lm
+from misrgraph.estimate.solver import SolverParams, solve, solve_gtsam_lm
+from misrgraph.estimate.problem import marginal_covariances
 
 TIGHT = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12, max_iterations=60)
 
@@ -71,7 +72,7 @@ def test_degenerate_inputs_are_diagnosed(small_pass):
 
 
 def test_flat_problem_matches_the_graph_and_its_jacobian(noisy_graph):
-    from misrgraph.estimate.flat import FlatProblem
+    from misrgraph.estimate.problem import FlatProblem
     from misrgraph.estimate.solver import error
 
     prob = noisy_graph.problem
@@ -97,7 +98,7 @@ def test_flat_problem_matches_the_graph_and_its_jacobian(noisy_graph):
 
 def test_numba_and_numpy_normal_equations_agree(noisy_graph):
     from misrgraph.estimate._kernels import HAVE_NUMBA
-    from misrgraph.estimate.flat import FlatProblem
+    from misrgraph.estimate.problem import FlatProblem
 
     flat = FlatProblem(noisy_graph.problem)
     x = flat.initial()

@@ -1,31 +1,90 @@
-"""A Problem as one vector of unknowns: vectorised whitened residuals and a sparse Jacobian.
+"""The one problem representation, and the one marginal-covariance routine.
 
-Built from the very same pure functions as the factors (collinearity, DEM height) and the graph's
-``PriorFactorVector`` priors, with no per-factor Python callback. Used by the solver core's
-``schur`` backend (:func:`misrgraph.estimate.solver.solve`) and by the scipy alternative of
-``misrgraph bench sba``. Supports problems whose factors are one collinearity batch, an optional
-DEM batch and vector priors, with no robust loss and no factor coupling two landmarks (the
-single-pass least-squares adjustment); :class:`FlatProblem` raises :class:`NotFlat` otherwise.
+:class:`Problem` is what every solver consumes: the GTSAM backend eliminates its ``graph``; the
+Schur backend, ``scipy.optimize.least_squares``, Ceres (``misrgraph bench sba``) and the linear
+model iSAM2 is kept in step with (:mod:`misrgraph.estimate.incremental`) all use
+:meth:`Problem.flat`, the same problem as one vector of unknowns with whitened residuals and a
+sparse Jacobian -- built from the very same pure functions as the factors (collinearity, DEM
+height) and the graph's ``PriorFactorVector`` priors, with no per-factor Python callback. Rows
+are tied to factors by the graph positions :meth:`Problem.add_batch` records, never by the
+graph's order. The flat form covers problems whose factors are one collinearity batch, an
+optional DEM batch and vector priors, with no robust loss and no factor coupling two landmarks
+(the single-pass least-squares adjustment); :class:`FlatProblem` raises :class:`NotFlat` otherwise.
+
+Marginal covariances (eq. 34 with lambda -> 0 at convergence) come from ``J^T J`` by a Schur
+complement on the 3x3 landmark blocks (:func:`schur_marginals`), whether ``J`` comes from GTSAM's
+linearisation (:func:`marginal_covariances`) or from the flat form (:func:`flat_marginals`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import gtsam
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
 from factors.collinearity import CollinearityBatch, collinearity_residual
 from factors.dem_height import DemBatch, dem_residual, dem_residual_hessian
-from misrgraph.errors import InputError
-from misrgraph.estimate.graph import Problem
+from misrgraph.errors import DegenerateProblemError, InputError
 
-__all__ = ["FlatProblem", "NotFlat", "knot_marginals_sparse"]
+__all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_marginals", "marginal_covariances", "flat_marginals"]
 
 Array = NDArray[np.float64]
+
+
+@dataclass
+class Problem:
+    """A nonlinear least-squares problem: the one representation every solver consumes.
+
+    ``graph`` holds GTSAM factors (the batches' ``CustomFactor`` adapters and ``PriorFactorVector``
+    priors), ``initial`` the start, ``dims`` every variable's dimension, ``eliminate_first`` the
+    landmark keys (3-vectors, eliminated first: the Schur order) and ``eliminate_last`` the
+    variables shared by every pass (cameras). :meth:`flat` is the same problem as one vector of
+    unknowns with vectorised residuals and a sparse Jacobian (for the Schur backend, scipy, Ceres
+    and iSAM2's mirror); it is built from these very objects, and each of its rows knows the graph
+    position of its factor (:meth:`FlatProblem.row_positions`).
+    """
+
+    graph: gtsam.NonlinearFactorGraph
+    initial: gtsam.Values
+    batches: list
+    eliminate_first: list[int]
+    dims: dict[int, int]
+    eliminate_last: list[int] = field(default_factory=list)
+    #: graph positions of each batch's factors, in the order of ``batches`` (recorded as the
+    #: factors are added, :meth:`add_batch`; never inferred from the graph's order)
+    batch_positions: list[NDArray[np.int64]] = field(default_factory=list)
+
+    @property
+    def other_keys(self) -> list[int]:
+        """Non-landmark keys: those not eliminated first, in insertion order, ``eliminate_last`` at the end."""
+        first = set(self.eliminate_first)
+        last = set(self.eliminate_last)
+        return [k for k in self.dims if k not in first and k not in last] + [k for k in self.eliminate_last if k in self.dims]
+
+
+    def add_batch(self, batch: Any) -> NDArray[np.int64]:
+        """Append a factor batch's adapters to the graph and record their positions."""
+        start = int(self.graph.size())
+        for f in batch.factors():
+            self.graph.add(f)
+        pos = np.arange(start, int(self.graph.size()), dtype=np.int64)
+        self.batches.append(batch)
+        self.batch_positions.append(pos)
+        return pos
+
+    def flat(self) -> "FlatProblem":
+        """This problem as a vector of unknowns (built once; raises :class:`NotFlat` when the
+        problem has factors the flat form does not cover)."""
+        cached = self.__dict__.get("_flat")
+        if cached is None:
+            cached = FlatProblem(self)
+            self.__dict__["_flat"] = cached
+        return cached
 
 
 class NotFlat(ValueError):
@@ -75,6 +134,9 @@ class FlatProblem:
                 raise NotFlat(f"factor of type {type(f).__name__} is not covered by the flat formulation")
         if n_custom != self.coll.layout.n_factors + (len(self.dem) if self.dem is not None else 0):
             raise NotFlat("the graph holds custom factors outside the problem's batches")
+        if len(problem.batch_positions) != len(problem.batches):
+            raise NotFlat("the problem does not record its batches' graph positions (build it with Problem.add_batch)")
+        self._positions = {self.family_of(bt): pos for bt, pos in zip(problem.batches, problem.batch_positions)}
         b = self.coll
         self._slot_cols = []
         for s, d in enumerate(b.slot_dims):
@@ -107,6 +169,15 @@ class FlatProblem:
     def family_of(batch: object) -> str:
         """The :meth:`family_rows` name of a factor batch (``"other"`` for anything else)."""
         return "collinearity" if isinstance(batch, CollinearityBatch) else "dem" if isinstance(batch, DemBatch) else "other"
+
+    def row_positions(self) -> dict[str, NDArray[np.int64]]:
+        """Graph position of the factor behind each row of the collinearity and DEM families:
+        a collinearity factor (one landmark's views) owns two rows per observation, a DEM factor one."""
+        lay = self.coll.layout
+        per_obs = np.repeat(np.arange(lay.n_factors), lay.obs_stop - lay.obs_start)
+        out = {"collinearity": np.repeat(self._positions["collinearity"][per_obs], 2)}
+        out["dem"] = self._positions["dem"] if self.dem is not None else np.zeros(0, np.int64)
+        return out
 
     def initial(self) -> Array:
         return self.from_values(self.problem.initial)
@@ -301,18 +372,157 @@ class FlatProblem:
         return v
 
 
-def knot_marginals_sparse(flat: FlatProblem, x: Array, keys: list[int]) -> dict[int, Array]:
-    """Marginal covariances of non-landmark variables: ``S^-1`` of the landmark Schur complement
-    of the normal equations (the same quantity ``gtsam.Marginals`` returns)."""
-    blk, hlc, hcc, _, _ = flat.normal_equations(x)
-    n_l = 3 * blk.shape[0]
-    n_c = hcc.shape[0]
-    ig = np.linalg.inv(blk) @ hlc
-    s = hcc - hlc.reshape(-1, n_c).T @ ig.reshape(-1, n_c)
-    cov = np.linalg.inv(s)
-    out = {}
+@dataclass
+class Marginals:
+    """Marginal covariances of every variable (dict key -> (d, d)) and the joint of the
+    non-landmark variables (``joint``, ordered as ``joint_keys``)."""
+
+    cov: dict[int, Array]
+    joint: Array
+    joint_keys: list[int]
+    joint_offsets: dict[int, int]
+
+    def __getitem__(self, key: int) -> Array:
+        return self.cov[int(key)]
+
+    def joint_of(self, keys: list[int]) -> Array:
+        """Joint covariance of several non-landmark variables."""
+        idx = np.concatenate([np.arange(self.joint_offsets[k], self.joint_offsets[k] + self.cov[k].shape[0]) for k in keys])
+        return self.joint[np.ix_(idx, idx)]
+
+
+def _blocks_from_linear(problem: Problem, lin: gtsam.GaussianFactorGraph) -> tuple[Array, sp.csr_matrix, sp.csr_matrix]:
+    """``H_ll (L, 3, 3)``, ``H_lc (3L, n_c)`` and ``H_cc (n_c, n_c)`` (sparse) of ``J^T J`` from a
+    linearised graph, landmarks in ``problem.eliminate_first`` order, the others in
+    ``problem.other_keys`` order."""
+    lm_index = {int(k): i for i, k in enumerate(problem.eliminate_first)}
+    off, n_c = _offsets(problem.other_keys, problem.dims)
+    h_ll = np.zeros((len(lm_index), 3, 3))
+    lc_r, lc_c, lc_v, cc_r, cc_c, cc_v = [], [], [], [], [], []
+    for i in range(lin.size()):
+        f = lin.at(i)
+        if f is None:
+            continue
+        a, _ = f.jacobian()
+        c0, lms, oth_cols, oth_blocks = 0, [], [], []
+        for k in (int(k) for k in f.keys()):
+            d = problem.dims[k]
+            if k in lm_index:
+                lms.append((lm_index[k], a[:, c0:c0 + d]))
+            else:
+                oth_cols.append(np.arange(off[k], off[k] + d))
+                oth_blocks.append(a[:, c0:c0 + d])
+            c0 += d
+        if len(lms) > 1:
+            raise DegenerateProblemError("marginals: a factor couples two landmarks (the Schur form needs one per factor)")
+        if oth_cols:
+            cols = np.concatenate(oth_cols)
+            a_o = np.concatenate(oth_blocks, axis=1)
+            cc_r.append(np.repeat(cols, cols.size))
+            cc_c.append(np.tile(cols, cols.size))
+            cc_v.append((a_o.T @ a_o).ravel())
+        if lms:
+            j, a_l = lms[0]
+            h_ll[j] += a_l.T @ a_l
+            if oth_cols:
+                lc_r.append(np.repeat(3 * j + np.arange(3), cols.size))
+                lc_c.append(np.tile(cols, 3))
+                lc_v.append((a_l.T @ a_o).ravel())
+    cat = (lambda x, t: np.concatenate(x) if x else np.zeros(0, t))
+    n_l = 3 * len(lm_index)
+    h_lc = sp.csr_matrix((cat(lc_v, float), (cat(lc_r, np.int64), cat(lc_c, np.int64))), shape=(n_l, n_c))
+    h_cc = sp.csr_matrix((cat(cc_v, float), (cat(cc_r, np.int64), cat(cc_c, np.int64))), shape=(n_c, n_c))
+    return h_ll, h_lc, h_cc
+
+
+def _offsets(keys: list[int], dims: dict[int, int]) -> tuple[dict[int, int], int]:
+    off, n = {}, 0
     for k in keys:
-        o = flat.offset[k] - n_l
-        d = flat.problem.dims[k]
-        out[k] = cov[o:o + d, o:o + d]
-    return out
+        off[int(k)] = n
+        n += dims[int(k)]
+    return off, n
+
+
+def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_keys: list[int], other_keys: list[int],
+                    dims: dict[int, int], joint_keys: list[int] | None = None) -> Marginals:
+    """The project's one marginal-covariance routine (eq. 34 at convergence), from ``J^T J`` in
+    Schur form: landmark blocks ``h_ll (L, 3, 3)``, ``h_lc (3L, n_c)`` and ``h_cc (n_c, n_c)``.
+
+    ``S = H_cc - H_cl H_ll^-1 H_lc`` is formed sparse. With ``joint_keys=None`` every marginal is
+    returned: ``Sigma_cc = S^-1`` densely (by Cholesky) and each landmark's
+    ``Sigma_ll = H_ll^-1 + G Sigma_cc G^T`` with ``G = H_ll^-1 H_lc``; ``joint`` is then all of
+    ``Sigma_cc``. With ``joint_keys`` (non-landmark keys) only their joint covariance is computed,
+    by a sparse LU solve of ``S X = E`` for their columns -- for problems whose ``S`` is too large
+    to invert (a month of calibration passes). Equal to ``gtsam.Marginals`` (tested).
+    """
+    n_l = len(landmark_keys)
+    off, n_c = _offsets(other_keys, dims)
+    try:
+        h_ll_inv = np.linalg.inv(h_ll) if n_l else h_ll
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateProblemError("a landmark is not determined (singular 3x3 information block)") from exc
+    if n_l:
+        d_inv = sp.block_diag(list(h_ll_inv), format="csr")
+        g = (d_inv @ h_lc).tocsr()
+        s = (h_cc - h_lc.T @ g).tocsc()
+    else:
+        g = sp.csr_matrix((0, n_c))
+        s = sp.csc_matrix(h_cc)
+    if joint_keys is not None:
+        idx = np.concatenate([np.arange(off[int(k)], off[int(k)] + dims[int(k)]) for k in joint_keys])
+        try:
+            lu = spla.splu(s)
+            rhs = np.zeros((n_c, idx.size))
+            rhs[idx, np.arange(idx.size)] = 1.0
+            joint = lu.solve(rhs)[idx]
+        except RuntimeError as exc:
+            raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system singular)") from exc
+        joint = 0.5 * (joint + joint.T)
+        if not np.all(np.diag(joint) > 0):
+            raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)")
+        j_off, o = {}, 0
+        cov = {}
+        for k in joint_keys:
+            j_off[int(k)] = o
+            cov[int(k)] = joint[o:o + dims[int(k)], o:o + dims[int(k)]].copy()
+            o += dims[int(k)]
+        return Marginals(cov, joint, [int(k) for k in joint_keys], j_off)
+    s_dense = s.toarray()
+    try:
+        chol = np.linalg.cholesky(0.5 * (s_dense + s_dense.T))
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)") from exc
+    inv_l = np.linalg.inv(chol)
+    sigma_cc = inv_l.T @ inv_l
+    cov = {int(k): sigma_cc[off[int(k)]:off[int(k)] + dims[int(k)], off[int(k)]:off[int(k)] + dims[int(k)]].copy()
+           for k in other_keys}
+    if n_l:
+        gd = g.toarray().reshape(n_l, 3, n_c)
+        gs = (gd.reshape(3 * n_l, n_c) @ sigma_cc).reshape(n_l, 3, n_c)
+        sl = h_ll_inv + np.einsum("lib,ljb->lij", gs, gd)
+        for j, k in enumerate(landmark_keys):
+            cov[int(k)] = sl[j]
+    return Marginals(cov, sigma_cc, [int(k) for k in other_keys], off)
+
+
+def marginal_covariances(problem: Problem, values: gtsam.Values, lin: gtsam.GaussianFactorGraph | None = None,
+                         joint_keys: list[int] | None = None) -> Marginals:
+    """Marginal covariances at ``values`` from the problem's linearised graph (any factor types
+    with at most one landmark each): :func:`schur_marginals` of its ``J^T J``."""
+    if lin is None:
+        from misrgraph.estimate.solver import linearize
+
+        lin = linearize(problem, values)
+    h_ll, h_lc, h_cc = _blocks_from_linear(problem, lin)
+    return schur_marginals(h_ll, h_lc, h_cc, [int(k) for k in problem.eliminate_first], problem.other_keys,
+                           problem.dims, joint_keys)
+
+
+def flat_marginals(flat: "FlatProblem", x: Array, joint_keys: list[int] | None = None) -> Marginals:
+    """Marginal covariances at the flat vector ``x``: :func:`schur_marginals` of the normal
+    equations the flat form accumulates (the same ``J^T J``; no GTSAM linearisation)."""
+    blk, hlc, hcc, _, _ = flat.normal_equations(x)
+    n_l = blk.shape[0]
+    prob = flat.problem
+    return schur_marginals(blk, sp.csr_matrix(hlc.reshape(3 * n_l, -1)), sp.csr_matrix(hcc),
+                           [int(k) for k in prob.eliminate_first], prob.other_keys, prob.dims, joint_keys)

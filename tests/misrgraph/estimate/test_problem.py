@@ -1,0 +1,70 @@
+"""The one problem representation: the flat form's rows point at their own factors, merged
+problems keep those positions, and every marginal path (GTSAM linearisation, flat normal
+equations, sparse solve for a few keys) gives the same covariances as ``gtsam.Marginals``."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from misrgraph.estimate.graph import GraphConfig, build_pass_graph, merge_problems
+from misrgraph.estimate.problem import flat_marginals, marginal_covariances
+from misrgraph.estimate.solver import solve
+
+
+@pytest.fixture(scope="module")
+def solved(small_pass):
+    sc, p = small_pass
+    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True))
+    return pg, solve(pg.problem)
+
+
+def test_each_flat_row_points_at_its_factor(solved):
+    pg, _ = solved
+    prob = pg.problem
+    flat = prob.flat()
+    pos = flat.row_positions()
+    assert pos["collinearity"].size == flat.m_coll and pos["dem"].size == flat.m_dem > 0
+    lm_of_obs = flat.coll.slot_keys[0]
+    for row in range(0, flat.m_coll, 97):
+        f = prob.graph.at(int(pos["collinearity"][row]))
+        assert isinstance(f, gtsam.CustomFactor) and int(lm_of_obs[row // 2]) in [int(k) for k in f.keys()]
+    for i in range(0, flat.m_dem, 13):
+        assert [int(k) for k in prob.graph.at(int(pos["dem"][i])).keys()] == [int(flat.dem.keys[i])]
+
+
+def test_merged_problems_keep_the_positions(small_pass):
+    sc, p = small_pass
+    a = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(), pass_index=0).problem
+    shared = {int(k) for k in a.initial.keys()}
+    b = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(), pass_index=1, shared=shared).problem
+    m = merge_problems([a, b])
+    assert len(m.batch_positions) == len(m.batches) == len(a.batches) + len(b.batches)
+    sources = [(a, j) for j in range(len(a.batches))] + [(b, j) for j in range(len(b.batches))]
+    for mpos, (src, j) in zip(m.batch_positions, sources):
+        pos = src.batch_positions[j]
+        assert mpos.size == pos.size
+        for i in (0, pos.size // 2, pos.size - 1):
+            assert list(m.graph.at(int(mpos[i])).keys()) == list(src.graph.at(int(pos[i])).keys())
+
+
+def test_every_marginal_path_agrees_with_gtsam(solved):
+    pg, res = solved
+    prob = pg.problem
+    lin_path = marginal_covariances(prob, res.values)
+    flat_path = flat_marginals(prob.flat(), prob.flat().from_values(res.values))
+    joint_keys = pg.knot_keys(1)[:4] + pg.ephemeris_keys()
+    sparse_path = marginal_covariances(prob, res.values, joint_keys=joint_keys)
+    for b in prob.batches:
+        b.evaluate(res.values, True)
+    try:
+        ref = gtsam.Marginals(prob.graph, res.values)
+        ref_joint = ref.jointMarginalCovariance(gtsam.KeyVector(joint_keys)).fullMatrix()
+    finally:
+        for b in prob.batches:
+            b.clear()
+    np.testing.assert_allclose(sparse_path.joint, ref_joint, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref_joint)))
+    np.testing.assert_allclose(lin_path.joint_of(joint_keys), ref_joint, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref_joint)))
+    for k in list(prob.dims)[::11]:
+        np.testing.assert_allclose(flat_path[k], lin_path[k], rtol=1e-8, atol=1e-12 * np.max(np.abs(lin_path[k])))
