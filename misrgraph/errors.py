@@ -7,6 +7,8 @@ offending field, the value received and what was expected.
 
 from __future__ import annotations
 
+import importlib
+from types import ModuleType
 from typing import Any, Iterable
 
 __all__ = [
@@ -15,6 +17,8 @@ __all__ = [
     "FileFormatError",
     "ConvergenceError",
     "DegenerateProblemError",
+    "MissingDependencyError",
+    "require_extra",
 ]
 
 
@@ -70,3 +74,23 @@ class DegenerateProblemError(MisrGraphError):
     """The estimation problem is not well posed (e.g. no observations, a singular system)."""
 
     exit_code = 2
+
+
+class MissingDependencyError(MisrGraphError, ImportError):
+    """An optional dependency is not installed; the message names the extra that brings it."""
+
+    exit_code = 2
+
+    def __init__(self, module: str, extra: str, purpose: str) -> None:
+        self.module = module
+        self.extra = extra
+        super().__init__(f"{module}: not installed; {purpose} needs it: pip install 'misrgraph[{extra}]'")
+
+
+def require_extra(module: str, extra: str, purpose: str) -> ModuleType:
+    """Import an optional dependency, or raise :class:`MissingDependencyError` naming its extra."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise MissingDependencyError(module, extra, purpose) from exc
+

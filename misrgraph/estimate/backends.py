@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from factors.dem_height import dem_residual
 from misrgraph.estimate.problem import FlatProblem
+from misrgraph.errors import require_extra
 
 __all__ = ["solve_scipy", "solve_ceres"]
 
@@ -55,7 +56,7 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
     ``on_cost(cost)`` is called after every iteration with the current cost; ``max_seconds``
     bounds Ceres' solver time.
     """
-    import pyceres
+    pyceres = require_extra("pyceres", "bench", "the Ceres comparison of misrgraph bench sba")
 
     problem = flat.problem
     b = flat.coll

@@ -19,7 +19,7 @@ linearisation (:func:`marginal_covariances`) or from the flat form (:func:`flat_
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import gtsam
 import numpy as np
@@ -31,7 +31,8 @@ from factors.collinearity import CollinearityBatch, collinearity_residual
 from factors.dem_height import DemBatch, dem_residual, dem_residual_hessian
 from misrgraph.errors import DegenerateProblemError, InputError
 
-__all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_marginals", "marginal_covariances", "flat_marginals"]
+__all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_marginals", "marginal_covariances", "flat_marginals",
+           "error", "linearize"]
 
 Array = NDArray[np.float64]
 
@@ -391,6 +392,26 @@ class Marginals:
         return self.joint[np.ix_(idx, idx)]
 
 
+def _with_cache(problem: Problem, values: gtsam.Values, jacobians: bool, fn: Callable[[], Any]):
+    try:
+        for b in problem.batches:
+            b.evaluate(values, jacobians)
+        return fn()
+    finally:
+        for b in problem.batches:
+            b.clear()
+
+
+def error(problem: Problem, values: gtsam.Values) -> float:
+    """Total error ``0.5 sum ||whitened residual||^2`` (robust losses included)."""
+    return float(_with_cache(problem, values, False, lambda: problem.graph.error(values)))
+
+
+def linearize(problem: Problem, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
+    """The whitened linear system at ``values``, Python factors evaluated in one vectorised pass."""
+    return _with_cache(problem, values, True, lambda: problem.graph.linearize(values))
+
+
 def _blocks_from_linear(problem: Problem, lin: gtsam.GaussianFactorGraph) -> tuple[Array, sp.csr_matrix, sp.csr_matrix]:
     """``H_ll (L, 3, 3)``, ``H_lc (3L, n_c)`` and ``H_cc (n_c, n_c)`` (sparse) of ``J^T J`` from a
     linearised graph, landmarks in ``problem.eliminate_first`` order, the others in
@@ -510,8 +531,6 @@ def marginal_covariances(problem: Problem, values: gtsam.Values, lin: gtsam.Gaus
     """Marginal covariances at ``values`` from the problem's linearised graph (any factor types
     with at most one landmark each): :func:`schur_marginals` of its ``J^T J``."""
     if lin is None:
-        from misrgraph.estimate.solver import linearize
-
         lin = linearize(problem, values)
     h_ll, h_lc, h_cc = _blocks_from_linear(problem, lin)
     return schur_marginals(h_ll, h_lc, h_cc, [int(k) for k in problem.eliminate_first], problem.other_keys,

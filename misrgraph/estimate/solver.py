@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from misrgraph.config import Config
 from misrgraph.errors import ConvergenceError, DegenerateProblemError, InputError
-from misrgraph.estimate.problem import Problem
+from misrgraph.estimate.problem import Problem, error, linearize
 
 __all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "solve_gtsam_lm", "gtsam_lm_params",
            "information_norm", "check_converged"]
@@ -93,26 +93,6 @@ class SolveResult:
     n_linearize: int = 0
     #: the backend that ran (``"schur"`` or ``"gtsam"``; ``"auto"`` resolved)
     backend: str = ""
-
-
-def _with_cache(problem: Problem, values: gtsam.Values, jacobians: bool, fn: Callable[[], object]):
-    try:
-        for b in problem.batches:
-            b.evaluate(values, jacobians)
-        return fn()
-    finally:
-        for b in problem.batches:
-            b.clear()
-
-
-def error(problem: Problem, values: gtsam.Values) -> float:
-    """Total error ``0.5 sum ||whitened residual||^2`` (robust losses included)."""
-    return float(_with_cache(problem, values, False, lambda: problem.graph.error(values)))
-
-
-def linearize(problem: Problem, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
-    """The whitened linear system at ``values``, Python factors evaluated in one vectorised pass."""
-    return _with_cache(problem, values, True, lambda: problem.graph.linearize(values))
 
 
 def _ordering(problem: Problem) -> gtsam.Ordering:

@@ -14,6 +14,7 @@ import numpy as np
 
 from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
 from misrgraph.io.truth import read_pass_truth
+from misrgraph.errors import require_extra
 
 __all__ = ["plot_adjustment", "plot_calibration"]
 
@@ -30,7 +31,7 @@ def plot_adjustment(result_h5: str | os.PathLike[str], out_dir: str | os.PathLik
     """Attitude error vs truth with 1-sigma bands, residual histograms, check-point errors."""
     import json
 
-    import matplotlib
+    matplotlib = require_extra("matplotlib", "viz", "the figures")
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -98,7 +99,7 @@ def plot_adjustment(result_h5: str | os.PathLike[str], out_dir: str | os.PathLik
 
 def plot_calibration(summary: dict[str, Any], out_dir: str | os.PathLike[str]) -> list[Path]:
     """Pointing error and sigma per camera; correlation matrix."""
-    import matplotlib
+    matplotlib = require_extra("matplotlib", "viz", "the figures")
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -37,6 +37,7 @@ from misrgraph.model.frames import geodetic_to_ecef
 from misrgraph.io.h5 import open_h5, read_attr, read_dataset
 from misrgraph.io.camera import read_camera_group
 from misrgraph.io.truth import read_pass_truth
+from misrgraph.errors import require_extra
 
 __all__ = ["run_view", "ellipsoid_axes", "DEFAULT_EXAGGERATION"]
 
@@ -225,7 +226,7 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
              exaggeration: float = DEFAULT_EXAGGERATION, notebook: bool = False) -> dict[str, Any]:
     """Log a result file to rerun; save a ``.rrd``, spawn the viewer and/or show it inline in a
     Jupyter notebook (``notebook=True``). Returns the logged entities."""
-    import rerun as rr
+    rr = require_extra("rerun", "viz", "the rerun viewer")
     import rerun.blueprint as rrb
 
     if save is None and not spawn and not notebook:
