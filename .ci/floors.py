@@ -1,5 +1,6 @@
-"""Print ``name==floor`` for every ``name>=floor`` requirement in pyproject.toml (core and extras):
-the constraints file of .ci/min-versions."""
+"""Print ``name==floor`` for every ``name>=floor`` runtime requirement in pyproject.toml (core and
+the runtime extras sim, viz, fast; the test tools and pyceres are not pinned): the constraints
+file of .ci/min-versions."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ from pathlib import Path
 
 project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]
 reqs = list(project["dependencies"])
-for extra in project.get("optional-dependencies", {}).values():
-    reqs += extra
+for name in ("sim", "viz", "fast"):
+    reqs += project["optional-dependencies"][name]
 seen = set()
 for r in reqs:
     m = re.fullmatch(r"\s*([A-Za-z0-9_.\-]+)\s*>=\s*([0-9][^,;\s]*)\s*", r)

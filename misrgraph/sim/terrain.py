@@ -5,7 +5,7 @@ hands the estimator (heights = terrain + a DEM error the estimator does not know
   of random 3-D plane waves evaluated on the sphere (smooth across the antimeridian and the
   poles) with wavelengths from 1.5 km to 300 km and amplitudes growing with wavelength (a
   fractal-like spectrum, relief of a few km, slopes up to ~20 deg), zero over the ocean (real
-  land mask from ``global-land-mask``, imported on first use: it holds ~1 GB in memory).
+  land mask, :mod:`misrgraph.sim.landmask`).
 * :func:`simulate_dem_tiles` makes :class:`~misrgraph.model.dem.DemTiles` around points; the
   heights' error is a smooth field of the quality's sigma plus white noise of a tenth of it, a
   function of position (not of the tile), so the local fit's reported sigma is honest.
@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import InputError
+from misrgraph.sim.landmask import is_land
 from misrgraph.model.dem import (FLAG_BOUNDARY, FLAG_LAND, FLAG_WATER, POSTING_DEG, POSTINGS_360, QUALITY_SIGMA_M,
                                  DemTiles, dted_lon_posting_factor, wrap_deg)
 
@@ -29,13 +30,12 @@ EARTH_R = 6371e3
 
 
 def land_mask(lat: ArrayLike, lon: ArrayLike) -> NDArray[np.bool_]:
-    """True over land (``global-land-mask``, 1 km resolution)."""
-    from global_land_mask import globe
-
+    """True over land (1 km resolution; :mod:`misrgraph.sim.landmask`, memory-mapped); any
+    longitude (wrapped into [-180, 180))."""
     la = np.clip(np.asarray(lat, dtype=float), -89.999, 89.999)
     lo = (np.asarray(lon, dtype=float) + 180.0) % 360.0 - 180.0
     lo = np.clip(lo, -179.999, 179.999)
-    return np.asarray(globe.is_land(la, lo), dtype=bool)
+    return is_land(la, lo)
 
 
 @dataclass(frozen=True)

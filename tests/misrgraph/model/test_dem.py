@@ -69,7 +69,7 @@ def test_real_terrain_held_out_postings():
     as the true error."""
     import matplotlib.cbook as cbook
 
-    z = np.asarray(cbook.get_sample_data("jacksboro_fault_dem.npz")["elevation"], dtype=float)
+    z = np.asarray(np.load(cbook.get_sample_data("jacksboro_fault_dem.npz", asfileobj=False))["elevation"], dtype=float)
     coarse = z[::2, ::2]
     rr, cc = np.meshgrid(np.arange(3, coarse.shape[0] - 4), np.arange(3, coarse.shape[1] - 4), indexing="ij")
     r = rr.ravel() + 0.5

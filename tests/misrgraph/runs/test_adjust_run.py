@@ -17,8 +17,9 @@ from misrgraph.runs.adjust import run_adjust
 
 def test_the_estimate_is_the_same_with_the_truth_removed(small_pass_dir, tmp_path):
     """The same pass with every truth group removed (pass, GCP database, true camera model) gives
-    bit-identical estimates; only the scores disappear. Together with tests/test_layout.py (no
-    ``truth`` anywhere in misrgraph/estimate) this shows the estimator never reads it."""
+    the same estimates (to 1e-9: the linear algebra's summation order may vary between runs);
+    only the scores disappear. Together with tests/test_layout.py (no ``truth`` anywhere in
+    misrgraph/estimate) this shows the estimator never reads it."""
     blind = tmp_path / "blind"
     shutil.copytree(small_pass_dir, blind)
     for f in (blind / "passes").glob("*.h5"):
@@ -29,10 +30,16 @@ def test_the_estimate_is_the_same_with_the_truth_removed(small_pass_dir, tmp_pat
     (blind / "camera_truth.h5").unlink()
     with_truth = run_adjust(small_pass_dir)
     without = run_adjust(blind)
-    for key in ("iterations", "final_cost", "observations", "landmarks", "dropped_tie_points", "knots", "ephemeris"):
+    for key in ("iterations", "observations", "landmarks", "dropped_tie_points", "knots"):
         assert without[key] == with_truth[key], key
-    assert without["rejected_observations"]["count"] == with_truth["rejected_observations"]["count"] > 0
-    assert without["rejected_observations"]["largest"] == with_truth["rejected_observations"]["largest"]
+    assert without["final_cost"] == pytest.approx(with_truth["final_cost"], rel=1e-9)
+    for key in ("params", "sigma"):
+        np.testing.assert_allclose(without["ephemeris"][key], with_truth["ephemeris"][key], rtol=1e-9, atol=1e-12)
+    a, b = without["rejected_observations"], with_truth["rejected_observations"]
+    assert a["count"] == b["count"] > 0
+    assert [r["index"] for r in a["largest"]] == [r["index"] for r in b["largest"]]
+    np.testing.assert_allclose([r["normalised_residual"] for r in a["largest"]],
+                               [r["normalised_residual"] for r in b["largest"]], rtol=1e-9)
     for key in ("nees", "checkpoint_geolocation_m", "attitude_rms_arcsec"):
         assert key in with_truth and key not in without
 
