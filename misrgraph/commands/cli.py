@@ -201,7 +201,7 @@ def info(file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
 def adjust(
     scenario_dir: Path = typer.Argument(..., help="Scenario directory (misrgraph simulate --scenario pass)."),
     camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model HDF5, or 'preflight' (Table 1) or 'nominal' (default: the scenario's, e.g. one written by calibrate)."),
-    pass_file: Optional[Path] = typer.Option(None, "--pass", help="Pass file (default: the first in SCENARIO_DIR/passes)."),
+    pass_file: Optional[Path] = typer.Option(None, "--pass", help="Pass file (needed when SCENARIO_DIR/passes holds several)."),
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (default SCENARIO_DIR/gcp.h5)."),
     dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (default SCENARIO_DIR/dem.h5)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write RESULT.h5 (error models, landmarks, covariances, residuals)."),
@@ -213,6 +213,8 @@ def adjust(
     knot_rule: str = typer.Option("support", "--knot-rule", help="Eqs. 28-29 on each knot's support (default) or, literally, on [t_i, t_i+1) ('interval')."),
     no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
     robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
+    max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
+    accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
@@ -221,7 +223,8 @@ def adjust(
 
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
-                                      use_dem=not no_dem, robust=robust))
+                                      use_dem=not no_dem, robust=robust, max_iterations=max_iterations,
+                                      accept_unconverged=accept_unconverged))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
                              progress=lambda s: st.update(s))
@@ -239,7 +242,8 @@ def adjust(
 
 def _print_adjust_summary(s: dict) -> None:
     console.print(f"pass {s['pass_id']}: {s['observations']} observations, {s['landmarks']} landmarks, "
-                  f"{s['iterations']} iterations, cost {s['final_cost']:.1f}, {s['seconds']:.1f} s")
+                  f"{s['iterations']} iterations ({s['solver_status'].replace('_', ' ')}), cost {s['final_cost']:.1f}, "
+                  f"{s['seconds']:.1f} s")
     console.print("knots kept/removed: " + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in s["knots"].items()))
     rej = s["rejected_observations"]
     console.print(f"rejected observations: {rej['count']}" + (f" (all in {rej['full_list']})" if rej["full_list"] else ""))
@@ -275,6 +279,8 @@ def calibrate(
     temperature_bins: int = typer.Option(1, "--temperature-bins", help="Thermal calibration: split the passes into N bins of equal count by camera temperature, estimate the corrections per bin, write a temperature table and report each parameter's slope per deg C (1: one set for all temperatures)."),
     max_passes: Optional[int] = typer.Option(None, "--max-passes", help="Use only the first N passes."),
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write PNG plots here."),
+    max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
+    accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged) instead of failing with exit 1."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Camera calibration by space resection over GCP passes (per-pass navigation errors as nuisance)."""
@@ -289,7 +295,8 @@ def calibrate(
     if bad or not names:
         _fail(f"--params: got {bad[0] if bad else params!r}; expected a comma list of {', '.join(CAMERA_PARAMS)}, omega")
     cfg = CalibrateConfig.from_dict(dict(params=tuple(names), per_band=per_band, estimate_omega=omega,
-                                         temperature_bins=temperature_bins))
+                                         temperature_bins=temperature_bins, max_iterations=max_iterations,
+                                         accept_unconverged=accept_unconverged))
     with err_console.status("calibrating...") as st:
         s = run_calibrate(scenario_dir, camera_model, gcp_file, out, cfg, max_passes, progress=lambda m: st.update(m))
     if plots is not None:

@@ -35,7 +35,7 @@ from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph
 from misrgraph.io.passes import KIND_TIE, OrbitPass
-from misrgraph.estimate.solver import SolverParams, solve
+from misrgraph.estimate.solver import SolverParams, check_converged, solve
 from misrgraph.estimate.problem import Marginals, marginal_covariances
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
@@ -65,6 +65,9 @@ class AdjustConfig(Config):
     reject_sigma: float = 5.0
     max_iterations: int = 100
     backend: str = "auto"
+    #: keep the result of a solve that did not converge (flagged in the summary and the result
+    #: file) instead of failing with a ConvergenceError
+    accept_unconverged: bool = False
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
         base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=self.threshold1, threshold2=self.threshold2,
@@ -94,6 +97,9 @@ class AdjustResult:
     seconds: float
     #: landmark rows dropped whole because most of their rays were rejected (see find_blunders)
     dropped_landmarks: NDArray[np.int64] = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    #: how the least-squares solve ended (:data:`misrgraph.estimate.solver.STATUSES`); the
+    #: covariances are those of an optimum only when it is ``"converged"``
+    status: str = "converged"
 
 
 def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -> tuple[AttitudeErrorModel, EphemerisErrorModel, CameraModel]:
@@ -132,6 +138,7 @@ def adjust_pass(
         progress("least-squares solve")
     pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
     res = solve(pg.problem, params.replace(backend=cfg.backend))
+    check_converged(res, "the least-squares solve", cfg.accept_unconverged)
     if progress:
         progress("marginal covariances")
     marg = marginal_covariances(pg.problem, res.values)
@@ -141,7 +148,7 @@ def adjust_pass(
     att, eph, cam = estimated_models(pg, res.values, camera)
     rej = np.flatnonzero(blunder_mask)
     return AdjustResult(pg, res.values, marg, att, eph, cam, rej, norm[rej], resid, res.iterations, res.final_error,
-                        res.history, time.perf_counter() - t0, dropped)
+                        res.history, time.perf_counter() - t0, dropped, res.status)
 
 
 def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | None, gcps: GcpDatabase | None,
@@ -156,6 +163,7 @@ def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | No
     pg_r = build_pass_graph(orbit_pass, camera, dem, gcps,
                             cfg.graph_config(group_by="observation", robust=cfg.robust, robust_k=cfg.robust_k))
     res_r = solve(pg_r.problem, SolverParams(max_iterations=cfg.max_iterations))
+    check_converged(res_r, "the robust solve (blunder screening)", cfg.accept_unconverged)
     r, _ = pg_r.collinearity.residuals(res_r.values)
     whit = np.linalg.norm(r / pg_r.collinearity.sigma_px[:, None], axis=1)
     idx = pg_r.obs_index[pg_r.collinearity.order]

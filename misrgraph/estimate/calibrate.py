@@ -45,7 +45,7 @@ from misrgraph.estimate.graph import CAMERA_PRIOR_SIGMA, GraphConfig, PassGraph,
 from misrgraph.estimate.problem import Problem
 from misrgraph.io.results import capped_list
 from misrgraph.io.passes import KIND_GCP, OrbitPass
-from misrgraph.estimate.solver import SolverParams, solve
+from misrgraph.estimate.solver import SolverParams, check_converged, solve
 from misrgraph.estimate.problem import marginal_covariances
 
 __all__ = ["CalibrateConfig", "CalibrationResult", "calibrate_passes", "pointing_error_px", "temperature_bins",
@@ -71,6 +71,8 @@ class CalibrateConfig(Config):
     max_iterations: int = 100
     poorly_determined_ratio: float = 0.5
     temperature_bins: int = 1
+    #: keep the result of a solve that did not converge (flagged) instead of failing
+    accept_unconverged: bool = False
 
     def __post_init__(self) -> None:
         if int(self.temperature_bins) != self.temperature_bins or self.temperature_bins < 1:
@@ -104,6 +106,8 @@ class CalibrationResult:
     table: TabulatedCameraModel | None = None
     pass_temperatures_c: Array = dataclasses.field(default_factory=lambda: np.zeros(0))
     supplied_table: TabulatedCameraModel | None = None
+    #: how the least-squares solve ended (:data:`misrgraph.estimate.solver.STATUSES`)
+    status: str = "converged"
 
 
 def _build(passes: list[OrbitPass], camera: CameraModel, gcps: GcpDatabase, cfg: GraphConfig,
@@ -195,6 +199,7 @@ def calibrate_passes(
         if progress:
             progress("robust solve")
         res = solve(prob, params)
+        check_converged(res, "the robust solve (blunder screening)", cfg.accept_unconverged)
         for i, g in enumerate(graphs):
             r, _ = g.collinearity.residuals(res.values)
             w = np.linalg.norm(r / g.collinearity.sigma_px[:, None], axis=1)
@@ -206,6 +211,7 @@ def calibrate_passes(
     if progress:
         progress("least-squares solve")
     res = solve(prob, params)
+    check_converged(res, "the least-squares solve", cfg.accept_unconverged)
     keys, labels, cams = _camera_keys_labels(graphs, cfg, bin_temps)
     if progress:
         progress("marginal covariance")
@@ -227,7 +233,7 @@ def calibrate_passes(
         m.provenance = dict(prov)
         models.append(m)
     out = CalibrationResult(models[0], keys, labels, x, cov, prior, rejected, res.iterations, res.final_error,
-                            time.perf_counter() - t0, graphs, bin_temps, supplied_models, None, temps, table)
+                            time.perf_counter() - t0, graphs, bin_temps, supplied_models, None, temps, table, res.status)
     if len(models) == 1 and table is not None:  # a supplied table: the common correction at every entry
         out.table = TabulatedCameraModel([_apply(m, cams, cfg, x, 0) for m in table.models], table.valid_range_c)
         for m in out.table.models:
@@ -344,7 +350,8 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
         entry["sigma_px"] = float(np.sqrt(np.mean([pointing_error_px(sm[j], est_at[j], c, b) ** 2
                                                    for sm in samples for j in range(grid.size) for b in bands])))
         cams_out[name] = entry
-    out: dict[str, Any] = {"cameras": cams_out, "iterations": res.iterations, "final_cost": res.final_cost,
+    out: dict[str, Any] = {"cameras": cams_out, "solver_status": res.status, "iterations": res.iterations,
+                           "final_cost": res.final_cost,
                            "seconds": res.seconds, "passes": len(res.graphs),
                            "rejected_observations": capped_list(
                                [{"pass": int(p), "observation": int(o), "normalised_residual": float(r)} for p, o, r in res.rejected],

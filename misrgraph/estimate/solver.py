@@ -39,7 +39,7 @@ from misrgraph.config import Config
 from misrgraph.errors import ConvergenceError, DegenerateProblemError, InputError
 from misrgraph.estimate.problem import Problem, error, linearize
 
-__all__ = ["SolverParams", "SolveResult", "solve", "error", "linearize", "solve_gtsam_lm", "gtsam_lm_params",
+__all__ = ["SolverParams", "SolveResult", "STATUSES", "solve", "error", "linearize", "solve_gtsam_lm", "gtsam_lm_params",
            "information_norm", "check_converged"]
 
 log = logging.getLogger(__name__)
@@ -81,8 +81,19 @@ class SolverParams(Config):
                              "False or None with backend 'gtsam' (only the Schur backend has the second-order DEM term)")
 
 
+#: How a solve ended (:attr:`SolveResult.status`).
+STATUSES = ("converged", "stalled", "iteration_limit")
+
+
 @dataclass
 class SolveResult:
+    """The outcome of a solve. ``status``: ``"converged"`` (an accepted step decreased the cost by
+    less than the tolerances, or no step decreases it and the undamped Gauss-Newton model predicts
+    a decrease below them: the start is a numerical optimum); ``"stalled"`` (lambda reached its
+    bound while the model still predicts a decrease above the tolerances: not an optimum); or
+    ``"iteration_limit"``. ``converged`` is ``status == "converged"``. ``predicted_decrease``:
+    the undamped model's decrease at the end (cost units), where it was evaluated."""
+
     values: gtsam.Values
     iterations: int
     converged: bool
@@ -93,6 +104,8 @@ class SolveResult:
     n_linearize: int = 0
     #: the backend that ran (``"schur"`` or ``"gtsam"``; ``"auto"`` resolved)
     backend: str = ""
+    status: str = ""
+    predicted_decrease: float | None = None
 
 
 def _ordering(problem: Problem) -> gtsam.Ordering:
@@ -161,8 +174,19 @@ def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
         except RuntimeError as exc:  # indeterminant system
             raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
 
+    def model_decrease(x: gtsam.Values, lin: gtsam.GaussianFactorGraph) -> float:
+        """``0.5 ||b||^2 - 0.5 ||A d - b||^2`` for the undamped Gauss-Newton step ``d``."""
+        try:
+            d = _damped(lin, problem, 1e-12).optimize(ordering)
+        except RuntimeError:
+            return float("inf")
+        zero = gtsam.VectorValues()
+        for k in problem.dims:
+            zero.insert(int(k), np.zeros(problem.dims[k]))
+        return float(lin.error(zero) - lin.error(d))
+
     res = _levenberg_marquardt(values, lambda x: error(problem, x), lambda x, _: linearize(problem, x), step, params,
-                               progress, lambda x: x)
+                               progress, lambda x: x, model_decrease)
     res.backend = "gtsam"
     return res
 
@@ -192,10 +216,14 @@ def _explain_nonfinite_start(problem: Problem, values: gtsam.Values) -> None:
 def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at: Callable[[object, bool], object],
                          step: Callable[[object, object, float], object], params: SolverParams,
                          progress: Callable[[int, float, float], None] | None,
-                         to_values: Callable[[object], gtsam.Values]) -> SolveResult:
+                         to_values: Callable[[object], gtsam.Values],
+                         model_decrease: Callable[[object, object], float]) -> SolveResult:
     """The LM loop shared by both backends, with ``gtsam.LevenbergMarquardtOptimizer``'s rules:
     lambda divided by ``lambda_factor`` after an accepted step, multiplied after a rejected one;
     stop when the decrease is below the absolute or relative tolerance or lambda exceeds its bound.
+    Unlike GTSAM, reaching lambda's bound is not taken as convergence: ``model_decrease(x,
+    system)`` (the undamped Gauss-Newton model's predicted decrease at ``x``) must then be below
+    the tolerances too, else the status is ``"stalled"`` (see :class:`SolveResult`).
 
     ``system_at(x, second_order)``: the second flag turns true (and stays so) once an accepted
     step decreased the cost by less than ``params.second_order_below`` relative, if
@@ -208,7 +236,8 @@ def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at:
         raise _NonFiniteStart(f"initial error is not finite ({err})")
     history = [err]
     lam = params.lambda_initial
-    converged = False
+    status = "iteration_limit"
+    predicted: float | None = None
     it = 0
     lin_time = 0.0
     second = False
@@ -232,13 +261,22 @@ def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at:
         if progress:
             progress(it, new_err, lam)
         log.debug("LM iteration %d: error %.9g (decrease %.3g), lambda %.1e", it, new_err, decrease, lam)
-        if lam > params.lambda_upper or decrease <= params.absolute_error_tol or decrease <= params.relative_error_tol * err:
-            converged = lam <= params.lambda_upper or decrease <= params.absolute_error_tol
+        if lam > params.lambda_upper:
+            predicted = float(model_decrease(x, system))
+            ok = predicted <= max(params.absolute_error_tol, params.relative_error_tol * err)
+            status = "converged" if ok else "stalled"
+            break
+        if decrease <= params.absolute_error_tol or decrease <= params.relative_error_tol * err:
+            status = "converged"
             err = new_err
             break
         second = second or (params.dem_second_order and decrease < params.second_order_below * err)
         err = new_err
-    return SolveResult(to_values(x), it, converged, err, history, time.perf_counter() - t_start, lin_time, it)
+    if status != "converged":
+        log.info("Levenberg-Marquardt ended %s after %d iterations (cost %.9g%s)", status.replace("_", " "), it, err,
+                    "" if predicted is None else f", the model still predicts a decrease of {predicted:.3g}")
+    return SolveResult(to_values(x), it, status == "converged", err, history, time.perf_counter() - t_start, lin_time, it,
+                       status=status, predicted_decrease=predicted)
 
 
 @dataclass
@@ -282,9 +320,18 @@ def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values |
         except np.linalg.LinAlgError as exc:
             raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
 
+    def model_decrease(x: Array, system: _SchurSystem) -> float:
+        """``-g.d / 2`` for the undamped step ``d = -H^-1 g`` of the system at ``x`` (``H`` as
+        the solve used it, with the DEM's second-order term once switched on)."""
+        try:
+            d = _schur_step(system, 1e-12, n_l)
+        except np.linalg.LinAlgError:
+            return float("inf")
+        return float(-0.5 * system.g @ d)
+
     x0 = flat.from_values(initial if initial is not None else problem.initial)
     return _levenberg_marquardt(x0, flat.cost, lambda x, second: _schur_system(flat, x, n_l, second), step, params,
-                                progress, flat.to_values)
+                                progress, flat.to_values, model_decrease)
 
 
 def gtsam_lm_params(problem: Problem, params: SolverParams = SolverParams()) -> gtsam.LevenbergMarquardtParams:
@@ -308,7 +355,9 @@ def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> S
     t0 = time.perf_counter()
     opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.initial, p)
     values = opt.optimize()
-    return SolveResult(values, opt.iterations(), True, float(problem.graph.error(values)), [], time.perf_counter() - t0)
+    # GTSAM's own stopping rule (which also stops at lambda's bound); benches only
+    return SolveResult(values, opt.iterations(), True, float(problem.graph.error(values)), [], time.perf_counter() - t0,
+                       status="converged")
 
 
 def information_norm(problem: Problem, lin: gtsam.GaussianFactorGraph, delta: dict[int, Array]) -> float:
@@ -324,7 +373,16 @@ def information_norm(problem: Problem, lin: gtsam.GaussianFactorGraph, delta: di
     return total
 
 
-def check_converged(result: SolveResult) -> None:
-    """Raise :class:`ConvergenceError` if the solver stopped without converging."""
-    if not result.converged:
-        raise ConvergenceError(f"Levenberg-Marquardt did not converge in {result.iterations} iterations (error {result.final_error:.6g})")
+def check_converged(result: SolveResult, what: str = "the solve", accept: bool = False) -> None:
+    """Raise :class:`ConvergenceError` if the solver stopped without converging (unless ``accept``:
+    then only a warning is logged; the caller flags the result)."""
+    if result.converged:
+        return
+    why = ("lambda reached its bound while the model still predicts a decrease of "
+           f"{result.predicted_decrease:.3g}" if result.status == "stalled" else
+           f"the iteration limit ({result.iterations}) was reached")
+    msg = f"{what} did not converge: {why} (cost {result.final_error:.6g})"
+    if accept:
+        log.warning("%s; accepted: its covariances are not those of an optimum", msg)
+        return
+    raise ConvergenceError(msg + "; raise --max-iterations, or pass --accept-unconverged to keep a flagged result")

@@ -41,6 +41,7 @@ def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, su
         f.attrs["pass_id"] = orbit_pass.pass_id
         f.attrs["software"] = f"misrgraph {__version__}"
         f.attrs["summary_json"] = json.dumps(summary)
+        f.attrs["solver_status"] = res.status  # "converged": the covariances are those of an optimum
         prov = f.create_group("provenance")
         for k, v in provenance.items():
             prov.attrs[k] = str(v)
@@ -107,7 +108,7 @@ def run_adjust(
         if len(passes) > 1:
             names = ", ".join(p.name for p in passes[:5]) + (", ..." if len(passes) > 5 else "")
             raise InputError("PASS_FILE", None, f"one of the scenario's {len(passes)} pass files ({names}): "
-                                                "name it with --pass-file")
+                                                "name it with --pass")
         pass_file = passes[0]
     orbit_pass = OrbitPass.load(pass_file)
     truth = read_pass_truth(pass_file)
@@ -118,6 +119,7 @@ def run_adjust(
     pg = res.pass_graph
     summary: dict[str, Any] = {
         "pass_id": orbit_pass.pass_id,
+        "solver_status": res.status,
         "iterations": res.iterations,
         "final_cost": res.final_cost,
         "seconds": res.seconds,
@@ -147,6 +149,9 @@ def run_adjust(
     removed = sum(int(r.size) for r in pg.removed_knots)
     if removed:
         diagnostics.append(f"{removed} knots removed by eqs. 28-29 (too few tie points or cameras): the spline spans the gaps")
+    if res.status != "converged":
+        diagnostics.insert(0, f"the least-squares solve ended {res.status.replace('_', ' ')} (accepted with "
+                              "--accept-unconverged): the covariances are not those of an optimum")
     summary["diagnostics"] = diagnostics
     if truth is not None:
         summary.update(score_pass(orbit_pass, truth, res, camera))

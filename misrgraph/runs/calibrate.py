@@ -74,6 +74,7 @@ def run_calibrate(
             else:
                 write_camera_group(f.create_group("camera_model"), res.camera)
             g = f.create_group("calibration")
+            g.attrs["solver_status"] = res.status  # "converged": the covariance is that of an optimum
             g.create_dataset("labels", data=np.array(res.labels, dtype=object), dtype=h5py.string_dtype())
             write_dataset(g, "corrections", res.values, units="rad (angles), m (f), pixel^-i (alpha_i)")
             write_dataset(g, "covariance", res.covariance)

@@ -45,8 +45,34 @@ def test_the_estimate_is_the_same_with_the_truth_removed(small_pass_dir, tmp_pat
 
 
 def test_a_scenario_of_several_passes_needs_the_pass_named(path_dir):
-    with pytest.raises(InputError, match="PASS_FILE.*pass files.*--pass-file"):
+    with pytest.raises(InputError, match="PASS_FILE.*pass files.*--pass"):
         run_adjust(path_dir)
     first = sorted((path_dir / "passes").glob("*.h5"))[0]
     s = run_adjust(path_dir, pass_file=first)
     assert s["pass_id"] == first.stem and np.isfinite(s["final_cost"])
+
+
+def test_an_unconverged_adjustment_fails_unless_accepted(small_pass_dir, tmp_path):
+    """One iteration is not enough: exit 1 with a one-line reason; with --accept-unconverged the
+    result is written and flagged (summary, diagnostics and RESULT.h5)."""
+    import subprocess
+    import sys
+
+    import h5py
+
+    from misrgraph.errors import ConvergenceError
+    from misrgraph.estimate.adjust import AdjustConfig
+
+    with pytest.raises(ConvergenceError, match="did not converge"):
+        run_adjust(small_pass_dir, cfg=AdjustConfig(max_iterations=1))
+    out = tmp_path / "r.h5"
+    s = run_adjust(small_pass_dir, out=out, cfg=AdjustConfig(max_iterations=1, accept_unconverged=True))
+    assert s["solver_status"] == "iteration_limit"
+    assert "not those of an optimum" in s["diagnostics"][0]
+    with h5py.File(out) as f:
+        assert f.attrs["solver_status"] == "iteration_limit"
+    r = subprocess.run([sys.executable, "-m", "misrgraph", "adjust", str(small_pass_dir), "--max-iterations", "1"],
+                       capture_output=True, text=True, timeout=600)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 1 and len(lines) == 1 and "did not converge" in lines[0], r.stderr
+    assert run_adjust(small_pass_dir)["solver_status"] == "converged"
