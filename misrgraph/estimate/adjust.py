@@ -36,7 +36,7 @@ from misrgraph.model.geolocation import PassGeometry
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph
 from misrgraph.io.passes import KIND_TIE, OrbitPass
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
-from misrgraph.estimate.problem import Marginals, marginal_covariances
+from misrgraph.estimate.problem import Marginals, marginal_covariances, variance_factor
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
            "supplied_camera_of", "drop_unsupported_landmarks"]
@@ -100,6 +100,8 @@ class AdjustResult:
     #: how the least-squares solve ended (:data:`misrgraph.estimate.solver.STATUSES`); the
     #: covariances are those of an optimum only when it is ``"converged"``
     status: str = "converged"
+    #: a-posteriori variance factor and its chi-square test (:func:`misrgraph.estimate.problem.variance_factor`)
+    variance_factor: dict = dataclasses.field(default_factory=dict)
 
 
 def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -> tuple[AttitudeErrorModel, EphemerisErrorModel, CameraModel]:
@@ -148,7 +150,8 @@ def adjust_pass(
     att, eph, cam = estimated_models(pg, res.values, camera)
     rej = np.flatnonzero(blunder_mask)
     return AdjustResult(pg, res.values, marg, att, eph, cam, rej, norm[rej], resid, res.iterations, res.final_error,
-                        res.history, time.perf_counter() - t0, dropped, res.status)
+                        res.history, time.perf_counter() - t0, dropped, res.status,
+                        variance_factor(pg.problem, res.final_error))
 
 
 def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | None, gcps: GcpDatabase | None,

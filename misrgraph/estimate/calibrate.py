@@ -42,11 +42,10 @@ from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.estimate.graph import CAMERA_PRIOR_SIGMA, GraphConfig, PassGraph, build_pass_graph, merge_problems
-from misrgraph.estimate.problem import Problem
 from misrgraph.io.results import capped_list
 from misrgraph.io.passes import KIND_GCP, OrbitPass
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
-from misrgraph.estimate.problem import marginal_covariances
+from misrgraph.estimate.problem import Problem, marginal_covariances, variance_factor
 
 __all__ = ["CalibrateConfig", "CalibrationResult", "calibrate_passes", "pointing_error_px", "temperature_bins",
            "thermal_slopes", "slope_estimates", "SlopeEstimates", "summarise", "evaluation_grid", "calibrated_models",
@@ -108,6 +107,8 @@ class CalibrationResult:
     supplied_table: TabulatedCameraModel | None = None
     #: how the least-squares solve ended (:data:`misrgraph.estimate.solver.STATUSES`)
     status: str = "converged"
+    #: a-posteriori variance factor and its chi-square test (:func:`misrgraph.estimate.problem.variance_factor`)
+    variance_factor: dict = dataclasses.field(default_factory=dict)
 
 
 def _build(passes: list[OrbitPass], camera: CameraModel, gcps: GcpDatabase, cfg: GraphConfig,
@@ -233,7 +234,8 @@ def calibrate_passes(
         m.provenance = dict(prov)
         models.append(m)
     out = CalibrationResult(models[0], keys, labels, x, cov, prior, rejected, res.iterations, res.final_error,
-                            time.perf_counter() - t0, graphs, bin_temps, supplied_models, None, temps, table, res.status)
+                            time.perf_counter() - t0, graphs, bin_temps, supplied_models, None, temps, table, res.status,
+                            variance_factor(prob, res.final_error))
     if len(models) == 1 and table is not None:  # a supplied table: the common correction at every entry
         out.table = TabulatedCameraModel([_apply(m, cams, cfg, x, 0) for m in table.models], table.valid_range_c)
         for m in out.table.models:
@@ -350,7 +352,8 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
         entry["sigma_px"] = float(np.sqrt(np.mean([pointing_error_px(sm[j], est_at[j], c, b) ** 2
                                                    for sm in samples for j in range(grid.size) for b in bands])))
         cams_out[name] = entry
-    out: dict[str, Any] = {"cameras": cams_out, "solver_status": res.status, "iterations": res.iterations,
+    out: dict[str, Any] = {"cameras": cams_out, "solver_status": res.status, "variance_factor": res.variance_factor,
+                           "iterations": res.iterations,
                            "final_cost": res.final_cost,
                            "seconds": res.seconds, "passes": len(res.graphs),
                            "rejected_observations": capped_list(

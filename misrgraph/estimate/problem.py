@@ -32,7 +32,7 @@ from factors.dem_height import DemBatch, dem_residual, dem_residual_hessian
 from misrgraph.errors import DegenerateProblemError, InputError
 
 __all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_marginals", "marginal_covariances", "flat_marginals",
-           "error", "linearize"]
+           "error", "linearize", "variance_factor"]
 
 Array = NDArray[np.float64]
 
@@ -410,6 +410,27 @@ def error(problem: Problem, values: gtsam.Values) -> float:
 def linearize(problem: Problem, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
     """The whitened linear system at ``values``, Python factors evaluated in one vectorised pass."""
     return _with_cache(problem, values, True, lambda: problem.graph.linearize(values))
+
+
+def variance_factor(problem: Problem, final_error: float) -> dict[str, float | int]:
+    """A-posteriori variance factor of a least-squares solution and its chi-square test.
+
+    With ``m`` whitened residual rows (every factor's dimension) and ``n`` unknowns, the cost at the
+    optimum ``2 E = sum r^2`` is chi-square with ``m - n`` degrees of freedom when the weights are
+    right, so ``sigma0 = sqrt(2 E / (m - n))`` is 1 in expectation. ``p_value`` is the upper tail
+    ``P(chi2_(m-n) >= 2 E)``: small means the residuals are larger than their sigmas say (weights
+    too optimistic, or model error); close to 1 means smaller (weights too pessimistic).
+    """
+    from scipy import stats
+
+    m = int(sum(problem.graph.at(i).dim() for i in range(problem.graph.size())))
+    n = int(sum(problem.dims.values()))
+    dof = m - n
+    chi2 = 2.0 * float(final_error)
+    out: dict[str, float | int] = {"rows": m, "unknowns": n, "dof": dof, "chi2": chi2}
+    if dof > 0:
+        out.update(sigma0=float(np.sqrt(chi2 / dof)), p_value=float(stats.chi2.sf(chi2, dof)))
+    return out
 
 
 def _blocks_from_linear(problem: Problem, lin: gtsam.GaussianFactorGraph) -> tuple[Array, sp.csr_matrix, sp.csr_matrix]:

@@ -120,6 +120,7 @@ def run_adjust(
     summary: dict[str, Any] = {
         "pass_id": orbit_pass.pass_id,
         "solver_status": res.status,
+        "variance_factor": res.variance_factor,
         "iterations": res.iterations,
         "final_cost": res.final_cost,
         "seconds": res.seconds,

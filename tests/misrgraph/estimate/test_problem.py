@@ -68,3 +68,44 @@ def test_every_marginal_path_agrees_with_gtsam(solved):
     np.testing.assert_allclose(lin_path.joint_of(joint_keys), ref_joint, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref_joint)))
     for k in list(prob.dims)[::11]:
         np.testing.assert_allclose(flat_path[k], lin_path[k], rtol=1e-8, atol=1e-12 * np.max(np.abs(lin_path[k])))
+
+
+def test_variance_factor_closed_form():
+    """Two unit-sigma priors on one 2-vector at a and b: the optimum is their mean, 2E = |a-b|^2/2
+    on 4 rows - 2 unknowns = 2 dof."""
+    from factors.priors import vector_prior
+    from misrgraph.estimate.problem import Problem, variance_factor
+    from misrgraph.estimate.solver import solve
+
+    a, b = np.array([1.0, -2.0]), np.array([4.0, 2.0])
+    g = gtsam.NonlinearFactorGraph()
+    g.add(vector_prior(7, a, [1.0, 1.0]))
+    g.add(vector_prior(7, b, [1.0, 1.0]))
+    v = gtsam.Values()
+    v.insert(7, np.zeros(2))
+    prob = Problem(g, v, [], [], {7: 2})
+    res = solve(prob)
+    vf = variance_factor(prob, res.final_error)
+    assert (vf["rows"], vf["unknowns"], vf["dof"]) == (4, 2, 2)
+    assert vf["chi2"] == pytest.approx(np.sum((a - b) ** 2) / 2, rel=1e-9)
+    assert vf["sigma0"] == pytest.approx(np.sqrt(np.sum((a - b) ** 2) / 4), rel=1e-9)
+
+
+def test_variance_factor_is_one_where_the_weights_are_right(small_pass):
+    """On a simulated pass whose noise is drawn with the weights' sigmas, with the injected
+    blunders left out (by the simulator's record of them), 2E lies in the central 99.9 % of its
+    chi-square distribution; with the blunders in, it lies far above."""
+    from scipy import stats
+
+    from misrgraph.estimate.problem import variance_factor
+
+    sc, p = small_pass
+    blunder = sc.load_truth(0).blunder
+    assert blunder.any()
+    clean = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True), exclude_observations=blunder)
+    vf = variance_factor(clean.problem, solve(clean.problem).final_error)
+    lo, hi = stats.chi2.ppf([0.0005, 0.9995], vf["dof"])
+    assert vf["dof"] > 1000 and lo < vf["chi2"] < hi, vf
+    dirty = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True))
+    vd = variance_factor(dirty.problem, solve(dirty.problem).final_error)
+    assert vd["chi2"] > hi and vd["p_value"] < 1e-6

@@ -215,12 +215,17 @@ def test_thermal_table_round_trips_through_a_file(nominal_camera, tmp_path):
     from misrgraph.model.camera import TabulatedCameraModel
     from misrgraph.io.camera import load_camera_model
 
-    t = TabulatedCameraModel([nominal_camera.copy(), dataclasses.replace(nominal_camera.copy(), temperature_c=9.0)],
-                             valid_range_c=(0.0, 12.0))
+    warm = dataclasses.replace(nominal_camera.copy(), temperature_c=9.0)
+    warm.delta += 4e-5  # the two entries differ, so a swapped or duplicated entry would show
+    warm.focal_length *= 1.0001
+    t = TabulatedCameraModel([nominal_camera.copy(), warm], valid_range_c=(0.0, 12.0))
     save_camera_model(t, tmp_path / "t.h5")
     back = load_camera_model(tmp_path / "t.h5")
     assert isinstance(back, TabulatedCameraModel) and back.valid_range_c == (0.0, 12.0)
     np.testing.assert_array_equal(back.temperatures_c, [5.0, 9.0])
+    np.testing.assert_array_equal(back.models[1].delta, warm.delta)
+    np.testing.assert_array_equal(back.models[0].delta, nominal_camera.delta)
+    np.testing.assert_allclose(back.at_temperature(7.0).delta, nominal_camera.delta + 2e-5, rtol=0, atol=1e-15)
 
 
 def test_band_offsets_act_on_their_band_only(nominal_camera, rng):
