@@ -28,15 +28,16 @@ from numpy.typing import NDArray
 
 from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
-from misrgraph.model.constants import BANDS
+from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles
 from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph
-from misrgraph.io.passes import KIND_TIE, OrbitPass
+from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
-from misrgraph.estimate.problem import Marginals, marginal_covariances, variance_factor
+from misrgraph.estimate.problem import Marginals, NotFlat, marginal_covariances, variance_factor
+from misrgraph.estimate.reliability import reliability
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
            "supplied_camera_of", "drop_unsupported_landmarks"]
@@ -102,6 +103,8 @@ class AdjustResult:
     status: str = "converged"
     #: a-posteriori variance factor and its chi-square test (:func:`misrgraph.estimate.problem.variance_factor`)
     variance_factor: dict = dataclasses.field(default_factory=dict)
+    #: redundancy numbers, data snooping and variance components (:func:`reliability_summary`)
+    reliability: dict = dataclasses.field(default_factory=dict)
 
 
 def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -> tuple[AttitudeErrorModel, EphemerisErrorModel, CameraModel]:
@@ -149,9 +152,31 @@ def adjust_pass(
     resid[pg.obs_index[pg.collinearity.order]] = r
     att, eph, cam = estimated_models(pg, res.values, camera)
     rej = np.flatnonzero(blunder_mask)
+    rel = reliability_summary(orbit_pass, pg, res.values)
     return AdjustResult(pg, res.values, marg, att, eph, cam, rej, norm[rej], resid, res.iterations, res.final_error,
                         res.history, time.perf_counter() - t0, dropped, res.status,
-                        variance_factor(pg.problem, res.final_error))
+                        variance_factor(pg.problem, res.final_error), rel)
+
+
+def reliability_summary(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> dict[str, Any]:
+    """Redundancy, Baarda's data snooping and variance components per observation class (tie
+    points, GCPs), DEM and priors at the least-squares optimum (:mod:`misrgraph.estimate.reliability`);
+    ``flagged``: the observations whose statistic exceeds the critical value, largest first."""
+    try:
+        flat = pg.problem.flat()
+    except NotFlat:
+        return {}
+    rel = reliability(flat, flat.from_values(values))
+    obs_of_row = pg.obs_index[pg.collinearity.order]
+    kind = orbit_pass.landmarks.kind[orbit_pass.observations.landmark[obs_of_row]]
+    out = rel.summary(kind, {KIND_TIE: "tie-point", KIND_GCP: "GCP"})
+    crit = out["data_snooping"]["critical_T"]
+    bad = np.flatnonzero(rel.T > crit)
+    bad = bad[np.argsort(-rel.T[bad])]
+    out["data_snooping"]["flagged_observations"] = [
+        {"index": int(obs_of_row[i]), "camera": CAMERAS[int(orbit_pass.observations.camera[obs_of_row[i]])],
+         "T": float(rel.T[i]), "redundancy": float(np.trace(rel.R_obs[i]) / 2)} for i in bad[:20]]
+    return out
 
 
 def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | None, gcps: GcpDatabase | None,

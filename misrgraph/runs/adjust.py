@@ -121,6 +121,7 @@ def run_adjust(
         "pass_id": orbit_pass.pass_id,
         "solver_status": res.status,
         "variance_factor": res.variance_factor,
+        "reliability": res.reliability,
         "iterations": res.iterations,
         "final_cost": res.final_cost,
         "seconds": res.seconds,
