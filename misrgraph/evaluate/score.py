@@ -111,6 +111,25 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
         lm_nees.append(d @ np.linalg.solve(res.marginals[int(key)], d))
     out["nees"] = {"knots": nees_knots, "landmarks": float(np.mean(lm_nees) / 3.0),
                    "knots_dim": int(e.size), "landmarks_dim": int(3 * len(lm_nees))}
+    # ephemeris and camera corrections, each with its joint covariance
+    ek = pg.ephemeris_keys()
+    d_e = np.concatenate([res.values.atVector(k) - truth.ephemeris_error.params[s_] for s_, k in enumerate(ek)])
+    out["nees"].update(ephemeris=float(d_e @ np.linalg.solve(res.marginals.joint_of(ek), d_e) / d_e.size),
+                       ephemeris_dim=int(d_e.size))
+    if pg.camera_keys:
+        tc = truth.camera_model
+        ck = list(pg.camera_keys.values())
+        d_c = np.concatenate([res.values.atVector(k) - np.array([tc.delta[c] - supplied_camera.delta[c],
+                                                                 tc.beta[c] - supplied_camera.beta[c],
+                                                                 tc.epsilon[c] - supplied_camera.epsilon[c]])
+                              for c, k in pg.camera_keys.items()])
+        out["nees"].update(camera=float(d_c @ np.linalg.solve(res.marginals.joint_of(ck), d_c) / d_c.size),
+                           camera_dim=int(d_c.size))
+    if cp and all("predicted_rms" in v["after"] for v in cp.values()):
+        n = np.array([v["n"] for v in cp.values()], float)
+        act = np.array([v["after"]["rms"] for v in cp.values()])
+        pred = np.array([v["after"]["predicted_rms"] for v in cp.values()])
+        out["checkpoint_rms_over_predicted"] = float(np.sqrt(np.sum(n * act**2) / np.sum(n * pred**2)))
     if whole_state:
         out["nees"].update(_state_nees(truth, res, supplied_camera))
     blunders = truth.blunder

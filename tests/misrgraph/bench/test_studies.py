@@ -59,3 +59,30 @@ def test_bench_incremental_ratios_and_accuracy(bench_dir):
         assert r["linearization_error_sigma"] <= 0.005
     acc = res["max_difference_in_sigma_vs_tight_batch"]
     assert np.isfinite(acc["batch"]) and acc["incremental"] < 0.01  # 2x the tolerance (module docstring)
+
+
+def test_interval_from_the_run_to_run_scatter():
+    """Student-t interval, closed form: values 1, 2, 3 -> mean 2, half width t(0.975, 2) / sqrt(3)."""
+    from scipy import stats
+
+    from misrgraph.bench.studies import _interval
+
+    iv = _interval([1.0, 2.0, 3.0])
+    half = stats.t.ppf(0.975, 2) * 1.0 / np.sqrt(3)
+    assert iv["mean"] == 2.0 and iv["ci95"] == pytest.approx([2.0 - half, 2.0 + half], rel=1e-12)
+
+
+def test_bench_nees_per_class_at_reduced_size(tmp_path):
+    """Two reduced adjustment runs: every class (knots, ephemeris, camera, landmarks, state) is
+    reported with its chi-square band and an interval from the runs; an unknown size is refused."""
+    from misrgraph.bench.studies import run_bench_nees
+    from misrgraph.errors import InputError
+
+    r = run_bench_nees("adjust", runs=2, seed=1000, workdir=tmp_path)
+    assert set(r["summary"]) >= {"knots", "ephemeris", "landmarks", "state"}
+    for k, v in r["summary"].items():
+        lo, hi = v["per_run"]["ci95"]
+        assert lo <= v["per_run"]["mean"] <= hi and v["band"][0] < 1 < v["band"][1], k
+        assert v["per_run"]["mean"] == pytest.approx(np.mean([p[k] for p in r["per_run"]]))
+    with pytest.raises(InputError, match="size"):
+        run_bench_nees("adjust", runs=1, size="huge", workdir=tmp_path)
