@@ -4,7 +4,8 @@ The data are ``global-land-mask``'s (the GLOBE dataset: ``21600 x 43200`` ocean 
 2.5 MB compressed ``.npz``). Importing that package decompresses the whole mask into 0.93 GB of
 memory in every process that calls it. Here the mask is streamed out of the ``.npz`` once per
 machine, 400 rows at a time, packed to one bit per cell (117 MB) and cached as a ``.npy`` file
-(``$MISRGRAPH_CACHE``, else ``$XDG_CACHE_HOME/misrgraph``, else ``~/.cache/misrgraph``) that every
+(``$MISRGRAPH_CACHE``, else ``$XDG_CACHE_HOME/misrgraph``, else ``~/.cache/misrgraph``; the
+system's temporary directory if that cannot be written) that every
 later lookup memory-maps: a process holds only the pages its points touch. The cache is written
 atomically (temporary file, then rename) and named by the SHA-256 of the source ``.npz``, so a
 new release of the data builds a new cache.
@@ -92,7 +93,12 @@ def _build(target: Path) -> None:
 def _mask() -> tuple[NDArray[np.uint8], NDArray[np.float64], NDArray[np.float64]]:
     path = mask_cache_path()
     if not path.exists():
-        _build(path)
+        try:
+            _build(path)
+        except OSError:  # a read-only cache directory: fall back to the temporary directory
+            path = Path(tempfile.gettempdir()) / f"misrgraph-{os.getuid()}" / path.name
+            if not path.exists():
+                _build(path)
     with zipfile.ZipFile(_source()) as z:
         lat, lon = _read_npy_member(z, "lat.npy"), _read_npy_member(z, "lon.npy")
     return np.load(path, mmap_mode="r"), lat, lon

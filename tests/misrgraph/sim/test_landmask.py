@@ -23,3 +23,17 @@ def test_same_answers_as_global_land_mask(tmp_path, monkeypatch):
         assert mine.reshape(-1)[:10].shape == (10,) and landmask.is_land(lat[:6].reshape(2, 3), lon[:6].reshape(2, 3)).shape == (2, 3)
     finally:
         landmask._mask.cache_clear()
+
+
+def test_an_unwritable_cache_falls_back_to_the_temporary_directory(tmp_path, monkeypatch):
+    import os
+    import tempfile
+
+    monkeypatch.setenv("MISRGRAPH_CACHE", "/proc/misrgraph-cannot-write-here")
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    landmask._mask.cache_clear()
+    try:
+        assert landmask.is_land([48.86, 0.0], [2.35, -30.0]).tolist() == [True, False]  # Paris, mid-Atlantic
+        assert list((tmp_path / f"misrgraph-{os.getuid()}").glob("landmask-*.npy"))
+    finally:
+        landmask._mask.cache_clear()
