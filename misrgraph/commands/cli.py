@@ -465,12 +465,15 @@ def bench_sba(
             t.add_row(name, r.get("skipped", ""), "", "", "", "")
             continue
         key = f"{name}_over_misrgraph"
-        ratio = res["ratios"].get(key, 1.0)
+        ratio = 1.0 if name == "misrgraph" else res["ratios"].get(key)
         bound = ">= " if key in res["ratios_that_are_lower_bounds"] else ""
         own = res["ratios_at_each_solvers_own_lowest_cost"].get(key)
         t.add_row(name, "yes" if r["reached"] else "no", f"{r['seconds']:.2f}", str(r["iterations"]),
-                  f"{bound}{ratio:.2f}", "" if own is None else f"{own:.2f}")
+                  "n/a" if ratio is None else f"{bound}{ratio:.2f}", "" if own is None else f"{own:.2f}")
     console.print(t)
+    if not res["misrgraph_reached"]:
+        console.print(f"[yellow]misrgraph did not reach the target[/]; reached by: {', '.join(res['reached_by']) or 'none'} "
+                      "(no time ratios: misrgraph is not a valid baseline here)")
     rows = [(n, r) for n, r in res["results"].items() if "seconds_to_relative_level" in r]
     if rows:
         levels = list(rows[0][1]["seconds_to_relative_level"])
