@@ -511,6 +511,9 @@ def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_
         g = sp.csr_matrix((0, n_c))
         s = sp.csc_matrix(h_cc)
     if joint_keys is not None:
+        bad = [int(k) for k in joint_keys if int(k) not in off]
+        if bad:
+            raise InputError("joint_keys", bad[:3], "non-landmark keys of the problem")
         idx = np.concatenate([np.arange(off[int(k)], off[int(k)] + dims[int(k)]) for k in joint_keys])
         try:
             lu = spla.splu(s)
