@@ -143,6 +143,7 @@ def simulate(
     thermal_ppm: float = typer.Option(0.0, "--thermal-ppm-per-c", help="Thermal truth: 1 sigma of each camera's focal-length scale slope (ppm per deg C)."),
     bands: str = typer.Option("red", "--bands", help="Bands observed, comma-separated from blue, green, red, nir (e.g. all four for band-to-band calibration)."),
     band_misalignment: float = typer.Option(0.0, "--band-misalignment-arcsec", help="Per-band truth: 1 sigma of each band's own delta, beta, epsilon offsets (arcsec)."),
+    truth: str = typer.Option("model", "--truth", help="model (navigation errors drawn from the estimator's own parameterisations: checks the algebra) or independent (an attitude process with jitter on a 2 s grid and an ephemeris error with a once-per-revolution term: checks the estimator)."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -156,7 +157,8 @@ def simulate(
                   tie_blunder_rate=tie_blunder_rate, nav_sigma_m=nav_sigma, camera_misalignment_arcsec=misalignment,
                   noise_free=noise_free, with_chips=chips, camera_truth=str(camera_truth) if camera_truth else "",
                   thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm,
-                  bands=tuple(b.strip() for b in bands.split(",") if b.strip()), band_misalignment_arcsec=band_misalignment)
+                  bands=tuple(b.strip() for b in bands.split(",") if b.strip()), band_misalignment_arcsec=band_misalignment,
+                  truth=truth)
     if config is not None:
         try:
             fields.update(json.loads(config.read_text()))
@@ -558,6 +560,7 @@ def bench_nees(
     seed: int = typer.Option(1000, "--seed", help="First seed."),
     workdir: Optional[Path] = typer.Option(None, "--workdir"),
     size: str = typer.Option("reduced", "--size", help="reduced (the test suite's size) or standard (45-minute passes with 600 tie points and check points; full months)."),
+    truth: str = typer.Option("model", "--truth", help="The simulator's truth: model or independent (see misrgraph simulate --help)."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Covariance honesty: NEES per class over seeded runs, against its 95 % chi-square band and with a 95 % interval from the run-to-run scatter."""
@@ -566,7 +569,7 @@ def bench_nees(
     if runs < 1:
         _fail(f"--runs: got {runs}; expected at least 1")
     with err_console.status(f"{runs} seeded {study} runs..."):
-        res = run_bench_nees(study, runs, seed, workdir, size)
+        res = run_bench_nees(study, runs, seed, workdir, size, truth)
     if as_json:
         _print_json(res)
         return

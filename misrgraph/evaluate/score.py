@@ -22,10 +22,11 @@ from misrgraph.io.passes import KIND_CHECK, OrbitPass
 from misrgraph.io.truth import PassTruth
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, ARCSEC, BANDS, CAMERAS
+from misrgraph.model.errormodels import AttitudeErrorModel
 from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import PassGeometry
 
-__all__ = ["score_pass", "predicted_checkpoint_rms", "horizontal_error"]
+__all__ = ["score_pass", "predicted_checkpoint_rms", "horizontal_error", "true_knots"]
 
 Array = NDArray[np.float64]
 RED = BANDS.index("red")
@@ -97,8 +98,7 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
     # NEES: knots with their joint covariance, landmarks with their 3x3 marginals
     keys, err = [], []
     for a in range(3):
-        kt = res.attitude.knot_times[a]
-        tv = np.stack([truth.attitude_error.evaluate(kt)[:, a], truth.attitude_error.rate(kt)[:, a]], -1)
+        tv = true_knots(truth, res.attitude.knot_times[a], a)
         for j, k in enumerate(pg.knot_keys(a)):
             keys.append(k)
             err.append(res.values.atVector(k) - tv[j])
@@ -113,9 +113,10 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
                    "knots_dim": int(e.size), "landmarks_dim": int(3 * len(lm_nees))}
     # ephemeris and camera corrections, each with its joint covariance
     ek = pg.ephemeris_keys()
-    d_e = np.concatenate([res.values.atVector(k) - truth.ephemeris_error.params[s_] for s_, k in enumerate(ek)])
-    out["nees"].update(ephemeris=float(d_e @ np.linalg.solve(res.marginals.joint_of(ek), d_e) / d_e.size),
-                       ephemeris_dim=int(d_e.size))
+    if truth.ephemeris_error.n_segments == len(ek) and np.allclose(truth.ephemeris_error.boundaries, res.ephemeris.boundaries):
+        d_e = np.concatenate([res.values.atVector(k) - truth.ephemeris_error.params[s_] for s_, k in enumerate(ek)])
+        out["nees"].update(ephemeris=float(d_e @ np.linalg.solve(res.marginals.joint_of(ek), d_e) / d_e.size),
+                           ephemeris_dim=int(d_e.size))
     if pg.camera_keys:
         tc = truth.camera_model
         ck = list(pg.camera_keys.values())
@@ -130,7 +131,12 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
         act = np.array([v["after"]["rms"] for v in cp.values()])
         pred = np.array([v["after"]["predicted_rms"] for v in cp.values()])
         out["checkpoint_rms_over_predicted"] = float(np.sqrt(np.sum(n * act**2) / np.sum(n * pred**2)))
-    if whole_state:
+    # parameter-wise NEES of the ephemeris and of the whole state need a truth in the estimator's
+    # own parameterisation (the same eq. 19 segments); an independent truth has none
+    same_eph = (truth.ephemeris_error.boundaries.shape == res.ephemeris.boundaries.shape
+                and np.allclose(truth.ephemeris_error.boundaries, res.ephemeris.boundaries))
+    out["truth_in_estimator_parameterisation"] = bool(same_eph)
+    if whole_state and same_eph:
         out["nees"].update(_state_nees(truth, res, supplied_camera))
     blunders = truth.blunder
     if blunders.any() or res.rejected.size:
@@ -141,13 +147,34 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
     return out
 
 
+def true_knots(truth: PassTruth, knot_times: Array, angle: int, step_s: float = 1.0) -> Array:
+    """The true values ``(K, 2)`` (rad, rad/s) of the estimator's knots of one angle.
+
+    When the truth is a spline on the same knots (``truth="model"``) these are its knots. Otherwise
+    (an independent truth, e.g. with jitter) the estimator's spline cannot represent the truth, and
+    the value it estimates is the truth's least-squares projection onto the spline space: the knots
+    whose spline is closest to the true error sampled every ``step_s`` over the knots' span (within
+    the pass)."""
+    tt = truth.attitude_error.knot_times[angle]
+    if tt.shape == knot_times.shape and np.allclose(tt, knot_times):
+        return truth.attitude_error.knots[angle]
+    model = AttitudeErrorModel([knot_times] * 3, [np.zeros((knot_times.size, 2))] * 3)
+    # sampled where the truth is defined (the estimator's end knots may lie beyond the pass)
+    t = np.arange(max(knot_times[0], tt[0]), min(knot_times[-1], tt[-1]) + 0.5 * step_s, step_s)
+    i, w = model.bracket(angle, t)
+    cols = np.stack([2 * i, 2 * i + 1, 2 * i + 2, 2 * i + 3], -1)
+    design = np.zeros((t.size, 2 * knot_times.size))
+    np.put_along_axis(design, cols, w, axis=1)
+    sol, *_ = np.linalg.lstsq(design, truth.attitude_error.evaluate(t)[:, angle], rcond=None)
+    return sol.reshape(-1, 2)
+
+
 def _state_nees(truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel) -> dict[str, Any]:
     """The whole state jointly: e^T H e / dim with H the information matrix at the solution."""
     pg = res.pass_graph
     delta: dict[int, Array] = {}
     for a in range(3):
-        kt = res.attitude.knot_times[a]
-        tv = np.stack([truth.attitude_error.evaluate(kt)[:, a], truth.attitude_error.rate(kt)[:, a]], -1)
+        tv = true_knots(truth, res.attitude.knot_times[a], a)
         for j, k in enumerate(pg.knot_keys(a)):
             delta[k] = res.values.atVector(k) - tv[j]
     for s_, k in enumerate(pg.ephemeris_keys()):

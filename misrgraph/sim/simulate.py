@@ -74,11 +74,26 @@ Progress = Callable[[str, int, int], None]
 RED = BANDS.index("red")
 
 
+#: the truths the simulator can draw (see :class:`ScenarioConfig`)
+TRUTHS = ("model", "independent")
+
+
 @dataclass(frozen=True)
 class ScenarioConfig(Config):
-    """Simulator settings (units in the names). Unknown keys are rejected by ``from_dict``."""
+    """Simulator settings (units in the names). Unknown keys are rejected by ``from_dict``.
+
+    ``truth``: ``"model"`` draws the navigation errors from the estimator's own parameterisations
+    (an attitude spline on its knot grid, eq. 19 on its segments) -- NEES then checks the algebra
+    only; ``"independent"`` draws them from processes the estimator does not share: the attitude
+    error is a smooth process (periods 200-2000 s) plus jitter (``jitter_arcsec`` 1 sigma, periods
+    8-120 s) on a 2 s spline, the ephemeris error an offset, a drift and a once-per-revolution term
+    (``once_per_rev_m`` 1 sigma per axis) on 60 s segments.
+    """
 
     scenario: str = "pass"
+    truth: str = "model"
+    jitter_arcsec: float = 1.0
+    once_per_rev_m: float = 30.0
     seed: int = 0
     n_passes: int = 10
     repeat_visibility: float = 0.8
@@ -121,6 +136,11 @@ class ScenarioConfig(Config):
     def __post_init__(self) -> None:
         if self.scenario not in ("pass", "month", "path"):
             raise InputError("scenario", self.scenario, ("pass", "month", "path"))
+        if self.truth not in TRUTHS:
+            raise InputError("truth", self.truth, TRUTHS)
+        for name in ("jitter_arcsec", "once_per_rev_m"):
+            if not getattr(self, name) >= 0:
+                raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma)")
         if self.n_passes < 1:
             raise InputError("n_passes", self.n_passes, "an integer >= 1")
         if not (1 <= self.path <= REPEAT_PATHS):
@@ -147,7 +167,20 @@ class ScenarioConfig(Config):
 
 # ---------------------------------------------------------------------------- truth draws
 def draw_ephemeris_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float) -> EphemerisErrorModel:
-    """Random eq. 19 model: b ~ N(0, nav_sigma_m), a ~ N(0, along/drift sigma) per segment."""
+    """Random eq. 19 model: b ~ N(0, nav_sigma_m), a ~ N(0, along/drift sigma) per segment
+    (``truth="model"``); or, with ``truth="independent"``, an offset, a drift and a
+    once-per-revolution term per axis, tabulated on 60 s segments (continuous)."""
+    if cfg.truth == "independent":
+        a_sig = np.array([cfg.along_drift_sigma_mps, cfg.drift_sigma_mps, cfg.drift_sigma_mps])
+        b0 = rng.standard_normal(3) * cfg.nav_sigma_m
+        a0 = rng.standard_normal(3) * a_sig
+        amp = rng.standard_normal(3) * cfg.once_per_rev_m
+        ph = rng.uniform(0, 2 * np.pi, 3)
+        edges = np.r_[np.arange(t_start, t_end, 60.0), t_end]
+        rel = edges - t_start
+        e = b0 + np.outer(rel, a0) + amp * np.sin(2 * np.pi * np.outer(edges, np.ones(3)) / NODAL_PERIOD_S + ph)
+        params = np.concatenate([np.diff(e, axis=0) / np.diff(edges)[:, None], e[:-1]], axis=1)
+        return EphemerisErrorModel(edges, params)
     model = EphemerisErrorModel.zeros(t_start, t_end, cfg.ephemeris_segments)
     s = model.n_segments
     a_sig = np.array([cfg.along_drift_sigma_mps, cfg.drift_sigma_mps, cfg.drift_sigma_mps])
@@ -156,10 +189,11 @@ def draw_ephemeris_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start:
     return model
 
 
-def smooth_process(rng: np.random.Generator, sigma: float, n_terms: int = 6) -> Callable[[Array], tuple[Array, Array]]:
-    """A zero-mean random sum of sinusoids (periods 200-2000 s) with standard deviation ``sigma``;
-    returns ``f(t) -> (value, rate)``."""
-    period = np.exp(rng.uniform(np.log(200.0), np.log(2000.0), n_terms))
+def smooth_process(rng: np.random.Generator, sigma: float, n_terms: int = 6,
+                   periods_s: tuple[float, float] = (200.0, 2000.0)) -> Callable[[Array], tuple[Array, Array]]:
+    """A zero-mean random sum of sinusoids (periods log-uniform in ``periods_s``) with standard
+    deviation ``sigma``; returns ``f(t) -> (value, rate)``."""
+    period = np.exp(rng.uniform(np.log(periods_s[0]), np.log(periods_s[1]), n_terms))
     w = 2 * np.pi / period
     ph = rng.uniform(0, 2 * np.pi, n_terms)
     amp = rng.rayleigh(1.0, n_terms)
@@ -168,8 +202,19 @@ def smooth_process(rng: np.random.Generator, sigma: float, n_terms: int = 6) -> 
 
 
 def draw_attitude_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float) -> AttitudeErrorModel:
-    """Random attitude error spline: knots (value, rate) sampled from :func:`smooth_process`."""
+    """Random attitude error spline: knots (value, rate) sampled from :func:`smooth_process` on the
+    estimator's knot grid (``truth="model"``), or the process plus jitter on a 2 s grid the
+    estimator does not share (``truth="independent"``)."""
     kt, kv = [], []
+    if cfg.truth == "independent":
+        times = np.arange(t_start, t_end + 2.0, 2.0)
+        for a in range(3):
+            slow = smooth_process(rng, cfg.attitude_sigma_arcsec[a] * ARCSEC)
+            fast = smooth_process(rng, cfg.jitter_arcsec * ARCSEC, n_terms=12, periods_s=(8.0, 120.0))
+            (v1, r1), (v2, r2) = slow(times), fast(times)
+            kt.append(times.copy())
+            kv.append(np.stack([v1 + v2, r1 + r2], -1))
+        return AttitudeErrorModel(kt, kv)
     for a in range(3):
         times = uniform_knots(t_start, t_end, cfg.knot_spacing_s[a])
         f = smooth_process(rng, cfg.attitude_sigma_arcsec[a] * ARCSEC)
