@@ -220,3 +220,15 @@ def test_per_band_truth_recovered_per_band(band_month_dir, tmp_path):
     one = run_calibrate(band_month_dir, cfg=CalibrateConfig())
     lo1, hi1 = stats.chi2.ppf([0.025, 0.975], one["nees_dim"]) / one["nees_dim"]
     assert one["nees"] > hi1
+
+
+def test_an_unconverged_calibration_fails_unless_accepted(month):
+    from misrgraph.errors import ConvergenceError
+
+    sc, passes = month
+    with pytest.raises(ConvergenceError, match="did not converge.*--accept-unconverged"):
+        calibrate_passes(passes[:6], sc.camera_model, sc.gcps, CalibrateConfig(max_iterations=1))
+    res = calibrate_passes(passes[:6], sc.camera_model, sc.gcps, CalibrateConfig(max_iterations=1, accept_unconverged=True))
+    assert res.status == "iteration_limit"
+    s = summarise(res, CalibrateConfig(), sc.camera_model, draws=2)
+    assert s["solver_status"] == "iteration_limit" and s["variance_factor"]["dof"] > 0
