@@ -107,6 +107,11 @@ class CalibrationResult:
     supplied_table: TabulatedCameraModel | None = None
     #: how the least-squares solve ended (:data:`misrgraph.estimate.solver.STATUSES`)
     status: str = "converged"
+
+    @property
+    def binned(self) -> bool:
+        """Corrections estimated per temperature bin (more than one supplied model)."""
+        return len(self.supplied_models) > 1
     #: a-posteriori variance factor and its chi-square test (:func:`misrgraph.estimate.problem.variance_factor`)
     variance_factor: dict = dataclasses.field(default_factory=dict)
 
@@ -285,12 +290,18 @@ def pointing_error_px(estimated: CameraModel, reference: CameraModel, c: int, b:
     return float(np.sqrt(np.mean((ang / estimated.ifov_cross_rad(c, b, s)) ** 2)))
 
 
+def _supplied_model(res: CalibrationResult, supplied: CameraModel) -> CameraModel | TabulatedCameraModel:
+    """The model the corrections were estimated against: the supplied table, else the (first
+    bin's) supplied model."""
+    return res.supplied_table if res.supplied_table is not None else (res.supplied_models or [supplied])[0]
+
+
 def evaluation_grid(res: CalibrationResult, supplied: CameraModel, thermal: bool = False) -> Array:
     """Temperatures (deg C) at which a calibration is summarised: five across the passes' range
     when anything is thermal (``thermal`` or a temperature-binned or tabulated calibration), else
     the passes' median (every temperature gives the same numbers)."""
     temps = res.pass_temperatures_c if res.pass_temperatures_c.size else np.array([supplied.temperature_c])
-    thermal = thermal or len(res.supplied_models or [supplied]) > 1 or res.supplied_table is not None
+    thermal = thermal or res.binned or res.supplied_table is not None
     return np.linspace(temps.min(), temps.max(), 5) if thermal and np.ptp(temps) > 0 else np.array([float(np.median(temps))])
 
 
@@ -300,8 +311,8 @@ def calibrated_models(res: CalibrationResult, cfg: CalibrateConfig, supplied: Ca
     estimate); with temperature bins, through the fitted thermal table."""
     x = res.values if x is None else x
     cams = camera_keys(res, cfg)
-    sup_model: CameraModel | TabulatedCameraModel = res.supplied_table if res.supplied_table is not None else (res.supplied_models or [supplied])[0]
-    if len(res.supplied_models or [supplied]) == 1:
+    sup_model = _supplied_model(res, supplied)
+    if not res.binned:
         return [_apply(sup_model.at_temperature(t), cams, cfg, x, 0) for t in grid]
     tab = _fit_table(res, cfg, x, sup_model)
     return [tab.at_temperature(t) for t in grid]
@@ -309,7 +320,7 @@ def calibrated_models(res: CalibrationResult, cfg: CalibrateConfig, supplied: Ca
 
 def supplied_models_at(res: CalibrationResult, supplied: CameraModel, grid: Array) -> list[CameraModel]:
     """The supplied (uncalibrated) model at each temperature of ``grid``."""
-    sup_model: CameraModel | TabulatedCameraModel = res.supplied_table if res.supplied_table is not None else (res.supplied_models or [supplied])[0]
+    sup_model = _supplied_model(res, supplied)
     return [sup_model.at_temperature(t) for t in grid]
 
 
@@ -361,7 +372,7 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
                                None),
                            "poorly_determined": poorly,
                            "correlation": {"labels": res.labels, "matrix": np.round(corr, 4).tolist()}}
-    if len(res.supplied_models or [supplied]) > 1:
+    if res.binned:
         out["temperature_bins_c"] = [float(t) for t in res.bin_temperatures_c]
         out["thermal"] = thermal_slopes(res, cfg)
     return out

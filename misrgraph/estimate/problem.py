@@ -31,7 +31,7 @@ from factors.collinearity import CollinearityBatch, collinearity_residual
 from factors.dem_height import DemBatch, dem_residual, dem_residual_hessian
 from misrgraph.errors import DegenerateProblemError, InputError
 
-__all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_marginals", "marginal_covariances", "flat_marginals",
+__all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_reduce", "reduced_cholesky", "schur_marginals", "marginal_covariances", "flat_marginals",
            "error", "linearize", "variance_factor"]
 
 Array = NDArray[np.float64]
@@ -485,6 +485,30 @@ def _offsets(keys: list[int], dims: dict[int, int]) -> tuple[dict[int, int], int
     return off, n
 
 
+def schur_reduce(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix) -> tuple[Array, sp.csr_matrix, sp.csc_matrix]:
+    """The Schur complement on the 3x3 landmark blocks of ``J^T J``: ``H_ll^-1 (L, 3, 3)``,
+    ``G = H_ll^-1 H_lc`` (sparse, ``(3L, n_c)``) and ``S = H_cc - H_cl G`` (sparse). Shared by the
+    marginals and the reliability (:mod:`misrgraph.estimate.reliability`)."""
+    n_l, n_c = h_ll.shape[0], h_cc.shape[0]
+    try:
+        h_ll_inv = np.linalg.inv(h_ll) if n_l else h_ll
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateProblemError("a landmark is not determined (singular 3x3 information block)") from exc
+    if not n_l:
+        return h_ll_inv, sp.csr_matrix((0, n_c)), sp.csc_matrix(h_cc)
+    g = (sp.block_diag(list(h_ll_inv), format="csr") @ h_lc).tocsr()
+    return h_ll_inv, g, (h_cc - h_lc.T @ g).tocsc()
+
+
+def reduced_cholesky(s: sp.spmatrix) -> Array:
+    """Dense lower Cholesky factor of the reduced system ``S`` (symmetrised)."""
+    s_dense = s.toarray()
+    try:
+        return np.linalg.cholesky(0.5 * (s_dense + s_dense.T))
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)") from exc
+
+
 def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_keys: list[int], other_keys: list[int],
                     dims: dict[int, int], joint_keys: list[int] | None = None) -> Marginals:
     """The project's one marginal-covariance routine (eq. 34 at convergence), from ``J^T J`` in
@@ -499,17 +523,7 @@ def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_
     """
     n_l = len(landmark_keys)
     off, n_c = _offsets(other_keys, dims)
-    try:
-        h_ll_inv = np.linalg.inv(h_ll) if n_l else h_ll
-    except np.linalg.LinAlgError as exc:
-        raise DegenerateProblemError("a landmark is not determined (singular 3x3 information block)") from exc
-    if n_l:
-        d_inv = sp.block_diag(list(h_ll_inv), format="csr")
-        g = (d_inv @ h_lc).tocsr()
-        s = (h_cc - h_lc.T @ g).tocsc()
-    else:
-        g = sp.csr_matrix((0, n_c))
-        s = sp.csc_matrix(h_cc)
+    h_ll_inv, g, s = schur_reduce(h_ll, h_lc, h_cc)
     if joint_keys is not None:
         bad = [int(k) for k in joint_keys if int(k) not in off]
         if bad:
@@ -532,12 +546,7 @@ def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_
             cov[int(k)] = joint[o:o + dims[int(k)], o:o + dims[int(k)]].copy()
             o += dims[int(k)]
         return Marginals(cov, joint, [int(k) for k in joint_keys], j_off)
-    s_dense = s.toarray()
-    try:
-        chol = np.linalg.cholesky(0.5 * (s_dense + s_dense.T))
-    except np.linalg.LinAlgError as exc:
-        raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)") from exc
-    inv_l = np.linalg.inv(chol)
+    inv_l = np.linalg.inv(reduced_cholesky(s))
     sigma_cc = inv_l.T @ inv_l
     cov = {int(k): sigma_cc[off[int(k)]:off[int(k)] + dims[int(k)], off[int(k)]:off[int(k)] + dims[int(k)]].copy()
            for k in other_keys}

@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
+import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy import stats
 
-from misrgraph.errors import DegenerateProblemError
-from misrgraph.estimate.problem import FlatProblem
+from misrgraph.estimate.problem import FlatProblem, reduced_cholesky, schur_reduce
 
 __all__ = ["Reliability", "reliability", "W_TEST_ALPHA"]
 
@@ -99,16 +99,9 @@ def reliability(flat: FlatProblem, x: Array, chunk: int = 2048) -> Reliability:
     blk, hlc, hcc, _, _ = flat.normal_equations(x)
     n_l3, n_c = blk.shape[0], hcc.shape[0]
     n_l = 3 * n_l3
-    try:
-        d_inv = np.linalg.inv(blk) if n_l3 else blk
-    except np.linalg.LinAlgError as exc:
-        raise DegenerateProblemError("a landmark is not determined (singular 3x3 information block)") from exc
-    g = d_inv @ hlc if n_l3 else np.zeros((0, 3, n_c))  # (L, 3, n_c)
-    s = hcc - hlc.reshape(n_l, n_c).T @ g.reshape(n_l, n_c) if n_l3 else hcc
-    try:
-        chol = np.linalg.cholesky(0.5 * (s + s.T))
-    except np.linalg.LinAlgError as exc:
-        raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)") from exc
+    d_inv, g_sparse, s = schur_reduce(blk, sp.csr_matrix(hlc.reshape(n_l, n_c)), sp.csr_matrix(hcc))
+    g = g_sparse.toarray().reshape(n_l3, 3, n_c)
+    chol = reduced_cholesky(s)
     e = flat.residual(x)
     jac = flat.jacobian(x).tocsr()
     m = jac.shape[0]

@@ -95,49 +95,30 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
             cp[name]["after"]["rms"] = cp[name].pop("_after_rms")
     out["checkpoint_geolocation_m"] = cp
     out["coregistration_px"] = coreg
-    # NEES: knots with their joint covariance, landmarks with their 3x3 marginals
-    keys, err = [], []
-    for a in range(3):
-        tv = true_knots(truth, res.attitude.knot_times[a], a)
-        for j, k in enumerate(pg.knot_keys(a)):
-            keys.append(k)
-            err.append(res.values.atVector(k) - tv[j])
-    e = np.concatenate(err)
-    cov = res.marginals.joint_of(keys)
-    nees_knots = float(e @ np.linalg.solve(cov, e) / e.size)
-    lm_nees = []
-    for key, row in zip(pg.landmark_keys, pg.landmark_rows):
-        d = res.values.atVector(int(key)) - truth.landmark_ecef[row]
-        lm_nees.append(d @ np.linalg.solve(res.marginals[int(key)], d))
-    out["nees"] = {"knots": nees_knots, "landmarks": float(np.mean(lm_nees) / 3.0),
-                   "knots_dim": int(e.size), "landmarks_dim": int(3 * len(lm_nees))}
-    # ephemeris and camera corrections, each with its joint covariance
-    ek = pg.ephemeris_keys()
-    if truth.ephemeris_error.n_segments == len(ek) and np.allclose(truth.ephemeris_error.boundaries, res.ephemeris.boundaries):
-        d_e = np.concatenate([res.values.atVector(k) - truth.ephemeris_error.params[s_] for s_, k in enumerate(ek)])
-        out["nees"].update(ephemeris=float(d_e @ np.linalg.solve(res.marginals.joint_of(ek), d_e) / d_e.size),
-                           ephemeris_dim=int(d_e.size))
+    # NEES per class, each with its (joint) covariance. Parameter-wise ephemeris and whole-state
+    # NEES need the truth in the estimator's own parameterisation (the same eq. 19 segments); an
+    # independent truth has none.
+    same_eph = (truth.ephemeris_error.boundaries.shape == res.ephemeris.boundaries.shape
+                and np.allclose(truth.ephemeris_error.boundaries, res.ephemeris.boundaries))
+    delta = _true_deltas(truth, res, supplied_camera, same_eph)
+    knot_keys = [k for a in range(3) for k in pg.knot_keys(a)]
+    out["nees"] = _joint_nees(res, delta, knot_keys, "knots")
+    lm_nees = [delta[int(k)] @ np.linalg.solve(res.marginals[int(k)], delta[int(k)]) for k in pg.landmark_keys]
+    out["nees"].update(landmarks=float(np.mean(lm_nees) / 3.0), landmarks_dim=int(3 * len(lm_nees)))
+    if same_eph:
+        out["nees"].update(_joint_nees(res, delta, pg.ephemeris_keys(), "ephemeris"))
     if pg.camera_keys:
-        tc = truth.camera_model
-        ck = list(pg.camera_keys.values())
-        d_c = np.concatenate([res.values.atVector(k) - np.array([tc.delta[c] - supplied_camera.delta[c],
-                                                                 tc.beta[c] - supplied_camera.beta[c],
-                                                                 tc.epsilon[c] - supplied_camera.epsilon[c]])
-                              for c, k in pg.camera_keys.items()])
-        out["nees"].update(camera=float(d_c @ np.linalg.solve(res.marginals.joint_of(ck), d_c) / d_c.size),
-                           camera_dim=int(d_c.size))
+        out["nees"].update(_joint_nees(res, delta, list(pg.camera_keys.values()), "camera"))
     if cp and all("predicted_rms" in v["after"] for v in cp.values()):
         n = np.array([v["n"] for v in cp.values()], float)
         act = np.array([v["after"]["rms"] for v in cp.values()])
         pred = np.array([v["after"]["predicted_rms"] for v in cp.values()])
         out["checkpoint_rms_over_predicted"] = float(np.sqrt(np.sum(n * act**2) / np.sum(n * pred**2)))
-    # parameter-wise NEES of the ephemeris and of the whole state need a truth in the estimator's
-    # own parameterisation (the same eq. 19 segments); an independent truth has none
-    same_eph = (truth.ephemeris_error.boundaries.shape == res.ephemeris.boundaries.shape
-                and np.allclose(truth.ephemeris_error.boundaries, res.ephemeris.boundaries))
     out["truth_in_estimator_parameterisation"] = bool(same_eph)
     if whole_state and same_eph:
-        out["nees"].update(_state_nees(truth, res, supplied_camera))
+        state_dim = sum(pg.problem.dims.values())
+        nees_state = information_norm(pg.problem, linearize(pg.problem, res.values), delta) / state_dim
+        out["nees"].update(state=nees_state, state_dim=int(state_dim))
     blunders = truth.blunder
     if blunders.any() or res.rejected.size:
         rej = np.zeros(blunders.size, bool)
@@ -169,24 +150,30 @@ def true_knots(truth: PassTruth, knot_times: Array, angle: int, step_s: float = 
     return sol.reshape(-1, 2)
 
 
-def _state_nees(truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel) -> dict[str, Any]:
-    """The whole state jointly: e^T H e / dim with H the information matrix at the solution."""
+def _true_deltas(truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel, with_ephemeris: bool) -> dict[int, Array]:
+    """Estimate minus truth for every knot (against :func:`true_knots`), camera correction
+    (truth minus supplied model), landmark and, ``with_ephemeris``, ephemeris segment."""
     pg = res.pass_graph
     delta: dict[int, Array] = {}
     for a in range(3):
         tv = true_knots(truth, res.attitude.knot_times[a], a)
         for j, k in enumerate(pg.knot_keys(a)):
             delta[k] = res.values.atVector(k) - tv[j]
-    for s_, k in enumerate(pg.ephemeris_keys()):
-        delta[k] = res.values.atVector(k) - truth.ephemeris_error.params[s_]
+    if with_ephemeris:
+        for s_, k in enumerate(pg.ephemeris_keys()):
+            delta[k] = res.values.atVector(k) - truth.ephemeris_error.params[s_]
+    tc, sc_ = truth.camera_model, supplied_camera
     for c, k in pg.camera_keys.items():
-        tc, sc_ = truth.camera_model, supplied_camera
         delta[k] = res.values.atVector(k) - np.array([tc.delta[c] - sc_.delta[c], tc.beta[c] - sc_.beta[c], tc.epsilon[c] - sc_.epsilon[c]])
     for key, row in zip(pg.landmark_keys, pg.landmark_rows):
         delta[int(key)] = res.values.atVector(int(key)) - truth.landmark_ecef[row]
-    state_dim = sum(pg.problem.dims.values())
-    nees_state = information_norm(pg.problem, linearize(pg.problem, res.values), delta) / state_dim
-    return {"state": nees_state, "state_dim": int(state_dim)}
+    return delta
+
+
+def _joint_nees(res: AdjustResult, delta: dict[int, Array], keys: list[int], name: str) -> dict[str, Any]:
+    """NEES/dim of several variables with their joint covariance: ``{name, name_dim}``."""
+    e = np.concatenate([delta[k] for k in keys])
+    return {name: float(e @ np.linalg.solve(res.marginals.joint_of(keys), e) / e.size), f"{name}_dim": int(e.size)}
 
 
 def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array, h: Array, true_geo: PassGeometry,

@@ -32,10 +32,7 @@ EARTH_R = 6371e3
 def land_mask(lat: ArrayLike, lon: ArrayLike) -> NDArray[np.bool_]:
     """True over land (1 km resolution; :mod:`misrgraph.sim.landmask`, memory-mapped); any
     longitude (wrapped into [-180, 180))."""
-    la = np.clip(np.asarray(lat, dtype=float), -89.999, 89.999)
-    lo = (np.asarray(lon, dtype=float) + 180.0) % 360.0 - 180.0
-    lo = np.clip(lo, -179.999, 179.999)
-    return is_land(la, lo)
+    return is_land(lat, wrap_deg(lon))  # is_land clamps to the grid as global_land_mask did
 
 
 @dataclass(frozen=True)
