@@ -1,8 +1,23 @@
-"""Prior factors: GCP position (eq. 32) and a-priori values of knots, ephemeris and camera.
+"""Prior factors: GCP position (eq. 32), a-priori values of knots, ephemeris and camera, and
+the attitude error process's prior between consecutive knots.
 
-These are GTSAM's own C++ ``PriorFactorVector`` (no Python callback). The GCP prior's noise is
-30 m per ENU axis rotated to ECEF as a full covariance: ``C = R diag(s^2) R^T`` with ``R`` the
-ENU basis at the GCP (:func:`factors.geometry.enu_covariance`).
+These are GTSAM's own C++ factors (no Python callback): ``PriorFactorVector`` and, for the
+process prior, a ``LinearContainerFactor`` holding a whitened ``JacobianFactor``. The GCP prior's
+noise is 30 m per ENU axis rotated to ECEF as a full covariance: ``C = R diag(s^2) R^T`` with
+``R`` the ENU basis at the GCP (:func:`factors.geometry.enu_covariance`).
+
+The attitude process prior. Each angle's error ``e(t)`` (rad) is modelled as a stationary
+Matern-3/2 process, covariance ``C(tau) = sigma^2 (1 + lam |tau|) exp(-lam |tau|)``: its value has
+variance ``sigma^2`` and its rate ``(lam sigma)^2``, the two moments the navigation accuracy gives.
+Its state ``x = (value, rate)`` is Markov, ``dx = F x dt + L dw`` with
+``F = [[0, 1], [-lam^2, -2 lam]]``, so over a knot spacing ``T``
+
+    x_{k+1} = Phi(T) x_k + w_k,   Phi(T) = exp(-lam T) [[1 + lam T, T], [-lam^2 T, 1 - lam T]],
+    w_k ~ N(0, Q(T)),            Q(T) = P - Phi P Phi^T,   P = diag(sigma^2, lam^2 sigma^2),
+
+exactly. A prior ``N(0, P)`` on the first knot and one factor ``x_{k+1} - Phi x_k ~ N(0, Q)`` per
+pair give the knots their exact joint distribution under the process: every knot's marginal is
+``P`` however long the data gap, and the a-posteriori sigma can never exceed it.
 """
 
 from __future__ import annotations
@@ -11,7 +26,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["gcp_prior", "vector_prior"]
+__all__ = ["gcp_prior", "vector_prior", "matern32_transition", "process_prior_factors", "linear_factor"]
 
 
 def gcp_prior(key: int, position_ecef: ArrayLike, covariance: ArrayLike) -> gtsam.PriorFactorVector:
@@ -24,3 +39,45 @@ def vector_prior(key: int, mean: ArrayLike, sigmas: ArrayLike) -> gtsam.PriorFac
     """Independent Gaussian prior on a vector variable (knot, ephemeris segment, camera)."""
     m = np.asarray(mean, dtype=float)
     return gtsam.PriorFactorVector(key, m, gtsam.noiseModel.Diagonal.Sigmas(np.broadcast_to(np.asarray(sigmas, float), m.shape).copy()))
+
+
+def matern32_transition(dt: float, sigma: float, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(Phi, Q)`` (2x2 each) of the Matern-3/2 state ``(value, rate)`` over ``dt`` s (module
+    docstring): ``x(t + dt) = Phi x(t) + w``, ``w ~ N(0, Q)``; ``sigma`` in the value's unit,
+    ``lam`` in 1/s (the rate's sigma is ``lam sigma`` per s)."""
+    if not (dt > 0 and sigma > 0 and lam > 0):
+        raise ValueError(f"matern32_transition needs dt, sigma, lam > 0, got {dt}, {sigma}, {lam}")
+    e = np.exp(-lam * dt)
+    phi = e * np.array([[1.0 + lam * dt, dt], [-lam * lam * dt, 1.0 - lam * dt]])
+    p = np.diag([sigma**2, (lam * sigma) ** 2])
+    q = p - phi @ p @ phi.T
+    return phi, 0.5 * (q + q.T)
+
+
+def linear_factor(keys: list[int], blocks: list[np.ndarray], rhs: ArrayLike,
+                  covariance: ArrayLike) -> gtsam.LinearContainerFactor:
+    """The linear Gaussian factor ``sum_k A_k x_k - b ~ N(0, C)`` on vector variables, as GTSAM's
+    C++ ``LinearContainerFactor`` (linearisation point zero, so its error is exactly this)."""
+    r = np.linalg.cholesky(np.linalg.inv(np.asarray(covariance, dtype=float))).T  # R^T R = C^-1
+    args: list = []
+    zero = gtsam.Values()
+    for k, a in zip(keys, blocks):
+        a = np.asarray(a, dtype=float)
+        args += [int(k), r @ a]
+        zero.insert(int(k), np.zeros(a.shape[1]))
+    jf = gtsam.JacobianFactor(*args, r @ np.asarray(rhs, dtype=float), gtsam.noiseModel.Unit.Create(r.shape[0]))
+    return gtsam.LinearContainerFactor(jf, zero)
+
+
+def process_prior_factors(keys: list[int], times: ArrayLike, sigma: float, lam: float) -> list:
+    """The Matern-3/2 prior of one angle's knots ``(value, rate)`` at increasing ``times`` (s):
+    ``N(0, diag(sigma^2, (lam sigma)^2))`` on the first knot and ``x_{k+1} - Phi x_k ~ N(0, Q)``
+    between consecutive knots (module docstring)."""
+    t = np.asarray(times, dtype=float)
+    if t.size != len(keys) or t.size == 0 or np.any(np.diff(t) <= 0):
+        raise ValueError(f"process_prior_factors needs one increasing time per key, got {t.size} times for {len(keys)} keys")
+    out: list = [vector_prior(keys[0], np.zeros(2), [sigma, lam * sigma])]
+    for k0, k1, dt in zip(keys[:-1], keys[1:], np.diff(t)):
+        phi, q = matern32_transition(float(dt), sigma, lam)
+        out.append(linear_factor([k0, k1], [-phi, np.eye(2)], np.zeros(2), q))
+    return out

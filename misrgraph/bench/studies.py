@@ -6,6 +6,8 @@ check that the commands run and report consistent figures.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import tempfile
 import time
@@ -18,7 +20,7 @@ from misrgraph.estimate.graph import GraphConfig, build_pass_graph
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 from misrgraph.estimate.solver import SolverParams, linearize, solve, solve_gtsam_lm
 
-__all__ = ["run_bench_solver", "run_bench_sba", "run_bench_scaling", "run_bench_incremental", "run_bench_nees",
+__all__ = ["run_bench_solver", "run_bench_sba", "run_bench_scaling", "run_bench_incremental", "run_bench_nees", "run_bench_sources",
            "standard_pass"]
 
 log = logging.getLogger(__name__)
@@ -367,7 +369,7 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
 NEES_SCENARIOS = {
     ("calibration", "reduced"): dict(scenario="month", n_gcps=24, month_days=16),
     ("calibration", "standard"): dict(scenario="month"),
-    ("adjust", "reduced"): dict(scenario="pass", n_tie_points=80, n_check_points=0, duration_s=600.0, start_lat_deg=50.0),
+    ("adjust", "reduced"): dict(scenario="pass", n_tie_points=80, n_check_points=20, duration_s=600.0, start_lat_deg=50.0),
     ("adjust", "standard"): dict(scenario="pass", n_tie_points=600, n_check_points=20, duration_s=2700.0),
 }
 
@@ -384,11 +386,12 @@ def _interval(values: list[float]) -> dict[str, float]:
 
 
 def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
-                   workdir: str | Path | None = None, size: str = "reduced", truth: str = "model") -> dict[str, Any]:
+                   workdir: str | Path | None = None, size: str = "reduced", truth: str = "model",
+                   overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """NEES over seeded runs against its two-sided 95 % chi-square band, per class of variables.
 
     ``calibration``: months (reduced: 24 GCPs over 16 days; standard: 120 GCPs over 30 days), NEES
-    of the 27 camera corrections. ``adjust``: passes (reduced: 10 minutes, 80 tie points, no check
+    of the 27 camera corrections. ``adjust``: passes (reduced: 10 minutes, 80 tie points, 20 check
     points; standard: 45 minutes, 600 tie points, 20 check points), NEES of the knots (joint),
     the ephemeris (joint), the camera corrections, the landmarks and the whole state, and with
     check points their actual RMS over the RMS the covariance predicts. Per class: the pooled
@@ -397,7 +400,8 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
     run-to-run scatter (which assumes neither). ``truth``: the simulator's truth (``"model"`` or
     ``"independent"``, :class:`misrgraph.sim.simulate.ScenarioConfig`); under an independent truth
     the ephemeris and whole-state NEES are not defined (no true value of the estimator's own
-    parameters) and are left out.
+    parameters) and are left out. ``overrides``: further :class:`ScenarioConfig` fields (e.g. one
+    error source of the independent truth switched off, :func:`run_bench_sources`).
     """
     from scipy import stats
 
@@ -417,9 +421,11 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
     per_class: dict[str, list[float]] = {}
     per_run = []
     for i in range(runs):
-        out = Path(workdir) / f"nees_{study}_{size}_{truth}_{seed + i}"
+        extra = dict(overrides or {})
+        tag = "" if not extra else "_" + hashlib.sha256(json.dumps(extra, sort_keys=True).encode()).hexdigest()[:10]
+        out = Path(workdir) / f"nees_{study}_{size}_{truth}{tag}_{seed + i}"
         if not (out / "scenario.json").exists():
-            run_simulate(ScenarioConfig(seed=seed + i, truth=truth, **NEES_SCENARIOS[(study, size)]), out)
+            run_simulate(ScenarioConfig.from_dict(dict(NEES_SCENARIOS[(study, size)], seed=seed + i, truth=truth, **extra)), out)
         if study == "calibration":
             s = run_calibrate(out)
             vals = {"camera": (s["nees"], s["nees_dim"])}
@@ -432,6 +438,10 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
             if "checkpoint_rms_over_predicted" in s:
                 per_class.setdefault("checkpoint_rms_over_predicted", []).append(s["checkpoint_rms_over_predicted"])
                 per_run[-1]["checkpoint_rms_over_predicted"] = s["checkpoint_rms_over_predicted"]
+            cp = _checkpoint_rms_after(s)
+            if cp is not None:
+                per_class.setdefault("checkpoint_rms_m", []).append(cp)
+                per_run[-1]["checkpoint_rms_m"] = cp
         for k, (v, d) in vals.items():
             t = totals.setdefault(k, [0.0, 0])
             t[0] += v * d
@@ -442,8 +452,39 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
         lo, hi = stats.chi2.ppf([0.025, 0.975], dof)
         summary[k] = {"nees_per_dim": chi2 / dof, "band": [lo / dof, hi / dof], "inside": bool(lo < chi2 < hi),
                       "dof": int(dof), "per_run": _interval(per_class[k])}
-    if "checkpoint_rms_over_predicted" in per_class:
-        summary["checkpoint_rms_over_predicted"] = {"per_run": _interval(per_class["checkpoint_rms_over_predicted"])}
+    for k in ("checkpoint_rms_over_predicted", "checkpoint_rms_m"):
+        if k in per_class:
+            summary[k] = {"per_run": _interval(per_class[k])}
     if tmp is not None:
         tmp.cleanup()
-    return {"study": study, "size": size, "truth": truth, "runs": runs, "summary": summary, "per_run": per_run}
+    return {"study": study, "size": size, "truth": truth, "overrides": dict(overrides or {}), "runs": runs,
+            "summary": summary, "per_run": per_run}
+
+
+def _checkpoint_rms_after(summary: dict[str, Any]) -> float | None:
+    """RMS (m) over cameras of the check points' geolocation error after the adjustment."""
+    cp = summary.get("checkpoint_geolocation_m") or {}
+    n = np.array([v["n"] for v in cp.values() if "rms" in v["after"]], float)
+    rms = np.array([v["after"]["rms"] for v in cp.values() if "rms" in v["after"]])
+    return float(np.sqrt(np.sum(n * rms**2) / np.sum(n))) if n.size else None
+
+
+def run_bench_sources(runs: int = 10, seed: int = 3000, workdir: str | Path | None = None,
+                      size: str = "reduced", progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """The error-source table: the adjustment under the independent truth with every source of
+    :data:`~misrgraph.sim.simulate.INDEPENDENT_SOURCES` off ("none": the attitude and ephemeris
+    processes only), each source alone, and all of them; per row the NEES of knots and landmarks,
+    the check points' actual/predicted RMS and their RMS error (m), each the mean of ``runs``
+    seeded passes with its 95 % interval. The same seeds in every row."""
+    from misrgraph.sim.simulate import INDEPENDENT_SOURCES
+
+    off = dict(INDEPENDENT_SOURCES)
+    rows: dict[str, dict[str, Any]] = {}
+    plan = [("none", off)] + [(k, {**off, k: getattr(ScenarioConfig(), k)}) for k in off] + [("all", {})]
+    for name, ov in plan:
+        if progress:
+            progress(f"sources: {name} ({len(rows) + 1}/{len(plan)})")
+        r = run_bench_nees("adjust", runs, seed, workdir, size, "independent", ov)
+        rows[name] = {k: v["per_run"] for k, v in r["summary"].items()
+                      if k in ("knots", "landmarks", "camera", "checkpoint_rms_over_predicted", "checkpoint_rms_m")}
+    return {"size": size, "runs": runs, "seed": seed, "rows": rows}

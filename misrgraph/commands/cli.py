@@ -212,7 +212,8 @@ def adjust(
     rollyaw_spacing: float = typer.Option(120.0, "--roll-yaw-knots-s", help="Roll and yaw knot spacing (s)."),
     threshold1: int = typer.Option(1, "--threshold1", help="Eq. 28: minimum observations per knot support (the seed suggests ~20; see docs/conventions.md)."),
     threshold2: int = typer.Option(1, "--threshold2", help="Eq. 29: minimum cameras per knot support (the seed suggests 3)."),
-    knot_rule: str = typer.Option("support", "--knot-rule", help="Eqs. 28-29 on each knot's support (default) or, literally, on [t_i, t_i+1) ('interval')."),
+    knot_rule: str = typer.Option("support", "--knot-rule", help="Eqs. 28-29 on each knot's support (default) or, literally, on [t_i, t_i+1) ('interval'); with --knot-prior independent only."),
+    knot_prior: str = typer.Option("process", "--knot-prior", help="'process': consecutive knots tied by the attitude error process, every knot kept (default); 'independent': the seed's independent knot priors with eqs. 28-29's knot removal."),
     no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
     robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
     max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
@@ -225,7 +226,7 @@ def adjust(
 
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
-                                      use_dem=not no_dem, robust=robust, max_iterations=max_iterations,
+                                      knot_prior=knot_prior, use_dem=not no_dem, robust=robust, max_iterations=max_iterations,
                                       accept_unconverged=accept_unconverged))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
@@ -581,6 +582,38 @@ def bench_nees(
             continue
         console.print(f"{study} {k}: NEES/dim {v['nees_per_dim']:.3f}, 95 % band [{v['band'][0]:.3f}, {v['band'][1]:.3f}] "
                       f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}; {scatter}")
+
+
+@bench_app.command("sources")
+@handle_errors
+def bench_sources(
+    runs: int = typer.Option(10, "--runs", help="Seeded passes per row (the same seeds in every row)."),
+    seed: int = typer.Option(3000, "--seed", help="First seed."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated passes here (reused by a rerun)."),
+    size: str = typer.Option("reduced", "--size", help="reduced or standard (as bench nees)."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """The error-source table: each source of the independent truth switched on alone, its effect on accuracy and NEES."""
+    from misrgraph.bench.studies import run_bench_sources
+
+    if runs < 2:
+        _fail(f"--runs: got {runs}; expected at least 2 (the intervals come from the run-to-run scatter)")
+    with err_console.status("error sources...") as st:
+        res = run_bench_sources(runs, seed, workdir, size, progress=lambda m: st.update(m))
+    if as_json:
+        _print_json(res)
+        return
+    from rich.table import Table
+
+    cols = ("knots", "landmarks", "checkpoint_rms_over_predicted", "checkpoint_rms_m")
+    table = Table(title=f"independent truth, {size} passes, {runs} seeds: mean [95 % interval]")
+    table.add_column("source")
+    for c in cols:
+        table.add_column(c)
+    for name, row in res["rows"].items():
+        table.add_row(name, *[f"{row[c]['mean']:.2f} [{row[c]['ci95'][0]:.2f}, {row[c]['ci95'][1]:.2f}]" if c in row else "-"
+                              for c in cols])
+    console.print(table)
 
 
 @bench_app.command("kill")

@@ -86,26 +86,30 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
             return True
 
     class Linear(pyceres.CostFunction):
-        """A whitened prior ``R (x - mean)``, or a DEM row evaluated by the pure function."""
+        """A whitened linear prior ``sum_k A_k x_k - b`` (one or two keys), or a DEM row evaluated
+        by the pure function."""
 
-        def __init__(self, key: int, mean: Array | None = None, r: Array | None = None, dem_index: int | None = None) -> None:
+        def __init__(self, keys: tuple[int, ...], prior: Any = None, dem_index: int | None = None) -> None:
             super().__init__()
-            self.key, self.mean, self.r, self.dem_index = key, mean, r, dem_index
-            self.set_num_residuals(1 if dem_index is not None else mean.size)
-            self.set_parameter_block_sizes([problem.dims[key]])
+            self.keys, self.prior, self.dem_index = keys, prior, dem_index
+            self.set_num_residuals(1 if dem_index is not None else prior.b.size)
+            self.set_parameter_block_sizes([problem.dims[k] for k in keys])
 
         def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 - Ceres API
-            p = np.asarray(parameters[0], dtype=float)
             if self.dem_index is not None:
+                p = np.asarray(parameters[0], dtype=float)
                 rd, jd = dem_residual(p[None, :], flat.dem.surface, jacobians is not None)
                 s = flat.dem.sigma_m[self.dem_index]
                 residuals[:] = rd / s
                 if jacobians is not None and jacobians[0] is not None:
                     jacobians[0][:] = (jd[0, 0] / s).ravel()
                 return bool(np.all(np.isfinite(rd)))
-            residuals[:] = self.r @ (p - self.mean)
-            if jacobians is not None and jacobians[0] is not None:
-                jacobians[0][:] = self.r.ravel()
+            pr = self.prior
+            residuals[:] = sum(a @ np.asarray(q, dtype=float) for a, q in zip(pr.a, parameters)) - pr.b
+            if jacobians is not None:
+                for i, a in enumerate(pr.a):
+                    if jacobians[i] is not None:
+                        jacobians[i][:] = a.ravel()
             return True
 
     prob = pyceres.Problem()
@@ -116,13 +120,13 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
         prob.add_residual_block(c, None, [params[k] for k in c.keys])
     if flat.dem is not None:
         for i, k in enumerate(flat.dem.keys):
-            c = Linear(int(k), dem_index=i)
+            c = Linear((int(k),), dem_index=i)
             costs.append(c)
             prob.add_residual_block(c, None, [params[int(k)]])
     for p in flat.priors:
-        c = Linear(p.key, p.mean, p.r)
+        c = Linear(p.keys, p)
         costs.append(c)
-        prob.add_residual_block(c, None, [params[p.key]])
+        prob.add_residual_block(c, None, [params[k] for k in p.keys])
     opts = pyceres.SolverOptions()
     opts.linear_solver_type = pyceres.LinearSolverType.SPARSE_SCHUR
     opts.function_tolerance = ftol

@@ -64,6 +64,7 @@ class CalibrateConfig(Config):
     per_band: bool = False
     estimate_omega: bool = False
     knot_spacing_s: tuple = (120.0, 60.0, 120.0)
+    knot_prior: str = "process"
     robust: str = "cauchy"
     robust_k: float = 3.0
     reject_sigma: float = 5.0
@@ -78,7 +79,7 @@ class CalibrateConfig(Config):
             raise InputError("temperature_bins", self.temperature_bins, "an integer >= 1")
 
     def graph_config(self, **kw: Any) -> GraphConfig:
-        base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=0, threshold2=0, use_dem=False,
+        base = dict(knot_spacing_s=self.knot_spacing_s, knot_prior=self.knot_prior, threshold1=0, threshold2=0, use_dem=False,
                     estimate_camera=True, camera_params=tuple(self.params), camera_per_band=self.per_band,
                     camera_prior_calibration=True, estimate_omega=self.estimate_omega)
         base.update(kw)

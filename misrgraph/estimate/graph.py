@@ -12,35 +12,35 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from factors import keys as K
 from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS, CollinearityBatch, CollinearityConstants
 from factors.dem_height import DemBatch
-from factors.priors import gcp_prior, vector_prior
+from factors.priors import gcp_prior, process_prior_factors, vector_prior
 from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
 from misrgraph.model.constants import ARCSEC, CAMERAS
 from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
-from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel, interval_counts, knots_to_remove
+from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, interval_counts, knots_to_remove
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.estimate.problem import Problem
 
-__all__ = ["GraphConfig", "PassGraph", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor",
+__all__ = ["GraphConfig", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor",
            "CAMERA_PRIOR_SIGMA", "merge_problems"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
-#: For the simulator's smooth attitude process (periods log-uniform in 200-2000 s) the rate's
-#: 1 sigma is sigma * sqrt(E[(2 pi / P)^2]) = 0.0146 sigma per second.
-rate_prior_factor = 2 * np.pi * np.sqrt((1 / (2 * 200.0**2) - 1 / (2 * 2000.0**2)) / np.log(10.0))
+#: the attitude error rate's 1 sigma per unit of the value's (1/s); see :data:`ATTITUDE_RATE_FACTOR`
+rate_prior_factor = ATTITUDE_RATE_FACTOR
 
 
 #: Default a-priori 1 sigma of each camera parameter correction when calibrating (pre-flight
@@ -49,14 +49,23 @@ rate_prior_factor = 2 * np.pi * np.sqrt((1 / (2 * 200.0**2) - 1 / (2 * 2000.0**2
 CAMERA_PRIOR_SIGMA = dict(zip(CAMERA_PARAMS, (1.745e-3, 1.745e-3, 1.745e-3, 2e-4) + tuple(1e-3 / 752.0**i for i in range(6))))
 
 
+#: How the attitude knots are held a priori: ``"process"`` (default) ties consecutive knots by the
+#: attitude error process (:func:`factors.priors.process_prior_factors`, a Matern-3/2 process with
+#: the navigation's value and rate sigmas) and keeps every knot; ``"independent"`` is the seed's
+#: rule: an independent prior per knot and eqs. 28-29's knot removal where data are scarce.
+KNOT_PRIORS = ("process", "independent")
+
+
 @dataclass(frozen=True)
 class GraphConfig(Config):
-    """How a pass becomes a graph (units in the names)."""
+    """How a pass becomes a graph (units in the names). ``knot_prior``: see :data:`KNOT_PRIORS`
+    (``threshold1``/``threshold2``/``knot_rule`` apply to ``"independent"`` only)."""
 
     knot_spacing_s: tuple = (120.0, 60.0, 120.0)
     threshold1: int = 1
     threshold2: int = 1
     knot_rule: str = "support"
+    knot_prior: str = "process"
     ephemeris_segments: int = 1
     attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
     ephemeris_b_sigma_m: float = 50.0
@@ -82,6 +91,8 @@ class GraphConfig(Config):
         bad = [p for p in self.camera_params if p not in CAMERA_PARAMS]
         if bad or not self.camera_params:
             raise InputError("camera_params", bad or self.camera_params, CAMERA_PARAMS)
+        if self.knot_prior not in KNOT_PRIORS:
+            raise InputError("knot_prior", self.knot_prior, KNOT_PRIORS)
         if self.knot_rule not in ("interval", "support"):
             raise InputError("knot_rule", self.knot_rule, ("interval", "support"))
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
@@ -108,6 +119,19 @@ class PassGraph:
 
     def ephemeris_keys(self) -> list[int]:
         return [K.ephemeris_key(self.pass_index, s) for s in range(self.ephemeris_model.n_segments)]
+
+    def attitude_sigma(self, marginals: Any, angle: int, t: ArrayLike) -> Array:
+        """A-posteriori 1 sigma (rad) of the attitude error ``E(t)`` of one angle at times ``t``
+        (s): ``sqrt(w S w^T)`` with ``w`` the Hermite weights and ``S`` the joint covariance of the
+        two bracketing knots (``marginals``: a :class:`~misrgraph.estimate.problem.Marginals`)."""
+        i, w = self.attitude_model.bracket(angle, t)
+        keys = self.knot_keys(angle)
+        out = np.empty(i.size)
+        for j in np.unique(i):
+            sel = i == j
+            s = marginals.joint_of([keys[j], keys[j + 1]])
+            out[sel] = np.einsum("ni,ij,nj->n", w[sel], s, w[sel])
+        return np.sqrt(np.maximum(out, 0.0))
 
 
 def camera_parameter_matrix(camera: CameraModel, cam: NDArray[np.int64], band: NDArray[np.int64]) -> Array:
@@ -196,6 +220,9 @@ def build_pass_graph(
     att = AttitudeErrorModel.zeros(t_lo, t_hi, cfg.knot_spacing_s)
     removed = []
     for a in range(3):
+        if cfg.knot_prior == "process":  # knots without data are held by the process prior
+            removed.append(np.zeros(0, np.int64))
+            continue
         counts = interval_counts(att.knot_times[a], t_obs, cam)
         removed.append(knots_to_remove(counts, cfg.threshold1, cfg.threshold2, cfg.knot_rule))
     att_kept = att.without(removed)
@@ -285,10 +312,15 @@ def build_pass_graph(
     # navigation variables and priors
     att_sig = np.asarray(cfg.attitude_sigma_arcsec) * ARCSEC
     for a in range(3):
-        for j in range(att_kept.knot_times[a].size):
-            k = K.knot_key(a, pass_index, j)
+        ks = [K.knot_key(a, pass_index, j) for j in range(att_kept.knot_times[a].size)]
+        for k in ks:
             add(k, np.zeros(2))
-            graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * rate_prior_factor]))
+        if cfg.knot_prior == "process":
+            for f in process_prior_factors(ks, att_kept.knot_times[a], float(att_sig[a]), rate_prior_factor):
+                graph.add(f)
+        else:
+            for k in ks:
+                graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * rate_prior_factor]))
     eph_sig = np.r_[np.asarray(cfg.ephemeris_a_sigma_mps, float), np.full(3, cfg.ephemeris_b_sigma_m)]
     for s in range(eph.n_segments):
         k = K.ephemeris_key(pass_index, s)

@@ -5,10 +5,11 @@ Schur backend, ``scipy.optimize.least_squares``, Ceres (``misrgraph bench sba``)
 model iSAM2 is kept in step with (:mod:`misrgraph.estimate.incremental`) all use
 :meth:`Problem.flat`, the same problem as one vector of unknowns with whitened residuals and a
 sparse Jacobian -- built from the very same pure functions as the factors (collinearity, DEM
-height) and the graph's ``PriorFactorVector`` priors, with no per-factor Python callback. Rows
+height) and the graph's linear priors (``PriorFactorVector``, and the attitude process prior's
+``LinearContainerFactor`` between consecutive knots), with no per-factor Python callback. Rows
 are tied to factors by the graph positions :meth:`Problem.add_batch` records, never by the
 graph's order. The flat form covers problems whose factors are one collinearity batch, an
-optional DEM batch and vector priors, with no robust loss and no factor coupling two landmarks
+optional DEM batch and linear priors, with no robust loss and no factor coupling two landmarks
 (the single-pass least-squares adjustment); :class:`FlatProblem` raises :class:`NotFlat` otherwise.
 
 Marginal covariances (eq. 34 with lambda -> 0 at convergence) come from ``J^T J`` by a Schur
@@ -94,9 +95,28 @@ class NotFlat(ValueError):
 
 @dataclass
 class _Prior:
-    key: int
-    mean: Array
-    r: Array  # whitening (upper triangular sqrt information)
+    """A linear Gaussian factor, whitened: rows ``sum_k a_k x_k - b`` (a ``PriorFactorVector`` has
+    one key, ``a = R`` and ``b = R mean``; a process prior between knots has two)."""
+
+    keys: tuple[int, ...]
+    a: tuple[Array, ...]
+    b: Array
+
+    @classmethod
+    def from_factor(cls, f: Any, dims: dict[int, int]) -> "_Prior":
+        """From a ``PriorFactorVector`` or a ``LinearContainerFactor`` linearised at zero
+        (:func:`factors.priors.linear_factor`)."""
+        if isinstance(f, gtsam.PriorFactorVector):
+            r = np.asarray(f.noiseModel().R())
+            return cls((int(f.keys()[0]),), (r,), r @ np.asarray(f.prior()))
+        a, b = gtsam.JacobianFactor(f.factor()).jacobian()
+        keys = tuple(int(k) for k in f.keys())
+        splits = np.cumsum([dims[k] for k in keys])[:-1]
+        return cls(keys, tuple(np.split(np.asarray(a), splits, axis=1)), np.asarray(b))
+
+    def rows(self, x: Array, offset: dict[int, int]) -> Array:
+        """Whitened residual rows at the flat vector ``x``."""
+        return sum(a @ x[offset[k]:offset[k] + a.shape[1]] for k, a in zip(self.keys, self.a)) - self.b
 
 
 class FlatProblem:
@@ -127,8 +147,12 @@ class FlatProblem:
         n_custom = 0
         for i in range(problem.graph.size()):
             f = problem.graph.at(i)
-            if isinstance(f, gtsam.PriorFactorVector):
-                self.priors.append(_Prior(int(f.keys()[0]), np.asarray(f.prior()), np.asarray(f.noiseModel().R())))
+            if isinstance(f, (gtsam.PriorFactorVector, gtsam.LinearContainerFactor)):
+                p = _Prior.from_factor(f, problem.dims)
+                n_l_keys = len(problem.eliminate_first)
+                if len(p.keys) > 1 and any(self.offset[k] < 3 * n_l_keys for k in p.keys):
+                    raise NotFlat("a linear factor coupling a landmark with another variable")
+                self.priors.append(p)
             elif isinstance(f, gtsam.CustomFactor):
                 n_custom += 1
             else:
@@ -164,7 +188,7 @@ class FlatProblem:
         dem_keys = self.dem.keys if self.dem is not None else np.zeros(0, np.int64)
         self._dem_cols = np.array([self.offset[int(k)] for k in dem_keys], np.int64)[:, None] + np.arange(3)
         self._dem_lm = self._dem_cols[:, 0] // 3
-        self.m = self.m_coll + self.m_dem + sum(p.mean.size for p in self.priors)
+        self.m = self.m_coll + self.m_dem + sum(p.b.size for p in self.priors)
 
     @staticmethod
     def family_of(batch: object) -> str:
@@ -256,13 +280,13 @@ class FlatProblem:
         else:
             parts, row0 = [], 0
             for p in self.priors:
-                d = p.mean.size
-                o = self.offset[p.key]
-                parts.append(p.r @ (x[o:o + d] - p.mean))
+                d = p.b.size
+                parts.append(p.rows(x, self.offset))
                 if jacobian:
-                    rows.append(np.repeat(row0 + np.arange(d), d))
-                    cols.append(np.tile(o + np.arange(d), d))
-                    vals.append(p.r.ravel())
+                    for k, a in zip(p.keys, p.a):
+                        rows.append(np.repeat(row0 + np.arange(d), a.shape[1]))
+                        cols.append(np.tile(self.offset[k] + np.arange(a.shape[1]), d))
+                        vals.append(a.ravel())
                 row0 += d
             r = np.concatenate(parts) if parts else np.zeros(0)
             m = row0
@@ -335,16 +359,17 @@ class FlatProblem:
             np.add.at(g, self._dem_cols.ravel(), (jd * rd[:, None]).ravel())
             cost += float(0.5 * np.sum(rd * rd))
         for p in self.priors:
-            o = self.offset[p.key]
-            d = p.mean.size
-            rp = p.r @ (x[o:o + d] - p.mean)
-            hp = p.r.T @ p.r
+            rp = p.rows(x, self.offset)
             cost += float(0.5 * rp @ rp)
-            g[o:o + d] += p.r.T @ rp
-            if o < n_l:
-                blk[o // 3] += hp
-            else:
-                hcc[o - n_l:o - n_l + d, o - n_l:o - n_l + d] += hp
+            for k, a in zip(p.keys, p.a):
+                o, d = self.offset[k], a.shape[1]
+                g[o:o + d] += a.T @ rp
+                if o < n_l:  # a landmark's own prior (only single-key factors touch landmarks)
+                    blk[o // 3] += a.T @ a
+                    continue
+                for k2, a2 in zip(p.keys, p.a):
+                    o2 = self.offset[k2] - n_l
+                    hcc[o - n_l:o - n_l + d, o2:o2 + a2.shape[1]] += a.T @ a2
         if second_order and self.dem is not None and len(self.dem):
             li, corr = self.dem_curvature(x)
             per_lm = np.zeros_like(blk)

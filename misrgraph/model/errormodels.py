@@ -24,9 +24,15 @@ from factors.geometry import hermite_weights
 from misrgraph.model.constants import ANGLES, CAMERAS
 from misrgraph.errors import InputError
 
-__all__ = ["EphemerisErrorModel", "AttitudeErrorModel", "knots_to_remove", "interval_counts", "uniform_knots"]
+__all__ = ["ATTITUDE_RATE_FACTOR", "EphemerisErrorModel", "AttitudeErrorModel", "knots_to_remove", "interval_counts", "uniform_knots"]
 
 Array = NDArray[np.float64]
+
+#: The attitude error rate's 1 sigma per unit of the value's 1 sigma (1/s): for a smooth process
+#: with periods log-uniform in 200-2000 s (the GN&C's slow errors) it is
+#: ``sqrt(E[(2 pi / P)^2]) = 0.0146`` per second. The estimator's knot priors use it, and the
+#: process prior's Matern-3/2 rate ``lam`` equals it.
+ATTITUDE_RATE_FACTOR = 2 * np.pi * np.sqrt((1 / (2 * 200.0**2) - 1 / (2 * 2000.0**2)) / np.log(10.0))
 
 
 @dataclass

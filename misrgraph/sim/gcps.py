@@ -24,9 +24,13 @@ def generate_gcp_database(
     sigma_m: float = 30.0,
     geoid: Geoid | None = None,
     with_chips: bool = False,
+    scene_fraction: float | None = None,
 ) -> tuple[GcpDatabase, Array]:
-    """Draw GCPs on land in the seed's regions: the database (position = truth + N(0, sigma) per
-    ENU axis) and the true positions ``(G, 3)`` m ECEF."""
+    """Draw GCPs on land in the seed's regions: the database and the true positions ``(G, 3)`` m
+    ECEF. The catalogue error per ENU axis is N(0, sigma) (``scene_fraction=None``, what the
+    database states), or -- a catalogue built from Landsat scenes -- a share ``scene_fraction``
+    of the variance common to the GCPs of one 2 x 2 deg cell (the scene's registration error)
+    plus Student-t (4 degrees of freedom) per GCP, sigma per axis in total."""
     if n_total < len(GCP_REGIONS):
         raise InputError("n_gcps", n_total, f"at least {len(GCP_REGIONS)}")
     geoid = geoid or Geoid("zero")
@@ -52,7 +56,15 @@ def generate_gcp_database(
     truth = geodetic_to_ecef(lat, lon, h)
     sig = np.full(lat.size, sigma_m)
     enu = enu_basis(lat, lon)
-    measured = truth + np.einsum("gij,gj->gi", enu, rng.standard_normal((lat.size, 3)) * sigma_m)
+    if scene_fraction is None:
+        err = rng.standard_normal((lat.size, 3)) * sigma_m
+    else:
+        cell = np.floor(lat / 2.0).astype(np.int64) * 1000 + np.floor(lon / 2.0).astype(np.int64)
+        _, scene = np.unique(cell, return_inverse=True)
+        common = rng.standard_normal((scene.max() + 1, 3))[scene.ravel()]
+        own = rng.standard_t(4.0, (lat.size, 3)) / np.sqrt(2.0)  # unit variance
+        err = sigma_m * (np.sqrt(scene_fraction) * common + np.sqrt(1.0 - scene_fraction) * own)
+    measured = truth + np.einsum("gij,gj->gi", enu, err)
     mlat, mlon, mh = ecef_to_geodetic(measured)
     chips = None
     if with_chips:

@@ -44,7 +44,8 @@ from misrgraph.sim.terrain import SyntheticTerrain, land_mask, simulate_dem_tile
 from misrgraph.io.dem import read_dem, save_dem
 from misrgraph.io.gcp import read_gcp_database, save_gcp_database
 from misrgraph.io.truth import PassTruth, read_gcp_truth, read_pass_truth, save_pass_with_truth
-from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel, uniform_knots
+from factors.priors import matern32_transition
+from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, uniform_knots
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
@@ -58,10 +59,13 @@ from misrgraph.model.nominal import nominal_camera_model
 
 __all__ = [
     "ScenarioConfig",
+    "TRUTHS",
+    "INDEPENDENT_SOURCES",
     "draw_thermal_truth",
     "run_simulate",
     "draw_ephemeris_error",
     "draw_attitude_error",
+    "sample_process_knots",
     "draw_camera_misalignment",
     "simulate_pass",
     "Scenario",
@@ -77,6 +81,13 @@ RED = BANDS.index("red")
 #: the truths the simulator can draw (see :class:`ScenarioConfig`)
 TRUTHS = ("model", "independent")
 
+#: The independent truth's error sources beyond the navigation (ScenarioConfig fields; each off at
+#: 0), with the value that switches them off: ``misrgraph bench sources`` turns them on one at a time.
+INDEPENDENT_SOURCES = {
+    "jitter_arcsec": 0.0, "once_per_rev_m": 0.0, "subposting_relief_m": 0.0, "dem_correlated_fraction": 0.0,
+    "camera_f_alpha_px": 0.0, "noise_tail_dof": 0.0, "mismatch_rate": 0.0, "gcp_scene_fraction": 0.0,
+}
+
 
 @dataclass(frozen=True)
 class ScenarioConfig(Config):
@@ -87,13 +98,37 @@ class ScenarioConfig(Config):
     only; ``"independent"`` draws them from processes the estimator does not share: the attitude
     error is a smooth process (periods 200-2000 s) plus jitter (``jitter_arcsec`` 1 sigma, periods
     8-120 s) on a 2 s spline, the ephemeris error an offset, a drift and a once-per-revolution term
-    (``once_per_rev_m`` 1 sigma per axis) on 60 s segments.
+    (``once_per_rev_m`` 1 sigma per axis) on 60 s segments; and, also only there:
+
+    * ``subposting_relief_m``: RMS of terrain at 30-180 m wavelengths, which a 3" DEM cannot hold;
+    * ``dem_correlated_fraction``: the share of the DEM's smooth error variance correlated over
+      ~28 km (the tie points' spacing) instead of ~5 km (the DEM factor treats errors of
+      landmarks 10 km apart as independent);
+    * ``camera_f_alpha_px``: 1 sigma (px at the swath edge, |s - c_y| = 752) of errors in f and in
+      the field-angle polynomial's alpha_2 and alpha_3 of the true camera, which no model the
+      estimator is given carries (the adjustment and the default calibration estimate delta,
+      beta, epsilon);
+    * ``noise_tail_dof``: matching noise is Student-t with this many degrees of freedom scaled to
+      the stated sigma (0: Gaussian); ``mismatch_rate`` of tie-point and GCP measurements are
+      mismatches of ``mismatch_px`` (uniform in the range, random direction);
+    * ``gcp_scene_fraction``: the share of each GCP's catalogue error variance shared with the
+      GCPs of the same 2 x 2 deg cell (one Landsat scene's registration), the rest Student-t
+      (4 degrees of freedom) per GCP, RMS ``gcp_sigma_m`` per axis in total.
+
+    Each is switched off by 0 (``mismatch_rate``: 0.0); :data:`INDEPENDENT_SOURCES` names them.
     """
 
     scenario: str = "pass"
     truth: str = "model"
     jitter_arcsec: float = 1.0
     once_per_rev_m: float = 30.0
+    subposting_relief_m: float = 3.0
+    dem_correlated_fraction: float = 0.5
+    camera_f_alpha_px: float = 0.05
+    noise_tail_dof: float = 5.0
+    mismatch_rate: float = 0.01
+    mismatch_px: tuple = (1.0, 2.0)
+    gcp_scene_fraction: float = 0.5
     seed: int = 0
     n_passes: int = 10
     repeat_visibility: float = 0.8
@@ -138,9 +173,16 @@ class ScenarioConfig(Config):
             raise InputError("scenario", self.scenario, ("pass", "month", "path"))
         if self.truth not in TRUTHS:
             raise InputError("truth", self.truth, TRUTHS)
-        for name in ("jitter_arcsec", "once_per_rev_m"):
+        for name in ("jitter_arcsec", "once_per_rev_m", "subposting_relief_m", "camera_f_alpha_px"):
             if not getattr(self, name) >= 0:
                 raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma)")
+        for name in ("dem_correlated_fraction", "mismatch_rate", "gcp_scene_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise InputError(name, getattr(self, name), "a fraction in [0, 1]")
+        if not (self.noise_tail_dof == 0 or self.noise_tail_dof > 2):
+            raise InputError("noise_tail_dof", self.noise_tail_dof, "0 (Gaussian) or degrees of freedom > 2 (finite variance)")
+        if len(self.mismatch_px) != 2 or not 0 < self.mismatch_px[0] <= self.mismatch_px[1]:
+            raise InputError("mismatch_px", self.mismatch_px, "(min, max) pixels, 0 < min <= max")
         if self.n_passes < 1:
             raise InputError("n_passes", self.n_passes, "an integer >= 1")
         if not (1 <= self.path <= REPEAT_PATHS):
@@ -202,9 +244,10 @@ def smooth_process(rng: np.random.Generator, sigma: float, n_terms: int = 6,
 
 
 def draw_attitude_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float) -> AttitudeErrorModel:
-    """Random attitude error spline: knots (value, rate) sampled from :func:`smooth_process` on the
-    estimator's knot grid (``truth="model"``), or the process plus jitter on a 2 s grid the
-    estimator does not share (``truth="independent"``)."""
+    """Random attitude error spline: knots (value, rate) on the estimator's knot grid drawn from the
+    estimator's own process prior (``truth="model"``, :func:`sample_process_knots`), or
+    :func:`smooth_process` plus jitter on a 2 s grid the estimator does not share
+    (``truth="independent"``)."""
     kt, kv = [], []
     if cfg.truth == "independent":
         times = np.arange(t_start, t_end + 2.0, 2.0)
@@ -217,11 +260,22 @@ def draw_attitude_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: 
         return AttitudeErrorModel(kt, kv)
     for a in range(3):
         times = uniform_knots(t_start, t_end, cfg.knot_spacing_s[a])
-        f = smooth_process(rng, cfg.attitude_sigma_arcsec[a] * ARCSEC)
-        v, r = f(times)
         kt.append(times)
-        kv.append(np.stack([v, r], -1))
+        kv.append(sample_process_knots(rng, times, cfg.attitude_sigma_arcsec[a] * ARCSEC))
     return AttitudeErrorModel(kt, kv)
+
+
+def sample_process_knots(rng: np.random.Generator, times: Array, sigma: float) -> Array:
+    """Knots ``(value, rate)`` ``(N, 2)`` at ``times`` drawn from the estimator's own attitude
+    process prior (:func:`factors.priors.process_prior_factors`, rate factor
+    :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR`): the ``truth="model"`` draw."""
+    lam = ATTITUDE_RATE_FACTOR
+    x = np.empty((times.size, 2))
+    x[0] = rng.standard_normal(2) * [sigma, lam * sigma]
+    for k, dt in enumerate(np.diff(times)):
+        phi, q = matern32_transition(float(dt), sigma, lam)
+        x[k + 1] = phi @ x[k] + np.linalg.cholesky(q) @ rng.standard_normal(2)
+    return x
 
 
 #: Temperature (deg C) at which the simulator's thermal truth equals the drawn misaligned camera
@@ -275,6 +329,26 @@ def _true_attitude(t: Array) -> tuple[Array, Array]:
     w = 2 * np.pi / np.array([1500.0, 1100.0, 1800.0])
     amp = np.array([3.0, 4.0, 5.0]) * ARCSEC
     return amp * np.sin(w * t[:, None]), amp * w * np.cos(w * t[:, None])
+
+
+def matching_noise(rng: np.random.Generator, n: int, dof: float) -> Array:
+    """``n`` unit-variance matching errors: Gaussian (``dof == 0``) or Student-t with ``dof`` > 2
+    degrees of freedom scaled by ``sqrt((dof - 2) / dof)`` (heavier tails, same variance)."""
+    if dof == 0:
+        return rng.standard_normal(n)
+    return rng.standard_t(dof, n) * np.sqrt((dof - 2.0) / dof)
+
+
+def perturb_focal_plane(rng: np.random.Generator, camera: CameraModel, px: float) -> CameraModel:
+    """Copy of ``camera`` with f and the field-angle polynomial's alpha_2, alpha_3 perturbed per
+    camera (all bands alike) so that each moves a pixel at the swath edge (|s - c_y| = 752) by
+    N(0, ``px``) pixels: ``df / f ~ N(0, px / 752)``, ``d alpha_i ~ N(0, px alpha_1 / 752^i)``."""
+    m = camera.copy()
+    nc = len(CAMERAS)
+    m.focal_length *= 1.0 + (rng.standard_normal(nc) * px / 752.0)[:, None]
+    for i in (2, 3):
+        m.alpha[:, :, i] += (rng.standard_normal(nc)[:, None] * px * m.alpha[:, :, 1] / 752.0**i)
+    return m
 
 
 # ---------------------------------------------------------------------------- one pass
@@ -405,9 +479,10 @@ def simulate_pass(
     n_obs = obs_lm.size
     line, sample = cols[3].copy(), cols[4].copy()
     sigma = cols[6]
+    independent = cfg.truth == "independent"
     if not cfg.noise_free:
-        line += rng.standard_normal(n_obs) * sigma
-        sample += rng.standard_normal(n_obs) * sigma
+        line += matching_noise(rng, n_obs, cfg.noise_tail_dof if independent else 0.0) * sigma
+        sample += matching_noise(rng, n_obs, cfg.noise_tail_dof if independent else 0.0) * sigma
     kind_obs = np.array([kept[i].kind for i in obs_lm], np.int64) if n_obs else np.zeros(0, np.int64)
     rate = np.where(kind_obs == KIND_GCP, cfg.gcp_blunder_rate, cfg.tie_blunder_rate)
     blunder = (rng.random(n_obs) < rate) & (kind_obs != KIND_CHECK) & (not cfg.noise_free)
@@ -417,6 +492,15 @@ def simulate_pass(
         ang_b = rng.uniform(0, 2 * np.pi, nb)
         line[blunder] += mag * np.cos(ang_b)
         sample[blunder] += mag * np.sin(ang_b)
+    if independent and cfg.mismatch_rate > 0 and not cfg.noise_free:
+        # small mismatches (a neighbouring feature, a cloud edge): 1-2 px, i.e. 5-15 sigma
+        mis = (rng.random(n_obs) < cfg.mismatch_rate) & (kind_obs != KIND_CHECK) & ~blunder
+        nm = int(mis.sum())
+        mag = rng.uniform(cfg.mismatch_px[0], cfg.mismatch_px[1], nm)
+        ang_m = rng.uniform(0, 2 * np.pi, nm)
+        line[mis] += mag * np.cos(ang_m)
+        sample[mis] += mag * np.sin(ang_m)
+        blunder = blunder | mis
     landmarks = Landmarks(
         np.array([lm.ident for lm in kept], np.int64),
         np.array([lm.kind for lm in kept], np.int64),
@@ -525,11 +609,15 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     out_dir = Path(out)
     _check_replaceable(out_dir)
     rng = np.random.default_rng(cfg.seed)
-    terrain = SyntheticTerrain(seed=cfg.seed)
+    independent = cfg.truth == "independent"
+    terrain = SyntheticTerrain(seed=cfg.seed, fine_relief_m=cfg.subposting_relief_m if independent else 0.0)
     geoid = Geoid("zero")
     nominal = nominal_camera_model()
-    gcps, gcp_truth = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips)
+    gcps, gcp_truth = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips,
+                                            scene_fraction=cfg.gcp_scene_fraction if independent else None)
     truth_cam = draw_camera_misalignment(rng, nominal, cfg.camera_misalignment_arcsec * ARCSEC)
+    if independent and cfg.camera_f_alpha_px > 0:
+        truth_cam = perturb_focal_plane(rng, truth_cam, cfg.camera_f_alpha_px)
     truth_cam.provenance = {"source": "simulator truth", "seed": str(cfg.seed)}
     truth_model: CameraModel | TabulatedCameraModel = truth_cam
     if cfg.thermal_arcsec_per_c > 0 or cfg.thermal_focal_ppm_per_c > 0:
@@ -551,6 +639,9 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     else:
         ifov = np.array([nominal.ifov_cross_rad(c, RED, 751.5) for c in range(len(CAMERAS))])
         supplied = draw_camera_misalignment(rng, truth_cam, ifov * cfg.camera_residual_px)
+        if independent:  # a calibration of delta, beta, epsilon keeps the pre-flight f and alpha
+            supplied.focal_length[:] = nominal.focal_length
+            supplied.alpha[:] = nominal.alpha
         supplied.provenance = {"source": "calibrated model (truth + residual error)", "residual_px": str(cfg.camera_residual_px)}
         if isinstance(truth_model, TabulatedCameraModel):
             # a calibrated thermal table: the same residual error at every temperature
@@ -600,7 +691,8 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             progress("DEM tiles", len(plan), len(plan))
         lm = np.concatenate(all_lm + [gcp_truth])
         lat, lon, _ = ecef_to_geodetic(lm)
-        save_dem(simulate_dem_tiles(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction), tmp / "dem.h5")
+        save_dem(simulate_dem_tiles(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction,
+                                    correlated_fraction=cfg.dem_correlated_fraction if independent else 0.0), tmp / "dem.h5")
         save_camera_model(supplied, tmp / "camera_model.h5")
         save_camera_model(truth_model, tmp / "camera_truth.h5")
         save_gcp_database(gcps, tmp / "gcp.h5", truth_ecef=gcp_truth)

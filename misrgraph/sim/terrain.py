@@ -23,7 +23,7 @@ from misrgraph.sim.landmask import is_land
 from misrgraph.model.dem import (FLAG_BOUNDARY, FLAG_LAND, FLAG_WATER, POSTING_DEG, POSTINGS_360, QUALITY_SIGMA_M,
                                  DemTiles, dted_lon_posting_factor, wrap_deg)
 
-__all__ = ["SyntheticTerrain", "land_mask", "simulate_dem_tiles", "value_noise", "ERROR_CORRELATION_POSTINGS", "EARTH_R"]
+__all__ = ["SyntheticTerrain", "land_mask", "simulate_dem_tiles", "value_noise", "ERROR_CORRELATION_POSTINGS", "LONG_CORRELATION_POSTINGS", "EARTH_R"]
 
 Array = NDArray[np.float64]
 EARTH_R = 6371e3
@@ -42,6 +42,9 @@ class SyntheticTerrain:
     seed: int = 0
     n_waves: int = 32
     max_relief_m: float = 2500.0
+    #: RMS (m) of sub-posting relief: 24 plane waves of 30-180 m wavelength that a 3" (~90 m)
+    #: DEM cannot hold (0: none, the default; the simulator's independent truth sets it)
+    fine_relief_m: float = 0.0
 
     def _waves(self) -> tuple[Array, Array, Array]:
         rng = np.random.default_rng(self.seed)
@@ -51,7 +54,18 @@ class SyntheticTerrain:
         phase = rng.uniform(0, 2 * np.pi, self.n_waves)
         amp = (lam / 300e3) ** 0.9
         amp = amp / amp.sum() * self.max_relief_m
-        return (2 * np.pi / lam)[:, None] * u, phase, amp
+        k = (2 * np.pi / lam)[:, None] * u
+        if self.fine_relief_m > 0:
+            fr = np.random.default_rng([self.seed, 7])
+            n = 24
+            lf = np.exp(fr.uniform(np.log(30.0), np.log(180.0), n))
+            uf = fr.standard_normal((n, 3))
+            uf /= np.linalg.norm(uf, axis=1, keepdims=True)
+            # relief = sum amp (1 + sin) / 2: each wave's variance is amp^2 / 8
+            k = np.concatenate([k, (2 * np.pi / lf)[:, None] * uf])
+            phase = np.concatenate([phase, fr.uniform(0, 2 * np.pi, n)])
+            amp = np.concatenate([amp, np.full(n, self.fine_relief_m * np.sqrt(8.0 / n))])
+        return k, phase, amp
 
     def relief(self, lat: ArrayLike, lon: ArrayLike) -> Array:
         """Terrain before the land mask (m): plane waves in 3-D evaluated on the sphere of radius
@@ -91,6 +105,8 @@ def _hash_normal(i: NDArray[np.int64], j: NDArray[np.int64], seed: int) -> Array
 
 #: lattice spacing (postings, ~4.6 km) of the simulated DEM's correlated error
 ERROR_CORRELATION_POSTINGS = 50
+#: lattice spacing (postings, ~28 km) of the independent truth's long-correlated DEM error
+LONG_CORRELATION_POSTINGS = 300
 
 
 def value_noise(i: NDArray[np.int64], j: NDArray[np.int64], seed: int, spacing: int) -> Array:
@@ -120,6 +136,7 @@ def simulate_dem_tiles(
     dted1_fraction: float = 0.6,
     margin: int = 3,
     pad: int = 8,
+    correlated_fraction: float = 0.0,
 ) -> DemTiles:
     """Tiles of ``size x size`` postings covering each (lat, lon) and the ``pad`` postings
     around it (room for the adjustment to move a landmark), at least ``margin`` postings
@@ -131,7 +148,9 @@ def simulate_dem_tiles(
     correlated over ~5 km (:func:`value_noise`; errors of landmarks 10 km apart are
     independent, as the DEM factor assumes) plus 0.1 white noise per posting, scaled by the
     1-sigma of the quality class of the 1-degree cell (DTED-1 with probability
-    ``dted1_fraction``). A DEM
+    ``dted1_fraction``). ``correlated_fraction`` moves that share of the smooth field's variance
+    to a field correlated over ~28 km (:data:`LONG_CORRELATION_POSTINGS`), the spacing of tie
+    points, which the DEM factor does not know of (the independent truth). A DEM
     whose value depended on which of two overlapping tiles was picked would be discontinuous
     (seen: re-linearisation cycling in repeat-path scenarios).
     """
@@ -178,7 +197,11 @@ def simulate_dem_tiles(
         nb = pd[:, :-2, 1:-1] ^ land | pd[:, 2:, 1:-1] ^ land | pd[:, 1:-1, :-2] ^ land | pd[:, 1:-1, 2:] ^ land
         flags[nb] = FLAG_BOUNDARY
         sig_q = np.where(cell_quality(glat, glon) == 1, QUALITY_SIGMA_M[1], QUALITY_SIGMA_M[2])
-        err = sig_q * (value_noise(gi, gj, seed + 1, ERROR_CORRELATION_POSTINGS) + 0.1 * _hash_normal(gi, gj, seed + 2))
+        smooth = value_noise(gi, gj, seed + 1, ERROR_CORRELATION_POSTINGS)
+        if correlated_fraction > 0:
+            smooth = (np.sqrt(1.0 - correlated_fraction) * smooth
+                      + np.sqrt(correlated_fraction) * value_noise(gi, gj, seed + 3, LONG_CORRELATION_POSTINGS))
+        err = sig_q * (smooth + 0.1 * _hash_normal(gi, gj, seed + 2))
         return true_h + err, flags
 
     # in chunks of tiles: the terrain's wave sum is (tiles, n, n, waves) in memory

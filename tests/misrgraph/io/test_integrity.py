@@ -179,7 +179,10 @@ def test_degenerate_passes_end_in_one_line(small_pass_dir, tmp_path, case, patte
 
 def test_a_pass_across_the_antimeridian_adjusts(tmp_path):
     """Path 91 from 72 N crosses 180 deg over Chukotka: tie points on both sides, DEM tiles
-    across it; the adjustment completes and its check points improve."""
+    across it; the adjustment completes, its check points improve over all cameras together
+    (one camera may not: a 5-minute pass with 60 tie points leaves ~50 m, and a camera whose
+    supplied geolocation happened to be better stays at that level) and their error is the size
+    the covariance predicts."""
     from misrgraph.runs.adjust import run_adjust
     from misrgraph.model.frames import ecef_to_geodetic
     from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
@@ -191,5 +194,9 @@ def test_a_pass_across_the_antimeridian_adjusts(tmp_path):
     assert np.sum(lon > 179.0) > 3 and np.sum(lon < -179.0) > 3
     s = run_adjust(d)
     cp = s["checkpoint_geolocation_m"]
-    assert cp and all(v["after"]["mean"] < v["before"]["mean"] for v in cp.values())
+    n = np.array([v["n"] for v in cp.values()])
+    before = np.sum(n * [v["before"]["mean"] for v in cp.values()]) / n.sum()
+    after = np.sum(n * [v["after"]["mean"] for v in cp.values()]) / n.sum()
+    assert after < 0.75 * before, (before, after)
+    assert 0.5 < s["checkpoint_rms_over_predicted"] < 2.0
     assert s["dropped_tie_points"] <= 2
