@@ -18,7 +18,7 @@ import numpy as np
 
 from misrgraph import __version__
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, adjust_pass
+from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, adjust_pass, attitude_sigma_summary
 from misrgraph.evaluate.score import score_pass
 from misrgraph.io.camera import load_camera_model, write_camera_group
 from misrgraph.io.dem import read_dem
@@ -135,6 +135,7 @@ def run_adjust(
               "landmark_kind": "gcp" if orbit_pass.landmarks.kind[orbit_pass.observations.landmark[i]] == KIND_GCP else "tie",
               "normalised_residual": float(n)} for i, n in zip(res.rejected, res.rejected_norm)],
             f"{out}:/observations/rejected" if out is not None else None, group_by=("camera", "landmark_kind")),
+        "attitude_sigma": attitude_sigma_summary(res, cfg.graph_config().attitude_sigma_arcsec),
         "ephemeris": {"params": res.ephemeris.params.tolist(),
                       "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in pg.ephemeris_keys()]},
     }

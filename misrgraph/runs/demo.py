@@ -65,9 +65,12 @@ def _adjust(out: Path, st: dict[str, Any]) -> str:
     cp = s["checkpoint_geolocation_m"]
     ratios = [v["ratio_before_over_after"] for v in cp.values()]
     after = [v["after"]["mean"] for v in cp.values()]
+    st["attitude_sigma"] = s["attitude_sigma"]
+    worst = max(v["max_over_prior"] for v in s["attitude_sigma"].values())
     return (f"check points {min(ratios):.1f}-{max(ratios):.1f}x better (after {min(after):.0f}-{max(after):.0f} m), "
             f"co-registration <= {max(s['coregistration_px'].values()):.2f} px, "
-            f"NEES/dim knots {s['nees']['knots']:.2f} landmarks {s['nees']['landmarks']:.2f}")
+            f"NEES/dim knots {s['nees']['knots']:.2f} landmarks {s['nees']['landmarks']:.2f}, "
+            f"attitude sigma <= {worst:.3f}x its prior")
 
 
 def _incremental(out: Path, st: dict[str, Any]) -> str:

@@ -1,5 +1,8 @@
 from __future__ import annotations
 
+import json
+
+import h5py
 from typer.testing import CliRunner
 
 from misrgraph.commands.cli import app
@@ -14,3 +17,9 @@ def test_small_demo_runs_every_stage(tmp_path):
     for f in ("camera_calibrated.h5", "pass_result.h5", "pass_result.rrd", "calibration.rrd",
               "plots/attitude_error.png", "plots/calibration_pointing.png", "state/state.json"):
         assert (tmp_path / "d" / f).exists(), f
+    # the adjusted pass's attitude sigma never exceeds its prior (Hermite interpolation: <= 0.3 %)
+    with h5py.File(tmp_path / "d" / "pass_result.h5", "r") as f:
+        att = json.loads(f.attrs["summary_json"])["attitude_sigma"]
+    assert set(att) == {"roll", "pitch", "yaw"}
+    for v in att.values():
+        assert 0.0 < v["max_over_prior"] <= 1.003, att
