@@ -217,6 +217,8 @@ def adjust(
     no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
     robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
     max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
+    snooping_rounds: int = typer.Option(4, "--snooping-rounds", help="Rounds of iterated data snooping (Baarda, alpha 0.001) after the least-squares solve; 0: off."),
+    variance_components: int = typer.Option(0, "--variance-components", help="Rounds of variance-component estimation (tie-point and GCP sigmas rescaled by their sigma0); 0: keep the stated sigmas."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -227,6 +229,7 @@ def adjust(
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
                                       knot_prior=knot_prior, use_dem=not no_dem, robust=robust, max_iterations=max_iterations,
+                                      snooping_rounds=snooping_rounds, variance_component_rounds=variance_components,
                                       accept_unconverged=accept_unconverged))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,

@@ -35,6 +35,7 @@ from scipy import stats
 
 from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
+from misrgraph.errors import InputError
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles
 from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel
@@ -76,11 +77,24 @@ class AdjustConfig(Config):
     #: landmark, the observation with the largest Baarda statistic above the critical value
     #: (alpha = W_TEST_ALPHA) and re-solves; 0 switches it off
     snooping_rounds: int = 4
+    #: rounds of variance-component estimation after snooping: the tie-point and GCP observation
+    #: sigmas are rescaled by their class's sigma0 (Foerstner) and the pass re-solved, until
+    #: every class is within ``variance_component_tol`` of 1; 0 (default) keeps the stated sigmas
+    variance_component_rounds: int = 0
+    variance_component_tol: float = 0.05
     max_iterations: int = 100
     backend: str = "auto"
     #: keep the result of a solve that did not converge (flagged in the summary and the result
     #: file) instead of failing with a ConvergenceError
     accept_unconverged: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("snooping_rounds", "variance_component_rounds"):
+            v = getattr(self, name)
+            if int(v) != v or v < 0:
+                raise InputError(name, v, "an integer >= 0")
+        if not self.variance_component_tol > 0:
+            raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
         base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=self.threshold1, threshold2=self.threshold2,
@@ -174,6 +188,26 @@ def adjust_pass(
         res = solve(pg.problem, params.replace(backend=cfg.backend))
         check_converged(res, "the least-squares solve after data snooping", cfg.accept_unconverged)
     blunder_mask = blunder_mask | snooped
+    vc_scale = {"tie-point": 1.0, "GCP": 1.0}
+    stated = obs.sigma_px.copy()
+    for rnd in range(cfg.variance_component_rounds):
+        factors = _variance_components(orbit_pass, pg, res.values)
+        moved = {k: v for k, v in factors.items() if abs(v - 1.0) > cfg.variance_component_tol}
+        if not moved:
+            break
+        for k, v in moved.items():
+            vc_scale[k] *= v
+        if progress:
+            progress(f"variance components: round {rnd + 1}, sigma scale " +
+                     ", ".join(f"{k} {v:.3f}" for k, v in vc_scale.items()))
+        orbit_pass = _with_sigma_scale(orbit_pass, stated, vc_scale)
+        previous = res.values
+        pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
+        for k in pg.problem.dims:
+            if previous.exists(k) and pg.problem.initial.exists(k):
+                pg.problem.initial.update(k, previous.atVector(k))
+        res = solve(pg.problem, params.replace(backend=cfg.backend))
+        check_converged(res, "the least-squares solve after variance-component estimation", cfg.accept_unconverged)
     if progress:
         progress("marginal covariances")
     marg = marginal_covariances(pg.problem, res.values)
@@ -183,9 +217,39 @@ def adjust_pass(
     att, eph, cam = estimated_models(pg, res.values, camera)
     rej = np.flatnonzero(blunder_mask)
     rel = reliability_summary(orbit_pass, pg, res.values)
+    if cfg.variance_component_rounds:
+        rel["sigma_scale_applied"] = vc_scale
     return AdjustResult(pg, res.values, marg, att, eph, cam, rej, norm[rej], resid, res.iterations, res.final_error,
                         res.history, time.perf_counter() - t0, dropped, res.status,
                         variance_factor(pg.problem, res.final_error), rel)
+
+
+def _variance_components(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> dict[str, float]:
+    """sigma0 of the tie-point and of the GCP observations (classes with a redundancy of at least
+    10; the others are left out)."""
+    try:
+        flat = pg.problem.flat()
+    except NotFlat:
+        return {}
+    rel = reliability(flat, flat.from_values(values))
+    obs_of_row = pg.obs_index[pg.collinearity.order]
+    kind = np.repeat(orbit_pass.landmarks.kind[orbit_pass.observations.landmark[obs_of_row]], 2)
+    out = {}
+    for name, k in (("tie-point", KIND_TIE), ("GCP", KIND_GCP)):
+        rows = np.zeros(rel.e.size, bool)
+        rows[rel.families["collinearity"]] = kind == k
+        vc = rel.variance_component(rows)
+        if vc["redundancy"] >= 10.0:
+            out[name] = vc["sigma0"]
+    return out
+
+
+def _with_sigma_scale(orbit_pass: OrbitPass, stated: Array, scale: dict[str, float]) -> OrbitPass:
+    """The pass with the ``stated`` tie-point and GCP observation sigmas multiplied by ``scale``."""
+    obs = orbit_pass.observations
+    kind = orbit_pass.landmarks.kind[obs.landmark]
+    sig = np.where(kind == KIND_TIE, stated * scale["tie-point"], np.where(kind == KIND_GCP, stated * scale["GCP"], stated))
+    return dataclasses.replace(orbit_pass, observations=dataclasses.replace(obs, sigma_px=sig))
 
 
 def attitude_sigma_summary(res: AdjustResult, prior_arcsec: tuple, step_s: float = 5.0) -> dict[str, Any]:
