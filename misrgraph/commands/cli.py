@@ -209,7 +209,7 @@ def adjust(
     out: Optional[Path] = typer.Option(None, "--out", help="Write RESULT.h5 (error models, landmarks, covariances, residuals)."),
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write PNG plots here (needs --out)."),
     pitch_spacing: float = typer.Option(60.0, "--pitch-knots-s", help="Pitch knot spacing (s)."),
-    rollyaw_spacing: float = typer.Option(120.0, "--roll-yaw-knots-s", help="Roll and yaw knot spacing (s)."),
+    rollyaw_spacing: float = typer.Option(60.0, "--roll-yaw-knots-s", help="Roll and yaw knot spacing (s); the seed used 120 s, see docs/conventions.md."),
     threshold1: int = typer.Option(1, "--threshold1", help="Eq. 28: minimum observations per knot support (the seed suggests ~20; see docs/conventions.md)."),
     threshold2: int = typer.Option(1, "--threshold2", help="Eq. 29: minimum cameras per knot support (the seed suggests 3)."),
     knot_rule: str = typer.Option("support", "--knot-rule", help="Eqs. 28-29 on each knot's support (default) or, literally, on [t_i, t_i+1) ('interval'); with --knot-prior independent only."),

@@ -63,7 +63,7 @@ class CalibrateConfig(Config):
     params: tuple = ("delta", "beta", "epsilon")
     per_band: bool = False
     estimate_omega: bool = False
-    knot_spacing_s: tuple = (120.0, 60.0, 120.0)
+    knot_spacing_s: tuple = (60.0, 60.0, 60.0)
     knot_prior: str = "process"
     robust: str = "cauchy"
     robust_k: float = 3.0

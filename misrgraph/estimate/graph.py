@@ -61,7 +61,7 @@ class GraphConfig(Config):
     """How a pass becomes a graph (units in the names). ``knot_prior``: see :data:`KNOT_PRIORS`
     (``threshold1``/``threshold2``/``knot_rule`` apply to ``"independent"`` only)."""
 
-    knot_spacing_s: tuple = (120.0, 60.0, 120.0)
+    knot_spacing_s: tuple = (60.0, 60.0, 60.0)
     threshold1: int = 1
     threshold2: int = 1
     knot_rule: str = "support"

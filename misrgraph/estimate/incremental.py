@@ -43,6 +43,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, estimated_models
+from misrgraph.model.constants import ARCSEC
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.dem import DemTiles
 from misrgraph.errors import InputError
@@ -312,7 +313,8 @@ class IncrementalSolver:
         resid[pg.obs_index[pg.collinearity.order]] = r
         rej = np.flatnonzero(self.exclusions[index])
         return AdjustResult(pg, v, marg, att, eph, cam, rej, np.zeros(rej.size), resid, self.last_rounds,
-                            float(self.isam.getFactorsUnsafe().error(v)), [], seconds)
+                            float(self.isam.getFactorsUnsafe().error(v)), [], seconds,
+                            unresolved_attitude_rad=AdjustConfig().attitude_jitter_arcsec * ARCSEC)
 
 
 def batch_solution(solver: IncrementalSolver, params: SolverParams = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12)):

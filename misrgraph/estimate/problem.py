@@ -595,10 +595,15 @@ def marginal_covariances(problem: Problem, values: gtsam.Values, lin: gtsam.Gaus
                            problem.dims, joint_keys)
 
 
-def flat_marginals(flat: "FlatProblem", x: Array, joint_keys: list[int] | None = None) -> Marginals:
+def flat_marginals(flat: "FlatProblem", x: Array, joint_keys: list[int] | None = None,
+                   second_order: bool = False) -> Marginals:
     """Marginal covariances at the flat vector ``x``: :func:`schur_marginals` of the normal
-    equations the flat form accumulates (the same ``J^T J``; no GTSAM linearisation)."""
-    blk, hlc, hcc, _, _ = flat.normal_equations(x)
+    equations the flat form accumulates (the same ``J^T J``; no GTSAM linearisation), or with
+    ``second_order=True`` of the exact Hessian of the cost: ``J^T J`` plus the DEM residuals'
+    curvature (:meth:`FlatProblem.dem_curvature`) wherever a landmark's block stays positive
+    definite with it -- the Laplace approximation at the optimum, which differs from ``J^T J``
+    where a landmark sits on terrain curved at the scale of its uncertainty."""
+    blk, hlc, hcc, _, _ = flat.normal_equations(x, second_order=second_order)
     n_l = blk.shape[0]
     prob = flat.problem
     return schur_marginals(blk, sp.csr_matrix(hlc.reshape(3 * n_l, -1)), sp.csr_matrix(hcc),

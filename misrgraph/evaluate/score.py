@@ -10,7 +10,7 @@ check-point RMS the posterior covariance predicts (:func:`predicted_checkpoint_r
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import gtsam
 import numpy as np
@@ -176,10 +176,22 @@ def _joint_nees(res: AdjustResult, delta: dict[int, Array], keys: list[int], nam
     return {name: float(e @ np.linalg.solve(res.marginals.joint_of(keys), e) / e.size), f"{name}_dim": int(e.size)}
 
 
+def _fast_attitude(rng: np.random.Generator, sigma: float, n: int = 24) -> Callable[[Array], Array]:
+    """A zero-mean random process per angle (rad, ``(N, 3)``), 1 sigma ``sigma``, sinusoids with
+    periods log-uniform in 4-60 s and random phases: values at times more than a minute apart are
+    practically independent."""
+    w = 2 * np.pi / np.exp(rng.uniform(np.log(4.0), np.log(60.0), (3, n)))
+    ph = rng.uniform(0, 2 * np.pi, (3, n))
+    amp = sigma * np.sqrt(2.0 / n)
+    return lambda t: amp * np.sum(np.sin(np.asarray(t, float)[:, None, None] * w + ph), axis=-1)
+
+
 def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array, h: Array, true_geo: PassGeometry,
                              draws: int = 40, seed: int = 0) -> dict[str, float]:
     """Horizontal RMS geolocation error of the check points predicted by the posterior covariance
-    of the navigation and camera variables (Monte Carlo through the geolocation, fixed seed)."""
+    of the navigation and camera variables plus the attitude error the knots cannot follow
+    (``res.unresolved_attitude_rad`` per angle, independent between check-point views: each draw
+    adds a random process with periods 4-60 s) -- Monte Carlo through the geolocation, fixed seed."""
     pg = res.pass_graph
     keys = [k for a in range(3) for k in pg.knot_keys(a)] + pg.ephemeris_keys() + list(pg.camera_keys.values())
     cov = res.marginals.joint_of(keys)
@@ -199,6 +211,11 @@ def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array,
             v.insert(k, seg)
         att, eph, cam = estimated_models(pg, v, supplied)
         geo = corrected_geometry(orbit_pass, att, eph, cam)
+        if res.unresolved_attitude_rad > 0:
+            fast = _fast_attitude(rng, res.unresolved_attitude_rad)
+            geo = PassGeometry(orbit_pass.ephemeris, orbit_pass.attitude, cam, t0=orbit_pass.t0,
+                               attitude_delta=lambda t, att=att, fast=fast: -(att.evaluate(t) + fast(t)),
+                               position_delta=lambda t, eph=eph: -eph.evaluate(t))
         for c, p in pix.items():
             if c not in base:
                 continue

@@ -117,6 +117,7 @@ def run_adjust(
     dem = read_dem(dem_file or d / "dem.h5")
     res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress)
     pg = res.pass_graph
+    snooped = set(res.snooped.tolist())
     summary: dict[str, Any] = {
         "pass_id": orbit_pass.pass_id,
         "solver_status": res.status,
@@ -133,7 +134,8 @@ def run_adjust(
         "rejected_observations": capped_list(
             [{"index": int(i), "camera": CAMERAS[int(orbit_pass.observations.camera[i])],
               "landmark_kind": "gcp" if orbit_pass.landmarks.kind[orbit_pass.observations.landmark[i]] == KIND_GCP else "tie",
-              "normalised_residual": float(n)} for i, n in zip(res.rejected, res.rejected_norm)],
+              "normalised_residual": float(n),
+              "by": "data snooping" if i in snooped else "robust screen"} for i, n in zip(res.rejected, res.rejected_norm)],
             f"{out}:/observations/rejected" if out is not None else None, group_by=("camera", "landmark_kind")),
         "attitude_sigma": attitude_sigma_summary(res, cfg.graph_config().attitude_sigma_arcsec),
         "ephemeris": {"params": res.ephemeris.params.tolist(),

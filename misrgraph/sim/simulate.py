@@ -13,9 +13,10 @@ Two scenarios, following the paper's order of work:
 
 Injected navigation errors per pass: ephemeris (eq. 19) b ~ N(0, 50 m) per orbital axis (150 m
 3 sigma), drift a ~ N(0, 0.05 m/s) along track and N(0, 0.01 m/s) across/radial; attitude (eqs.
-23-27) a cubic Hermite spline through knots (pitch every 60 s, roll/yaw every 120 s) sampled
-from a smooth random process (periods 200-2000 s) with 1 sigma 41/3, 44/3, 36/3 arcsec for
-roll, pitch, yaw (the 3-sigma knowledge requirement). The supplied navigation is the measured
+23-27) with the model truth a cubic Hermite spline through knots every 60 s drawn from the
+estimator's own Matern-3/2 process prior; with the independent truth a smooth random process
+(periods 200-2000 s) plus jitter; 1 sigma 41/3, 44/3, 36/3 arcsec for roll, pitch, yaw (the
+3-sigma knowledge requirement). The supplied navigation is the measured
 one; the truth is ``P = P_meas - T_go e``, ``A = A_meas - E`` (docs/conventions.md). All
 randomness comes from one ``numpy`` generator seeded by ``seed``.
 """
@@ -154,7 +155,7 @@ class ScenarioConfig(Config):
     drift_sigma_mps: float = 0.01
     ephemeris_segments: int = 1
     attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
-    knot_spacing_s: tuple = (120.0, 60.0, 120.0)
+    knot_spacing_s: tuple = (60.0, 60.0, 60.0)
     camera_misalignment_arcsec: float = 60.0
     camera_residual_px: float = 0.0625
     gcp_sigma_m: float = 30.0
