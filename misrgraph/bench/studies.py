@@ -387,7 +387,7 @@ def _interval(values: list[float]) -> dict[str, float]:
 
 def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
                    workdir: str | Path | None = None, size: str = "reduced", truth: str = "model",
-                   overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+                   overrides: dict[str, Any] | None = None, calibrate_params: tuple[str, ...] | None = None) -> dict[str, Any]:
     """NEES over seeded runs against its two-sided 95 % chi-square band, per class of variables.
 
     ``calibration``: months (reduced: 24 GCPs over 16 days; standard: 120 GCPs over 30 days), NEES
@@ -402,6 +402,7 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
     the ephemeris and whole-state NEES are not defined (no true value of the estimator's own
     parameters) and are left out. ``overrides``: further :class:`ScenarioConfig` fields (e.g. one
     error source of the independent truth switched off, :func:`run_bench_sources`).
+    ``calibrate_params``: the camera parameters the calibration estimates (default its own).
     """
     from scipy import stats
 
@@ -427,7 +428,9 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
         if not (out / "scenario.json").exists():
             run_simulate(ScenarioConfig.from_dict(dict(NEES_SCENARIOS[(study, size)], seed=seed + i, truth=truth, **extra)), out)
         if study == "calibration":
-            s = run_calibrate(out)
+            from misrgraph.estimate.calibrate import CalibrateConfig
+
+            s = run_calibrate(out, cfg=CalibrateConfig(params=tuple(calibrate_params)) if calibrate_params else CalibrateConfig())
             vals = {"camera": (s["nees"], s["nees_dim"])}
             per_run.append({"seed": seed + i, "nees": s["nees"], "max_pointing_error_px": s["max_pointing_error_px"]})
         else:
@@ -457,7 +460,8 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
             summary[k] = {"per_run": _interval(per_class[k])}
     if tmp is not None:
         tmp.cleanup()
-    return {"study": study, "size": size, "truth": truth, "overrides": dict(overrides or {}), "runs": runs,
+    return {"study": study, "size": size, "truth": truth, "overrides": dict(overrides or {}),
+            "calibrate_params": list(calibrate_params) if calibrate_params else None, "runs": runs,
             "summary": summary, "per_run": per_run}
 
 

@@ -565,6 +565,7 @@ def bench_nees(
     workdir: Optional[Path] = typer.Option(None, "--workdir"),
     size: str = typer.Option("reduced", "--size", help="reduced (the test suite's size) or standard (45-minute passes with 600 tie points and check points; full months)."),
     truth: str = typer.Option("model", "--truth", help="The simulator's truth: model or independent (see misrgraph simulate --help)."),
+    calibrate_params: Optional[str] = typer.Option(None, "--calibrate-params", help="Calibration study: the parameters to estimate (as calibrate --params; default delta,beta,epsilon)."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Covariance honesty: NEES per class over seeded runs, against its 95 % chi-square band and with a 95 % interval from the run-to-run scatter."""
@@ -573,7 +574,8 @@ def bench_nees(
     if runs < 1:
         _fail(f"--runs: got {runs}; expected at least 1")
     with err_console.status(f"{runs} seeded {study} runs..."):
-        res = run_bench_nees(study, runs, seed, workdir, size, truth)
+        res = run_bench_nees(study, runs, seed, workdir, size, truth,
+                             calibrate_params=tuple(p.strip() for p in calibrate_params.split(",")) if calibrate_params else None)
     if as_json:
         _print_json(res)
         return
