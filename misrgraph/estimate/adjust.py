@@ -37,7 +37,7 @@ from scipy import stats
 
 from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
-from misrgraph.errors import InputError
+from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles
 from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel
@@ -230,7 +230,7 @@ def adjust_pass(
         check_converged(res, "the least-squares solve after variance-component estimation", cfg.accept_unconverged)
     if progress:
         progress("marginal covariances")
-    marg = adjustment_marginals(pg, res.values, cfg.covariance)
+    marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
     r, _ = pg.collinearity.residuals(res.values)
     resid = np.full((len(obs), 2), np.nan)
     resid[pg.obs_index[pg.collinearity.order]] = r
@@ -239,22 +239,26 @@ def adjust_pass(
     rel = reliability_summary(orbit_pass, pg, res.values)
     if cfg.variance_component_rounds:
         rel["sigma_scale_applied"] = vc_scale
+    rel["covariance"] = cov_used
     return AdjustResult(pg, res.values, marg, att, eph, cam, rej, norm[rej], resid, res.iterations, res.final_error,
                         res.history, time.perf_counter() - t0, dropped, res.status,
                         variance_factor(pg.problem, res.final_error), rel, cfg.attitude_jitter_arcsec * ARCSEC,
                         np.flatnonzero(snooped))
 
 
-def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = "hessian") -> Marginals:
-    """Marginal covariances of an adjusted pass (see ``AdjustConfig.covariance``)."""
+def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = "hessian") -> tuple[Marginals, str]:
+    """Marginal covariances of an adjusted pass (see ``AdjustConfig.covariance``) and which
+    information matrix gave them: ``"hessian"``, or ``"gauss_newton"`` (asked for, outside the flat
+    form, or where the curvature left the reduced system indefinite)."""
     if covariance == "hessian":
         try:
             flat = pg.problem.flat()
+            return flat_marginals(flat, flat.from_values(values), second_order=True), "hessian"
         except NotFlat:
             pass
-        else:
-            return flat_marginals(flat, flat.from_values(values), second_order=True)
-    return marginal_covariances(pg.problem, values)
+        except DegenerateProblemError as exc:  # the curvature made the reduced system indefinite
+            log.warning("Hessian marginals not positive definite (%s); using J^T J", exc)
+    return marginal_covariances(pg.problem, values), "gauss_newton"
 
 
 def _variance_components(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> dict[str, float]:

@@ -299,8 +299,8 @@ class FlatProblem:
         r = self.residual(x)
         return float(0.5 * r @ r)
 
-    def normal_equations(self, x: Array, use_numba: bool = True,
-                         second_order: bool = False) -> tuple[Array, Array, Array, Array, float]:
+    def normal_equations(self, x: Array, use_numba: bool = True, second_order: bool = False,
+                         curvature_floor: float = 0.0) -> tuple[Array, Array, Array, Array, float]:
         """``J^T J`` and ``J^T r`` accumulated from the per-observation blocks, in Schur form.
 
         Returns ``(H_ll (L,3,3), H_lc (L,3,n_c) dense, H_cc (n_c,n_c), g (n,), cost)`` with the
@@ -311,8 +311,10 @@ class FlatProblem:
         ``second_order=True`` adds the term Gauss-Newton neglects for the DEM factors,
         ``sum_i (r_i / sigma_i^2) d^2 r_i / dP^2`` (3x3 per landmark, see
         :meth:`dem_curvature`), i.e. the exact Hessian of the DEM part of the cost, wherever the
-        landmark's block stays positive definite with it. Marginals must use the default
-        (``J^T J``, what ``gtsam.Marginals`` returns).
+        landmark's block stays positive definite with it -- and, with ``curvature_floor`` f > 0,
+        only where the term leaves at least f of the block's information in every direction
+        (``H_new >= f H_GN``; the marginals use 0.5: a landmark the term would make almost
+        undetermined is one whose local quadratic model is not to be trusted).
         """
         b = self.coll
         n_l = 3 * len(self.problem.eliminate_first)
@@ -377,6 +379,10 @@ class FlatProblem:
             u = np.unique(li)
             new = blk[u] + per_lm[u]
             ok = np.linalg.eigvalsh(new)[:, 0] > 0.0
+            if curvature_floor > 0:
+                rel = np.full(u.size, -np.inf)
+                rel[ok] = np.linalg.eigvals(np.linalg.solve(blk[u[ok]], new[ok])).real.min(axis=1)
+                ok &= rel >= curvature_floor
             blk[u[ok]] = new[ok]
         return blk, hlc, hcc, g, cost
 
@@ -603,7 +609,7 @@ def flat_marginals(flat: "FlatProblem", x: Array, joint_keys: list[int] | None =
     curvature (:meth:`FlatProblem.dem_curvature`) wherever a landmark's block stays positive
     definite with it -- the Laplace approximation at the optimum, which differs from ``J^T J``
     where a landmark sits on terrain curved at the scale of its uncertainty."""
-    blk, hlc, hcc, _, _ = flat.normal_equations(x, second_order=second_order)
+    blk, hlc, hcc, _, _ = flat.normal_equations(x, second_order=second_order, curvature_floor=0.5 if second_order else 0.0)
     n_l = blk.shape[0]
     prob = flat.problem
     return schur_marginals(blk, sp.csr_matrix(hlc.reshape(3 * n_l, -1)), sp.csr_matrix(hcc),

@@ -121,6 +121,7 @@ def run_adjust(
     summary: dict[str, Any] = {
         "pass_id": orbit_pass.pass_id,
         "solver_status": res.status,
+        "covariance": res.reliability.get("covariance", "gauss_newton"),
         "variance_factor": res.variance_factor,
         "reliability": res.reliability,
         "iterations": res.iterations,

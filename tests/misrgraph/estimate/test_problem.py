@@ -109,3 +109,34 @@ def test_variance_factor_is_one_where_the_weights_are_right(small_pass):
     dirty = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True))
     vd = variance_factor(dirty.problem, solve(dirty.problem).final_error)
     assert vd["chi2"] > hi and vd["p_value"] < 1e-6
+
+
+def test_hessian_marginals_are_the_inverse_of_jtj_plus_the_dem_curvature(small_pass):
+    """flat_marginals(second_order=True) against a dense inverse of J^T J (from the sparse
+    Jacobian) plus the DEM curvature per landmark, kept where it leaves >= 0.5 of the block's
+    information in every direction; and the floor is what it says."""
+    sc, p = small_pass
+    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(), exclude_observations=sc.load_truth(0).blunder)
+    flat = pg.problem.flat()
+    x = flat.from_values(solve(pg.problem).values)
+    j = flat.jacobian(x).toarray()
+    h = j.T @ j
+    li, corr = flat.dem_curvature(x)
+    add = np.zeros((len(pg.problem.eliminate_first), 3, 3))
+    np.add.at(add, li, corr)
+    kept = 0
+    for i in np.unique(li):
+        old = h[3 * i:3 * i + 3, 3 * i:3 * i + 3]
+        new = old + add[i]
+        if np.linalg.eigvalsh(new)[0] > 0 and np.linalg.eigvals(np.linalg.solve(old, new)).real.min() >= 0.5:
+            h[3 * i:3 * i + 3, 3 * i:3 * i + 3] = new
+            kept += 1
+    assert kept > 0.5 * np.unique(li).size
+    cov = np.linalg.inv(h)
+    m = flat_marginals(flat, x, second_order=True)
+    for k in list(pg.problem.eliminate_first[:20]) + pg.problem.other_keys[:20]:
+        o, d = flat.offset[k], pg.problem.dims[k]
+        np.testing.assert_allclose(m[k], cov[o:o + d, o:o + d], rtol=1e-6, atol=1e-9 * np.abs(cov[o:o + d, o:o + d]).max())
+    gn = flat_marginals(flat, x)
+    k0 = pg.problem.eliminate_first[0]
+    assert not np.allclose(m[k0], gn[k0])
