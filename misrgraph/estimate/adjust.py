@@ -264,13 +264,11 @@ def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = 
 def _variance_components(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> dict[str, float]:
     """sigma0 of the tie-point and of the GCP observations (classes with a redundancy of at least
     10; the others are left out)."""
-    try:
-        flat = pg.problem.flat()
-    except NotFlat:
+    at = _reliability_at(orbit_pass, pg, values)
+    if at is None:
         return {}
-    rel = reliability(flat, flat.from_values(values))
-    obs_of_row = pg.obs_index[pg.collinearity.order]
-    kind = np.repeat(orbit_pass.landmarks.kind[orbit_pass.observations.landmark[obs_of_row]], 2)
+    rel, _, kind_obs = at
+    kind = np.repeat(kind_obs, 2)
     out = {}
     for name, k in (("tie-point", KIND_TIE), ("GCP", KIND_GCP)):
         rows = np.zeros(rel.e.size, bool)
@@ -309,17 +307,27 @@ def attitude_sigma_summary(res: AdjustResult, prior_arcsec: tuple, step_s: float
     return out
 
 
+def _reliability_at(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values):
+    """:func:`reliability` at ``values`` with, per image point of it, the observation index and
+    the landmark kind; None outside the flat form."""
+    try:
+        flat = pg.problem.flat()
+    except NotFlat:
+        return None
+    rel = reliability(flat, flat.from_values(values))
+    obs_of_row = pg.obs_index[pg.collinearity.order]
+    return rel, obs_of_row, orbit_pass.landmarks.kind[orbit_pass.observations.landmark[obs_of_row]]
+
+
 def snoop(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> NDArray[np.int64]:
     """One round of iterated data snooping (Baarda): the observation indices whose statistic
     ``T`` exceeds the critical value at :data:`W_TEST_ALPHA`, at most one per landmark (its
     largest: a mismatch also inflates its landmark's other residuals)."""
-    try:
-        flat = pg.problem.flat()
-    except NotFlat:
+    at = _reliability_at(orbit_pass, pg, values)
+    if at is None:
         return np.zeros(0, np.int64)
-    rel = reliability(flat, flat.from_values(values))
+    rel, obs_of_row, _ = at
     crit = float(stats.chi2.isf(W_TEST_ALPHA, 2))
-    obs_of_row = pg.obs_index[pg.collinearity.order]
     bad = np.flatnonzero(rel.T > crit)
     if bad.size == 0:
         return np.zeros(0, np.int64)
@@ -333,13 +341,10 @@ def reliability_summary(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Valu
     """Redundancy, Baarda's data snooping and variance components per observation class (tie
     points, GCPs), DEM and priors at the least-squares optimum (:mod:`misrgraph.estimate.reliability`);
     ``flagged``: the observations whose statistic exceeds the critical value, largest first."""
-    try:
-        flat = pg.problem.flat()
-    except NotFlat:
+    at = _reliability_at(orbit_pass, pg, values)
+    if at is None:
         return {}
-    rel = reliability(flat, flat.from_values(values))
-    obs_of_row = pg.obs_index[pg.collinearity.order]
-    kind = orbit_pass.landmarks.kind[orbit_pass.observations.landmark[obs_of_row]]
+    rel, obs_of_row, kind = at
     out = rel.summary(kind, {KIND_TIE: "tie-point", KIND_GCP: "GCP"})
     crit = out["data_snooping"]["critical_T"]
     bad = np.flatnonzero(rel.T > crit)
