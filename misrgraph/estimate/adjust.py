@@ -190,6 +190,17 @@ def adjust_pass(
     pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
     res = solve(pg.problem, params.replace(backend=cfg.backend))
     check_converged(res, "the least-squares solve", cfg.accept_unconverged)
+
+    def resolve(op: OrbitPass, excluded: NDArray[np.bool_], previous: gtsam.Values, after: str):
+        """Rebuild and re-solve, warm-started from the previous optimum."""
+        g = build_pass_graph(op, camera, dem, gcps, cfg.graph_config(), exclude_observations=excluded)
+        for k in g.problem.dims:
+            if previous.exists(k) and g.problem.initial.exists(k):
+                g.problem.initial.update(k, previous.atVector(k))
+        r = solve(g.problem, params.replace(backend=cfg.backend))
+        check_converged(r, f"the least-squares solve after {after}", cfg.accept_unconverged)
+        return g, r
+
     snooped = np.zeros(len(obs), bool)
     for rnd in range(cfg.snooping_rounds):
         worst = snoop(orbit_pass, pg, res.values)
@@ -200,13 +211,7 @@ def adjust_pass(
         snooped[worst] = True
         rejected, more = drop_unsupported_landmarks(orbit_pass, rejected | snooped)
         dropped = np.union1d(dropped, more)
-        previous = res.values
-        pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
-        for k in pg.problem.dims:  # warm start from the previous optimum
-            if previous.exists(k) and pg.problem.initial.exists(k):
-                pg.problem.initial.update(k, previous.atVector(k))
-        res = solve(pg.problem, params.replace(backend=cfg.backend))
-        check_converged(res, "the least-squares solve after data snooping", cfg.accept_unconverged)
+        pg, res = resolve(orbit_pass, rejected, res.values, "data snooping")
     blunder_mask = blunder_mask | snooped
     vc_scale = {"tie-point": 1.0, "GCP": 1.0}
     stated = obs.sigma_px.copy()
@@ -221,13 +226,7 @@ def adjust_pass(
             progress(f"variance components: round {rnd + 1}, sigma scale " +
                      ", ".join(f"{k} {v:.3f}" for k, v in vc_scale.items()))
         orbit_pass = _with_sigma_scale(orbit_pass, stated, vc_scale)
-        previous = res.values
-        pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
-        for k in pg.problem.dims:
-            if previous.exists(k) and pg.problem.initial.exists(k):
-                pg.problem.initial.update(k, previous.atVector(k))
-        res = solve(pg.problem, params.replace(backend=cfg.backend))
-        check_converged(res, "the least-squares solve after variance-component estimation", cfg.accept_unconverged)
+        pg, res = resolve(orbit_pass, rejected, res.values, "variance-component estimation")
     if progress:
         progress("marginal covariances")
     marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
