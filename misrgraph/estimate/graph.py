@@ -95,6 +95,8 @@ class GraphConfig(Config):
             raise InputError("knot_prior", self.knot_prior, KNOT_PRIORS)
         if self.knot_rule not in ("interval", "support"):
             raise InputError("knot_rule", self.knot_rule, ("interval", "support"))
+        if len(self.attitude_sigma_arcsec) != 3 or not min(self.attitude_sigma_arcsec) > 0:
+            raise InputError("attitude_sigma_arcsec", self.attitude_sigma_arcsec, "three positive sigmas (roll, pitch, yaw) in arcsec")
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
             raise InputError("knot_spacing_s", self.knot_spacing_s, "three positive spacings (roll, pitch, yaw) in s")
 

@@ -283,3 +283,16 @@ def test_variance_components_recover_a_wrong_stated_sigma(small_pass):
     r_tie = res.reliability["variance_components"]["tie-point observations"]["redundancy"]
     assert abs(scale - 0.5) < 3 * 0.5 / np.sqrt(2 * r_tie) + 0.05 * 0.5, (scale, r_tie)
     assert abs(res.reliability["variance_components"]["tie-point observations"]["sigma0"] - 1.0) < 0.05 + 3 / np.sqrt(2 * r_tie)
+
+
+@pytest.mark.parametrize("cls, field, value", [
+    ("AdjustConfig", "snooping_rounds", -1), ("AdjustConfig", "variance_component_rounds", 1.5),
+    ("AdjustConfig", "covariance", "exact"), ("AdjustConfig", "attitude_jitter_arcsec", -1.0),
+    ("GraphConfig", "knot_prior", "markov"), ("GraphConfig", "attitude_sigma_arcsec", (10.0, 0.0, 10.0)),
+])
+def test_bad_settings_name_the_field(cls, field, value):
+    from misrgraph.errors import InputError
+    from misrgraph.estimate.graph import GraphConfig
+
+    with pytest.raises(InputError, match=field):
+        {"AdjustConfig": AdjustConfig, "GraphConfig": GraphConfig}[cls](**{field: value})

@@ -246,3 +246,76 @@ def test_replacing_a_scenario_keeps_user_files_and_leaves_no_debris(tmp_path):
     assert json.loads((out / "scenario.json").read_text())["config"]["seed"] == cfg.seed + 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scen"]  # no temporary or old directories left
     load_scenario(out)
+
+
+def test_independent_truth_settings_are_checked():
+    for field, value in (("noise_tail_dof", 2.0), ("mismatch_rate", 1.5), ("mismatch_px", (2.0, 1.0)),
+                         ("dem_correlated_fraction", -0.1), ("subposting_relief_m", -1.0)):
+        with pytest.raises(InputError, match=field):
+            ScenarioConfig(**{field: value})
+
+
+def test_student_t_matching_noise_has_unit_variance_and_heavier_tails():
+    from scipy import stats
+
+    from misrgraph.sim.simulate import matching_noise
+
+    n = 200_000
+    x = matching_noise(np.random.default_rng(5), n, 5.0)
+    # the sample variance of t5 has a large spread (kurtosis 9): 4 standard errors
+    assert abs(x.var() - 1.0) < 4 * np.sqrt((9.0 - 1.0) / n)
+    assert stats.kurtosis(x, fisher=False) > 4.0  # Gaussian: 3
+    g = matching_noise(np.random.default_rng(5), n, 0.0)
+    assert abs(stats.kurtosis(g, fisher=False) - 3.0) < 0.1
+
+
+def test_sub_posting_relief_has_its_rms_and_is_finer_than_the_dem():
+    from misrgraph.sim.terrain import SyntheticTerrain
+
+    rng = np.random.default_rng(1)
+    lat, lon = rng.uniform(-60, 60, 4000), rng.uniform(-180, 180, 4000)
+    d = SyntheticTerrain(seed=4, fine_relief_m=3.0).relief(lat, lon) - SyntheticTerrain(seed=4).relief(lat, lon)
+    assert abs(np.sqrt(np.mean((d - d.mean()) ** 2)) - 3.0) < 0.3
+    # 45 m away (half a 3" posting) the fine relief is nearly independent of itself
+    d2 = (SyntheticTerrain(seed=4, fine_relief_m=3.0).relief(lat + 45 / 111e3, lon)
+          - SyntheticTerrain(seed=4).relief(lat + 45 / 111e3, lon))
+    assert abs(np.corrcoef(d, d2)[0, 1]) < 0.6
+
+
+def test_scene_correlated_gcp_errors():
+    """Half the variance shared by the GCPs of a 2 x 2 deg cell: pairs in one cell correlate at
+    ~0.5 per axis, the per-axis RMS stays the stated sigma."""
+    from misrgraph.model.frames import ecef_to_geodetic, enu_basis
+    from misrgraph.sim.gcps import generate_gcp_database
+    from misrgraph.sim.terrain import SyntheticTerrain
+
+    db, truth = generate_gcp_database(np.random.default_rng(3), SyntheticTerrain(seed=3), 1500, 30.0,
+                                      scene_fraction=0.5)
+    lat, lon, _ = ecef_to_geodetic(truth)
+    e = np.einsum("gji,gj->gi", enu_basis(lat, lon), db.ecef() - truth)
+    assert abs(np.sqrt(np.mean(e**2)) - 30.0) < 3.0
+    cell = np.floor(lat / 2).astype(int) * 1000 + np.floor(lon / 2).astype(int)
+    a, b = [], []
+    for c in np.unique(cell):
+        i = np.flatnonzero(cell == c)
+        if i.size >= 2:
+            a.append(e[i[0], 0])
+            b.append(e[i[1], 0])
+    assert len(a) > 50
+    assert 0.3 < np.corrcoef(a, b)[0, 1] < 0.7
+
+
+def test_focal_plane_perturbation_moves_the_swath_edge_by_its_sigma(nominal_camera):
+    """alpha_2 and alpha_3 each move the edge pixel (s - c_y = 752) by N(0, px) pixels of
+    cross-track angle: the RMS over many draws is px * sqrt(2)."""
+    from misrgraph.sim.simulate import perturb_focal_plane
+
+    rng = np.random.default_rng(9)
+    shifts = []
+    for _ in range(60):
+        m = perturb_focal_plane(rng, nominal_camera, 0.05)
+        y0 = nominal_camera.focal_plane_y(np.arange(9), np.full(9, 2), nominal_camera.cy[:, 2] + 752.0) / nominal_camera.focal_length[:, 2]
+        y1 = m.focal_plane_y(np.arange(9), np.full(9, 2), nominal_camera.cy[:, 2] + 752.0) / m.focal_length[:, 2]
+        shifts.append((y1 - y0) / nominal_camera.alpha[:, 2, 1])
+    rms = np.sqrt(np.mean(np.square(shifts)))
+    assert abs(rms - 0.05 * np.sqrt(2)) < 0.15 * 0.05 * np.sqrt(2)
