@@ -143,7 +143,7 @@ def simulate(
     thermal_ppm: float = typer.Option(0.0, "--thermal-ppm-per-c", help="Thermal truth: 1 sigma of each camera's focal-length scale slope (ppm per deg C)."),
     bands: str = typer.Option("red", "--bands", help="Bands observed, comma-separated from blue, green, red, nir (e.g. all four for band-to-band calibration)."),
     band_misalignment: float = typer.Option(0.0, "--band-misalignment-arcsec", help="Per-band truth: 1 sigma of each band's own delta, beta, epsilon offsets (arcsec)."),
-    truth: str = typer.Option("model", "--truth", help="model (navigation errors drawn from the estimator's own parameterisations: checks the algebra) or independent (an attitude process with jitter on a 2 s grid and an ephemeris error with a once-per-revolution term: checks the estimator)."),
+    truth: str = typer.Option("model", "--truth", help="model (navigation errors drawn from the estimator's own parameterisations: checks the algebra) or independent (error sources the estimator does not share: an attitude process with jitter, a once-per-revolution ephemeris term, sub-posting terrain, DEM error correlated over 28 km, f/alpha camera errors, Student-t matching noise with 1-2 px mismatches, scene-correlated GCP errors; see docs/design.md: checks the estimator)."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:

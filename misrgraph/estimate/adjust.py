@@ -33,7 +33,6 @@ from typing import Any, Callable
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
@@ -47,7 +46,7 @@ from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph
 from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
 from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
-from misrgraph.estimate.reliability import W_TEST_ALPHA, reliability
+from misrgraph.estimate.reliability import Reliability, critical_T, reliability
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
            "supplied_camera_of", "drop_unsupported_landmarks", "snoop", "attitude_sigma_summary", "adjustment_marginals"]
@@ -162,10 +161,16 @@ def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -
     return att, eph, cam
 
 
-def corrected_geometry(orbit_pass: OrbitPass, att: AttitudeErrorModel, eph: EphemerisErrorModel, camera: CameraModel) -> PassGeometry:
-    """Pass geometry with the estimated error models removed (true = measured - error)."""
+def corrected_geometry(orbit_pass: OrbitPass, att: AttitudeErrorModel, eph: EphemerisErrorModel, camera: CameraModel,
+                       attitude_extra: Callable[[Array], Array] | None = None) -> PassGeometry:
+    """Pass geometry with the estimated error models removed (true = measured - error);
+    ``attitude_extra(t)`` (rad, ``(N, 3)``) is a further attitude error removed with them."""
+    if attitude_extra is None:
+        delta = lambda t: -att.evaluate(t)  # noqa: E731
+    else:
+        delta = lambda t: -(att.evaluate(t) + attitude_extra(t))  # noqa: E731
     return PassGeometry(orbit_pass.ephemeris, orbit_pass.attitude, camera, t0=orbit_pass.t0,
-                        attitude_delta=lambda t: -att.evaluate(t), position_delta=lambda t: -eph.evaluate(t))
+                        attitude_delta=delta, position_delta=lambda t: -eph.evaluate(t))
 
 
 def adjust_pass(
@@ -201,9 +206,11 @@ def adjust_pass(
         check_converged(r, f"the least-squares solve after {after}", cfg.accept_unconverged)
         return g, r
 
+    # the reliability at the current optimum serves snooping, variance components and the summary
+    at = _reliability_at(orbit_pass, pg, res.values)
     snooped = np.zeros(len(obs), bool)
     for rnd in range(cfg.snooping_rounds):
-        worst = snoop(orbit_pass, pg, res.values)
+        worst = snoop(orbit_pass, pg, res.values, at)
         if worst.size == 0:
             break
         if progress:
@@ -212,11 +219,12 @@ def adjust_pass(
         rejected, more = drop_unsupported_landmarks(orbit_pass, rejected | snooped)
         dropped = np.union1d(dropped, more)
         pg, res = resolve(orbit_pass, rejected, res.values, "data snooping")
+        at = _reliability_at(orbit_pass, pg, res.values)
     blunder_mask = blunder_mask | snooped
     vc_scale = {"tie-point": 1.0, "GCP": 1.0}
     stated = obs.sigma_px.copy()
     for rnd in range(cfg.variance_component_rounds):
-        factors = _variance_components(orbit_pass, pg, res.values)
+        factors = _variance_components(at)
         moved = {k: v for k, v in factors.items() if abs(v - 1.0) > cfg.variance_component_tol}
         if not moved:
             break
@@ -227,6 +235,7 @@ def adjust_pass(
                      ", ".join(f"{k} {v:.3f}" for k, v in vc_scale.items()))
         orbit_pass = _with_sigma_scale(orbit_pass, stated, vc_scale)
         pg, res = resolve(orbit_pass, rejected, res.values, "variance-component estimation")
+        at = _reliability_at(orbit_pass, pg, res.values)
     if progress:
         progress("marginal covariances")
     marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
@@ -235,7 +244,7 @@ def adjust_pass(
     resid[pg.obs_index[pg.collinearity.order]] = r
     att, eph, cam = estimated_models(pg, res.values, camera)
     rej = np.flatnonzero(blunder_mask)
-    rel = reliability_summary(orbit_pass, pg, res.values)
+    rel = reliability_summary(orbit_pass, pg, res.values, at)
     if cfg.variance_component_rounds:
         rel["sigma_scale_applied"] = vc_scale
     rel["covariance"] = cov_used
@@ -260,10 +269,9 @@ def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = 
     return marginal_covariances(pg.problem, values), "gauss_newton"
 
 
-def _variance_components(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> dict[str, float]:
+def _variance_components(at: "_ReliabilityAt | None") -> dict[str, float]:
     """sigma0 of the tie-point and of the GCP observations (classes with a redundancy of at least
-    10; the others are left out)."""
-    at = _reliability_at(orbit_pass, pg, values)
+    10; the others are left out), from :func:`_reliability_at`."""
     if at is None:
         return {}
     rel, _, kind_obs = at
@@ -306,7 +314,11 @@ def attitude_sigma_summary(res: AdjustResult, prior_arcsec: tuple, step_s: float
     return out
 
 
-def _reliability_at(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values):
+#: :func:`reliability` at a solution, the observation index and the landmark kind per image point
+_ReliabilityAt = tuple[Reliability, NDArray[np.int64], NDArray[np.int64]]
+
+
+def _reliability_at(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> _ReliabilityAt | None:
     """:func:`reliability` at ``values`` with, per image point of it, the observation index and
     the landmark kind; None outside the flat form."""
     try:
@@ -318,16 +330,17 @@ def _reliability_at(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values):
     return rel, obs_of_row, orbit_pass.landmarks.kind[orbit_pass.observations.landmark[obs_of_row]]
 
 
-def snoop(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> NDArray[np.int64]:
+def snoop(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values,
+          at: _ReliabilityAt | None = None) -> NDArray[np.int64]:
     """One round of iterated data snooping (Baarda): the observation indices whose statistic
     ``T`` exceeds the critical value at :data:`W_TEST_ALPHA`, at most one per landmark (its
-    largest: a mismatch also inflates its landmark's other residuals)."""
-    at = _reliability_at(orbit_pass, pg, values)
+    largest: a mismatch also inflates its landmark's other residuals). ``at``: the reliability at
+    ``values`` when already computed (:func:`_reliability_at`)."""
+    at = at if at is not None else _reliability_at(orbit_pass, pg, values)
     if at is None:
         return np.zeros(0, np.int64)
     rel, obs_of_row, _ = at
-    crit = float(stats.chi2.isf(W_TEST_ALPHA, 2))
-    bad = np.flatnonzero(rel.T > crit)
+    bad = np.flatnonzero(rel.T > critical_T())
     if bad.size == 0:
         return np.zeros(0, np.int64)
     lm = orbit_pass.observations.landmark[obs_of_row[bad]]
@@ -336,11 +349,13 @@ def snoop(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> NDArray
     return np.sort(obs_of_row[bad[order[first]]]).astype(np.int64)
 
 
-def reliability_summary(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) -> dict[str, Any]:
+def reliability_summary(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values,
+                        at: _ReliabilityAt | None = None) -> dict[str, Any]:
     """Redundancy, Baarda's data snooping and variance components per observation class (tie
     points, GCPs), DEM and priors at the least-squares optimum (:mod:`misrgraph.estimate.reliability`);
-    ``flagged``: the observations whose statistic exceeds the critical value, largest first."""
-    at = _reliability_at(orbit_pass, pg, values)
+    ``flagged``: the observations whose statistic exceeds the critical value, largest first.
+    ``at``: the reliability at ``values`` when already computed."""
+    at = at if at is not None else _reliability_at(orbit_pass, pg, values)
     if at is None:
         return {}
     rel, obs_of_row, kind = at

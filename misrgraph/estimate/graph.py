@@ -33,14 +33,11 @@ from misrgraph.model.gcp import GcpDatabase
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.estimate.problem import Problem
 
-__all__ = ["GraphConfig", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix", "rate_prior_factor",
+__all__ = ["GraphConfig", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
            "CAMERA_PRIOR_SIGMA", "merge_problems"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
-
-#: the attitude error rate's 1 sigma per unit of the value's (1/s); see :data:`ATTITUDE_RATE_FACTOR`
-rate_prior_factor = ATTITUDE_RATE_FACTOR
 
 
 #: Default a-priori 1 sigma of each camera parameter correction when calibrating (pre-flight
@@ -318,11 +315,11 @@ def build_pass_graph(
         for k in ks:
             add(k, np.zeros(2))
         if cfg.knot_prior == "process":
-            for f in process_prior_factors(ks, att_kept.knot_times[a], float(att_sig[a]), rate_prior_factor):
+            for f in process_prior_factors(ks, att_kept.knot_times[a], float(att_sig[a]), ATTITUDE_RATE_FACTOR):
                 graph.add(f)
         else:
             for k in ks:
-                graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * rate_prior_factor]))
+                graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * ATTITUDE_RATE_FACTOR]))
     eph_sig = np.r_[np.asarray(cfg.ephemeris_a_sigma_mps, float), np.full(3, cfg.ephemeris_b_sigma_m)]
     for s in range(eph.n_segments):
         k = K.ephemeris_key(pass_index, s)

@@ -145,12 +145,12 @@ class FlatProblem:
         self.dem = dems[0] if dems else None
         self.priors: list[_Prior] = []
         n_custom = 0
+        landmark_cols = 3 * len(problem.eliminate_first)  # landmarks come first
         for i in range(problem.graph.size()):
             f = problem.graph.at(i)
             if isinstance(f, (gtsam.PriorFactorVector, gtsam.LinearContainerFactor)):
                 p = _Prior.from_factor(f, problem.dims)
-                n_l_keys = len(problem.eliminate_first)
-                if len(p.keys) > 1 and any(self.offset[k] < 3 * n_l_keys for k in p.keys):
+                if len(p.keys) > 1 and any(self.offset[k] < landmark_cols for k in p.keys):
                     raise NotFlat("a linear factor coupling a landmark with another variable")
                 self.priors.append(p)
             elif isinstance(f, gtsam.CustomFactor):

@@ -31,12 +31,17 @@ from scipy import stats
 
 from misrgraph.estimate.problem import FlatProblem, reduced_cholesky, schur_reduce
 
-__all__ = ["Reliability", "reliability", "W_TEST_ALPHA"]
+__all__ = ["Reliability", "reliability", "critical_T", "W_TEST_ALPHA"]
 
 Array = NDArray[np.float64]
 
 #: significance of the per-observation test (two-dimensional, chi-square 2 dof)
 W_TEST_ALPHA = 1e-3
+
+
+def critical_T(alpha: float = W_TEST_ALPHA) -> float:
+    """Critical value of the per-observation statistic ``T`` (chi-square, 2 dof) at ``alpha``."""
+    return float(stats.chi2.isf(alpha, 2))
 
 
 @dataclass
@@ -65,7 +70,7 @@ class Reliability:
                 alpha: float = W_TEST_ALPHA) -> dict[str, Any]:
         """JSON-ready: redundancy (total, per-observation quantiles), the data-snooping test (critical
         value, how many observations exceed it), variance components per class."""
-        crit = float(stats.chi2.isf(alpha, 2))
+        crit = critical_T(alpha)
         r_obs = np.trace(self.R_obs, axis1=1, axis2=2) / 2.0
         out: dict[str, Any] = {
             "redundancy_total": float(np.sum(self.r)),

@@ -210,12 +210,8 @@ def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array,
         for k, seg in zip(keys, np.split(x, np.cumsum([res.values.atVector(k).size for k in keys])[:-1])):
             v.insert(k, seg)
         att, eph, cam = estimated_models(pg, v, supplied)
-        geo = corrected_geometry(orbit_pass, att, eph, cam)
-        if res.unresolved_attitude_rad > 0:
-            fast = _fast_attitude(rng, res.unresolved_attitude_rad)
-            geo = PassGeometry(orbit_pass.ephemeris, orbit_pass.attitude, cam, t0=orbit_pass.t0,
-                               attitude_delta=lambda t, att=att, fast=fast: -(att.evaluate(t) + fast(t)),
-                               position_delta=lambda t, eph=eph: -eph.evaluate(t))
+        fast = _fast_attitude(rng, res.unresolved_attitude_rad) if res.unresolved_attitude_rad > 0 else None
+        geo = corrected_geometry(orbit_pass, att, eph, cam, attitude_extra=fast)
         for c, p in pix.items():
             if c not in base:
                 continue

@@ -177,9 +177,6 @@ class ScenarioConfig(Config):
         for name in ("jitter_arcsec", "once_per_rev_m", "subposting_relief_m", "camera_f_alpha_px"):
             if not getattr(self, name) >= 0:
                 raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma)")
-        for name in ("dem_correlated_fraction", "mismatch_rate", "gcp_scene_fraction"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise InputError(name, getattr(self, name), "a fraction in [0, 1]")
         if not (self.noise_tail_dof == 0 or self.noise_tail_dof > 2):
             raise InputError("noise_tail_dof", self.noise_tail_dof, "0 (Gaussian) or degrees of freedom > 2 (finite variance)")
         if len(self.mismatch_px) != 2 or not 0 < self.mismatch_px[0] <= self.mismatch_px[1]:
@@ -198,7 +195,8 @@ class ScenarioConfig(Config):
         for name in ("thermal_arcsec_per_c", "thermal_focal_ppm_per_c"):
             if not getattr(self, name) >= 0:
                 raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma of the per-camera slope)")
-        for name in ("tie_blunder_rate", "gcp_blunder_rate", "view_probability", "texture_probability", "dted1_fraction"):
+        for name in ("tie_blunder_rate", "gcp_blunder_rate", "view_probability", "texture_probability", "dted1_fraction",
+                     "dem_correlated_fraction", "mismatch_rate", "gcp_scene_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(name, getattr(self, name), "a fraction in [0, 1]")
         if len(self.attitude_sigma_arcsec) != 3 or len(self.knot_spacing_s) != 3:

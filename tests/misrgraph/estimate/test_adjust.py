@@ -168,7 +168,8 @@ def test_attitude_sigma_over_a_gap_stays_at_the_prior(small_pass):
     120 s, factors.priors); the seed's independent priors with knot removal exceed it."""
     from factors.priors import matern32_transition
     from factors.geometry import hermite_weights
-    from misrgraph.estimate.graph import GraphConfig, rate_prior_factor
+    from misrgraph.estimate.graph import GraphConfig
+    from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR
     from misrgraph.model.constants import ARCSEC
 
     sc, p = small_pass
@@ -186,8 +187,8 @@ def test_attitude_sigma_over_a_gap_stays_at_the_prior(small_pass):
             # the bound: the prior's own interpolated sigma on this grid, in closed form
             for a in range(3):
                 dt = float(np.diff(pg.attitude_model.knot_times[a]).max())
-                phi, _ = matern32_transition(dt, 1.0, rate_prior_factor)
-                pm = np.diag([1.0, rate_prior_factor**2])
+                phi, _ = matern32_transition(dt, 1.0, ATTITUDE_RATE_FACTOR)
+                pm = np.diag([1.0, ATTITUDE_RATE_FACTOR**2])
                 w = hermite_weights(np.linspace(0, 1, 101), dt)
                 bound = np.sqrt(np.einsum("ni,ij,nj->n", w, np.block([[pm, pm @ phi.T], [phi @ pm, pm]]), w).max())
                 assert ratios[kp][a] <= bound * (1 + 1e-6), (a, ratios[kp][a], bound)
