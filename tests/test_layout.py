@@ -13,18 +13,19 @@ PACKAGES = ("misrgraph", "factors")
 
 #: Which rooms a room may import (besides itself, ``factors`` and the top-level ``errors`` and
 #: ``config`` modules). The data flow of docs/design.md: model -> misr -> io -> sim / estimate ->
-#: evaluate -> runs -> bench -> commands (viz beside them, on model, misr and io only).
+#: products -> evaluate -> runs -> bench -> commands (viz beside them, on model, misr and io only).
 ALLOWED = {
     "model": set(),
     "misr": {"model"},
     "io": {"model", "misr"},
     "sim": {"model", "misr", "io"},
     "estimate": {"model", "misr", "io"},
-    "evaluate": {"model", "misr", "io", "sim", "estimate"},
+    "products": {"model", "misr", "io", "estimate"},
+    "evaluate": {"model", "misr", "io", "sim", "estimate", "products"},
     "viz": {"model", "misr", "io"},
-    "runs": {"model", "misr", "io", "sim", "estimate", "evaluate", "viz"},
-    "bench": {"model", "misr", "io", "sim", "estimate", "evaluate", "runs"},
-    "commands": {"model", "misr", "io", "sim", "estimate", "evaluate", "viz", "runs", "bench"},
+    "runs": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz"},
+    "bench": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "runs"},
+    "commands": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz", "runs", "bench"},
 }
 BASE = {"misrgraph", "misrgraph.errors", "misrgraph.config", "misrgraph.__main__"}
 

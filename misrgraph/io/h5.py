@@ -47,6 +47,7 @@ FORMAT_VERSIONS: dict[str, int] = {
     "calibration_result": 2,
     "adjustment_result": 2,
     "update_state": 2,
+    "projection_parameters": 1,
 }
 
 #: Why an older version of a kind is refused, when the reason is known (one line each).

@@ -51,6 +51,17 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         d = read_dem(path)
         out.update({"tiles": int(d.lat0.size), "postings_per_side": d.size, "posting_arcsec": d.posting_deg * 3600,
                     "dted1_fraction": float(np.mean(d.quality == 1)) if d.lat0.size else 0.0})
+    elif kind == "projection_parameters":
+        from misrgraph.io.products import read_pp
+
+        pp = read_pp(path)
+        seen_grid = pp.seen()
+        seen = {c: float(np.mean(seen_grid[i])) for i, c in enumerate(pp.cameras)}
+        out.update({"path": pp.path, "resolution_m": pp.resolution_m, "band": pp.band, "pass_id": pp.pass_id,
+                    "blocks": [int(pp.blocks.min()), int(pp.blocks.max())], "n_blocks": int(pp.blocks.size),
+                    "fraction_seen": seen,
+                    "sigma_m_median": {c: float(np.nanmedian(pp.sigma_m[i])) if seen[c] else None
+                                       for i, c in enumerate(pp.cameras)}})
     else:
         from misrgraph.io.results import summarise_result_file
 

@@ -1,0 +1,344 @@
+"""Projection Parameters (PP): where each point of a path's SOM grid lies in each camera's image
+of an adjusted pass, with its 1-sigma from the adjustment.
+
+For every 1.1 km grid point of the chosen blocks (:class:`misrgraph.misr.som.SomGrid`) and every
+camera (one band, red by default) the PP hold the image position of the point at ellipsoidal
+height ``h`` as a quadratic in ``h``::
+
+    line(h)   = line0   + dline_dh   * h + d2line_dh2   * h**2
+    sample(h) = sample0 + dsample_dh * h + d2sample_dh2 * h**2
+
+``line`` is the continuous image line at which the point crosses the band's array centre,
+``(t* - t0) / dt_line`` (the exposure that images it is the nearest whole line), ``sample`` the
+sample there; both come from the adjusted geometry (supplied navigation minus the estimated
+attitude and ephemeris errors, camera corrected) by the same collinearity the adjustment used.
+Keeping the height free makes the PP independent of any one DEM: a user evaluates them at the
+height of the DEM posting of their choice. At 275 m, interpolate the six coefficient grids
+bilinearly to the 275 m point and apply its own height (:meth:`ProjectionParameters.image_coords`);
+the terrain parallax (up to ~3 pixels per km of height in the D cameras) is then exact to the
+quadratic's error (< 0.005 pixel over 0..6 km, tested), the interpolation to the grid's
+smoothness.
+
+**Uncertainty.** The image position's error is linear in the navigation error at the crossing
+time ``t*``: the attitude error (3 angles) and the position error (3 orbital axes), both linear
+in the adjustment's variables (the Hermite knots through their weights at ``t*``, the eq. 19
+segment parameters through its design), and in the camera corrections where the adjustment
+estimated them. So ``Cov(line, sample) = J M Sigma M^T J^T`` with ``Sigma`` the joint posterior
+covariance of knots, ephemeris and camera variables, ``M`` those linear maps and ``J`` the
+derivative of the image position (central differences through the projection), plus the attitude
+jitter the knots cannot follow (``unresolved_attitude_rad`` per angle). The covariance is
+computed on a sub-grid (every ``sigma_step``-th point, 8.8 km at the default 8) and interpolated:
+it varies over tens of kilometres. The horizontal 1-sigma in metres (``sigma_m``, the radial RMS
+``sqrt(trace)`` of the ground covariance) maps it through the local ground-to-image derivative.
+DEM error is not included: the PP are exact for whatever height they are evaluated at.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import RegularGridInterpolator
+from scipy.ndimage import distance_transform_edt
+
+from misrgraph.errors import InputError
+from misrgraph.estimate.adjust import AdjustResult, corrected_geometry
+from misrgraph.io.passes import OrbitPass
+from misrgraph.io.products import PP_COEFFICIENTS as _COEFFS, ProjectionParameters
+from misrgraph.misr.som import N_BLOCKS, SomGrid
+from misrgraph.model.constants import BANDS, CAMERAS, N_PIXELS
+from misrgraph.model.frames import enu_basis, geodetic_to_ecef
+from misrgraph.model.geolocation import PassGeometry
+
+__all__ = ["PP_HEIGHTS_M", "compute_pp", "crossing", "image_derivatives", "navigation_covariance_at"]
+
+Array = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+#: The PP are computed this many pixels beyond the array's edges (so that the height quadratic
+#: holds where terrain parallax moves a point across the edge); :meth:`image_coords` and the
+#: "seen" fractions apply the array's bounds to the final position.
+EDGE_MARGIN_PX = 50.0
+#: Ellipsoidal heights (m) at which the image position is computed to fit the height quadratic.
+PP_HEIGHTS_M = (0.0, 3000.0, 6000.0)
+
+
+# ---------------------------------------------------------------------------- projection
+def crossing(geo: PassGeometry, cam: int, band: int, ground: Array, t_guess: Array,
+             iterations: int = 6, tol_s: float = 1e-7, margin_px: float = 0.0) -> tuple[Array, Array, Array]:
+    """Crossing time ``t*`` (s), continuous line and sample of ECEF ``ground`` (N, 3) in one
+    camera/band, refined from ``t_guess`` (N,) by secant steps on the detector-x residual
+    (``x(t) + k = 0``; smooth in ``t``, so a guess within a second converges in 3-4 steps).
+    Points whose guess is NaN, that leave the pass span, or whose sample lies more than
+    ``margin_px`` beyond the array's edges are NaN."""
+    n = ground.shape[0]
+    t = np.asarray(t_guess, dtype=float).copy()
+    ok = np.isfinite(t)
+    c = np.full(n, cam)
+    b = np.full(n, band)
+    k = geo.camera.k[cam, band]
+    t_lo, t_hi = geo.ephemeris.span
+    ok &= (t >= t_lo) & (t <= t_hi)
+    idx = np.flatnonzero(ok)
+    tt = t[idx]
+    h_step = 1e-3
+    for _ in range(iterations):
+        f0 = geo._along_cross(c[idx], b[idx], ground[idx], tt)[0] + k
+        f1 = geo._along_cross(c[idx], b[idx], ground[idx], np.clip(tt + h_step, t_lo, t_hi))[0] + k
+        step = -f0 * h_step / (f1 - f0)
+        tt = np.clip(tt + step, t_lo, t_hi)
+        if np.all(np.abs(step) < tol_s):
+            break
+    t[:] = np.nan
+    t[idx] = tt
+    x, y, depth = geo._along_cross(c[idx], b[idx], ground[idx], tt)
+    good = (np.abs(x + k) < geo.camera.dx * 1e-3) & (depth > 0)
+    assert geo.t0 is not None
+    line = np.full(n, np.nan)
+    sample = np.full(n, np.nan)
+    line[idx] = np.where(good, (tt - geo.t0[cam, band]) / geo.camera.line_time, np.nan)
+    sample[idx] = np.where(good, geo.camera.sample_from_focal_plane_y(c[idx], b[idx], y), np.nan)
+    t[idx] = np.where(good, tt, np.nan)
+    bad = ~((sample >= -0.5 - margin_px) & (sample <= N_PIXELS - 0.5 + margin_px))
+    return np.where(bad, np.nan, t), np.where(bad, np.nan, line), np.where(bad, np.nan, sample)
+
+
+def _perturbed(geo: PassGeometry, d_att: Array | None = None, d_pos: Array | None = None,
+               camera: Any = None) -> PassGeometry:
+    """``geo`` with a constant extra attitude (rad, roll/pitch/yaw) or orbital-frame position (m)
+    correction, or another camera model."""
+    att0, pos0 = geo.attitude_delta, geo.position_delta
+
+    def att(t: Array) -> Array:
+        base = np.zeros((np.size(t), 3)) if att0 is None else np.asarray(att0(t)).reshape(-1, 3)
+        return base + (0.0 if d_att is None else d_att)
+
+    def pos(t: Array) -> Array:
+        base = np.zeros((np.size(t), 3)) if pos0 is None else np.asarray(pos0(t)).reshape(-1, 3)
+        return base + (0.0 if d_pos is None else d_pos)
+
+    return PassGeometry(geo.ephemeris, geo.attitude, geo.camera if camera is None else camera, earth=geo.earth,
+                        t0=geo.t0, attitude_delta=att, position_delta=pos)
+
+
+#: Central-difference steps: 1 arcsec of attitude, 1 m of position, 1 arcsec of camera angle.
+_D_ANGLE = np.pi / 180 / 3600
+_D_POS = 1.0
+
+
+def image_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t_star: Array) -> Array:
+    """``d(line, sample) / d(roll, pitch, yaw, along, cross, radial)`` (N, 2, 6) in pixels per rad
+    and per metre, by central differences through :func:`crossing` (constant perturbations: the
+    crossing time moves by milliseconds, over which the navigation error is constant)."""
+    out = np.full((ground.shape[0], 2, 6), np.nan)
+    for j in range(6):
+        d = np.zeros(3)
+        step = _D_ANGLE if j < 3 else _D_POS
+        d[j % 3] = step
+        res = []
+        for s in (+1, -1):
+            g = _perturbed(geo, d_att=s * d) if j < 3 else _perturbed(geo, d_pos=s * d)
+            _, ln, sm = crossing(g, cam, band, ground, t_star)
+            res.append(np.stack([ln, sm], -1))
+        out[:, :, j] = (res[0] - res[1]) / (2 * step)
+    return out
+
+
+def _camera_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t_star: Array,
+                        params: tuple[str, ...]) -> Array:
+    """``d(line, sample) / d(camera correction)`` (N, 2, P) for camera ``cam``'s ``params``."""
+    out = np.full((ground.shape[0], 2, len(params)), np.nan)
+    for j in range(len(params)):
+        res = []
+        for s in (+1, -1):
+            v = np.zeros(len(params))
+            v[j] = s * _D_ANGLE
+            g = _perturbed(geo, camera=geo.camera.corrected({cam: v}, params))
+            _, ln, sm = crossing(g, cam, band, ground, t_star)
+            res.append(np.stack([ln, sm], -1))
+        out[:, :, j] = (res[0] - res[1]) / (2 * _D_ANGLE)
+    return out
+
+
+# ---------------------------------------------------------------------------- covariance
+@dataclass
+class _Posterior:
+    """The joint posterior of the navigation (and camera) variables of an adjusted pass."""
+
+    keys: list[int]
+    cov: Array
+    knot_slices: list[slice]  # per angle, into the state (value, rate) pairs knot-major
+    eph_slice: slice
+    camera_slices: dict[int, slice]  # camera index -> its (delta, beta, epsilon) corrections
+    jitter_rad: float
+
+
+def _posterior(res: AdjustResult) -> _Posterior:
+    pg = res.pass_graph
+    keys: list[int] = []
+    knot_slices = []
+    for a in range(3):
+        kk = pg.knot_keys(a)
+        knot_slices.append(slice(2 * len(keys), 2 * (len(keys) + len(kk))))
+        keys.extend(kk)
+    n = 2 * len(keys)
+    ek = pg.ephemeris_keys()
+    eph_slice = slice(n, n + 6 * len(ek))
+    keys.extend(ek)
+    n += 6 * len(ek)
+    camera_slices: dict[int, slice] = {}
+    for code, key in sorted(pg.camera_keys.items()):
+        dim = res.values.atVector(key).size
+        if code >= 1000 or dim != 3:
+            log.warning("camera variable %d (%d parameters) is not propagated into the PP uncertainty", code, dim)
+            continue
+        camera_slices[int(code)] = slice(n, n + 3)
+        keys.append(key)
+        n += 3
+    cov = res.marginals.joint_of(keys)
+    return _Posterior(keys, 0.5 * (cov + cov.T), knot_slices, eph_slice, camera_slices, res.unresolved_attitude_rad)
+
+
+def navigation_covariance_at(res: AdjustResult, post: _Posterior, t: Array) -> tuple[Array, Array]:
+    """Linear map ``M (N, 6, n)`` from the posterior state to the (attitude rad, position m) *error*
+    at times ``t`` (the geometry's correction is its negative), and ``M Sigma M^T`` (N, 6, 6)."""
+    n_state = post.cov.shape[0]
+    m = np.zeros((t.size, 6, n_state))
+    rows = np.arange(t.size)
+    for a in range(3):
+        i, w = res.attitude.bracket(a, t)
+        base = post.knot_slices[a].start
+        for col, off in ((0, 0), (1, 1), (2, 2), (3, 3)):
+            knot = i + off // 2
+            m[rows, a, base + 2 * knot + off % 2] = w[:, col]
+    seg, d = res.ephemeris.design(t)
+    for r in range(3):
+        for p in range(6):
+            m[rows, 3 + r, post.eph_slice.start + 6 * seg + p] = d[:, r, p]
+    return m, np.einsum("nij,jk,nlk->nil", m, post.cov, m)
+
+
+# ---------------------------------------------------------------------------- the PP
+def _fill_nearest(a: Array) -> Array:
+    bad = ~np.isfinite(a)
+    if not bad.any() or bad.all():
+        return a
+    idx = distance_transform_edt(bad, return_distances=False, return_indices=True)
+    return a[tuple(idx)]
+
+
+def _upsample(sub: Array, sub_axes: tuple[Array, Array], shape: tuple[int, int], step: int = 1) -> Array:
+    """Bilinear interpolation of a sub-grid field (NaN filled by the nearest value) to a grid of
+    ``shape`` points every ``step`` grid points (1: the full grid)."""
+    f = RegularGridInterpolator(sub_axes, _fill_nearest(sub), bounds_error=False, fill_value=None)
+    ln, sm = np.meshgrid(np.arange(shape[0], dtype=float) * step, np.arange(shape[1], dtype=float) * step, indexing="ij")
+    return f(np.stack([ln, sm], -1))
+
+
+def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDArray[np.int64], band: str = "red",
+               sigma_step: int = 8, progress: Callable[[str, int, int], None] | None = None) -> ProjectionParameters:
+    """The PP of an adjusted pass on ``path``'s 1.1 km grid over ``blocks`` (module docstring).
+
+    ``sigma_step`` (a divisor of 128) sets the sub-grid on which the height coefficients and the
+    covariance are computed before bilinear interpolation."""
+    if band not in BANDS:
+        raise InputError("band", band, BANDS)
+    blocks = np.asarray(blocks, dtype=np.int64).ravel()
+    if blocks.size == 0 or np.any((blocks < 1) | (blocks > N_BLOCKS)):
+        raise InputError("blocks", blocks.tolist(), f"block numbers in 1..{N_BLOCKS}")
+    grid = SomGrid(path, 1100)
+    if isinstance(sigma_step, bool) or not isinstance(sigma_step, int) or sigma_step < 1 or grid.nline % sigma_step:
+        raise InputError("sigma_step", sigma_step, f"a positive divisor of {grid.nline}")
+    geo = corrected_geometry(orbit_pass, res.attitude, res.ephemeris, res.camera)
+    post = _posterior(res)
+    bi = BANDS.index(band)
+    nc, nb, nl, ns = len(CAMERAS), blocks.size, grid.nline, grid.nsample
+    out = {k: np.full((nc, nb, nl, ns), np.nan) for k in _COEFFS + ("sigma_line", "sigma_sample", "correlation", "sigma_m")}
+    sub_axes = (np.arange(0, nl, sigma_step, dtype=float), np.arange(0, ns, sigma_step, dtype=float))
+    total, done = nb * nc, 0
+    for j, block in enumerate(blocks):
+        x, y = grid.block_centres(int(block))
+        lat, lon = grid.somxy_to_latlon(x, y)
+        sub = (slice(None, None, sigma_step), slice(None, None, sigma_step))
+        lat_s, lon_s = lat[sub], lon[sub]
+        shape_s = lat_s.shape
+        g_heights = [geodetic_to_ecef(lat_s.ravel(), lon_s.ravel(), np.full(lat_s.size, h)) for h in PP_HEIGHTS_M]
+        g_full = geodetic_to_ecef(lat.ravel(), lon.ravel(), np.zeros(lat.size))
+        enu = enu_basis(lat_s.ravel(), lon_s.ravel())
+        for c in range(nc):
+            if progress:
+                progress(f"PP block {block} {CAMERAS[c]}", done, total)
+            done += 1
+            # the sub-grid by the general line search, then every point by secant steps from it
+            ip = geo.ground_to_pixel(c, bi, g_heights[0])
+            t_sub = geo.t0[c, bi] + ip.crossing_line * geo.camera.line_time
+            # ground_to_pixel stops at the array's edge; carry the sub-grid a margin beyond it
+            t_sub = _upsample(t_sub.reshape(shape_s), sub_axes, shape_s, step=sigma_step).ravel() \
+                if np.isnan(t_sub).any() else t_sub
+            t_sub, _, _ = crossing(geo, c, bi, g_heights[0], t_sub, margin_px=2 * EDGE_MARGIN_PX)
+            if not np.isfinite(t_sub).any():
+                continue
+            t_full_guess = _upsample(t_sub.reshape(shape_s), sub_axes, (nl, ns)).ravel()
+            t_full, ln0, sm0 = crossing(geo, c, bi, g_full, t_full_guess, margin_px=EDGE_MARGIN_PX)
+            out["line0"][c, j] = ln0.reshape(nl, ns)
+            out["sample0"][c, j] = sm0.reshape(nl, ns)
+            # height quadratic on the sub-grid
+            t_s, ls = t_sub, []
+            for gh in g_heights:
+                _, lh, sh = crossing(geo, c, bi, gh, t_s, margin_px=2 * EDGE_MARGIN_PX)
+                ls.append((lh, sh))
+            hh = np.asarray(PP_HEIGHTS_M)
+            vand = np.stack([np.ones(3), hh, hh**2], 1)
+            for which, names in ((0, ("line0", "dline_dh", "d2line_dh2")), (1, ("sample0", "dsample_dh", "d2sample_dh2"))):
+                vals = np.stack([ls[k][which] for k in range(3)], 0)  # (3, n_sub)
+                coef = np.linalg.solve(vand, vals)
+                for q in (1, 2):
+                    out[names[q]][c, j] = _upsample(coef[q].reshape(shape_s), sub_axes, (nl, ns))
+            # covariance on the sub-grid
+            okp = np.isfinite(t_s)
+            if not okp.any():
+                continue
+            jac = image_derivatives(geo, c, bi, g_heights[0][okp], t_s[okp])  # (n, 2, 6)
+            mmap, cov6 = navigation_covariance_at(res, post, t_s[okp])
+            cov6 = cov6 + np.diag([post.jitter_rad**2] * 3 + [0.0] * 3)
+            cov_ls = np.einsum("nij,njk,nlk->nil", jac, cov6, jac)
+            if c in post.camera_slices:
+                jc = _camera_derivatives(geo, c, bi, g_heights[0][okp], t_s[okp], ("delta", "beta", "epsilon"))
+                sl = post.camera_slices[c]
+                # the camera block and its cross-covariance with the navigation; the geometry
+                # removes the estimated errors (correction = -error), so d(image)/d(knots, segments)
+                # is -J M while the camera corrections enter with their own sign
+                full_j = -np.einsum("nij,njk->nik", jac, mmap)
+                full_j[:, :, sl] += jc
+                cov_ls = np.einsum("nij,jk,nlk->nil", full_j, post.cov, full_j) + \
+                    np.einsum("nij,jk,nlk->nil", jac[:, :, :3], np.eye(3) * post.jitter_rad**2, jac[:, :, :3])
+            # ground (east, north) per (line, sample): invert d(line, sample)/d(east, north)
+            d_en = np.zeros((okp.sum(), 2, 2))
+            for q in range(2):
+                gp = g_heights[0][okp] + enu[okp, :, q] * 10.0
+                gm = g_heights[0][okp] - enu[okp, :, q] * 10.0
+                _, lp, sp = crossing(geo, c, bi, gp, t_s[okp])
+                _, lm, smm = crossing(geo, c, bi, gm, t_s[okp])
+                d_en[:, 0, q] = (lp - lm) / 20.0
+                d_en[:, 1, q] = (sp - smm) / 20.0
+            with np.errstate(invalid="ignore"):
+                inv = np.linalg.inv(np.where(np.isfinite(d_en), d_en, np.eye(2)))
+            cov_en = np.einsum("nij,njk,nlk->nil", inv, cov_ls, inv)
+            fields = {"sigma_line": np.sqrt(cov_ls[:, 0, 0]), "sigma_sample": np.sqrt(cov_ls[:, 1, 1]),
+                      "correlation": cov_ls[:, 0, 1] / np.sqrt(cov_ls[:, 0, 0] * cov_ls[:, 1, 1]),
+                      "sigma_m": np.sqrt(cov_en[:, 0, 0] + cov_en[:, 1, 1])}
+            for name, v in fields.items():
+                s = np.full(t_s.size, np.nan)
+                s[okp] = np.where(np.isfinite(d_en).all(axis=(1, 2)) | (name != "sigma_m"), v, np.nan)
+                out[name][c, j] = _upsample(s.reshape(shape_s), sub_axes, (nl, ns))
+            unseen = ~np.isfinite(out["line0"][c, j])
+            for name in _COEFFS[1:3] + _COEFFS[4:] + ("sigma_line", "sigma_sample", "correlation", "sigma_m"):
+                out[name][c, j][unseen] = np.nan
+    if progress:
+        progress("PP", total, total)
+    return ProjectionParameters(path=int(path), blocks=blocks, cameras=CAMERAS, band=band, pass_id=orbit_pass.pass_id,
+                                **{k: out[k] for k in out})
+
