@@ -492,3 +492,52 @@ def run_bench_sources(runs: int = 10, seed: int = 3000, workdir: str | Path | No
         rows[name] = {k: v["per_run"] for k, v in r["summary"].items()
                       if k in ("knots", "landmarks", "camera", "checkpoint_rms_over_predicted", "checkpoint_rms_m")}
     return {"size": size, "runs": runs, "seed": seed, "rows": rows}
+
+
+def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = None, size: str = "reduced",
+                 truth: str = "model", blocks_per_pass: int = 2) -> dict[str, Any]:
+    """Honesty of the Projection Parameters' 1-sigma over seeded passes (the passes of
+    ``bench nees --study adjust`` at ``size``): per run, each camera's PP geolocation RMS against
+    the truth over the RMS its 1-sigma predicts, and the mean NEES (per 2 dof) of its pixel
+    errors, on ``blocks_per_pass`` blocks around the pass's features. The points of one pass share
+    its navigation error, so honesty is judged from the mean over runs and its 95 % interval from
+    the run-to-run scatter (expected 1)."""
+    from misrgraph.errors import InputError
+    from misrgraph.runs.products import run_products
+
+    if size not in ("reduced", "standard"):
+        raise InputError("size", size, ("reduced", "standard"))
+    tmp = None
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-")
+        workdir = tmp.name
+    per_run = []
+    ratio: dict[str, list[float]] = {}
+    nees: dict[str, list[float]] = {}
+    improvement: dict[str, list[float]] = {}
+    seconds = []
+    for i in range(runs):
+        out = Path(workdir) / f"nees_adjust_{size}_{truth}_{seed + i}"
+        if not (out / "scenario.json").exists():
+            run_simulate(ScenarioConfig.from_dict(dict(NEES_SCENARIOS[("adjust", size)], seed=seed + i, truth=truth)), out)
+        s = run_products(out, Path(workdir) / f"pp_{size}_{truth}_{seed + i}", default_blocks=blocks_per_pass)
+        seconds.append(s["seconds"]["pp"])
+        err = s["pp_error_m"]
+        for cam, v in err.items():
+            ratio.setdefault(cam, []).append(v["rms_over_predicted"])
+            nees.setdefault(cam, []).append(v["nees"])
+            improvement.setdefault(cam, []).append(v["supplied_rms"] / v["rms"])
+        per_run.append({"seed": seed + i, "blocks": s["blocks"],
+                        "rms_over_predicted": {c: v["rms_over_predicted"] for c, v in err.items()},
+                        "nees": {c: v["nees"] for c, v in err.items()},
+                        "rms_m": {c: v["rms"] for c, v in err.items()}})
+    all_nees = [float(np.mean([r["nees"][c] for c in r["nees"]])) for r in per_run]
+    all_ratio = [float(np.sqrt(np.mean([r["rms_over_predicted"][c] ** 2 for c in r["rms_over_predicted"]]))) for r in per_run]
+    if tmp is not None:
+        tmp.cleanup()
+    return {"size": size, "truth": truth, "runs": runs, "blocks_per_pass": blocks_per_pass,
+            "summary": {"nees_all_cameras": _interval(all_nees), "rms_over_predicted_all_cameras": _interval(all_ratio),
+                        "per_camera": {c: {"rms_over_predicted": _interval(ratio[c]), "nees": _interval(nees[c]),
+                                           "improvement_over_supplied": _interval(improvement[c])} for c in ratio},
+                        "pp_seconds_per_pass": _interval(seconds)},
+            "per_run": per_run}

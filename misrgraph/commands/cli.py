@@ -681,6 +681,37 @@ def bench_nees(
                       f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}; {scatter}")
 
 
+@bench_app.command("pp")
+@handle_errors
+def bench_pp(
+    runs: int = typer.Option(20, "--runs", help="Seeded passes."),
+    seed: int = typer.Option(5000, "--seed", help="First seed."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated passes and PP here (reused by a rerun)."),
+    size: str = typer.Option("reduced", "--size", help="reduced or standard (as bench nees --study adjust)."),
+    truth: str = typer.Option("model", "--truth", help="model or independent (see misrgraph simulate --help)."),
+    blocks: int = typer.Option(2, "--blocks", help="SOM blocks per pass, around its features."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Honesty of the Projection Parameters' 1 sigma: PP geolocation RMS against the truth over the predicted RMS, and NEES, per camera, over seeded passes (mean and 95 % interval from the run-to-run scatter)."""
+    from misrgraph.bench.studies import run_bench_pp
+
+    if runs < 2:
+        _fail(f"--runs: got {runs}; expected at least 2 (the interval needs a scatter)")
+    with err_console.status(f"{runs} seeded passes..."):
+        res = run_bench_pp(runs, seed, workdir, size, truth, blocks)
+    if as_json:
+        _print_json(res)
+        return
+    table = Table(title=f"PP honesty over {runs} {size} passes ({truth} truth): mean and 95 % interval of the runs")
+    for col in ("camera", "RMS / predicted", "NEES", "better than supplied"):
+        table.add_column(col, justify="right")
+    fmt = lambda v: f"{v['mean']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]"  # noqa: E731
+    for cam, v in res["summary"]["per_camera"].items():
+        table.add_row(cam, fmt(v["rms_over_predicted"]), fmt(v["nees"]), f"{v['improvement_over_supplied']['mean']:.1f}x")
+    table.add_row("all", fmt(res["summary"]["rms_over_predicted_all_cameras"]), fmt(res["summary"]["nees_all_cameras"]), "")
+    console.print(table)
+
+
 @bench_app.command("sources")
 @handle_errors
 def bench_sources(

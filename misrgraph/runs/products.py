@@ -76,10 +76,11 @@ def run_products(
     band: str = "red",
     cfg: AdjustConfig = AdjustConfig(),
     progress: Callable[[str, int, int], None] | None = None,
+    default_blocks: int = DEFAULT_BLOCKS,
 ) -> dict[str, Any]:
     """Adjust one pass of ``scenario_dir`` (the only one, or ``pass_file``; for a multi-pass
     scenario the first pass when none is named), compute its PP over ``blocks`` (``"A-B"``;
-    default :data:`DEFAULT_BLOCKS` around its features), write ``OUT/PP_<pass id>.h5`` and
+    default ``default_blocks`` around its features), write ``OUT/PP_<pass id>.h5`` and
     ``OUT/products.json``, and return the summary (with ``pp_error_m`` when the pass has truth)."""
     t_start = time.perf_counter()
     d = Path(scenario_dir)
@@ -102,7 +103,7 @@ def run_products(
     t0 = time.perf_counter()
     res = adjust_pass(orbit_pass, camera, read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5"), cfg)
     t_adjust = time.perf_counter() - t0
-    chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, DEFAULT_BLOCKS)
+    chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
     t0 = time.perf_counter()
     pp = compute_pp(orbit_pass, res, grid.path, chosen, band=band, progress=progress)
     seen = pp.seen()

@@ -102,3 +102,19 @@ def test_time_ratios_only_against_a_baseline_that_reached_the_target():
     assert bounds == ["gtsam_lm_over_misrgraph"]
     missed = dict(reached, misrgraph={"reached": False, "seconds": 2.0})
     assert _time_ratios(missed) == ({}, [])
+
+
+def test_bench_pp_at_reduced_size(bench_dir):
+    """The PP honesty study on two reduced passes (the bench runs twenty): every camera scored,
+    intervals from the two runs, the PP better than the supplied navigation in every camera."""
+    from misrgraph.bench.studies import run_bench_pp
+
+    res = run_bench_pp(runs=2, seed=5000, workdir=bench_dir, blocks_per_pass=1)
+    per_cam = res["summary"]["per_camera"]
+    assert len(per_cam) == 9 and len(res["per_run"]) == 2
+    for cam, v in per_cam.items():
+        lo, hi = v["rms_over_predicted"]["ci95"]
+        assert lo <= v["rms_over_predicted"]["mean"] <= hi
+        assert v["improvement_over_supplied"]["mean"] > 2.0, cam
+    # two passes cannot pin honesty down, but a sigma off by a factor of three would show
+    assert 1 / 3 < res["summary"]["rms_over_predicted_all_cameras"]["mean"] < 3
