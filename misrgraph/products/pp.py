@@ -324,16 +324,16 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
                 _, lm, smm = crossing(geo, c, bi, gm, t_s[okp])
                 d_en[:, 0, q] = (lp - lm) / 20.0
                 d_en[:, 1, q] = (sp - smm) / 20.0
-            with np.errstate(invalid="ignore"):
-                inv = np.linalg.inv(np.where(np.isfinite(d_en), d_en, np.eye(2)))
+            en_ok = np.isfinite(d_en).all(axis=(1, 2))  # a displaced point can leave the margin
+            inv = np.linalg.inv(np.where(en_ok[:, None, None], d_en, np.eye(2)))
             cov_en = np.einsum("nij,njk,nlk->nil", inv, cov_ls, inv)
             fields = {"sigma_line": np.sqrt(cov_ls[:, 0, 0]), "sigma_sample": np.sqrt(cov_ls[:, 1, 1]),
                       "correlation": cov_ls[:, 0, 1] / np.sqrt(cov_ls[:, 0, 0] * cov_ls[:, 1, 1]),
-                      "sigma_m": np.sqrt(cov_en[:, 0, 0] + cov_en[:, 1, 1])}
+                      "sigma_m": np.where(en_ok, np.sqrt(cov_en[:, 0, 0] + cov_en[:, 1, 1]), np.nan)}
             for name, v in fields.items():
-                s = np.full(t_s.size, np.nan)
-                s[okp] = np.where(np.isfinite(d_en).all(axis=(1, 2)) | (name != "sigma_m"), v, np.nan)
-                out[name][c, j] = _upsample(s.reshape(shape_s), sub_axes, (nl, ns))
+                sub_field = np.full(t_s.size, np.nan)
+                sub_field[okp] = v
+                out[name][c, j] = _upsample(sub_field.reshape(shape_s), sub_axes, (nl, ns))
             unseen = ~np.isfinite(out["line0"][c, j])
             for name in _COEFFS[1:3] + _COEFFS[4:] + ("sigma_line", "sigma_sample", "correlation", "sigma_m"):
                 out[name][c, j][unseen] = np.nan

@@ -11,7 +11,6 @@ imagery, which the simulator does not render yet: it is not produced.
 from __future__ import annotations
 
 import json
-import logging
 import os
 import re
 import time
@@ -36,8 +35,6 @@ from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.products.pp import compute_pp
 
 __all__ = ["run_products", "parse_blocks", "DEFAULT_BLOCKS"]
-
-log = logging.getLogger(__name__)
 
 #: Blocks mapped when ``--blocks`` is not given: this many, centred on the pass's features.
 DEFAULT_BLOCKS = 10
