@@ -499,7 +499,9 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
     """Honesty of the Projection Parameters' 1-sigma over seeded passes (the passes of
     ``bench nees --study adjust`` at ``size``): per run, each camera's PP geolocation RMS against
     the truth over the RMS its 1-sigma predicts, and the mean NEES (per 2 dof) of its pixel
-    errors, on ``blocks_per_pass`` blocks around the pass's features. The points of one pass share
+    errors, on ``blocks_per_pass`` blocks around the pass's features (a camera that does not reach
+    them in a pass, e.g. Df in most 10-minute passes, is not scored there: ``passes`` counts where
+    it was). The points of one pass share
     its navigation error, so honesty is judged from the mean over runs and its 95 % interval from
     the run-to-run scatter (expected 1)."""
     from misrgraph.errors import InputError
@@ -537,7 +539,8 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
         tmp.cleanup()
     return {"size": size, "truth": truth, "runs": runs, "blocks_per_pass": blocks_per_pass,
             "summary": {"nees_all_cameras": _interval(all_nees), "rms_over_predicted_all_cameras": _interval(all_ratio),
-                        "per_camera": {c: {"rms_over_predicted": _interval(ratio[c]), "nees": _interval(nees[c]),
+                        "per_camera": {c: {"passes": len(ratio[c]), "rms_over_predicted": _interval(ratio[c]),
+                                           "nees": _interval(nees[c]),
                                            "improvement_over_supplied": _interval(improvement[c])} for c in ratio},
                         "pp_seconds_per_pass": _interval(seconds)},
             "per_run": per_run}

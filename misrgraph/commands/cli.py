@@ -703,12 +703,13 @@ def bench_pp(
         _print_json(res)
         return
     table = Table(title=f"PP honesty over {runs} {size} passes ({truth} truth): mean and 95 % interval of the runs")
-    for col in ("camera", "RMS / predicted", "NEES", "better than supplied"):
+    for col in ("camera", "passes", "RMS / predicted", "NEES", "better than supplied"):
         table.add_column(col, justify="right")
     fmt = lambda v: f"{v['mean']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]"  # noqa: E731
     for cam, v in res["summary"]["per_camera"].items():
-        table.add_row(cam, fmt(v["rms_over_predicted"]), fmt(v["nees"]), f"{v['improvement_over_supplied']['mean']:.1f}x")
-    table.add_row("all", fmt(res["summary"]["rms_over_predicted_all_cameras"]), fmt(res["summary"]["nees_all_cameras"]), "")
+        table.add_row(cam, str(v["passes"]), fmt(v["rms_over_predicted"]), fmt(v["nees"]),
+                      f"{v['improvement_over_supplied']['mean']:.1f}x")
+    table.add_row("all", str(runs), fmt(res["summary"]["rms_over_predicted_all_cameras"]), fmt(res["summary"]["nees_all_cameras"]), "")
     console.print(table)
 
 

@@ -105,16 +105,20 @@ def test_time_ratios_only_against_a_baseline_that_reached_the_target():
 
 
 def test_bench_pp_at_reduced_size(bench_dir):
-    """The PP honesty study on two reduced passes (the bench runs twenty): every camera scored,
-    intervals from the two runs, the PP better than the supplied navigation in every camera."""
+    """The PP honesty study on two reduced passes (the bench runs more): the cameras that see the
+    block scored, intervals from the runs, the PP better than the supplied navigation in each."""
     from misrgraph.bench.studies import run_bench_pp
 
     res = run_bench_pp(runs=2, seed=5000, workdir=bench_dir, blocks_per_pass=1)
     per_cam = res["summary"]["per_camera"]
-    assert len(per_cam) == 9 and len(res["per_run"]) == 2
+    assert len(res["per_run"]) == 2
+    # a 10-minute pass's Df view runs ~7 minutes ahead and may miss the block; the others see it
+    assert set(per_cam) >= {"Cf", "Bf", "Af", "An", "Aa", "Ba", "Ca", "Da"}
     for cam, v in per_cam.items():
-        lo, hi = v["rms_over_predicted"]["ci95"]
-        assert lo <= v["rms_over_predicted"]["mean"] <= hi
+        assert v["passes"] == sum(cam in r["nees"] for r in res["per_run"])
+        if v["passes"] == 2:
+            lo, hi = v["rms_over_predicted"]["ci95"]
+            assert lo <= v["rms_over_predicted"]["mean"] <= hi
         assert v["improvement_over_supplied"]["mean"] > 2.0, cam
     # two passes cannot pin honesty down, but a sigma off by a factor of three would show
     assert 1 / 3 < res["summary"]["rms_over_predicted_all_cameras"]["mean"] < 3
