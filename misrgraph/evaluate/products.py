@@ -23,7 +23,8 @@ from misrgraph.io.truth import PassTruth
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import BANDS
 from misrgraph.model.frames import enu_basis, geodetic_to_ecef
-from misrgraph.products.pp import ProjectionParameters, crossing
+from misrgraph.io.products import ProjectionParameters
+from misrgraph.products.pp import crossing, ground_derivatives
 
 __all__ = ["score_pp"]
 
@@ -59,11 +60,7 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
             _, ln_t, sm_t = crossing(true_geo, c, bi, g[ok], t_guess)
             e = np.stack([ln_pp[ok] - ln_t, sm_pp[ok] - sm_t], -1)
             # the ground displacement that moves the true image position onto the PP's
-            d_en = np.zeros((int(ok.sum()), 2, 2))
-            for q in range(2):
-                _, lp, sp = crossing(true_geo, c, bi, g[ok] + enu[ok, :, q] * 10.0, t_guess)
-                _, lm, smm = crossing(true_geo, c, bi, g[ok] - enu[ok, :, q] * 10.0, t_guess)
-                d_en[:, 0, q], d_en[:, 1, q] = (lp - lm) / 20.0, (sp - smm) / 20.0
+            d_en = ground_derivatives(true_geo, c, bi, g[ok], enu[ok], t_guess)
             good = np.isfinite(e).all(1) & np.isfinite(d_en).all((1, 2))
             e, d_en = e[good], d_en[good]
             e_en = np.linalg.solve(d_en, e[..., None])[..., 0]

@@ -55,13 +55,9 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         from misrgraph.io.products import read_pp
 
         pp = read_pp(path)
-        seen_grid = pp.seen()
-        seen = {c: float(np.mean(seen_grid[i])) for i, c in enumerate(pp.cameras)}
         out.update({"path": pp.path, "resolution_m": pp.resolution_m, "band": pp.band, "pass_id": pp.pass_id,
                     "blocks": [int(pp.blocks.min()), int(pp.blocks.max())], "n_blocks": int(pp.blocks.size),
-                    "fraction_seen": seen,
-                    "sigma_m_median": {c: float(np.nanmedian(pp.sigma_m[i])) if seen[c] else None
-                                       for i, c in enumerate(pp.cameras)}})
+                    **pp.coverage()})
     else:
         from misrgraph.io.results import summarise_result_file
 

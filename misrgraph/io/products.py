@@ -13,7 +13,7 @@ from scipy.interpolate import RegularGridInterpolator
 
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, require_group, write_dataset
-from misrgraph.misr.som import SomGrid
+from misrgraph.misr.som import N_BLOCKS, SomGrid
 from misrgraph.model.constants import N_PIXELS
 
 __all__ = ["ProjectionParameters", "PP_COEFFICIENTS", "PP_SIGMAS", "save_pp", "read_pp"]
@@ -35,7 +35,8 @@ _UNITS = {"line0": "pixel", "dline_dh": "pixel/m", "d2line_dh2": "pixel/m^2", "s
 class ProjectionParameters:
     """PP of one pass on one path's 1.1 km SOM grid. Arrays are ``(camera, block, line, sample)``
     over :attr:`cameras` x :attr:`blocks` x 128 x 512; they extend a margin beyond the array's
-    edges (:meth:`seen` says which points the array images) and are NaN beyond it. Units: pixels, pixels/m, pixels/m^2; ``sigma_*`` pixels, ``sigma_m`` metres."""
+    edges (:meth:`seen` says which points the array images) and are NaN beyond it. Units: pixels,
+    pixels/m, pixels/m^2; ``sigma_*`` pixels, ``sigma_m`` metres."""
 
     path: int
     blocks: NDArray[np.int64]
@@ -94,6 +95,14 @@ class ProjectionParameters:
         """Which grid points (camera, block, line, sample) the array images at height 0."""
         return np.isfinite(self.line0) & (self.sample0 >= -0.5) & (self.sample0 <= N_PIXELS - 0.5)
 
+    def coverage(self) -> dict[str, dict[str, float | None]]:
+        """Per camera, the fraction of grid points the array images (``fraction_seen``) and the
+        median horizontal 1-sigma in metres (``sigma_m_median``; None where there is none)."""
+        seen = self.seen()
+        return {"fraction_seen": {c: float(np.mean(seen[i])) for i, c in enumerate(self.cameras)},
+                "sigma_m_median": {c: float(np.nanmedian(self.sigma_m[i])) if np.isfinite(self.sigma_m[i]).any() else None
+                                   for i, c in enumerate(self.cameras)}}
+
 
 def save_pp(pp: ProjectionParameters, path: str | os.PathLike[str]) -> None:
     """Write ``pp`` as an HDF5 file of kind ``projection_parameters`` (atomically; float32 grids,
@@ -130,7 +139,7 @@ def read_pp(path: str | os.PathLike[str]) -> ProjectionParameters:
         shape = (len(cameras), blocks.size, grid.nline, grid.nsample)
         arrays = {name: read_dataset(g, name, shape) for name in PP_COEFFICIENTS + PP_SIGMAS}
         prov = {k: str(v) for k, v in f["provenance"].attrs.items()} if "provenance" in f else {}
-        if np.any((blocks < 1) | (blocks > 180)):
-            raise FileFormatError(path, f"/blocks holds {blocks.tolist()}; expected block numbers in 1..180")
+        if np.any((blocks < 1) | (blocks > N_BLOCKS)):
+            raise FileFormatError(path, f"/blocks holds {blocks.tolist()}; expected block numbers in 1..{N_BLOCKS}")
         return ProjectionParameters(path=path_, blocks=blocks, cameras=cameras, band=str(read_attr(f, "band")),
                                     pass_id=str(read_attr(f, "pass_id")), resolution_m=res, provenance=prov, **arrays)

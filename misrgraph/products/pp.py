@@ -47,13 +47,13 @@ from scipy.ndimage import distance_transform_edt
 from misrgraph.errors import InputError
 from misrgraph.estimate.adjust import AdjustResult, corrected_geometry
 from misrgraph.io.passes import OrbitPass
-from misrgraph.io.products import PP_COEFFICIENTS as _COEFFS, ProjectionParameters
+from misrgraph.io.products import PP_COEFFICIENTS, PP_SIGMAS, ProjectionParameters
 from misrgraph.misr.som import N_BLOCKS, SomGrid
 from misrgraph.model.constants import BANDS, CAMERAS, N_PIXELS
 from misrgraph.model.frames import enu_basis, geodetic_to_ecef
 from misrgraph.model.geolocation import PassGeometry
 
-__all__ = ["PP_HEIGHTS_M", "compute_pp", "crossing", "image_derivatives", "navigation_covariance_at"]
+__all__ = ["PP_HEIGHTS_M", "compute_pp", "crossing", "image_derivatives", "ground_derivatives", "navigation_map_at"]
 
 Array = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -129,38 +129,49 @@ _D_ANGLE = np.pi / 180 / 3600
 _D_POS = 1.0
 
 
+def _central_differences(geo_at: Callable[[int, float], PassGeometry], n: int, step: float, cam: int, band: int,
+                         ground: Array, t_star: Array) -> Array:
+    """``d(line, sample) / d(parameter j)`` (N, 2, n) by central differences, where
+    ``geo_at(j, +-step)`` is the geometry with parameter ``j`` moved by that much."""
+    out = np.full((ground.shape[0], 2, n), np.nan)
+    for j in range(n):
+        plus, minus = (np.stack(crossing(geo_at(j, s), cam, band, ground, t_star)[1:], -1) for s in (step, -step))
+        out[:, :, j] = (plus - minus) / (2 * step)
+    return out
+
+
+def _unit(j: int, value: float, n: int = 3) -> Array:
+    v = np.zeros(n)
+    v[j] = value
+    return v
+
+
 def image_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t_star: Array) -> Array:
     """``d(line, sample) / d(roll, pitch, yaw, along, cross, radial)`` (N, 2, 6) in pixels per rad
     and per metre, by central differences through :func:`crossing` (constant perturbations: the
     crossing time moves by milliseconds, over which the navigation error is constant)."""
-    out = np.full((ground.shape[0], 2, 6), np.nan)
-    for j in range(6):
-        d = np.zeros(3)
-        step = _D_ANGLE if j < 3 else _D_POS
-        d[j % 3] = step
-        res = []
-        for s in (+1, -1):
-            g = _perturbed(geo, d_att=s * d) if j < 3 else _perturbed(geo, d_pos=s * d)
-            _, ln, sm = crossing(g, cam, band, ground, t_star)
-            res.append(np.stack([ln, sm], -1))
-        out[:, :, j] = (res[0] - res[1]) / (2 * step)
-    return out
+    att = _central_differences(lambda j, s: _perturbed(geo, d_att=_unit(j, s)), 3, _D_ANGLE, cam, band, ground, t_star)
+    pos = _central_differences(lambda j, s: _perturbed(geo, d_pos=_unit(j, s)), 3, _D_POS, cam, band, ground, t_star)
+    return np.concatenate([att, pos], axis=2)
 
 
 def _camera_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t_star: Array,
                         params: tuple[str, ...]) -> Array:
     """``d(line, sample) / d(camera correction)`` (N, 2, P) for camera ``cam``'s ``params``."""
-    out = np.full((ground.shape[0], 2, len(params)), np.nan)
-    for j in range(len(params)):
-        res = []
-        for s in (+1, -1):
-            v = np.zeros(len(params))
-            v[j] = s * _D_ANGLE
-            g = _perturbed(geo, camera=geo.camera.corrected({cam: v}, params))
-            _, ln, sm = crossing(g, cam, band, ground, t_star)
-            res.append(np.stack([ln, sm], -1))
-        out[:, :, j] = (res[0] - res[1]) / (2 * _D_ANGLE)
-    return out
+    return _central_differences(
+        lambda j, s: _perturbed(geo, camera=geo.camera.corrected({cam: _unit(j, s, len(params))}, params)),
+        len(params), _D_ANGLE, cam, band, ground, t_star)
+
+
+def ground_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, enu: Array, t_guess: Array,
+                       step_m: float = 10.0) -> Array:
+    """``d(line, sample) / d(east, north)`` (N, 2, 2) in pixels per metre at ECEF ``ground`` (N, 3)
+    with local ``enu`` bases (N, 3, 3), by central differences of ``step_m``; NaN where a displaced
+    point leaves the view."""
+    def image(q: int, sign: float) -> Array:
+        return np.stack(crossing(geo, cam, band, ground + sign * step_m * enu[:, :, q], t_guess)[1:], -1)
+
+    return np.stack([(image(q, 1.0) - image(q, -1.0)) / (2 * step_m) for q in range(2)], axis=2)
 
 
 # ---------------------------------------------------------------------------- covariance
@@ -202,23 +213,21 @@ def _posterior(res: AdjustResult) -> _Posterior:
     return _Posterior(keys, 0.5 * (cov + cov.T), knot_slices, eph_slice, camera_slices, res.unresolved_attitude_rad)
 
 
-def navigation_covariance_at(res: AdjustResult, post: _Posterior, t: Array) -> tuple[Array, Array]:
+def navigation_map_at(res: AdjustResult, post: _Posterior, t: Array) -> Array:
     """Linear map ``M (N, 6, n)`` from the posterior state to the (attitude rad, position m) *error*
-    at times ``t`` (the geometry's correction is its negative), and ``M Sigma M^T`` (N, 6, 6)."""
-    n_state = post.cov.shape[0]
-    m = np.zeros((t.size, 6, n_state))
+    at times ``t`` (the geometry's correction is its negative)."""
+    m = np.zeros((t.size, 6, post.cov.shape[0]))
     rows = np.arange(t.size)
     for a in range(3):
         i, w = res.attitude.bracket(a, t)
         base = post.knot_slices[a].start
-        for col, off in ((0, 0), (1, 1), (2, 2), (3, 3)):
-            knot = i + off // 2
-            m[rows, a, base + 2 * knot + off % 2] = w[:, col]
+        for col in range(4):  # (a_i, a'_i, a_i+1, a'_i+1): knot i + col // 2, value/rate col % 2
+            m[rows, a, base + 2 * (i + col // 2) + col % 2] = w[:, col]
     seg, d = res.ephemeris.design(t)
     for r in range(3):
         for p in range(6):
             m[rows, 3 + r, post.eph_slice.start + 6 * seg + p] = d[:, r, p]
-    return m, np.einsum("nij,jk,nlk->nil", m, post.cov, m)
+    return m
 
 
 # ---------------------------------------------------------------------------- the PP
@@ -256,13 +265,15 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
     post = _posterior(res)
     bi = BANDS.index(band)
     nc, nb, nl, ns = len(CAMERAS), blocks.size, grid.nline, grid.nsample
-    out = {k: np.full((nc, nb, nl, ns), np.nan) for k in _COEFFS + ("sigma_line", "sigma_sample", "correlation", "sigma_m")}
+    out = {k: np.full((nc, nb, nl, ns), np.nan) for k in PP_COEFFICIENTS + PP_SIGMAS}
     sub_axes = (np.arange(0, nl, sigma_step, dtype=float), np.arange(0, ns, sigma_step, dtype=float))
+    sub = (slice(None, None, sigma_step), slice(None, None, sigma_step))
+    hh = np.asarray(PP_HEIGHTS_M)
+    vand = np.stack([np.ones(3), hh, hh**2], 1)
     total, done = nb * nc, 0
     for j, block in enumerate(blocks):
         x, y = grid.block_centres(int(block))
         lat, lon = grid.somxy_to_latlon(x, y)
-        sub = (slice(None, None, sigma_step), slice(None, None, sigma_step))
         lat_s, lon_s = lat[sub], lon[sub]
         shape_s = lat_s.shape
         g_heights = [geodetic_to_ecef(lat_s.ravel(), lon_s.ravel(), np.full(lat_s.size, h)) for h in PP_HEIGHTS_M]
@@ -274,56 +285,36 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
             done += 1
             # the sub-grid by the general line search, then every point by secant steps from it
             ip = geo.ground_to_pixel(c, bi, g_heights[0])
-            t_sub = geo.t0[c, bi] + ip.crossing_line * geo.camera.line_time
+            t_s = geo.t0[c, bi] + ip.crossing_line * geo.camera.line_time
             # ground_to_pixel stops at the array's edge; carry the sub-grid a margin beyond it
-            t_sub = _upsample(t_sub.reshape(shape_s), sub_axes, shape_s, step=sigma_step).ravel() \
-                if np.isnan(t_sub).any() else t_sub
-            t_sub, _, _ = crossing(geo, c, bi, g_heights[0], t_sub, margin_px=2 * EDGE_MARGIN_PX)
-            if not np.isfinite(t_sub).any():
+            t_s = _upsample(t_s.reshape(shape_s), sub_axes, shape_s, step=sigma_step).ravel() \
+                if np.isnan(t_s).any() else t_s
+            t_s, l_sub, s_sub = crossing(geo, c, bi, g_heights[0], t_s, margin_px=2 * EDGE_MARGIN_PX)
+            if not np.isfinite(t_s).any():
                 continue
-            t_full_guess = _upsample(t_sub.reshape(shape_s), sub_axes, (nl, ns)).ravel()
-            t_full, ln0, sm0 = crossing(geo, c, bi, g_full, t_full_guess, margin_px=EDGE_MARGIN_PX)
+            t_full_guess = _upsample(t_s.reshape(shape_s), sub_axes, (nl, ns)).ravel()
+            _, ln0, sm0 = crossing(geo, c, bi, g_full, t_full_guess, margin_px=EDGE_MARGIN_PX)
             out["line0"][c, j] = ln0.reshape(nl, ns)
             out["sample0"][c, j] = sm0.reshape(nl, ns)
-            # height quadratic on the sub-grid
-            t_s, ls = t_sub, []
-            for gh in g_heights:
-                _, lh, sh = crossing(geo, c, bi, gh, t_s, margin_px=2 * EDGE_MARGIN_PX)
-                ls.append((lh, sh))
-            hh = np.asarray(PP_HEIGHTS_M)
-            vand = np.stack([np.ones(3), hh, hh**2], 1)
+            # height quadratic on the sub-grid (height 0 is the crossing just computed)
+            ls = [(l_sub, s_sub)] + [crossing(geo, c, bi, gh, t_s, margin_px=2 * EDGE_MARGIN_PX)[1:] for gh in g_heights[1:]]
             for which, names in ((0, ("line0", "dline_dh", "d2line_dh2")), (1, ("sample0", "dsample_dh", "d2sample_dh2"))):
-                vals = np.stack([ls[k][which] for k in range(3)], 0)  # (3, n_sub)
-                coef = np.linalg.solve(vand, vals)
+                coef = np.linalg.solve(vand, np.stack([ls[k][which] for k in range(3)], 0))  # (3, n_sub)
                 for q in (1, 2):
                     out[names[q]][c, j] = _upsample(coef[q].reshape(shape_s), sub_axes, (nl, ns))
-            # covariance on the sub-grid
+            # covariance on the sub-grid: the geometry removes the estimated errors (correction =
+            # -error), so d(image)/d(knots, segments) is -J M while camera corrections enter with
+            # their own sign (their cross-covariance with the navigation makes the sign matter)
             okp = np.isfinite(t_s)
-            if not okp.any():
-                continue
-            jac = image_derivatives(geo, c, bi, g_heights[0][okp], t_s[okp])  # (n, 2, 6)
-            mmap, cov6 = navigation_covariance_at(res, post, t_s[okp])
-            cov6 = cov6 + np.diag([post.jitter_rad**2] * 3 + [0.0] * 3)
-            cov_ls = np.einsum("nij,njk,nlk->nil", jac, cov6, jac)
+            g0, t0 = g_heights[0][okp], t_s[okp]
+            jac = image_derivatives(geo, c, bi, g0, t0)  # (n, 2, 6)
+            full_j = -np.einsum("nij,njk->nik", jac, navigation_map_at(res, post, t0))
             if c in post.camera_slices:
-                jc = _camera_derivatives(geo, c, bi, g_heights[0][okp], t_s[okp], ("delta", "beta", "epsilon"))
-                sl = post.camera_slices[c]
-                # the camera block and its cross-covariance with the navigation; the geometry
-                # removes the estimated errors (correction = -error), so d(image)/d(knots, segments)
-                # is -J M while the camera corrections enter with their own sign
-                full_j = -np.einsum("nij,njk->nik", jac, mmap)
-                full_j[:, :, sl] += jc
-                cov_ls = np.einsum("nij,jk,nlk->nil", full_j, post.cov, full_j) + \
-                    np.einsum("nij,jk,nlk->nil", jac[:, :, :3], np.eye(3) * post.jitter_rad**2, jac[:, :, :3])
+                full_j[:, :, post.camera_slices[c]] += _camera_derivatives(geo, c, bi, g0, t0, ("delta", "beta", "epsilon"))
+            cov_ls = np.einsum("nij,jk,nlk->nil", full_j, post.cov, full_j) + \
+                post.jitter_rad**2 * np.einsum("nij,nlj->nil", jac[:, :, :3], jac[:, :, :3])
             # ground (east, north) per (line, sample): invert d(line, sample)/d(east, north)
-            d_en = np.zeros((okp.sum(), 2, 2))
-            for q in range(2):
-                gp = g_heights[0][okp] + enu[okp, :, q] * 10.0
-                gm = g_heights[0][okp] - enu[okp, :, q] * 10.0
-                _, lp, sp = crossing(geo, c, bi, gp, t_s[okp])
-                _, lm, smm = crossing(geo, c, bi, gm, t_s[okp])
-                d_en[:, 0, q] = (lp - lm) / 20.0
-                d_en[:, 1, q] = (sp - smm) / 20.0
+            d_en = ground_derivatives(geo, c, bi, g0, enu[okp], t0)
             en_ok = np.isfinite(d_en).all(axis=(1, 2))  # a displaced point can leave the margin
             inv = np.linalg.inv(np.where(en_ok[:, None, None], d_en, np.eye(2)))
             cov_en = np.einsum("nij,njk,nlk->nil", inv, cov_ls, inv)
@@ -335,7 +326,7 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
                 sub_field[okp] = v
                 out[name][c, j] = _upsample(sub_field.reshape(shape_s), sub_axes, (nl, ns))
             unseen = ~np.isfinite(out["line0"][c, j])
-            for name in _COEFFS[1:3] + _COEFFS[4:] + ("sigma_line", "sigma_sample", "correlation", "sigma_m"):
+            for name in out:
                 out[name][c, j][unseen] = np.nan
     if progress:
         progress("PP", total, total)

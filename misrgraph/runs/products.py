@@ -103,7 +103,6 @@ def run_products(
     chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
     t0 = time.perf_counter()
     pp = compute_pp(orbit_pass, res, grid.path, chosen, band=band, progress=progress)
-    seen = pp.seen()
     t_pp = time.perf_counter() - t0
     pp.provenance = {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
                      "software": f"misrgraph {__version__}", "solver_status": res.status}
@@ -114,9 +113,7 @@ def run_products(
         "path": grid.path, "pass_id": orbit_pass.pass_id, "band": band,
         "blocks": [int(chosen.min()), int(chosen.max())],
         "files": {"pp": str(pp_file)},
-        "fraction_seen": {c: float(np.mean(seen[i])) for i, c in enumerate(pp.cameras)},
-        "sigma_m_median": {c: (float(np.nanmedian(pp.sigma_m[i])) if np.isfinite(pp.sigma_m[i]).any() else None)
-                           for i, c in enumerate(pp.cameras)},
+        **pp.coverage(),
         "roi": None,
         "notes": ["ROI not produced: the simulator renders no imagery yet"],
     }
