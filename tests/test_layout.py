@@ -13,7 +13,7 @@ PACKAGES = ("misrgraph", "factors")
 
 #: Which rooms a room may import (besides itself, ``factors`` and the top-level ``errors`` and
 #: ``config`` modules). The data flow of docs/design.md: model -> misr -> io -> sim / estimate ->
-#: products -> evaluate -> runs -> bench -> commands (viz beside them, on model, misr and io only).
+#: products -> evaluate -> runs -> campaign -> bench -> commands (viz beside them, on model, misr and io only).
 ALLOWED = {
     "model": set(),
     "misr": {"model"},
@@ -24,8 +24,9 @@ ALLOWED = {
     "evaluate": {"model", "misr", "io", "sim", "estimate", "products"},
     "viz": {"model", "misr", "io"},
     "runs": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz"},
-    "bench": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "runs"},
-    "commands": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz", "runs", "bench"},
+    "campaign": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz", "runs"},
+    "bench": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "runs", "campaign"},
+    "commands": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz", "runs", "campaign", "bench"},
 }
 BASE = {"misrgraph", "misrgraph.errors", "misrgraph.config", "misrgraph.__main__"}
 

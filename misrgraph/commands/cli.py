@@ -405,6 +405,80 @@ def view(
     console.print(f"logged {len(out['entities'])} entities ({out['kind']})" + (f" to {out['rrd']}" if out["rrd"] else ""))
 
 
+CAMPAIGN_HELP = """The calibration campaign as one command, on Dask: calibrate the cameras on a GCP month,
+adjust the chosen repeat passes of each path with the calibrated model, build each path's
+incremental state and Projection Parameters, and write a report (OUT/report/campaign.md) and
+OUT/summary.json.
+
+Inputs are simulated into OUT/inputs unless --inputs names scenario directories (month/ and
+path_PPP/). Tasks run on a LocalCluster of --workers processes (default: one per core), on the
+cluster at --scheduler (its workers must see OUT at the same path), or with --workers 0 in this
+process without Dask. Rerun the same command to resume: every output is named by a digest of its
+inputs and written atomically, so nothing done is redone and nothing is counted twice. Exit status
+1 when any task failed (each failure is reported with its reason; none stops the others)."""
+
+
+@app.command(help=CAMPAIGN_HELP)
+@handle_errors
+def campaign(
+    out: Path = typer.Option(..., "--out", help="Campaign directory (created; rerun into it to resume)."),
+    months: float = typer.Option(6.0, "--months", help="Months of data after the epoch (a path repeats every 16 days)."),
+    fraction: float = typer.Option(0.3, "--fraction", help="Fraction of each path's repeat passes adjusted."),
+    paths: Optional[str] = typer.Option(None, "--paths", help="Paths, comma-separated or ranges (37,38 or 30-33); default all 233."),
+    passes_per_path: int = typer.Option(4, "--passes-per-path", help="At least this many passes per path (if the period has them)."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="LocalCluster worker processes (default: cores; 0: this process, no Dask)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of a running Dask scheduler, tcp://HOST:PORT."),
+    inputs: Optional[Path] = typer.Option(None, "--inputs", help="Existing scenarios: a directory with month/ and path_PPP/ (default: simulate)."),
+    size: str = typer.Option("standard", "--size", help="Simulated scenario size: standard (45-minute passes, 600 tie points) or reduced."),
+    truth: str = typer.Option("independent", "--truth", help="Simulator truth: independent or model (see misrgraph simulate --help)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the simulated inputs."),
+    pp_blocks: int = typer.Option(0, "--pp-blocks", help="SOM blocks of each path's PP (0: 10 standard, 2 reduced)."),
+    no_products: bool = typer.Option(False, "--no-products", help="Skip the per-path state and products."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from misrgraph.campaign import CampaignConfig, run_campaign
+    from misrgraph.campaign.plan import parse_paths
+
+    if workers is not None and scheduler is not None:
+        _fail("--workers and --scheduler: give one (--workers starts a local cluster, --scheduler uses yours)")
+    cfg = CampaignConfig.from_dict(dict(months=months, fraction=fraction, paths=parse_paths(paths) if paths else (),
+                                        passes_per_path=passes_per_path, size=size, truth=truth, seed=seed,
+                                        pp_blocks=pp_blocks, products=not no_products))
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console, disable=as_json) as bar:
+        task = bar.add_task("campaign: starting", total=None)
+
+        def progress(done: int, total: int, message: str) -> None:
+            if message.startswith("Dask dashboard"):
+                bar.console.print(message)
+            bar.update(task, description=message, completed=done, total=total)
+
+        res = run_campaign(out, cfg, inputs=inputs, workers=workers, scheduler=scheduler, progress=progress)
+    if as_json:
+        _print_json(res)
+    else:
+        p = res["passes"]
+        console.print(f"{p['done']}/{p['planned']} passes adjusted ({p['failed']} failed) in {res['seconds']:.0f} s "
+                      f"on {res['cluster'].get('kind')}; report: {res['report']}")
+        cal = res["calibration"]
+        if cal.get("status") == "done" and cal.get("max_pointing_error_px") is not None:
+            console.print(f"calibration: largest pointing error {cal['max_pointing_error_px']:.3f} px -> {cal['file']}")
+        table = Table(title="per path")
+        for col in ("path", "passes", "check-point RMS (m)", "co-registration max (px)", "PP error RMS (m)"):
+            table.add_column(col, justify="right")
+        fmt = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
+        for path_, v in res["paths"].items():
+            table.add_row(path_, f"{v['passes']['done']}/{v['passes']['planned']}", fmt(v["checkpoint_rms_m"], ".1f"),
+                          fmt(v["coregistration_px_max"], ".3f"), fmt((v.get("products") or {}).get("pp_error_rms_m"), ".1f"))
+        console.print(table)
+        for f in res["failed"]:
+            err_console.print(f"failed: {f['stage']} {f['name']}: {f['reason']}", markup=False)
+    if res["failed"]:
+        raise typer.Exit(1)
+
+
 @app.command()
 @handle_errors
 def products(

@@ -39,9 +39,12 @@ def horizontal_error(est: Array, truth: Array) -> Array:
 
 
 def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel,
-               whole_state: bool = True) -> dict[str, Any]:
+               whole_state: bool = True, points: bool = False) -> dict[str, Any]:
     """Accuracy against the simulator's truth (see the module docstring). ``whole_state``: also the
-    joint NEES of the pass's whole state (only meaningful when the pass is the whole problem)."""
+    joint NEES of the pass's whole state (only meaningful when the pass is the whole problem).
+    ``points``: also ``checkpoint_points`` -- each check point's geodetic ``lat``/``lon`` (deg) and
+    ``rms_m``, the RMS over the cameras that see it of its horizontal error after adjustment (the
+    campaign's world map)."""
     pg = res.pass_graph
     out: dict[str, Any] = {}
     t = np.arange(*orbit_pass.span, 1.024)
@@ -68,12 +71,15 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
         h = ecef_to_geodetic(g)[2]
         an = CAMERAS.index("An")
         ln_an, sm_an, vis_an, ex_an, _ = true_geo.ground_to_pixel(an, RED, g)
+        sq_sum, n_seen = np.zeros(chk.size), np.zeros(chk.size)
         for c, name in enumerate(CAMERAS):
             ln, sm, vis, ex, cross_true = true_geo.ground_to_pixel(c, RED, g)
             if not vis.any():
                 continue
             before = horizontal_error(supplied.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
             after = horizontal_error(corrected.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
+            sq_sum[vis] += after**2
+            n_seen[vis] += 1
             cp[name] = {"n": int(vis.sum()), "before": {"mean": float(before.mean()), "std": float(before.std())},
                         "after": {"mean": float(after.mean()), "std": float(after.std())},
                         "ratio_before_over_after": float(before.mean() / max(after.mean(), 1e-9)),
@@ -95,6 +101,11 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
             cp[name]["after"]["rms"] = cp[name].pop("_after_rms")
     out["checkpoint_geolocation_m"] = cp
     out["coregistration_px"] = coreg
+    if points and chk.size:
+        lat, lon, _ = ecef_to_geodetic(g)
+        seen = n_seen > 0
+        out["checkpoint_points"] = {"lat": np.round(lat[seen], 5).tolist(), "lon": np.round(lon[seen], 5).tolist(),
+                                    "rms_m": np.round(np.sqrt(sq_sum[seen] / n_seen[seen]), 2).tolist()}
     # NEES per class, each with its (joint) covariance. Parameter-wise ephemeris and whole-state
     # NEES need the truth in the estimator's own parameterisation (the same eq. 19 segments); an
     # independent truth has none.

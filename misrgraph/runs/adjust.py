@@ -91,8 +91,12 @@ def run_adjust(
     out: str | os.PathLike[str] | None = None,
     cfg: AdjustConfig = AdjustConfig(),
     progress: Callable[[str], None] | None = None,
+    score_points: bool = False,
 ) -> dict[str, Any]:
     """Adjust one pass of a scenario directory; write RESULT.h5 when ``out`` is given; return the summary.
+
+    ``score_points``: with truth, the summary also lists each check point's error
+    (``checkpoint_points``, :func:`misrgraph.evaluate.score.score_pass`).
 
     ``pass_file`` may be left out only when the scenario holds a single pass. When the pass file
     carries the simulator's truth the summary adds its scores (:func:`misrgraph.evaluate.score.score_pass`);
@@ -160,7 +164,7 @@ def run_adjust(
                               "--accept-unconverged): the covariances are not those of an optimum")
     summary["diagnostics"] = diagnostics
     if truth is not None:
-        summary.update(score_pass(orbit_pass, truth, res, camera))
+        summary.update(score_pass(orbit_pass, truth, res, camera, points=score_points))
     if out is not None:
         write_adjust_result(Path(out), orbit_pass, res, summary,
                             {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),

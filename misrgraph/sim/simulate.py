@@ -117,6 +117,10 @@ class ScenarioConfig(Config):
       (4 degrees of freedom) per GCP, RMS ``gcp_sigma_m`` per axis in total.
 
     Each is switched off by 0 (``mismatch_rate``: 0.0); :data:`INDEPENDENT_SOURCES` names them.
+
+    ``path`` scenario: ``n_passes`` repeat passes, one every 16 days from ``epoch_date``; or, when
+    ``repeat_indices`` is given, only those repeat cycles (cycle k starts 16 k days after
+    ``epoch_date``, orbit 233 k) -- the campaign simulates the passes it selects this way.
     """
 
     scenario: str = "pass"
@@ -132,6 +136,7 @@ class ScenarioConfig(Config):
     gcp_scene_fraction: float = 0.5
     seed: int = 0
     n_passes: int = 10
+    repeat_indices: tuple = ()
     repeat_visibility: float = 0.8
     path: int = 37
     epoch_date: str = "2001-06-15"
@@ -183,6 +188,9 @@ class ScenarioConfig(Config):
             raise InputError("mismatch_px", self.mismatch_px, "(min, max) pixels, 0 < min <= max")
         if self.n_passes < 1:
             raise InputError("n_passes", self.n_passes, "an integer >= 1")
+        if self.repeat_indices and (len(set(self.repeat_indices)) != len(self.repeat_indices)
+                                    or any(not isinstance(k, int) or isinstance(k, bool) or k < 0 for k in self.repeat_indices)):
+            raise InputError("repeat_indices", self.repeat_indices, "distinct integers >= 0 (repeat cycles after epoch_date)")
         if not (1 <= self.path <= REPEAT_PATHS):
             raise InputError("path", self.path, f"an integer in 1..{REPEAT_PATHS}")
         for name in ("tie_sigma_px", "gcp_sigma_px", "nav_sigma_m", "gcp_sigma_m", "duration_s"):
@@ -650,8 +658,9 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             import datetime as _dt
 
             d0 = _dt.date.fromisoformat(cfg.epoch_date)
+            cycles = sorted(cfg.repeat_indices) if cfg.repeat_indices else range(cfg.n_passes)
             plan = [(233 * k, cfg.path, (d0 + _dt.timedelta(days=16 * k)).isoformat(), cfg.start_lat_deg, cfg.duration_s)
-                    for k in range(cfg.n_passes)]
+                    for k in cycles]
         else:
             plan = [(0, cfg.path, cfg.epoch_date, cfg.start_lat_deg, cfg.duration_s)]
     out_dir.parent.mkdir(parents=True, exist_ok=True)

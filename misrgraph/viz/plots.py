@@ -16,7 +16,7 @@ from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
 from misrgraph.io.truth import read_pass_truth
 from misrgraph.errors import require_extra
 
-__all__ = ["plot_adjustment", "plot_calibration"]
+__all__ = ["plot_adjustment", "plot_calibration", "plot_campaign"]
 
 
 def _save(fig: Any, path: Path) -> Path:
@@ -130,3 +130,57 @@ def plot_calibration(summary: dict[str, Any], out_dir: str | os.PathLike[str]) -
     paths.append(_save(fig, out / "calibration_correlation.png"))
     plt.close(fig)
     return paths
+
+
+def plot_campaign(summary: dict[str, Any], points: dict[str, list[float]], out_dir: str | os.PathLike[str],
+                  land: tuple[Any, tuple[float, float, float, float]] | None = None) -> list[Path]:
+    """The campaign report's figures (PNG): check-point RMS per camera and per path (m), a world
+    map of the check points coloured by their error (``points``: ``lat``, ``lon`` deg, ``rms_m``;
+    ``land``: an optional boolean image with its lon/lat extent as the background), and the
+    time per stage (task seconds summed over the workers). Returns the files written."""
+    matplotlib = require_extra("matplotlib", "viz", "the figures")
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    files = []
+    cams = [c for c in CAMERAS if c in summary["cameras"]]
+    if cams:
+        fig, ax = plt.subplots(figsize=(7, 3.2))
+        x = np.arange(len(cams))
+        ax.bar(x - 0.2, [summary["cameras"][c]["checkpoint_rms_m"] or np.nan for c in cams], 0.4, label="actual RMS")
+        ax.bar(x + 0.2, [summary["cameras"][c]["predicted_rms_m"] or np.nan for c in cams], 0.4, label="predicted RMS")
+        ax.set_xticks(x, cams)
+        ax.set_ylabel("check-point error (m)")
+        ax.set_title("after adjustment, all passes")
+        ax.legend()
+        files.append(_save(fig, out / "cameras.png"))
+        plt.close(fig)
+    paths = [(p, v["checkpoint_rms_m"]) for p, v in summary["paths"].items() if v.get("checkpoint_rms_m") is not None]
+    if paths:
+        fig, ax = plt.subplots(figsize=(max(4, 0.4 * len(paths) + 2), 3.2))
+        ax.bar([p for p, _ in paths], [v for _, v in paths])
+        ax.set_xlabel("path")
+        ax.set_ylabel("check-point RMS (m)")
+        files.append(_save(fig, out / "paths.png"))
+        plt.close(fig)
+    if points.get("lat"):
+        fig, ax = plt.subplots(figsize=(9, 4.6))
+        if land is not None:
+            ax.imshow(land[0], extent=land[1], origin="lower", cmap="Greys", vmin=0, vmax=3, interpolation="nearest")
+        sc = ax.scatter(points["lon"], points["lat"], c=points["rms_m"], s=6, cmap="viridis")
+        fig.colorbar(sc, ax=ax, label="check-point error, RMS over cameras (m)")
+        ax.set_xlim(-180, 180)
+        ax.set_ylim(-90, 90)
+        ax.set_xlabel("longitude (deg)")
+        ax.set_ylabel("latitude (deg)")
+        files.append(_save(fig, out / "map.png"))
+        plt.close(fig)
+    if summary["stages"]:
+        fig, ax = plt.subplots(figsize=(6, 2.8))
+        names = list(summary["stages"])
+        ax.barh(names, [summary["stages"][s]["task_seconds"] for s in names])
+        ax.set_xlabel("task seconds (summed over workers)")
+        files.append(_save(fig, out / "stages.png"))
+        plt.close(fig)
+    return files

@@ -1,0 +1,97 @@
+"""The campaign report: ``REPORT/campaign.md`` (Markdown tables) and its PNG figures
+(:func:`misrgraph.viz.plots.plot_campaign`), written atomically.
+
+Accuracy figures are against the simulator's truth and appear only where the inputs carry one.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from misrgraph.errors import MisrGraphError
+from misrgraph.io.h5 import atomic_file
+from misrgraph.model.constants import CAMERAS
+
+__all__ = ["write_report"]
+
+log = logging.getLogger(__name__)
+
+
+def _f(v: Any, fmt: str = ".1f") -> str:
+    return "–" if v is None else format(v, fmt)
+
+
+def _land_background() -> tuple[Any, tuple[float, float, float, float]] | None:
+    try:
+        from misrgraph.sim.terrain import land_mask
+    except ImportError:
+        return None
+    lat = np.arange(-89.5, 90, 1.0)
+    lon = np.arange(-179.5, 180, 1.0)
+    try:
+        mask = land_mask(*np.meshgrid(lat, lon, indexing="ij"))
+    except (ImportError, MisrGraphError):  # the land-mask data is an optional extra
+        return None
+    return mask.astype(float), (-180.0, 180.0, -90.0, 90.0)
+
+
+def write_report(report_dir: Path, plan: dict[str, Any], summary: dict[str, Any], records: list[dict[str, Any]]) -> Path:
+    """Write ``campaign.md`` and its figures into ``report_dir``; return the Markdown file."""
+    report_dir.mkdir(parents=True, exist_ok=True)
+    pts: dict[str, list[float]] = {"lat": [], "lon": [], "rms_m": []}
+    for r in records:
+        if r["stage"] == "adjust" and r["status"] == "done":
+            for k in pts:
+                pts[k].extend((r["summary"].get("checkpoint_points") or {}).get(k, []))
+    figures: list[Path] = []
+    try:
+        from misrgraph.viz.plots import plot_campaign
+
+        figures = plot_campaign(summary, pts, report_dir, _land_background())
+    except MisrGraphError as exc:  # matplotlib is an optional extra: the tables still say everything
+        log.warning("campaign report without figures: %s", exc)
+    cfg = plan["config"]
+    L = [f"# misrgraph campaign", "",
+         f"{len(plan['paths'])} paths, {cfg['months']} months of data, {cfg['fraction']:.0%} of each path's repeat passes "
+         f"(at least {cfg['passes_per_path']}), {cfg['size']} size, {cfg['truth']} truth; inputs: {plan['inputs']}.",
+         f"Ran on: {summary['cluster'].get('kind')} ({summary['cluster'].get('workers')} workers) in {summary['seconds']:.0f} s.", "",
+         "## Passes", "", "| planned | done | failed |", "|---:|---:|---:|",
+         f"| {summary['passes']['planned']} | {summary['passes']['done']} | {summary['passes']['failed']} |", ""]
+    if summary["failed"]:
+        L += ["Failures (each reported, none stopped the others):", ""]
+        L += [f"- {f['stage']} {f['name']}: {f['reason']}" for f in summary["failed"]] + [""]
+    cal = summary["calibration"]
+    L += ["## Calibration (GCP month)", ""]
+    if cal.get("status") == "done" and cal.get("pointing_error_px"):
+        L += ["| camera | pointing error (px) | 1σ (px) |", "|---|---:|---:|"]
+        L += [f"| {c} | {_f(cal['pointing_error_px'].get(c), '.3f')} | {_f((cal.get('sigma_px') or {}).get(c), '.3f')} |"
+              for c in CAMERAS if c in cal["pointing_error_px"]]
+        L += ["", f"Largest pointing error {_f(cal.get('max_pointing_error_px'), '.3f')} px (requirement 0.125); "
+                  f"NEES/dim {_f(cal.get('nees'), '.2f')}. File: `{cal['file']}`.", ""]
+    elif cal.get("status") == "done":
+        L += [f"Camera model: `{cal['file']}` (no truth to score it against).", ""]
+    else:
+        L += [f"Failed: {cal.get('reason')}", ""]
+    if summary["cameras"]:
+        L += ["## Check-point accuracy per camera", "",
+              "| camera | passes | RMS after (m) | predicted RMS (m) | supplied navigation, mean (m) |", "|---|---:|---:|---:|---:|"]
+        L += [f"| {c} | {v['passes']} | {_f(v['checkpoint_rms_m'])} | {_f(v['predicted_rms_m'])} | {_f(v['supplied_mean_m'])} |"
+              for c, v in summary["cameras"].items()] + [""]
+    L += ["## Per path", "", "| path | passes done/planned | check-point RMS (m) | co-registration max (px) | PP error RMS (m) | ROI |",
+          "|---:|---:|---:|---:|---:|---|"]
+    for p, v in summary["paths"].items():
+        prod = v.get("products") or {}
+        pp = _f(prod.get("pp_error_rms_m")) if prod.get("status") == "done" else ("failed" if prod else "not built")
+        L.append(f"| {p} | {v['passes']['done']}/{v['passes']['planned']} | {_f(v['checkpoint_rms_m'])} | "
+                 f"{_f(v['coregistration_px_max'], '.3f')} | {pp} | not built (needs imagery) |")
+    L += ["", "## Time per stage", "", "| stage | tasks | found done | failed | task seconds |", "|---|---:|---:|---:|---:|"]
+    L += [f"| {s} | {v['tasks']} | {v['found_done']} | {v['failed']} | {v['task_seconds']:.1f} |" for s, v in summary["stages"].items()]
+    L += [""] + [f"![{f.stem}]({f.name})" for f in figures] + [""]
+    md = report_dir / "campaign.md"
+    with atomic_file(md) as fh:
+        fh.write("\n".join(L))
+    return md

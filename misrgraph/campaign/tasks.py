@@ -1,0 +1,268 @@
+"""The campaign's tasks: what a worker runs. Plain functions of paths and plain data, so that they
+run the same in this process (``workers=0``) and on any Dask worker that sees the campaign
+directory (a shared filesystem, as in every Dask deployment on a cluster).
+
+Each task
+
+* names its output by a digest of its inputs' own SHA-256 and its configuration
+  (:func:`misrgraph.campaign.plan.digest`) and returns at once when that output exists -- a rerun
+  redoes nothing that is done;
+* writes its output atomically (a file through :func:`misrgraph.io.h5.atomic_h5`, a directory
+  built under a hidden temporary name and renamed), so a SIGKILL at any point leaves either no
+  output or a complete one, and two executions of the same task (a worker lost after it wrote,
+  its task rescheduled) write the same bytes under the same name;
+* never raises: a failure comes back as a record with ``status: "failed"`` and the reason, and
+  the tasks that need its output report ``"needs <what>, which failed"`` instead of running.
+
+A record: ``{"stage", "name", "status" ("done" | "failed"), "skipped" (found done), "output",
+"seconds", "summary" | "reason"}``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import shutil
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable
+
+from misrgraph.campaign.plan import SIZES, CampaignConfig, digest
+from misrgraph.errors import FileFormatError, MisrGraphError
+
+__all__ = ["simulate_month", "simulate_path", "existing_inputs", "calibrate", "adjust", "path_products",
+           "SUMMARY_FILE"]
+
+log = logging.getLogger(__name__)
+
+#: the summary a path's output directory holds
+SUMMARY_FILE = "path.json"
+
+
+def _task(stage: str, name: str, needs: tuple[dict[str, Any], ...], body: Callable[[], tuple[Path, bool, dict[str, Any]]]) -> dict[str, Any]:
+    """Run ``body`` (returning output, skipped, summary) into a record; never raises."""
+    t0 = time.perf_counter()
+    rec: dict[str, Any] = {"stage": stage, "name": name, "status": "failed", "skipped": False, "output": None}
+    failed = [n for n in needs if n.get("status") != "done"]
+    if failed:
+        rec["reason"] = "needs " + ", ".join(f"{n['stage']} {n['name']}" for n in failed) + ", which failed"
+    else:
+        try:
+            out, skipped, summary = body()
+            rec.update(status="done", skipped=skipped, output=str(out), summary=summary)
+        except MisrGraphError as exc:
+            rec["reason"] = f"{exc.__class__.__name__}: {exc}"
+        except Exception as exc:  # a bug or an environment failure: keep its traceback for the report
+            rec["reason"] = f"{exc.__class__.__name__}: {exc}"
+            rec["traceback"] = traceback.format_exc(limit=8)
+            log.exception("%s %s failed", stage, name)
+    rec["seconds"] = time.perf_counter() - t0
+    return rec
+
+
+def _sha(path: Path) -> str:
+    """The content digest a misrgraph file carries (SHA-256 over its datasets and attributes,
+    :func:`misrgraph.io.h5.content_digest`). Not the whole-file SHA-256: HDF5 leaves unused bytes
+    of its metadata blocks uninitialised, so two writes of the same content may differ byte-wise."""
+    import h5py
+
+    from misrgraph.io.h5 import DIGEST_ATTR
+
+    try:
+        with h5py.File(path, "r") as f:
+            return str(f.attrs[DIGEST_ATTR])
+    except (OSError, KeyError):
+        raise FileFormatError(path, "not a complete misrgraph file (no content digest)") from None
+
+
+def _scenario_sha(d: Path) -> dict[str, Any]:
+    """The SHA-256 of every file of a scenario directory misrgraph reads."""
+    return {"passes": {f.name: _sha(f) for f in sorted((d / "passes").glob("*.h5"))},
+            **{n: _sha(d / n) for n in ("camera_model.h5", "gcp.h5", "dem.h5") if (d / n).exists()}}
+
+
+@contextlib.contextmanager
+def _building(final: Path) -> Any:
+    """A hidden temporary sibling directory that becomes ``final`` when the block succeeds (if
+    another execution of the same task got there first, its identical output is kept)."""
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    try:
+        yield tmp
+        try:
+            os.rename(tmp, final)
+        except OSError:
+            if not final.is_dir():
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+# ---------------------------------------------------------------------------- inputs
+def _scenario_cfg(cfg: CampaignConfig, kind: str, **extra: Any) -> dict[str, Any]:
+    return {"scenario": kind, "truth": cfg.truth, "epoch_date": cfg.epoch_date, **SIZES[cfg.size][kind], **extra}
+
+
+def _simulate(out_dir: Path, scfg: dict[str, Any]) -> tuple[Path, bool, dict[str, Any]]:
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+
+    if (out_dir / "scenario.json").exists():
+        s = json.loads((out_dir / "scenario.json").read_text())
+        return out_dir, True, {"passes": s["passes"], "observations": s["observations"]}
+    s = run_simulate(ScenarioConfig.from_dict(scfg), out_dir)
+    return out_dir, False, {"passes": s["passes"], "observations": s["observations"]}
+
+
+def simulate_month(out: str, cfg: CampaignConfig) -> dict[str, Any]:
+    """Simulate the GCP month into ``OUT/inputs/month-<digest>``."""
+    scfg = _scenario_cfg(cfg, "month", seed=cfg.seed)
+    d = Path(out) / "inputs" / f"month-{digest(scfg)[:12]}"
+    return _task("inputs", "month", (), lambda: _simulate(d, scfg))
+
+
+def simulate_path(out: str, cfg: CampaignConfig, path: int, cycles: tuple[int, ...], month: dict[str, Any]) -> dict[str, Any]:
+    """Simulate the chosen repeat passes of ``path`` (the month's instrument: its true camera
+    model) into ``OUT/inputs/path_PPP-<digest>``."""
+
+    def body() -> tuple[Path, bool, dict[str, Any]]:
+        truth = Path(month["output"]) / "camera_truth.h5"
+        seed = int.from_bytes(bytes.fromhex(digest("path seed", cfg.seed, path)[:8]), "big")
+        scfg = _scenario_cfg(cfg, "path", seed=seed, path=path, repeat_indices=list(cycles), camera_truth=str(truth))
+        d = Path(out) / "inputs" / f"path_{path:03d}-{digest(scfg, _sha(truth))[:12]}"
+        return _simulate(d, scfg)
+
+    return _task("inputs", f"path {path}", (month,), body)
+
+
+def existing_inputs(name: str, directory: str) -> dict[str, Any]:
+    """A record for a scenario directory the user brought (checked to exist)."""
+
+    def body() -> tuple[Path, bool, dict[str, Any]]:
+        d = Path(directory)
+        if not (d / "passes").is_dir():
+            raise FileFormatError(d, "not a scenario directory (no passes/); make one with 'misrgraph simulate'")
+        return d, True, {"passes": len(list((d / "passes").glob("*.h5")))}
+
+    return _task("inputs", name, (), body)
+
+
+# ---------------------------------------------------------------------------- calibration
+def calibrate(out: str, month: dict[str, Any]) -> dict[str, Any]:
+    """Calibrate the cameras on the GCP month into ``OUT/calibration/camera_model-<digest>.h5``."""
+    from misrgraph.estimate.calibrate import CalibrateConfig
+
+    def body() -> tuple[Path, bool, dict[str, Any]]:
+        from misrgraph.io.h5 import open_h5
+        from misrgraph.runs.calibrate import run_calibrate
+
+        d = Path(month["output"])
+        cfg = CalibrateConfig()
+        f = Path(out) / "calibration" / f"camera_model-{digest('calibrate', _scenario_sha(d), cfg.to_dict())[:12]}.h5"
+        if f.exists():
+            with open_h5(f, "camera_model") as h:
+                return f, True, _calibration_summary(json.loads(h["calibration"].attrs["summary_json"]))
+        return f, False, _calibration_summary(run_calibrate(d, out=f, cfg=cfg))
+
+    return _task("calibration", "month", (month,), body)
+
+
+def _calibration_summary(s: dict[str, Any]) -> dict[str, Any]:
+    keep = ("status", "max_pointing_error_px", "nees", "passes", "observations")
+    out = {k: s[k] for k in keep if k in s}
+    if "cameras" in s:
+        out["pointing_error_px"] = {c: v.get("pointing_error_px") for c, v in s["cameras"].items()}
+        out["sigma_px"] = {c: v.get("sigma_px") for c, v in s["cameras"].items()}
+    return out
+
+
+# ---------------------------------------------------------------------------- per pass
+def adjust(out: str, path: int, pass_id: str, inputs: dict[str, Any], calibration: dict[str, Any]) -> dict[str, Any]:
+    """Adjust one pass with the calibrated model into ``OUT/adjusted/path_PPP/<pass id>-<digest>.h5``
+    (RESULT.h5); the graph is built and solved here, on the worker."""
+    from misrgraph.estimate.adjust import AdjustConfig
+
+    def body() -> tuple[Path, bool, dict[str, Any]]:
+        from misrgraph.io.h5 import open_h5
+        from misrgraph.runs.adjust import run_adjust
+
+        d = Path(inputs["output"])
+        pass_file = d / "passes" / f"{pass_id}.h5"
+        if not pass_file.exists():
+            raise FileFormatError(pass_file, "the planned pass is not in the scenario")
+        cam = Path(calibration["output"])
+        cfg = AdjustConfig()
+        key = digest("adjust", _sha(pass_file), _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"), cfg.to_dict())
+        f = Path(out) / "adjusted" / f"path_{path:03d}" / f"{pass_id}-{key[:12]}.h5"
+        if f.exists():
+            with open_h5(f, "adjustment_result") as h:
+                return f, True, _pass_summary(json.loads(h.attrs["summary_json"]))
+        f.parent.mkdir(parents=True, exist_ok=True)
+        s = run_adjust(d, camera_model=cam, pass_file=pass_file, out=f, cfg=cfg, score_points=True)
+        return f, False, _pass_summary(s)
+
+    return _task("adjust", pass_id, (inputs, calibration), body)
+
+
+def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
+    out = {k: s[k] for k in ("pass_id", "solver_status", "iterations", "seconds", "variance_factor", "coregistration_px",
+                             "checkpoint_points", "checkpoint_rms_over_predicted") if k in s}
+    if "checkpoint_geolocation_m" in s:
+        out["checkpoint_m"] = {c: {"n": v["n"], "rms": v["after"].get("rms"), "before_mean": v["before"]["mean"],
+                                   "predicted_rms": v["after"].get("predicted_rms")}
+                               for c, v in s["checkpoint_geolocation_m"].items()}
+    if "nees" in s:
+        out["nees"] = {k: s["nees"][k] for k in ("knots", "landmarks") if k in s["nees"]}
+    out["rejected_observations"] = s.get("rejected_observations", {}).get("count")
+    return out
+
+
+# ---------------------------------------------------------------------------- per path
+def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[str, Any], calibration: dict[str, Any],
+                  blocks: int) -> dict[str, Any]:
+    """The path's incremental state over its passes (``misrgraph update``, one pass at a time)
+    and the Projection Parameters of its first pass (``misrgraph products``) into
+    ``OUT/paths/path_PPP-<digest>/{state/, products/, path.json}``."""
+
+    def body() -> tuple[Path, bool, dict[str, Any]]:
+        from misrgraph.estimate.adjust import AdjustConfig
+        from misrgraph.runs.products import run_products
+        from misrgraph.runs.update import run_update
+
+        d = Path(inputs["output"])
+        files = [d / "passes" / f"{p}.h5" for p in pass_ids]
+        missing = [str(f) for f in files if not f.exists()]
+        if missing:
+            raise FileFormatError(d / "passes", f"planned passes missing: {', '.join(missing)}")
+        cam = Path(calibration["output"])
+        key = digest("path", [_sha(f) for f in files], _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"),
+                     AdjustConfig().to_dict(), blocks)
+        final = Path(out) / "paths" / f"path_{path:03d}-{key[:12]}"
+        if (final / SUMMARY_FILE).exists():
+            return final, True, json.loads((final / SUMMARY_FILE).read_text())
+        with _building(final) as tmp:
+            t0 = time.perf_counter()
+            upd = run_update(tmp / "state", [str(f) for f in files], camera_model=cam, gcp_file=d / "gcp.h5",
+                             dem_file=d / "dem.h5")
+            t_update = time.perf_counter() - t0
+            prod = run_products(d, tmp / "products", pass_file=files[0], camera_model=cam, default_blocks=blocks)
+            pp_name = Path(prod["files"]["pp"]).name
+            prod["files"]["pp"] = str(final / "products" / pp_name)  # where it will be after the rename
+            (tmp / "products" / "products.json").write_text(json.dumps(prod, indent=2))
+            summary = {
+                "path": path, "passes": list(pass_ids),
+                "update": [{k: u.get(k) for k in ("pass_id", "status", "update_seconds", "rejected_observations")}
+                           | ({"checkpoint_rms_m": {c: v["after"].get("rms") for c, v in u["checkpoint_geolocation_m"].items()}}
+                              if "checkpoint_geolocation_m" in u else {}) for u in upd["updates"]],
+                "update_seconds": t_update,
+                "products": {"pass_id": prod["pass_id"], "blocks": prod["blocks"],
+                             "pp_file": f"products/{pp_name}",
+                             "pp_error_m": prod.get("pp_error_m"), "roi": None, "seconds": prod["seconds"]},
+            }
+            (tmp / SUMMARY_FILE).write_text(json.dumps(summary, indent=2))
+        return final, False, summary
+
+    return _task("path", f"path {path}", (inputs, calibration), body)
