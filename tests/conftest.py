@@ -113,3 +113,14 @@ def band_month_dir(tmp_path_factory):
     run_simulate(ScenarioConfig(scenario="month", seed=7, n_gcps=30, month_days=16, bands=("blue", "green", "red", "nir"),
                                 band_misalignment_arcsec=10.0), out)
     return out
+
+
+@pytest.fixture(scope="session")
+def campaign_setup(tmp_path_factory):
+    """A reduced campaign (seed 0): paths 37 and 38, two months of data (four repeat passes a
+    path), one PP block; its inputs simulated once into ``inputs/month`` and ``inputs/path_PPP``."""
+    from misrgraph.bench.campaign import prepare_campaign_inputs
+    from misrgraph.campaign import CampaignConfig
+
+    cfg = CampaignConfig(paths=(37, 38), months=2.0, size="reduced", pp_blocks=1)
+    return cfg, prepare_campaign_inputs(tmp_path_factory.mktemp("campaign"), cfg)

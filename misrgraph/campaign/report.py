@@ -88,8 +88,14 @@ def write_report(report_dir: Path, plan: dict[str, Any], summary: dict[str, Any]
         pp = _f(prod.get("pp_error_rms_m")) if prod.get("status") == "done" else ("failed" if prod else "not built")
         L.append(f"| {p} | {v['passes']['done']}/{v['passes']['planned']} | {_f(v['checkpoint_rms_m'])} | "
                  f"{_f(v['coregistration_px_max'], '.3f')} | {pp} | not built (needs imagery) |")
-    L += ["", "## Time per stage", "", "| stage | tasks | found done | failed | task seconds |", "|---|---:|---:|---:|---:|"]
-    L += [f"| {s} | {v['tasks']} | {v['found_done']} | {v['failed']} | {v['task_seconds']:.1f} |" for s, v in summary["stages"].items()]
+    L += ["", "## Time per stage", "", "Task seconds are summed over the workers; wall seconds run from the stage's first task "
+          "start to its last task's end (stages overlap).", "",
+          "| stage | tasks | found done | failed | task seconds | wall seconds |", "|---|---:|---:|---:|---:|---:|"]
+    L += [f"| {s} | {v['tasks']} | {v['found_done']} | {v['failed']} | {v['task_seconds']:.1f} | {v['wall_seconds']:.1f} |"
+          for s, v in summary["stages"].items()]
+    rss = summary["cluster"].get("peak_rss_mb") or {}
+    if rss:
+        L += ["", "Peak memory per process (MB): " + ", ".join(f"{k}: {v:.0f}" for k, v in rss.items())]
     L += [""] + [f"![{f.stem}]({f.name})" for f in figures] + [""]
     md = report_dir / "campaign.md"
     with atomic_file(md) as fh:

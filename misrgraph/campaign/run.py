@@ -39,7 +39,7 @@ import numpy as np
 
 from misrgraph.campaign.plan import CampaignConfig, CampaignPlan, PathPlan, choose, digest, plan_campaign
 from misrgraph.campaign.report import write_report
-from misrgraph.campaign import tasks
+import misrgraph.campaign.tasks as tasks
 from misrgraph.errors import InputError, MisrGraphError, require_extra
 from misrgraph.io.h5 import atomic_file
 
@@ -81,6 +81,9 @@ class _InProcess:
     def describe(self) -> dict[str, Any]:
         return {"kind": "in-process (no Dask)", "workers": 0}
 
+    def peak_rss_mb(self) -> dict[str, float]:
+        return {"this process": _peak_rss_mb()}
+
 
 class _Dask:
     def __init__(self, client: Any, owned: list[Any]) -> None:
@@ -99,10 +102,26 @@ class _Dask:
         return {"kind": "dask", "scheduler": self.client.scheduler.address, "workers": len(info.get("workers", {})),
                 "dashboard": self.client.dashboard_link if _has_dashboard() else None}
 
+    def peak_rss_mb(self) -> dict[str, float]:
+        """Peak resident memory of each worker process (MB) over its life (a restarted worker
+        starts afresh)."""
+        try:
+            return {str(k): v for k, v in self.client.run(_peak_rss_mb).items()}
+        except Exception:  # pragma: no cover - a worker lost at the very end
+            return {}
+
     def close(self) -> None:
         for o in self.owned:
             with contextlib.suppress(Exception):
                 o.close()
+
+
+def _peak_rss_mb() -> float:
+    import resource
+    import sys
+
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return float(rss / 2**20 if sys.platform == "darwin" else rss / 2**10)  # bytes on macOS, KiB on Linux
 
 
 def _has_dashboard() -> bool:
@@ -120,6 +139,9 @@ def _executor(workers: int | None, scheduler: str | None, client: Any) -> Any:
         return _InProcess()
     require_extra("distributed", "campaign", "misrgraph campaign (Dask)")
     from distributed import Client, LocalCluster
+
+    if logging.getLogger().getEffectiveLevel() > logging.INFO:  # Dask's own INFO chatter only with -v
+        logging.getLogger("distributed").setLevel(logging.WARNING)
 
     if scheduler is not None:
         try:
@@ -283,6 +305,8 @@ def _execute(ex: Any, plan: CampaignPlan, out: str, month_dir: Path | None, path
         records[i] = rec
         if progress:
             progress(n, len(futs), f"{stage} {name}: {rec['status']}{' (found done)' if rec.get('skipped') else ''}")
+    cluster["peak_rss_mb"] = ex.peak_rss_mb()
+    cluster["task_pids"] = sorted({int(r["worker_pid"]) for r in records if r is not None and "worker_pid" in r})
     return [r for r in records if r is not None], cluster
 
 
@@ -328,11 +352,17 @@ def _summarise(plan: CampaignPlan, records: list[dict[str, Any]], cluster: dict[
         paths[str(pp.path)] = entry
     stages: dict[str, Any] = {}
     for r in records:
-        s = stages.setdefault(r["stage"], {"tasks": 0, "done": 0, "found_done": 0, "failed": 0, "task_seconds": 0.0})
+        s = stages.setdefault(r["stage"], {"tasks": 0, "done": 0, "found_done": 0, "failed": 0, "task_seconds": 0.0,
+                                           "_t": []})
         s["tasks"] += 1
+        if "started" in r:
+            s["_t"] += [r["started"], r["ended"]]
         s["done" if r["status"] == "done" else "failed"] += 1
         s["found_done"] += int(bool(r.get("skipped")))
         s["task_seconds"] += float(r.get("seconds", 0.0))
+    for s in stages.values():  # from the first task's start to the last one's end
+        t = s.pop("_t")
+        s["wall_seconds"] = float(max(t) - min(t)) if t else 0.0
     return {
         "passes": {"planned": len(planned), "done": len(done), "failed": len(planned) - len(done)},
         "calibration": ({"status": "done", "file": cal["output"], **cal["summary"]} if cal.get("status") == "done"

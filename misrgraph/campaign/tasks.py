@@ -15,7 +15,7 @@ Each task
   the tasks that need its output report ``"needs <what>, which failed"`` instead of running.
 
 A record: ``{"stage", "name", "status" ("done" | "failed"), "skipped" (found done), "output",
-"seconds", "summary" | "reason"}``.
+"seconds", "started"/"ended" (Unix time), "worker_pid", "summary" | "reason"}``.
 """
 
 from __future__ import annotations
@@ -46,7 +46,8 @@ SUMMARY_FILE = "path.json"
 def _task(stage: str, name: str, needs: tuple[dict[str, Any], ...], body: Callable[[], tuple[Path, bool, dict[str, Any]]]) -> dict[str, Any]:
     """Run ``body`` (returning output, skipped, summary) into a record; never raises."""
     t0 = time.perf_counter()
-    rec: dict[str, Any] = {"stage": stage, "name": name, "status": "failed", "skipped": False, "output": None}
+    rec: dict[str, Any] = {"stage": stage, "name": name, "status": "failed", "skipped": False, "output": None,
+                           "started": time.time(), "worker_pid": os.getpid()}
     failed = [n for n in needs if n.get("status") != "done"]
     if failed:
         rec["reason"] = "needs " + ", ".join(f"{n['stage']} {n['name']}" for n in failed) + ", which failed"
@@ -61,6 +62,7 @@ def _task(stage: str, name: str, needs: tuple[dict[str, Any], ...], body: Callab
             rec["traceback"] = traceback.format_exc(limit=8)
             log.exception("%s %s failed", stage, name)
     rec["seconds"] = time.perf_counter() - t0
+    rec["ended"] = time.time()
     return rec
 
 

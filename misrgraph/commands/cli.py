@@ -438,7 +438,8 @@ def campaign(
 ) -> None:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from misrgraph.campaign import CampaignConfig, run_campaign
+    from misrgraph.campaign.plan import CampaignConfig
+    from misrgraph.campaign.run import run_campaign
     from misrgraph.campaign.plan import parse_paths
 
     if workers is not None and scheduler is not None:
@@ -817,6 +818,68 @@ def bench_sources(
         table.add_row(name, *[f"{row[c]['mean']:.2f} [{row[c]['ci95'][0]:.2f}, {row[c]['ci95'][1]:.2f}]" if c in row else "-"
                               for c in cols])
     console.print(table)
+
+
+@bench_app.command("campaign")
+@handle_errors
+def bench_campaign(
+    paths: int = typer.Option(4, "--paths", help="Paths (37, 38, ...), each with its repeat passes."),
+    months: float = typer.Option(2.0, "--months", help="Months of data (2: four passes a path)."),
+    size: str = typer.Option("reduced", "--size", help="reduced or standard (45-minute passes, 600 tie points)."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the inputs and outputs here (inputs reused)."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Campaign throughput: the adjustment stage on a LocalCluster of 1 and of 2 workers on the same passes (passes per minute, the scaling ratio, peak memory per worker) and an estimate of the full six-month plan."""
+    from misrgraph.bench.campaign import run_bench_campaign
+
+    with err_console.status("campaign throughput...") as st:
+        res = run_bench_campaign(paths, months, size, workdir=workdir, progress=lambda m: st.update(m))
+    if as_json:
+        _print_json(res)
+        return
+    table = Table(title=f"adjustment of {res['passes']} {size} passes")
+    for col in ("workers", "passes/minute", "task s/pass", "peak MB per worker"):
+        table.add_column(col, justify="right")
+    for n, v in res["workers"].items():
+        table.add_row(n, f"{v['passes_per_minute']:.1f}", f"{v['task_seconds_per_pass']:.2f}",
+                      ", ".join(f"{m:.0f}" for m in v["peak_rss_mb_per_worker"].values()))
+    console.print(table)
+    fp = res["full_plan"]
+    console.print(f"scaling 1 -> 2 workers: {res['scaling_1_to_2']:.2f}x; full plan ({fp['passes']} passes): "
+                  f"{fp['adjust_hours_at_2_workers']:.1f} h of adjustment on 2 workers ({fp['note']})")
+
+
+@bench_app.command("campaign-kill")
+@handle_errors
+def bench_campaign_kill(
+    trials: int = typer.Option(10, "--trials", help="Trials of each kind."),
+    kinds: str = typer.Option("client,worker", "--kinds", help="client (SIGKILL the whole campaign, then rerun) and/or worker (SIGKILL one worker mid-run)."),
+    paths: int = typer.Option(2, "--paths", help="Paths of the reduced campaign."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the inputs and the kill times."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir"),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Kill the campaign at random points and resume: every trial must end with outputs identical to an uninterrupted run, one output per planned pass and every pass counted once. Exit 1 on any failure."""
+    from misrgraph.bench.campaign import run_campaign_kill_trials
+
+    with err_console.status("campaign kill trials...") as st:
+        res = run_campaign_kill_trials(trials, tuple(k.strip() for k in kinds.split(",") if k.strip()), seed, workdir,
+                                       paths=paths, progress=lambda m: st.update(m))
+    if as_json:
+        _print_json(res)
+    else:
+        table = Table(title=f"campaign kill trials (uninterrupted run {res['uninterrupted_seconds']:.0f} s)")
+        for col in ("kind", "trials", "killed while running", "identical", "duplicates", "counted twice", "failed"):
+            table.add_column(col, justify="right")
+        for kind in sorted({t["kind"] for t in res["trials"]}):
+            ts = [t for t in res["trials"] if t["kind"] == kind]
+            table.add_row(kind, str(len(ts)), str(sum(bool(t["killed_while_running"]) for t in ts)),
+                          str(sum(bool(t.get("identical")) for t in ts)), str(sum(t.get("duplicates", 0) for t in ts)),
+                          str(sum(max(0, t.get("counted", 0) - t.get("planned", 0)) for t in ts)),
+                          str(sum(t in res["failures"] for t in ts)))
+        console.print(table)
+    if res["failures"]:
+        raise typer.Exit(1)
 
 
 @bench_app.command("kill")

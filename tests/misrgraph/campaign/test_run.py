@@ -1,0 +1,110 @@
+"""``run_campaign`` / ``misrgraph campaign`` on a reduced campaign (2 paths x 4 passes): a real
+2-worker LocalCluster against the same steps run in this process, resumption, failures reported
+per pass, and bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from misrgraph.campaign import campaign_difference, campaign_fingerprint, run_campaign
+from misrgraph.commands.cli import app
+from misrgraph.errors import InputError
+from misrgraph.model.constants import CAMERAS
+
+
+@pytest.fixture(scope="module")
+def runs(campaign_setup, tmp_path_factory):
+    cfg, inputs = campaign_setup
+    base = tmp_path_factory.mktemp("runs")
+    seq = run_campaign(base / "sequential", cfg, inputs=inputs, workers=0)
+    clu = run_campaign(base / "cluster", cfg, inputs=inputs, workers=2)
+    return cfg, inputs, base, seq, clu
+
+
+def test_cluster_run_equals_the_sequential_run(runs) -> None:
+    cfg, _, base, seq, clu = runs
+    assert clu["cluster"]["kind"] == "dask" and clu["cluster"]["workers"] == 2
+    assert len(clu["cluster"]["peak_rss_mb"]) == 2  # one figure per worker process
+    # the tasks ran on both worker processes, none in this one; in-process, all here
+    assert len(clu["cluster"]["task_pids"]) == 2 and os.getpid() not in clu["cluster"]["task_pids"]
+    assert seq["cluster"]["task_pids"] == [os.getpid()]
+    for s in (seq, clu):
+        assert s["passes"] == {"planned": 8, "done": 8, "failed": 0}, s["failed"]
+        assert s["failed"] == []
+    d = campaign_difference(base / "sequential", base / "cluster")
+    assert d["missing"] == [] and d["other"] == []
+    # workers run one BLAS thread each, this process several: the sums are ordered differently,
+    # so the numbers agree to round-off (float32 PP grids: a few 1e-8), not bit for bit
+    assert d["max_relative"] < 1e-6, d
+    n_out = len(campaign_fingerprint(base / "cluster"))
+    assert n_out == 1 + 8 + 2 * (4 + 1 + 1)  # calibration, 8 passes; per path 4 state passes, estimate, PP
+
+
+def test_the_campaign_improves_on_the_supplied_navigation_in_every_camera(runs) -> None:
+    _, _, base, _, clu = runs
+    assert set(clu["cameras"]) == set(CAMERAS)
+    for cam, v in clu["cameras"].items():
+        assert v["passes"] == 8
+        # check points against the simulator's truth: after adjustment, well under the supplied error
+        assert v["checkpoint_rms_m"] < 0.5 * v["supplied_mean_m"], (cam, v)
+    for path in ("37", "38"):
+        p = clu["paths"][path]
+        assert p["passes"] == {"planned": 4, "done": 4, "failed": 0}
+        assert p["products"]["status"] == "done" and np.isfinite(p["products"]["pp_error_rms_m"])
+        assert p["coregistration_px_max"] < 0.5
+    md = (base / "cluster" / "report" / "campaign.md").read_text()
+    assert "| 37 | 4/4 |" in md and "Calibration" in md
+    for fig in ("cameras.png", "paths.png", "map.png", "stages.png"):
+        assert (base / "cluster" / "report" / fig).stat().st_size > 1000
+    assert json.loads((base / "cluster" / "summary.json").read_text())["passes"]["done"] == 8
+
+
+def test_a_rerun_on_a_users_scheduler_finds_everything_done(runs) -> None:
+    from distributed import LocalCluster
+
+    cfg, inputs, base, _, clu = runs
+    before = campaign_fingerprint(base / "cluster")
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        again = run_campaign(base / "cluster", cfg, inputs=inputs, scheduler=cluster.scheduler_address)
+    assert again["cluster"]["scheduler"] == cluster.scheduler_address
+    assert all(s["found_done"] == s["tasks"] for s in again["stages"].values()), again["stages"]
+    assert again["passes"] == clu["passes"]  # each planned pass counted once
+    assert campaign_fingerprint(base / "cluster") == before
+
+
+def test_a_failing_pass_is_reported_and_the_others_go_on(campaign_setup, tmp_path) -> None:
+    cfg, inputs = campaign_setup
+    mine = tmp_path / "inputs"
+    shutil.copytree(inputs, mine)
+    bad = sorted((mine / "path_038" / "passes").glob("*.h5"))[1]
+    bad.write_bytes(bad.read_bytes()[:5000])  # truncated
+    r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "out"), "--inputs", str(mine), "--paths", "37,38",
+                                 "--months", "2", "--size", "reduced", "--workers", "0", "--no-products", "--json"])
+    assert r.exit_code == 1, r.output
+    s = json.loads(r.stdout)
+    assert s["passes"] == {"planned": 8, "done": 7, "failed": 1}
+    (f,) = s["failed"]
+    assert f["name"] == bad.stem and bad.name in f["reason"]
+    assert s["paths"]["38"]["passes"]["failed"] == 1 and s["paths"]["37"]["passes"]["failed"] == 0
+
+
+def test_bad_input_is_one_clear_error(campaign_setup, tmp_path) -> None:
+    cfg, inputs = campaign_setup
+    with pytest.raises(InputError, match="--inputs"):
+        run_campaign(tmp_path / "a", cfg, inputs=tmp_path, workers=0)
+    with pytest.raises(InputError, match="--paths"):
+        run_campaign(tmp_path / "a", cfg.replace(paths=(99,)), inputs=inputs, workers=0)
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "campaign.json").write_text(json.dumps({"digest": "other", "config": {"months": 1}}))
+    with pytest.raises(InputError, match="options of the campaign already in it"):
+        run_campaign(tmp_path / "b", cfg, inputs=inputs, workers=0)
+    r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "c"), "--workers", "1", "--scheduler", "tcp://x:1"])
+    assert r.exit_code == 2 and "give one" in r.output
+    r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "c"), "--paths", "300"])
+    assert r.exit_code == 2 and "paths" in r.output and "1..233" in r.output
