@@ -405,17 +405,9 @@ def view(
     console.print(f"logged {len(out['entities'])} entities ({out['kind']})" + (f" to {out['rrd']}" if out["rrd"] else ""))
 
 
-CAMPAIGN_HELP = """The calibration campaign as one command, on Dask: calibrate the cameras on a GCP month,
-adjust the chosen repeat passes of each path with the calibrated model, build each path's
-incremental state and Projection Parameters, and write a report (OUT/report/campaign.md) and
-OUT/summary.json.
+CAMPAIGN_HELP = """The calibration campaign as one command, on Dask: calibrate the cameras on a GCP month, adjust the chosen repeat passes of each path with the calibrated model, build each path's incremental state and Projection Parameters, and write a report (OUT/report/campaign.md) and OUT/summary.json.
 
-Inputs are simulated into OUT/inputs unless --inputs names scenario directories (month/ and
-path_PPP/). Tasks run on a LocalCluster of --workers processes (default: one per core), on the
-cluster at --scheduler (its workers must see OUT at the same path), or with --workers 0 in this
-process without Dask. Rerun the same command to resume: every output is named by a digest of its
-inputs and written atomically, so nothing done is redone and nothing is counted twice. Exit status
-1 when any task failed (each failure is reported with its reason; none stops the others)."""
+Inputs are simulated into OUT/inputs unless --inputs names scenario directories (month/ and path_PPP/). Tasks run on a LocalCluster of --workers processes (default: one per core), on the cluster at --scheduler (its workers must see OUT at the same path), or with --workers 0 in this process without Dask. Rerun the same command to resume: every output is named by a digest of its inputs and written atomically, so nothing done is redone and nothing is counted twice. Exit status 1 when any task failed (each failure is reported with its reason; none stops the others)."""
 
 
 @app.command(help=CAMPAIGN_HELP)
