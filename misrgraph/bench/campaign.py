@@ -210,7 +210,7 @@ def _worker_trial(out: Path, cfg: CampaignConfig, inputs: Path, after_s: float, 
     from distributed import Client, LocalCluster
 
     logging.getLogger("distributed").setLevel(logging.ERROR)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as client:
         result: dict[str, Any] = {}
 

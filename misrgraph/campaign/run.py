@@ -153,7 +153,7 @@ def _executor(workers: int | None, scheduler: str | None, client: Any) -> Any:
     if n < 0:
         raise InputError("--workers", n, "a number of worker processes >= 0 (0: no Dask, this process)")
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=":0" if _has_dashboard() else None, silence_logs=logging.ERROR)
+                           dashboard_address=":0", silence_logs=logging.ERROR)  # any free port
     c = Client(cluster)
     return _Dask(c, [c, cluster])
 

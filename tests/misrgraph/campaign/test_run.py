@@ -70,7 +70,7 @@ def test_a_rerun_on_a_users_scheduler_finds_everything_done(runs) -> None:
 
     cfg, inputs, base, _, clu = runs
     before = campaign_fingerprint(base / "cluster")
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         again = run_campaign(base / "cluster", cfg, inputs=inputs, scheduler=cluster.scheduler_address)
     assert again["cluster"]["scheduler"] == cluster.scheduler_address
     assert all(s["found_done"] == s["tasks"] for s in again["stages"].values()), again["stages"]
