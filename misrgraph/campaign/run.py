@@ -30,6 +30,7 @@ import json
 import logging
 import os
 import re
+import shutil
 import time
 import uuid
 from pathlib import Path
@@ -200,8 +201,6 @@ def _remove_debris(out: Path) -> int:
     for p in list(out.rglob(".*.tmp")):
         n += 1
         if p.is_dir():
-            import shutil
-
             shutil.rmtree(p, ignore_errors=True)
         else:
             with contextlib.suppress(FileNotFoundError):
