@@ -23,8 +23,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -34,6 +32,8 @@ import numpy as np
 
 import misrgraph.campaign.tasks as tasks
 from misrgraph.campaign.plan import DAYS_PER_MONTH, REPEAT_DAYS, CampaignConfig, choose, plan_campaign
+from misrgraph.bench.faults import _cli, _run_and_kill
+from misrgraph.bench.work import bench_workdir
 from misrgraph.campaign.run import PLAN_FILE, campaign_fingerprint, run_campaign
 from misrgraph.errors import InputError
 from misrgraph.model.orbit import REPEAT_PATHS
@@ -77,64 +77,42 @@ def run_bench_campaign(paths: int = 4, months: float = 2.0, size: str = "reduced
     """Adjustment throughput with 1 and 2 workers on the same ``paths`` x (passes per path) passes."""
     if paths < 1:
         raise InputError("paths", paths, "at least 1")
-    tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-campaign-") if workdir is None else None
-    work = Path(tmp.name if tmp else workdir)  # type: ignore[arg-type]
-    work.mkdir(parents=True, exist_ok=True)
-    cfg = CampaignConfig(paths=tuple(range(37, 37 + paths)), months=months, size=size, seed=seed, products=False)
-    if progress:
-        progress("simulating the inputs and calibrating (in-process, once)")
-    inputs = prepare_campaign_inputs(work, cfg)
-    ref = work / "reference"
-    if not (ref / "summary.json").exists():
-        run_campaign(ref, cfg, inputs=inputs, workers=0)
-    runs: dict[str, Any] = {}
-    for n in (1, 2):
-        out = work / f"workers_{n}"
-        shutil.rmtree(out, ignore_errors=True)
-        _seed_calibration(ref, out)
+    with bench_workdir(workdir, "misrgraph-bench-campaign-") as work:
+        cfg = CampaignConfig(paths=tuple(range(37, 37 + paths)), months=months, size=size, seed=seed, products=False)
         if progress:
-            progress(f"{n} worker{'s' if n > 1 else ''}")
-        s = run_campaign(out, cfg, inputs=inputs, workers=n)
-        st = s["stages"]["adjust"]
-        if s["passes"]["failed"] or st["found_done"]:
-            raise RuntimeError(f"bench campaign: the {n}-worker run did not adjust every pass afresh: {s['passes']}, {s['failed'][:3]}")
-        runs[str(n)] = {"passes": s["passes"]["done"], "adjust_wall_seconds": st["wall_seconds"],
-                        "passes_per_minute": 60.0 * s["passes"]["done"] / st["wall_seconds"],
-                        "task_seconds_per_pass": st["task_seconds"] / s["passes"]["done"],
-                        "peak_rss_mb_per_worker": s["cluster"]["peak_rss_mb"], "total_seconds": s["seconds"]}
-    ratio = runs["2"]["passes_per_minute"] / runs["1"]["passes_per_minute"]
-    # the full plan: 233 paths, six months, 30 % (at least 4 per path), at the 2-worker rate
-    full = CampaignConfig()
-    available = math.ceil(full.months * DAYS_PER_MONTH / REPEAT_DAYS - 1e-9)
-    n_full = REPEAT_PATHS * len(choose(available, full))
-    est_h = n_full / runs["2"]["passes_per_minute"] / 60.0
-    out = {"size": size, "paths": paths, "passes": runs["1"]["passes"], "workers": runs, "scaling_1_to_2": ratio,
-           "full_plan": {"passes": n_full, "adjust_hours_at_2_workers": est_h,
-                         "note": f"adjustment stage only, at the measured {size}-size rate; the per-path products "
-                                 "and the calibration come on top"}}
-    if tmp is not None:
-        tmp.cleanup()
-    return out
+            progress("simulating the inputs and calibrating (in-process, once)")
+        inputs = prepare_campaign_inputs(work, cfg)
+        ref = work / "reference"
+        if not (ref / "summary.json").exists():
+            run_campaign(ref, cfg, inputs=inputs, workers=0)
+        runs: dict[str, Any] = {}
+        for n in (1, 2):
+            out = work / f"workers_{n}"
+            shutil.rmtree(out, ignore_errors=True)
+            _seed_calibration(ref, out)
+            if progress:
+                progress(f"{n} worker{'s' if n > 1 else ''}")
+            s = run_campaign(out, cfg, inputs=inputs, workers=n)
+            st = s["stages"]["adjust"]
+            if s["passes"]["failed"] or st["found_done"]:
+                raise RuntimeError(f"bench campaign: the {n}-worker run did not adjust every pass afresh: {s['passes']}, {s['failed'][:3]}")
+            runs[str(n)] = {"passes": s["passes"]["done"], "adjust_wall_seconds": st["wall_seconds"],
+                            "passes_per_minute": 60.0 * s["passes"]["done"] / st["wall_seconds"],
+                            "task_seconds_per_pass": st["task_seconds"] / s["passes"]["done"],
+                            "peak_rss_mb_per_worker": s["cluster"]["peak_rss_mb"], "total_seconds": s["seconds"]}
+        ratio = runs["2"]["passes_per_minute"] / runs["1"]["passes_per_minute"]
+        # the full plan: 233 paths, six months, 30 % (at least 4 per path), at the 2-worker rate
+        full = CampaignConfig()
+        available = math.ceil(full.months * DAYS_PER_MONTH / REPEAT_DAYS - 1e-9)
+        n_full = REPEAT_PATHS * len(choose(available, full))
+        est_h = n_full / runs["2"]["passes_per_minute"] / 60.0
+        return {"size": size, "paths": paths, "passes": runs["1"]["passes"], "workers": runs, "scaling_1_to_2": ratio,
+                "full_plan": {"passes": n_full, "adjust_hours_at_2_workers": est_h,
+                              "note": f"adjustment stage only, at the measured {size}-size rate; the per-path products "
+                                      "and the calibration come on top"}}
 
 
 # ---------------------------------------------------------------------------- kill trials
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "misrgraph.commands.cli", *args]
-
-
-def _kill_group_after(cmd: list[str], after_s: float) -> bool:
-    """Start ``cmd`` in a new session and SIGKILL its whole process group after ``after_s`` s;
-    True if it was still running."""
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        p.wait(timeout=after_s)
-        return False
-    except subprocess.TimeoutExpired:
-        os.killpg(p.pid, signal.SIGKILL)
-        p.wait()
-        return True
-
-
 def _check(out: Path, reference: dict[str, str], plan: dict[str, Any]) -> dict[str, Any]:
     """Compare a finished campaign with the reference fingerprint; count duplicates and debris."""
     fp = campaign_fingerprint(out)
@@ -159,48 +137,43 @@ def run_campaign_kill_trials(trials: int = 10, kinds: tuple[str, ...] = ("client
     bad = [k for k in kinds if k not in ("client", "worker")]
     if bad:
         raise InputError("kinds", bad, ("client", "worker"))
-    tmp = tempfile.TemporaryDirectory(prefix="misrgraph-kill-campaign-") if workdir is None else None
-    work = Path(tmp.name if tmp else workdir)  # type: ignore[arg-type]
-    work.mkdir(parents=True, exist_ok=True)
-    cfg = CampaignConfig(paths=tuple(range(37, 37 + paths)), months=months, size="reduced", seed=seed, pp_blocks=1)
-    inputs = prepare_campaign_inputs(work, cfg)
-    args = ["campaign", "--inputs", str(inputs), "--paths", ",".join(map(str, cfg.paths)), "--months", str(months),
-            "--size", "reduced", "--seed", str(seed), "--pp-blocks", "1", "--workers", "2"]
-    # the reference: an uninterrupted run on a 2-worker cluster (the trials' kind of cluster)
-    ref = work / "reference"
-    shutil.rmtree(ref, ignore_errors=True)
-    t0 = time.perf_counter()
-    r = subprocess.run(_cli(*args, "--out", str(ref)), capture_output=True, text=True)
-    t_full = time.perf_counter() - t0
-    if r.returncode != 0:
-        raise RuntimeError(f"the uninterrupted campaign failed: {r.stderr.strip()[-800:]}")
-    reference = campaign_fingerprint(ref)
-    plan = json.loads((ref / PLAN_FILE).read_text())
-    rng = np.random.default_rng(seed)
-    rows: list[dict[str, Any]] = []
-    for kind in kinds:
-        for i in range(trials):
-            out = work / f"{kind}_{i}"
-            shutil.rmtree(out, ignore_errors=True)
-            if progress:
-                progress(f"{kind} kill trial {i + 1}/{trials}")
-            if kind == "client":
-                after = float(rng.uniform(2.0, t_full))
-                killed = _kill_group_after(_cli(*args, "--out", str(out)), after)
-                r = subprocess.run(_cli(*args, "--out", str(out)), capture_output=True, text=True)
-                row = {"kind": kind, "after_s": after, "killed_while_running": killed, "rerun_ok": r.returncode == 0}
-            else:
-                row = _worker_trial(out, cfg, inputs, float(rng.uniform(1.0, 0.8 * t_full)), int(rng.integers(2)))
-            if (out / "summary.json").exists():
-                row.update(_check(out, reference, plan))
-            rows.append(row)
-    failures = [r for r in rows if not (r.get("rerun_ok") and r.get("identical") and r.get("duplicates") == 0
-                                        and r.get("counted") == r.get("planned"))]
-    out = {"trials": rows, "failures": failures, "uninterrupted_seconds": t_full,
-           "killed_while_running": sum(bool(r.get("killed_while_running")) for r in rows)}
-    if tmp is not None:
-        tmp.cleanup()
-    return out
+    with bench_workdir(workdir, "misrgraph-kill-campaign-") as work:
+        cfg = CampaignConfig(paths=tuple(range(37, 37 + paths)), months=months, size="reduced", seed=seed, pp_blocks=1)
+        inputs = prepare_campaign_inputs(work, cfg)
+        args = ["campaign", "--inputs", str(inputs), "--paths", ",".join(map(str, cfg.paths)), "--months", str(months),
+                "--size", "reduced", "--seed", str(seed), "--pp-blocks", "1", "--workers", "2"]
+        # the reference: an uninterrupted run on a 2-worker cluster (the trials' kind of cluster)
+        ref = work / "reference"
+        shutil.rmtree(ref, ignore_errors=True)
+        t0 = time.perf_counter()
+        r = subprocess.run(_cli(*args, "--out", str(ref)), capture_output=True, text=True)
+        t_full = time.perf_counter() - t0
+        if r.returncode != 0:
+            raise RuntimeError(f"the uninterrupted campaign failed: {r.stderr.strip()[-800:]}")
+        reference = campaign_fingerprint(ref)
+        plan = json.loads((ref / PLAN_FILE).read_text())
+        rng = np.random.default_rng(seed)
+        rows: list[dict[str, Any]] = []
+        for kind in kinds:
+            for i in range(trials):
+                out = work / f"{kind}_{i}"
+                shutil.rmtree(out, ignore_errors=True)
+                if progress:
+                    progress(f"{kind} kill trial {i + 1}/{trials}")
+                if kind == "client":
+                    after = float(rng.uniform(2.0, t_full))
+                    killed = _run_and_kill(_cli(*args, "--out", str(out)), after, group=True)
+                    r = subprocess.run(_cli(*args, "--out", str(out)), capture_output=True, text=True)
+                    row = {"kind": kind, "after_s": after, "killed_while_running": killed, "rerun_ok": r.returncode == 0}
+                else:
+                    row = _worker_trial(out, cfg, inputs, float(rng.uniform(1.0, 0.8 * t_full)), int(rng.integers(2)))
+                if (out / "summary.json").exists():
+                    row.update(_check(out, reference, plan))
+                rows.append(row)
+        failures = [r for r in rows if not (r.get("rerun_ok") and r.get("identical") and r.get("duplicates") == 0
+                                            and r.get("counted") == r.get("planned"))]
+        return {"trials": rows, "failures": failures, "uninterrupted_seconds": t_full,
+                "killed_while_running": sum(bool(r.get("killed_while_running")) for r in rows)}
 
 
 def _worker_trial(out: Path, cfg: CampaignConfig, inputs: Path, after_s: float, victim: int) -> dict[str, Any]:

@@ -63,14 +63,19 @@ def _run(cmd: list[str], timeout: float = 1800.0) -> float:
     return time.perf_counter() - t0
 
 
-def _run_and_kill(cmd: list[str], after_s: float) -> bool:
-    """Start ``cmd`` and SIGKILL it after ``after_s`` seconds; True if it was still running."""
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+def _run_and_kill(cmd: list[str], after_s: float, group: bool = False) -> bool:
+    """Start ``cmd`` and SIGKILL it after ``after_s`` seconds; True if it was still running.
+    ``group``: start it in a new session and kill its whole process group (a command with child
+    processes, e.g. ``campaign``'s Dask workers: what a lost job or machine does)."""
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=group)
     try:
         p.wait(timeout=after_s)
         return False
     except subprocess.TimeoutExpired:
-        p.send_signal(signal.SIGKILL)
+        if group:
+            os.killpg(p.pid, signal.SIGKILL)
+        else:
+            p.send_signal(signal.SIGKILL)
         p.wait()
         return True
 

@@ -16,6 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from misrgraph.bench.work import bench_workdir
 from misrgraph.estimate.graph import GraphConfig, build_pass_graph
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 from misrgraph.estimate.solver import SolverParams, linearize, solve, solve_gtsam_lm
@@ -509,34 +510,29 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
 
     if size not in ("reduced", "standard"):
         raise InputError("size", size, ("reduced", "standard"))
-    tmp = None
-    if workdir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-")
-        workdir = tmp.name
-    per_run = []
-    ratio: dict[str, list[float]] = {}
-    nees: dict[str, list[float]] = {}
-    improvement: dict[str, list[float]] = {}
-    seconds = []
-    for i in range(runs):
-        out = Path(workdir) / f"nees_adjust_{size}_{truth}_{seed + i}"
-        if not (out / "scenario.json").exists():
-            run_simulate(ScenarioConfig.from_dict(dict(NEES_SCENARIOS[("adjust", size)], seed=seed + i, truth=truth)), out)
-        s = run_products(out, Path(workdir) / f"pp_{size}_{truth}_{seed + i}", default_blocks=blocks_per_pass)
-        seconds.append(s["seconds"]["pp"])
-        err = s["pp_error_m"]
-        for cam, v in err.items():
-            ratio.setdefault(cam, []).append(v["rms_over_predicted"])
-            nees.setdefault(cam, []).append(v["nees"])
-            improvement.setdefault(cam, []).append(v["supplied_rms"] / v["rms"])
-        per_run.append({"seed": seed + i, "blocks": s["blocks"],
-                        "rms_over_predicted": {c: v["rms_over_predicted"] for c, v in err.items()},
-                        "nees": {c: v["nees"] for c, v in err.items()},
-                        "rms_m": {c: v["rms"] for c, v in err.items()}})
-    all_nees = [float(np.mean([r["nees"][c] for c in r["nees"]])) for r in per_run]
-    all_ratio = [float(np.sqrt(np.mean([r["rms_over_predicted"][c] ** 2 for c in r["rms_over_predicted"]]))) for r in per_run]
-    if tmp is not None:
-        tmp.cleanup()
+    with bench_workdir(workdir) as workdir:
+        per_run = []
+        ratio: dict[str, list[float]] = {}
+        nees: dict[str, list[float]] = {}
+        improvement: dict[str, list[float]] = {}
+        seconds = []
+        for i in range(runs):
+            out = Path(workdir) / f"nees_adjust_{size}_{truth}_{seed + i}"
+            if not (out / "scenario.json").exists():
+                run_simulate(ScenarioConfig.from_dict(dict(NEES_SCENARIOS[("adjust", size)], seed=seed + i, truth=truth)), out)
+            s = run_products(out, Path(workdir) / f"pp_{size}_{truth}_{seed + i}", default_blocks=blocks_per_pass)
+            seconds.append(s["seconds"]["pp"])
+            err = s["pp_error_m"]
+            for cam, v in err.items():
+                ratio.setdefault(cam, []).append(v["rms_over_predicted"])
+                nees.setdefault(cam, []).append(v["nees"])
+                improvement.setdefault(cam, []).append(v["supplied_rms"] / v["rms"])
+            per_run.append({"seed": seed + i, "blocks": s["blocks"],
+                            "rms_over_predicted": {c: v["rms_over_predicted"] for c, v in err.items()},
+                            "nees": {c: v["nees"] for c, v in err.items()},
+                            "rms_m": {c: v["rms"] for c, v in err.items()}})
+        all_nees = [float(np.mean([r["nees"][c] for c in r["nees"]])) for r in per_run]
+        all_ratio = [float(np.sqrt(np.mean([r["rms_over_predicted"][c] ** 2 for c in r["rms_over_predicted"]]))) for r in per_run]
     return {"size": size, "truth": truth, "runs": runs, "blocks_per_pass": blocks_per_pass,
             "summary": {"nees_all_cameras": _interval(all_nees), "rms_over_predicted_all_cameras": _interval(all_ratio),
                         "per_camera": {c: {"passes": len(ratio[c]), "rms_over_predicted": _interval(ratio[c]),

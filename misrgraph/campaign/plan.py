@@ -115,7 +115,7 @@ class CampaignPlan:
         return sum(len(p.cycles) for p in self.paths)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"config": self.config.to_dict(), "digest": digest(self.config.to_dict()),
+        return {"config": self.config.to_dict(),
                 "paths": {str(p.path): {"available": p.available, "cycles": list(p.cycles), "pass_ids": list(p.pass_ids)}
                           for p in self.paths},
                 "passes_planned": self.n_passes}

@@ -55,7 +55,7 @@ def write_report(report_dir: Path, plan: dict[str, Any], summary: dict[str, Any]
     except MisrGraphError as exc:  # matplotlib is an optional extra: the tables still say everything
         log.warning("campaign report without figures: %s", exc)
     cfg = plan["config"]
-    L = [f"# misrgraph campaign", "",
+    L = ["# misrgraph campaign", "",
          f"{len(plan['paths'])} paths, {cfg['months']} months of data, {cfg['fraction']:.0%} of each path's repeat passes "
          f"(at least {cfg['passes_per_path']}), {cfg['size']} size, {cfg['truth']} truth; inputs: {plan['inputs']}.",
          f"Ran on: {summary['cluster'].get('kind')} ({summary['cluster'].get('workers')} workers) in {summary['seconds']:.0f} s.", "",

@@ -41,7 +41,7 @@ import numpy as np
 from misrgraph.campaign.plan import CampaignConfig, CampaignPlan, PathPlan, choose, digest, plan_campaign
 from misrgraph.campaign.report import write_report
 import misrgraph.campaign.tasks as tasks
-from misrgraph.errors import InputError, MisrGraphError, require_extra
+from misrgraph.errors import InputError, require_extra
 from misrgraph.io.h5 import atomic_file
 
 __all__ = ["run_campaign", "campaign_fingerprint", "campaign_difference", "plan_from_inputs", "PLAN_FILE", "SUMMARY_FILE"]
