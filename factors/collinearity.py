@@ -247,6 +247,35 @@ class CollinearityBatch:
     def __len__(self) -> int:
         return int(self.group.size)
 
+    @classmethod
+    def concatenate(cls, batches: "list[CollinearityBatch]") -> "CollinearityBatch":
+        """One batch holding every observation of ``batches`` (in their order), each batch's
+        factors kept apart (group ids offset per batch). The batches must share the supplied
+        instrument angles, the pixel pitch ``dx``, the estimated camera parameters and the loss."""
+        if not batches:
+            raise ValueError("CollinearityBatch.concatenate needs at least one batch")
+        b0 = batches[0]
+        for i, b in enumerate(batches[1:], 1):
+            same = (b.camera_select == b0.camera_select and b.robust == b0.robust and b.const.dx == b0.const.dx
+                    and np.array_equal(b.omega_supplied, b0.omega_supplied))
+            if not same:
+                raise ValueError(f"CollinearityBatch.concatenate: batch {i} differs from batch 0 in its camera "
+                                 "selection, loss, pixel pitch or supplied instrument angles")
+        cat = np.concatenate
+        const = CollinearityConstants(*(cat([getattr(b.const, f) for b in batches]) for f in
+                                        ("eci_to_ecef", "p_meas", "t_go", "eph_design", "angles_meas", "hermite", "k",
+                                         "frac", "sample_offset", "cross_scale")), b0.const.dx)
+        groups, base = [], 0
+        for b in batches:
+            groups.append(b.group + base)
+            base += b.layout.n_factors
+        sk = [cat([b.slot_keys[s] for b in batches]) for s in range(len(b0.slot_keys))]
+        keys = {"landmark": sk[0], "ephemeris": sk[1], "knots": np.stack([np.stack([sk[2 + 2 * a], sk[3 + 2 * a]], -1)
+                                                                            for a in range(3)], 1),
+                "camera": sk[8], "omega": sk[9]}
+        return cls(const, cat([b.camera_supplied for b in batches]), b0.omega_supplied,
+                   cat([b.sigma_px for b in batches]), cat(groups), keys, b0.camera_select, b0.robust)
+
     # ------------------------------------------------------------------ variables
     def _gather(self, values: gtsam.Values, sl: slice) -> tuple[Array, Array, Array, Array, Array]:
         n = sl.stop - sl.start

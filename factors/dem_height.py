@@ -77,6 +77,15 @@ class DemBatch:
     def __len__(self) -> int:
         return int(self.keys.size)
 
+    @classmethod
+    def concatenate(cls, batches: "list[DemBatch]") -> "DemBatch":
+        """One batch with every factor of ``batches`` (in their order), evaluated on the first
+        batch's surface (the batches must have been built on the same DEM, geoid and fit)."""
+        if not batches:
+            raise ValueError("DemBatch.concatenate needs at least one batch")
+        return cls(np.concatenate([b.keys for b in batches]), np.concatenate([b.sigma_m for b in batches]),
+                   batches[0].surface)
+
     def _landmarks(self, values: gtsam.Values) -> Array:
         return np.stack([values.atVector(int(k)) for k in self.keys]) if len(self) else np.zeros((0, 3))
 

@@ -21,17 +21,17 @@ from misrgraph.estimate.graph import GraphConfig, build_pass_graph
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 from misrgraph.estimate.solver import SolverParams, linearize, solve, solve_gtsam_lm
 
-__all__ = ["run_bench_solver", "run_bench_sba", "run_bench_scaling", "run_bench_incremental", "run_bench_nees", "run_bench_sources",
-           "standard_pass"]
+__all__ = ["run_bench_solver", "run_bench_scaling", "run_bench_nees", "run_bench_sources", "standard_pass"]
 
 log = logging.getLogger(__name__)
 
 
-def standard_pass(tie_points: int, seed: int, workdir: Path, duration_s: float = 2700.0):
-    """Simulate (or reuse) the standard pass scenario with ``tie_points`` tie points."""
-    out = workdir / f"pass_{tie_points}_{seed}_{int(duration_s)}"
+def standard_pass(tie_points: int, seed: int, workdir: Path, duration_s: float = 2700.0, check_points: int = 0):
+    """Simulate (or reuse) the standard pass scenario with ``tie_points`` tie points (and
+    ``check_points`` check points, which only score the products)."""
+    out = workdir / (f"pass_{tie_points}_{seed}_{int(duration_s)}" + (f"_c{check_points}" if check_points else ""))
     if not (out / "scenario.json").exists():
-        run_simulate(ScenarioConfig(scenario="pass", seed=seed, n_tie_points=tie_points, n_check_points=0,
+        run_simulate(ScenarioConfig(scenario="pass", seed=seed, n_tie_points=tie_points, n_check_points=check_points,
                                     duration_s=duration_s), out)
     sc = load_scenario(out)
     return sc, sc.load_pass(0)
@@ -91,201 +91,6 @@ def run_bench_solver(tie_points: int = 1000, seed: int = 0, workdir: str | Path 
     return out
 
 
-def _knot_keys(pg) -> list[int]:
-    return [k for a in range(3) for k in pg.knot_keys(a)]
-
-
-class _Budget(Exception):
-    """Raised inside an alternative's callback when its time budget is spent."""
-
-
-class _Trace:
-    """Costs of the improving iterates of one solver run, with the wall time each was reached."""
-
-    def __init__(self, budget_s: float) -> None:
-        self.budget_s = budget_s
-        self.t0 = time.perf_counter()
-        self.points: list[tuple[float, float]] = []
-
-    def add(self, cost: float, check_budget: bool = True) -> None:
-        now = time.perf_counter() - self.t0
-        if np.isfinite(cost) and (not self.points or cost < self.points[-1][1]):
-            self.points.append((now, float(cost)))
-        if check_budget and now > self.budget_s:
-            raise _Budget()
-
-    def seconds(self) -> float:
-        return time.perf_counter() - self.t0
-
-    def reach(self, target: float) -> tuple[float, float, int] | None:
-        """(seconds, cost, improving iterates) at the first cost <= target, or None."""
-        for i, (t, c) in enumerate(self.points):
-            if c <= target:
-                return t, c, i
-        return None
-
-
-_LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
-
-
-def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | None = None,
-                  skip_gtsam: bool = False, skip_ceres: bool = False, target_rel: float = 1e-6,
-                  budget_s: float = 60.0) -> dict[str, Any]:
-    """Wall time to reach equal final cost, with marginals of all knots, on the standard pass (issue 8).
-
-    Every solver minimises the same cost (least squares, DEM on) from the same start with a tight
-    criterion (relative decrease 1e-10, at most ``budget_s`` seconds each), and the wall time at
-    which each first reaches an iterate within ``target_rel`` (relative) of the lowest cost any
-    of them found is reported, plus the time of the knot marginals at its end point (the sparse
-    Schur inverse, the same for all; ``gtsam.Marginals`` for GTSAM's optimiser). A solver that
-    never gets there reports its whole run time and ``reached: false``; its ratio is then a lower
-    bound. Solvers: misrgraph's core (Schur backend; also without its second-order DEM term, and
-    with GTSAM's elimination), ``gtsam.LevenbergMarquardtOptimizer``, ``scipy.optimize.least_squares``
-    (TRF, sparse Jacobian) and Ceres via pyceres (Python cost functions).
-    """
-    from misrgraph.estimate.backends import solve_ceres, solve_scipy
-    from misrgraph.estimate.problem import flat_marginals
-    from misrgraph.estimate.problem import marginal_covariances
-
-    tmp = None
-    if workdir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-")
-        workdir = tmp.name
-    sc, p = standard_pass(tie_points, seed, Path(workdir))
-    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig())
-    prob = pg.problem
-    knots = _knot_keys(pg)
-    flat = prob.flat()
-    flat.normal_equations(flat.initial())  # warm-up: numba compilation or cache load, not timed
-    tight = SolverParams(relative_error_tol=1e-10, absolute_error_tol=1e-10, max_iterations=200)
-    runs: dict[str, dict[str, Any]] = {}
-
-    def finish(name: str, tr: _Trace, marginals: Callable[[], object] | None) -> None:
-        """Record a run: its trace, its seconds, and the seconds of its knot marginals."""
-        total = tr.seconds()
-        t0 = time.perf_counter()
-        if marginals is not None:
-            marginals()
-        runs[name] = {"trace": tr, "run_seconds": total, "marginal_seconds": time.perf_counter() - t0}
-
-    def core(name: str, params: SolverParams) -> None:
-        tr = _Trace(budget_s)
-        tr.add(flat.cost(flat.initial()), False)
-        try:
-            res = solve(prob, params, progress=lambda it, err, lam: tr.add(err))
-        except _Budget:
-            res = None
-        finally:
-            for b in prob.batches:
-                b.clear()
-        if res is None:
-            finish(name, tr, None)
-        elif params.backend == "schur":
-            finish(name, tr, lambda: flat_marginals(flat, flat.from_values(res.values)))
-        else:
-            finish(name, tr, lambda: marginal_covariances(prob, res.values))
-
-    core("misrgraph", tight.replace(backend="schur"))
-    core("misrgraph_gauss_newton", tight.replace(backend="schur", dem_second_order=False))
-    core("misrgraph_gtsam_elimination", tight.replace(backend="gtsam"))
-    if not skip_gtsam:
-        import gtsam
-
-        from misrgraph.estimate.solver import gtsam_lm_params
-
-        for b in prob.batches:
-            b.clear()
-        tr = _Trace(budget_s)
-        opt = gtsam.LevenbergMarquardtOptimizer(prob.graph, prob.initial, gtsam_lm_params(prob, tight))
-        tr.add(opt.error(), False)
-        prev, it = opt.error(), 0
-        while it < tight.max_iterations and tr.seconds() < budget_s:
-            opt.iterate()
-            it += 1
-            err = opt.error()
-            tr.add(err, False)
-            if prev - err <= tight.relative_error_tol * prev:
-                break
-            prev = err
-        def gtsam_marginals() -> None:
-            m = gtsam.Marginals(prob.graph, opt.values())
-            for k in knots:
-                m.marginalCovariance(k)
-
-        finish("gtsam_lm", tr, gtsam_marginals)
-    tr = _Trace(budget_s)
-    try:
-        x_s = solve_scipy(flat, ftol=1e-10, max_nfev=1000, on_cost=tr.add)["x"]
-    except _Budget:
-        x_s = None
-    finish("scipy", tr, None if x_s is None else lambda: flat_marginals(flat, x_s))
-    if not skip_ceres:
-        try:
-            import pyceres  # noqa: F401
-        except ImportError:
-            runs["ceres"] = {"skipped": "pyceres is not installed (pip install 'misrgraph[bench]')"}
-        else:
-            tr = _Trace(budget_s)
-            tr.add(flat.cost(flat.initial()), False)
-            c = solve_ceres(flat, ftol=1e-10, max_iterations=200, on_cost=lambda cost: tr.add(cost, False),
-                            max_seconds=budget_s)
-            finish("ceres", tr, lambda: flat_marginals(flat, c["x"]))
-    best = min(r["trace"].points[-1][1] for r in runs.values() if "trace" in r)
-    target = best * (1.0 + target_rel)
-    results: dict[str, Any] = {}
-    mine = runs["misrgraph"]
-    for name, r in runs.items():
-        if "trace" not in r:
-            results[name] = r
-            continue
-        tr = r["trace"]
-        hit = tr.reach(target)
-        row = {"reached": hit is not None, "lowest_cost": tr.points[-1][1], "run_seconds": r["run_seconds"],
-               "marginal_seconds": r["marginal_seconds"], "improving_iterates": len(tr.points) - 1}
-        if hit is not None:
-            row.update(seconds=hit[0] + r["marginal_seconds"], final_cost=hit[1], iterations=hit[2])
-        else:
-            row.update(seconds=r["run_seconds"] + r["marginal_seconds"], final_cost=tr.points[-1][1],
-                       iterations=len(tr.points) - 1)
-        # the lenient comparison: time for each to reach this solver's own lowest cost
-        own = tr.points[-1][1]
-        theirs, ours = tr.reach(own), mine["trace"].reach(own)
-        if name != "misrgraph" and theirs is not None and ours is not None:
-            row["seconds_to_own_lowest_cost"] = theirs[0] + r["marginal_seconds"]
-            row["misrgraph_seconds_to_that_cost"] = ours[0] + mine["marginal_seconds"]
-        # time-to-accuracy profile: seconds (with marginals) to within each relative level of the lowest
-        row["seconds_to_relative_level"] = {
-            f"{lvl:.0e}": (None if tr.reach(best * (1 + lvl)) is None else tr.reach(best * (1 + lvl))[0] + r["marginal_seconds"])
-            for lvl in _LEVELS}
-        results[name] = row
-    ratios, lower_bounds = _time_ratios(results)
-    ours_reached = results["misrgraph"]["reached"]
-    at_own = {f"{k}_over_misrgraph": v["seconds_to_own_lowest_cost"] / v["misrgraph_seconds_to_that_cost"]
-              for k, v in results.items() if "seconds_to_own_lowest_cost" in v}
-    out = {"tie_points": tie_points, "variables": len(prob.dims), "factors": int(prob.graph.size()),
-           "observations": len(pg.collinearity), "target_cost": target, "target_relative": target_rel,
-           "lowest_cost": best, "budget_seconds": budget_s, "results": results, "misrgraph_reached": ours_reached,
-           "reached_by": [k for k, v in results.items() if v.get("reached")], "ratios": ratios,
-           "ratios_that_are_lower_bounds": lower_bounds, "ratios_at_each_solvers_own_lowest_cost": at_own}
-    if tmp is not None:
-        tmp.cleanup()
-    return out
-
-
-def _time_ratios(results: dict[str, Any]) -> tuple[dict[str, float], list[str]]:
-    """Each solver's seconds to the target over misrgraph's, and which of them are lower bounds.
-
-    A ratio means something only when misrgraph reached the target: it is exact when the other
-    solver reached it too and a lower bound when it did not (its whole run). When misrgraph did not
-    reach the target there is no ratio at all (the bench says who did)."""
-    mine = results["misrgraph"]
-    if not mine.get("reached"):
-        return {}, []
-    others = {k: v for k, v in results.items() if k != "misrgraph" and "seconds" in v}
-    ratios = {f"{k}_over_misrgraph": v["seconds"] / mine["seconds"] for k, v in others.items()}
-    return ratios, [f"{k}_over_misrgraph" for k, v in others.items() if not v["reached"]]
-
-
 def run_bench_scaling(sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000), seed: int = 0,
                       workdir: str | Path | None = None) -> dict[str, Any]:
     """Time per pass (solve + knot marginals, Schur backend) against tie points, fitted exponent, memory."""
@@ -324,46 +129,6 @@ def run_bench_scaling(sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000), see
         tmp.cleanup()
     return {"rows": rows, "exponent_per_iteration_vs_observations": slope, "exponent_total_vs_tie_points": slope_total,
             "process_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
-
-
-def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0,
-                          workdir: str | Path | None = None, linearization_tol: float | None = None) -> dict[str, Any]:
-    """Cost of adding the k-th pass with iSAM2 against a batch re-solve of all k passes (batch LM
-    at its default criterion), and both estimates' distance from a tightly converged batch."""
-    from misrgraph.estimate.incremental import DEFAULT_LINEARIZATION_TOL, IncrementalSolver, batch_solution
-
-    tol = DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol
-
-    tmp = None
-    if workdir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-bench-")
-        workdir = tmp.name
-    out = Path(workdir) / f"path_{passes}_{tie_points}_{seed}"
-    if not (out / "scenario.json").exists():
-        run_simulate(ScenarioConfig(scenario="path", seed=seed, n_passes=passes, n_tie_points=tie_points,
-                                    n_check_points=0, duration_s=900.0, start_lat_deg=55.0), out)
-    sc = load_scenario(out)
-    solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, linearization_tol=tol)
-    rows = []
-    for k in range(len(sc.pass_files)):
-        inc = solver.add_passes([sc.load_pass(k)])
-        _, res, batch = batch_solution(solver, SolverParams())
-        rows.append({"pass": k + 1, "incremental_seconds": inc, "batch_seconds": batch, "ratio": inc / batch,
-                     "relinearization_rounds": solver.last_rounds, "linearization_error_sigma": solver.last_linearization_error})
-    # accuracy after the last pass, against a tightly converged batch (not timed)
-    from misrgraph.estimate.problem import marginal_covariances
-
-    prob, tight, _ = batch_solution(solver)
-    m = marginal_covariances(prob, tight.values)
-
-    def worst(v) -> float:
-        return max(float(np.max(np.abs(v.atVector(k) - tight.values.atVector(k)) / np.sqrt(np.diag(m[k]))))
-                   for k in prob.dims)
-
-    if tmp is not None:
-        tmp.cleanup()
-    return {"linearization_tol": tol, "rows": rows, "ratio_last": rows[-1]["ratio"],
-            "max_difference_in_sigma_vs_tight_batch": {"incremental": worst(solver.estimate), "batch": worst(res.values)}}
 
 
 #: the scenario of each study and size: reduced (the suite's size) and standard (what users run)

@@ -34,7 +34,7 @@ from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.estimate.problem import Problem
 
 __all__ = ["GraphConfig", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
-           "CAMERA_PRIOR_SIGMA", "merge_problems"]
+           "CAMERA_PRIOR_SIGMA", "merge_problems", "merge_flat"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -374,6 +374,55 @@ def merge_problems(problems: list[Problem]) -> Problem:
             if k not in last:
                 last.append(k)
     return Problem(graph, values, batches, first, dims, last, positions)
+
+
+def merge_flat(problems: list[Problem]) -> Problem:
+    """:func:`merge_problems` as one least-squares problem the flat formulation (and so the Schur
+    backend) covers: the passes' collinearity batches concatenated into one batch and their DEM
+    batches into one, with every pass's linear priors.
+
+    The result's graph is new (its factors call the merged batches); the landmarks, variables,
+    priors and the cost are those of :func:`merge_problems` on the same problems. Raises
+    :class:`~misrgraph.estimate.problem.NotFlat` when a pass has a robust loss or a factor
+    outside its batches that is not a linear prior.
+    """
+    from misrgraph.estimate.problem import NotFlat
+
+    colls: list[CollinearityBatch] = []
+    dems: list[DemBatch] = []
+    priors = []
+    for p in problems:
+        in_batch: set[int] = set()
+        for b, pos in zip(p.batches, p.batch_positions):
+            if isinstance(b, CollinearityBatch):
+                colls.append(b)
+            elif isinstance(b, DemBatch):
+                dems.append(b)
+            else:
+                raise NotFlat(f"a factor batch of type {type(b).__name__} is not covered by the flat formulation")
+            in_batch.update(int(i) for i in pos)
+        for i in range(int(p.graph.size())):
+            if i in in_batch:
+                continue
+            f = p.graph.at(i)
+            if not isinstance(f, (gtsam.PriorFactorVector, gtsam.LinearContainerFactor)):
+                raise NotFlat(f"factor of type {type(f).__name__} is not covered by the flat formulation")
+            priors.append(f)
+    if any(b.robust is not None for b in colls):
+        raise NotFlat("robust losses are not covered by the flat formulation")
+    try:
+        coll = CollinearityBatch.concatenate(colls)
+    except ValueError as exc:
+        raise NotFlat(str(exc)) from exc
+    layout = merge_problems(problems)
+    problem = Problem(gtsam.NonlinearFactorGraph(), layout.initial, [], layout.eliminate_first, layout.dims,
+                      layout.eliminate_last)
+    problem.add_batch(coll)
+    if dems:
+        problem.add_batch(DemBatch.concatenate(dems))
+    for f in priors:
+        problem.graph.add(f)
+    return problem
 
 
 def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, method) -> dict[int, Array]:

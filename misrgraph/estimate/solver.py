@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import gtsam
 import numpy as np
@@ -39,7 +39,7 @@ from misrgraph.config import Config
 from misrgraph.errors import ConvergenceError, DegenerateProblemError, InputError
 from misrgraph.estimate.problem import Problem, error, linearize
 
-__all__ = ["SolverParams", "SolveResult", "STATUSES", "solve", "error", "linearize", "solve_gtsam_lm", "gtsam_lm_params",
+__all__ = ["gauss_newton_step", "SolverParams", "SolveResult", "STATUSES", "solve", "error", "linearize", "solve_gtsam_lm", "gtsam_lm_params",
            "information_norm", "check_converged"]
 
 log = logging.getLogger(__name__)
@@ -125,8 +125,14 @@ def solve(
     params: SolverParams = SolverParams(),
     initial: gtsam.Values | None = None,
     progress: Callable[[int, float, float], None] | None = None,
+    on_iterate: Callable[[Any], None] | None = None,
 ) -> SolveResult:
     """Minimise the problem's error with Levenberg-Marquardt (see the module docstring).
+
+    ``progress(iteration, cost, lambda)`` and ``on_iterate(x)`` are called after every iteration;
+    ``x`` is the current estimate as the backend holds it (the flat vector of
+    :meth:`misrgraph.estimate.problem.FlatProblem.from_values` for ``"schur"``, a
+    ``gtsam.Values`` for ``"gtsam"``; do not modify it) -- for time-to-accuracy traces.
 
     ``params.backend`` chooses the linear solver of each step: ``"gtsam"`` (GTSAM's sparse
     elimination of the linearised factor graph, any problem), ``"schur"`` (the vectorised flat
@@ -136,7 +142,7 @@ def solve(
     Both apply the same damping, acceptance and convergence rules.
     """
     try:
-        return _solve(problem, params, initial, progress)
+        return _solve(problem, params, initial, progress, on_iterate)
     except _NonFiniteStart:
         _explain_nonfinite_start(problem, initial if initial is not None else problem.initial)
         raise
@@ -147,13 +153,14 @@ class _NonFiniteStart(DegenerateProblemError):
 
 
 def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
-           progress: Callable[[int, float, float], None] | None) -> SolveResult:
+           progress: Callable[[int, float, float], None] | None,
+           on_iterate: Callable[[Any], None] | None = None) -> SolveResult:
     if params.backend in ("schur", "auto"):
         from misrgraph.estimate.problem import NotFlat
 
         try:
             res = _solve_schur(problem, params.replace(dem_second_order=params.dem_second_order is not False),
-                               initial, progress)
+                               initial, progress, on_iterate)
             res.backend = "schur"
             return res
         except NotFlat as exc:
@@ -186,7 +193,7 @@ def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
         return float(lin.error(zero) - lin.error(d))
 
     res = _levenberg_marquardt(values, lambda x: error(problem, x), lambda x, _: linearize(problem, x), step, params,
-                               progress, lambda x: x, model_decrease)
+                               progress, lambda x: x, model_decrease, on_iterate)
     res.backend = "gtsam"
     return res
 
@@ -217,7 +224,8 @@ def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at:
                          step: Callable[[object, object, float], object], params: SolverParams,
                          progress: Callable[[int, float, float], None] | None,
                          to_values: Callable[[object], gtsam.Values],
-                         model_decrease: Callable[[object, object], float]) -> SolveResult:
+                         model_decrease: Callable[[object, object], float],
+                         on_iterate: Callable[[Any], None] | None = None) -> SolveResult:
     """The LM loop shared by both backends, with ``gtsam.LevenbergMarquardtOptimizer``'s rules:
     lambda divided by ``lambda_factor`` after an accepted step, multiplied after a rejected one;
     stop when the decrease is below the absolute or relative tolerance or lambda exceeds its bound.
@@ -260,6 +268,8 @@ def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at:
         history.append(new_err)
         if progress:
             progress(it, new_err, lam)
+        if on_iterate:
+            on_iterate(x)
         log.debug("LM iteration %d: error %.9g (decrease %.3g), lambda %.1e", it, new_err, decrease, lam)
         if lam > params.lambda_upper:
             predicted = float(model_decrease(x, system))
@@ -310,7 +320,8 @@ def _schur_step(sys: _SchurSystem, lam: float, n_l: int) -> Array:
 
 
 def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
-                 progress: Callable[[int, float, float], None] | None) -> SolveResult:
+                 progress: Callable[[int, float, float], None] | None,
+                 on_iterate: Callable[[Any], None] | None = None) -> SolveResult:
     flat = problem.flat()
     n_l = 3 * len(problem.eliminate_first)
 
@@ -331,7 +342,16 @@ def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values |
 
     x0 = flat.from_values(initial if initial is not None else problem.initial)
     return _levenberg_marquardt(x0, flat.cost, lambda x, second: _schur_system(flat, x, n_l, second), step, params,
-                                progress, flat.to_values, model_decrease)
+                                progress, flat.to_values, model_decrease, on_iterate)
+
+
+def gauss_newton_step(flat: Any, x: Array) -> Array:
+    """The undamped Gauss-Newton step ``d = -(J^T J)^-1 J^T r`` of the flat problem at ``x``
+    (Schur complement on the landmark blocks; no DEM second-order term): at a stationary point
+    of the cost it vanishes whatever Hessian approximation a solver used, so its size in sigma
+    units verifies convergence independently of any solver's own stopping rule."""
+    n_l = 3 * len(flat.problem.eliminate_first)
+    return _schur_step(_schur_system(flat, x, n_l, False), 0.0, n_l)
 
 
 def gtsam_lm_params(problem: Problem, params: SolverParams = SolverParams()) -> gtsam.LevenbergMarquardtParams:

@@ -26,7 +26,7 @@ from misrgraph.model.errormodels import AttitudeErrorModel
 from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import PassGeometry
 
-__all__ = ["score_pass", "predicted_checkpoint_rms", "horizontal_error", "true_knots"]
+__all__ = ["score_pass", "geolocation_errors", "predicted_checkpoint_rms", "horizontal_error", "true_knots"]
 
 Array = NDArray[np.float64]
 RED = BANDS.index("red")
@@ -69,31 +69,16 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
     if chk.size:
         g = truth.landmark_ecef[chk]
         h = ecef_to_geodetic(g)[2]
-        an = CAMERAS.index("An")
-        ln_an, sm_an, vis_an, ex_an, _ = true_geo.ground_to_pixel(an, RED, g)
         sq_sum, n_seen = np.zeros(chk.size), np.zeros(chk.size)
-        for c, name in enumerate(CAMERAS):
-            ln, sm, vis, ex, cross_true = true_geo.ground_to_pixel(c, RED, g)
-            if not vis.any():
-                continue
-            before = horizontal_error(supplied.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
-            after = horizontal_error(corrected.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
+        for c, name, vis, (before, after), co in _checkpoint_errors(true_geo, [supplied, corrected], g, h):
             sq_sum[vis] += after**2
             n_seen[vis] += 1
             cp[name] = {"n": int(vis.sum()), "before": {"mean": float(before.mean()), "std": float(before.std())},
                         "after": {"mean": float(after.mean()), "std": float(after.std())},
                         "ratio_before_over_after": float(before.mean() / max(after.mean(), 1e-9)),
                         "_after_rms": float(np.sqrt(np.mean(after**2)))}
-            # co-registration: An's view of the point geolocated with the corrected model,
-            # projected into camera c with the corrected model, against the true pixel in c
-            both = vis & vis_an
-            if name != "An" and both.any():
-                p_an = corrected.pixel_to_ground(an, RED, ln_an[both], sm_an[both], height=h[both], exposure=ex_an[both])
-                _, s2, ok, _, cross2 = corrected.ground_to_pixel(c, RED, p_an)
-                # continuous along-track image position (lines) and sample, against the truth
-                dl = cross2[ok] - cross_true[both][ok]
-                ds = s2[ok] - sm[both][ok]
-                coreg[name] = float(np.sqrt(np.mean(dl**2 + ds**2)))
+            if co is not None:
+                coreg[name] = float(np.sqrt(np.mean(co**2)))
     if chk.size and cp:
         pred = predicted_checkpoint_rms(orbit_pass, res, g, h, true_geo)
         for name, v in pred.items():
@@ -137,6 +122,54 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
         out["blunders"] = {"injected": int(blunders.sum()), "rejected": int(rej.sum()),
                            "rejected_that_were_blunders": int((rej & blunders).sum())}
     return out
+
+
+def _checkpoint_errors(true_geo: PassGeometry, geometries: list[PassGeometry], g: Array, h: Array):
+    """Per camera that sees any of the check points ``g`` (ECEF m, ``(P, 3)``; ellipsoidal heights
+    ``h`` m): ``(camera index, name, visible (P,) bool, [horizontal error (m) of each geometry of
+    ``geometries`` at the visible points], co-registration error (px) of the last geometry or None)``.
+
+    Each check point's exact image coordinates come from the true geometry; each geometry
+    geolocates them onto the point's true height. Co-registration (not for An): An's view of the
+    point geolocated with the last geometry and projected into the camera with it, against the
+    true continuous line and sample there."""
+    an = CAMERAS.index("An")
+    ln_an, sm_an, vis_an, ex_an, _ = true_geo.ground_to_pixel(an, RED, g)
+    last = geometries[-1]
+    for c, name in enumerate(CAMERAS):
+        ln, sm, vis, ex, cross_true = true_geo.ground_to_pixel(c, RED, g)
+        if not vis.any():
+            continue
+        errs = [horizontal_error(geo.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
+                for geo in geometries]
+        co = None
+        both = vis & vis_an
+        if name != "An" and both.any():
+            p_an = last.pixel_to_ground(an, RED, ln_an[both], sm_an[both], height=h[both], exposure=ex_an[both])
+            _, s2, ok, _, cross2 = last.ground_to_pixel(c, RED, p_an)
+            co = np.hypot(cross2[ok] - cross_true[both][ok], s2[ok] - sm[both][ok])
+        yield c, name, vis, errs, co
+
+
+def geolocation_errors(orbit_pass: OrbitPass, truth: PassTruth, attitude: AttitudeErrorModel, ephemeris: Any,
+                       camera: CameraModel) -> dict[str, float | None]:
+    """Check-point geolocation and co-registration of a pass corrected with the given error
+    models (as :func:`score_pass` measures them), pooled over cameras: ``checkpoint_rms_m`` (RMS
+    horizontal error, m, over every camera's view of every check point) and ``coregistration_px``
+    (RMS over every camera but An, px); None where the pass has no check points."""
+    chk = np.flatnonzero(orbit_pass.landmarks.kind == KIND_CHECK)
+    if not chk.size:
+        return {"checkpoint_rms_m": None, "coregistration_px": None}
+    g = truth.landmark_ecef[chk]
+    h = ecef_to_geodetic(g)[2]
+    corrected = corrected_geometry(orbit_pass, attitude, ephemeris, camera)
+    after, co = [], []
+    for _, _, _, (err,), c in _checkpoint_errors(truth.geometry(orbit_pass), [corrected], g, h):
+        after.append(err)
+        if c is not None:
+            co.append(c)
+    rms = (lambda a: float(np.sqrt(np.mean(np.concatenate(a) ** 2))) if a else None)
+    return {"checkpoint_rms_m": rms(after), "coregistration_px": rms(co)}
 
 
 def true_knots(truth: PassTruth, knot_times: Array, angle: int, step_s: float = 1.0) -> Array:

@@ -140,3 +140,71 @@ def test_hessian_marginals_are_the_inverse_of_jtj_plus_the_dem_curvature(small_p
     gn = flat_marginals(flat, x)
     k0 = pg.problem.eliminate_first[0]
     assert not np.allclose(m[k0], gn[k0])
+
+
+def _two_passes(small_pass, robust: str = "none"):
+    sc, p = small_pass
+    cfg = GraphConfig(robust=robust)
+    a = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, cfg, pass_index=0).problem
+    shared = {int(k) for k in a.initial.keys()}
+    b = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, cfg, pass_index=1, shared=shared).problem
+    return a, b
+
+
+def test_merge_flat_is_the_merged_problem_in_flat_form(small_pass):
+    """Two passes sharing their landmarks: one collinearity and one DEM batch, the same variables,
+    the same cost and the same optimum as merge_problems solved by GTSAM's elimination."""
+    from misrgraph.estimate.graph import merge_flat
+    from misrgraph.estimate.solver import SolverParams
+
+    a, b = _two_passes(small_pass)
+    ref, m = merge_problems([a, b]), merge_flat([a, b])
+    assert [type(bt).__name__ for bt in m.batches] == ["CollinearityBatch", "DemBatch"]
+    assert m.eliminate_first == ref.eliminate_first and m.dims == ref.dims and m.eliminate_last == ref.eliminate_last
+    assert int(m.graph.size()) == int(ref.graph.size())
+    flat = m.flat()
+    assert flat.m_coll == sum(2 * len(bt) for p in (a, b) for bt in p.batches if type(bt).__name__ == "CollinearityBatch")
+    assert flat.cost(flat.initial()) == pytest.approx(ref.graph.error(ref.initial), rel=1e-12)
+    assert m.graph.error(m.initial) == pytest.approx(ref.graph.error(ref.initial), rel=1e-12)
+    tight = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12)
+    rs = solve(m, tight.replace(backend="schur"))
+    rg = solve(ref, tight.replace(backend="gtsam"))
+    assert rs.backend == "schur" and rg.backend == "gtsam"
+    assert rs.final_error == pytest.approx(rg.final_error, rel=1e-7)
+    cov = flat_marginals(flat, flat.from_values(rs.values))
+    worst = max(np.max(np.abs(rs.values.atVector(k) - rg.values.atVector(k)) / np.sqrt(np.diag(cov[k]))) for k in m.dims)
+    assert worst < 0.01
+
+
+def test_merge_flat_refuses_what_the_flat_form_does_not_cover(small_pass):
+    from misrgraph.estimate.graph import merge_flat
+    from misrgraph.estimate.problem import NotFlat
+
+    a, b = _two_passes(small_pass, robust="huber")
+    with pytest.raises(NotFlat, match="robust"):
+        merge_flat([a, b])
+
+
+def test_gauss_newton_step_is_gtsams_linear_solution(solved):
+    """At the start the undamped step of the Schur path equals GTSAM's elimination of the
+    linearised graph; at a tightly converged optimum it vanishes (in sigma units), while the
+    default criterion (relative decrease 1e-5) leaves it measurable."""
+    from misrgraph.estimate.solver import SolverParams, gauss_newton_step, linearize
+
+    pg, loose = solved
+    prob = pg.problem
+    flat = prob.flat()
+    d = gauss_newton_step(flat, flat.initial())
+    lin = linearize(prob, prob.initial)
+    for bt in prob.batches:
+        bt.clear()
+    sol = lin.optimize()
+    ref = np.concatenate([np.asarray(sol.at(k)) for k in flat.keys])
+    assert np.allclose(d, ref, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref)))
+    res = solve(prob, SolverParams(relative_error_tol=1e-14, absolute_error_tol=1e-14))
+    x = flat.from_values(res.values)
+    cov = flat_marginals(flat, x)
+    sig = np.concatenate([np.sqrt(np.diag(cov[k])) for k in flat.keys])
+    assert np.max(np.abs(gauss_newton_step(flat, x)) / sig) < 1e-3
+    x_loose = flat.from_values(loose.values)
+    assert np.max(np.abs(gauss_newton_step(flat, x_loose)) / sig) > np.max(np.abs(gauss_newton_step(flat, x)) / sig)
