@@ -634,7 +634,7 @@ def bench_sba(
         bound = ">= " if name in res["ratios_that_are_lower_bounds"] else ""
         fmt = (lambda v, f: "-" if v is None else format(v, f))
         t.add_row(name, *(fmt(v, ".2f") for v in r["seconds_to_sigma"].values()),
-                  "1" if name == "misrgraph" else ("" if ratio is None else f"{bound}{ratio:.1f}"),
+                  "1" if name == "misrgraph" else ("never" if ratio is None else f"{bound}{ratio:.1f}"),
                   f"{st['seconds']:.1f}", f"{st['max_sigma']:.3g}", fmt(st["checkpoint_rms_m"], ".2f"),
                   fmt(st["coregistration_px"], ".3f"), str(st["ended"])[:40])
     console.print(t)
