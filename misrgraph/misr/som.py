@@ -176,7 +176,9 @@ class SomGrid:
         A point on no block (before block 1, after block 180, or beside its block's samples)
         raises :class:`InputError` naming it; with ``strict=False`` it gets block 0 and NaN
         line/sample instead. A point on the boundary between two blocks belongs to the later
-        block (line -0.5) unless only the earlier block holds its sample; the outer edges of the
+        block (line -0.5) unless only the earlier block holds its sample (and a point within
+        :data:`EDGE_TOL_M` before the boundary belongs to the later block if only it holds the
+        sample); the outer edges of the
         grid belong to it, and a point within :data:`EDGE_TOL_M` outside an edge is put on it."""
         x, y = np.broadcast_arrays(np.asarray(som_x, dtype=float), np.asarray(som_y, dtype=float))
         r = float(self.resolution_m)
@@ -197,6 +199,12 @@ class SomGrid:
         bi = np.where(prev, bi - 1, bi)
         line = np.where(prev, line + self.nline, line)
         sample = np.where(prev, j - self.block_offsets[bi - 1], sample)
+        # and a point a rounding error before the boundary may be on the later block's samples only
+        beside = (sample < -0.5 - tol) | (sample > self.nsample - 0.5 + tol)
+        nxt = ok_b & ~prev & beside & (line > self.nline - 0.5 - tol) & (bi < N_BLOCKS)
+        bi = np.where(nxt, bi + 1, bi)
+        line = np.where(nxt, line - self.nline, line)
+        sample = np.where(nxt, j - self.block_offsets[bi - 1], sample)
         ok = ok_b & (sample >= -0.5 - tol) & (sample <= self.nsample - 0.5 + tol)
         line = np.clip(line, -0.5, self.nline - 0.5)
         sample = np.clip(sample, -0.5, self.nsample - 0.5)

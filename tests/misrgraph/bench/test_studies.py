@@ -42,18 +42,6 @@ def test_bench_nees_per_class_at_reduced_size(tmp_path):
         run_bench_nees("adjust", runs=1, size="huge", workdir=tmp_path)
 
 
-def test_time_ratios_only_against_a_baseline_that_reached_the_target():
-    from misrgraph.bench.studies import _time_ratios
-
-    reached = {"misrgraph": {"reached": True, "seconds": 2.0}, "scipy": {"reached": True, "seconds": 3.0},
-               "gtsam_lm": {"reached": False, "seconds": 60.0}, "ceres": {"skipped": "not installed"}}
-    ratios, bounds = _time_ratios(reached)
-    assert ratios == {"scipy_over_misrgraph": 1.5, "gtsam_lm_over_misrgraph": 30.0}
-    assert bounds == ["gtsam_lm_over_misrgraph"]
-    missed = dict(reached, misrgraph={"reached": False, "seconds": 2.0})
-    assert _time_ratios(missed) == ({}, [])
-
-
 def test_bench_pp_at_reduced_size(bench_dir):
     """The PP honesty study on two reduced passes (the bench runs more): the cameras that see the
     block scored, intervals from the runs, the PP better than the supplied navigation in each."""
