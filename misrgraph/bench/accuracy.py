@@ -83,36 +83,44 @@ class _Trace:
 
 
 class _Metric:
-    """Distances from the verified optimum ``x_ref`` in sigma units (module docstring)."""
+    """Distances from the optimum ``x_ref`` in its marginal sigmas (module docstring); the
+    marginals are computed once, the whitened Jacobian there when first needed."""
 
-    def __init__(self, flat: Any, x_ref: Array, nav_keys: list[int]) -> None:
+    def __init__(self, flat: Any, x_ref: Array, nav_keys: list[int] | None = None) -> None:
         from misrgraph.estimate.problem import flat_marginals
 
-        self.x_ref = x_ref
+        self.flat, self.x_ref = flat, x_ref
         m = flat_marginals(flat, x_ref)
-        idx, sig = [], []
-        for k in nav_keys:
-            o, d = flat.offset[k], flat.problem.dims[k]
-            idx.append(np.arange(o, o + d))
-            sig.append(np.sqrt(np.diag(m[k])))
-        self.idx = np.concatenate(idx)
-        self.sigma = np.concatenate(sig)
-        self.jac = flat.jacobian(x_ref)
+        self.sigma = np.concatenate([np.sqrt(np.diag(m[k])) for k in flat.keys])
+        keys = flat.keys if nav_keys is None else nav_keys
+        self.idx = np.concatenate([np.arange(flat.offset[k], flat.offset[k] + flat.problem.dims[k]) for k in keys])
+        self._jac: Any = None
+
+    @property
+    def jac(self) -> Any:
+        if self._jac is None:
+            self._jac = self.flat.jacobian(self.x_ref)
+        return self._jac
 
     def max_sigma(self, x: Array) -> float:
-        """Largest |x - x*| / sigma over the knots and ephemeris parameters."""
-        return float(np.max(np.abs(x[self.idx] - self.x_ref[self.idx]) / self.sigma))
+        """Largest |x - x*| / sigma over the chosen keys (the knots and ephemeris parameters in
+        ``bench sba``; every variable when none were chosen)."""
+        return float(np.max(np.abs(x[self.idx] - self.x_ref[self.idx]) / self.sigma[self.idx]))
 
     def mahalanobis(self, x: Array) -> float:
         """sqrt((x - x*)^T J*^T J* (x - x*)) over the whole state."""
         return float(np.linalg.norm(self.jac @ (x - self.x_ref)))
 
+    def gauss_newton_step_sigma(self) -> float:
+        """Largest |d| / sigma over every variable of the undamped Gauss-Newton step at ``x_ref``
+        (the verification of the optimum)."""
+        return float(np.max(np.abs(gauss_newton_step(self.flat, self.x_ref)) / self.sigma))
 
-def _verified_optimum(flat: Any, prob: Any, candidates: list[Array]) -> tuple[Array, dict[str, Any]]:
-    """The lowest-cost of the candidates' end points after a tight polish by the core, with the
-    Gauss-Newton step there in sigma units (the verification)."""
-    from misrgraph.estimate.problem import flat_marginals
 
+def _verified_optimum(flat: Any, prob: Any, candidates: list[Array],
+                      nav_keys: list[int]) -> tuple[_Metric, dict[str, Any]]:
+    """The lowest-cost of the candidates' end points after a tight polish by the core, as the
+    metric of distances from it, with the Gauss-Newton step there in sigma units (the check)."""
     tight = SolverParams(relative_error_tol=1e-14, absolute_error_tol=1e-14, max_iterations=100, backend="schur")
     best: tuple[float, Array] | None = None
     for x in candidates:
@@ -125,17 +133,16 @@ def _verified_optimum(flat: Any, prob: Any, candidates: list[Array]) -> tuple[Ar
             best = (c, xp)
     assert best is not None
     cost, x_ref = best
+    metric = _Metric(flat, x_ref, nav_keys)
     d = gauss_newton_step(flat, x_ref)
-    m = flat_marginals(flat, x_ref)
-    sig = np.concatenate([np.sqrt(np.diag(m[k])) for k in flat.keys])
-    step_sigma = float(np.max(np.abs(d) / sig))
+    step_sigma = float(np.max(np.abs(d) / metric.sigma))
     check = {"cost": cost, "gauss_newton_step_max_sigma": step_sigma,
-             "gauss_newton_step_mahalanobis": float(np.linalg.norm(flat.jacobian(x_ref) @ d)),
+             "gauss_newton_step_mahalanobis": float(np.linalg.norm(metric.jac @ d)),
              "verified": step_sigma <= VERIFIED_STEP_SIGMA, "criterion_sigma": VERIFIED_STEP_SIGMA}
     if not check["verified"]:
         log.warning("the reference optimum is not verified: Gauss-Newton step %.2g sigma > %.0e", step_sigma,
                     VERIFIED_STEP_SIGMA)
-    return x_ref, check
+    return metric, check
 
 
 def _first_time(points: list[tuple[float, float, Array]], dist: list[float], level: float) -> float | None:
@@ -185,12 +192,13 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
         b.clear()
     tight = SolverParams(relative_error_tol=1e-10, absolute_error_tol=1e-10, max_iterations=200)
     runs: dict[str, dict[str, Any]] = {}
+    x0 = flat.initial()
 
     def record(name: str, fn: Callable[[_Trace], str]) -> None:
         if name in skip:
             return
         tr = _Trace(budget_s)
-        tr.add(flat.initial(), flat.cost(flat.initial()), False)
+        tr.add(x0, flat.cost(x0), False)
         try:
             ended = fn(tr)
         except _Budget:
@@ -257,9 +265,9 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
             record("ceres", ceres)
     # the verified optimum, from every solver's end point (untimed)
     ends = sorted(runs.items(), key=lambda kv: kv[1]["trace"].points[-1][1])
-    x_ref, check = _verified_optimum(flat, prob, [r["trace"].points[-1][2] for _, r in ends[:2]])
     nav = [k for a in range(3) for k in pg.knot_keys(a)] + pg.ephemeris_keys()
-    metric = _Metric(flat, x_ref, nav)
+    metric, check = _verified_optimum(flat, prob, [r["trace"].points[-1][2] for _, r in ends[:2]], nav)
+    x_ref = metric.x_ref
     t0 = time.perf_counter()
     flat_marginals(flat, x_ref)
     marginal_seconds = time.perf_counter() - t0
@@ -327,12 +335,11 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
     iterates recorded; its end point is the optimum (verified by the Gauss-Newton step there,
     ``optimum_gauss_newton_step_sigma``), and ``batch_seconds`` is the time of its first iterate
     within the target. Recording, marginals and distances are not timed, nor is building the
-    batch's problem (the new pass's graph and the merge; the iSAM2 update's seconds include
+    batch's problem (the merge of the pass graphs iSAM2 built; the iSAM2 update's seconds include
     building its pass graph), which favours the batch.
     """
     from misrgraph.estimate.adjust import AdjustConfig
     from misrgraph.estimate.incremental import DEFAULT_LINEARIZATION_TOL, IncrementalSolver
-    from misrgraph.estimate.problem import flat_marginals
 
     tol = DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol
     cfg = AdjustConfig()
@@ -345,16 +352,12 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
         orbit_passes = [sc.load_pass(k) for k in range(len(sc.pass_files))]
     solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, cfg, linearization_tol=tol)
     tight = SolverParams(relative_error_tol=1e-14, absolute_error_tol=1e-14, max_iterations=100, backend="schur")
-    shared: set[int] = set()
-    graphs = []
     warm = None
     rows = []
     for k, op in enumerate(orbit_passes):
         update_s = solver.add_passes([op])
-        pg = build_pass_graph(op, sc.camera_model, sc.dem, sc.gcps, cfg.graph_config(), pass_index=k, shared=shared)
-        shared |= {int(key) for key in pg.problem.initial.keys()}
-        graphs.append(pg.problem)
-        prob = merge_flat(graphs)
+        # the batch over the very pass graphs iSAM2 holds (merge_flat builds new batches from them)
+        prob = merge_flat([g.problem for g in solver.graphs])
         flat = prob.flat()
         # one tight solve from the warm start, its iterates recorded (the recording is not timed)
         start = prob.initial if warm is None else _values_with(prob.initial, warm)
@@ -368,14 +371,12 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
             b.clear()
         warm = res.values
         # its end point is the optimum, verified by the Gauss-Newton step there (untimed)
-        x_ref = flat.from_values(res.values)
-        m = flat_marginals(flat, x_ref)
-        sig = np.concatenate([np.sqrt(np.diag(m[key])) for key in flat.keys])
-        step_sigma = float(np.max(np.abs(gauss_newton_step(flat, x_ref)) / sig))
-        isam_dist = float(np.max(np.abs(flat.from_values(solver.estimate) - x_ref) / sig))
+        metric = _Metric(flat, flat.from_values(res.values))
+        step_sigma = metric.gauss_newton_step_sigma()
+        isam_dist = metric.max_sigma(flat.from_values(solver.estimate))
         # the batch's time: its first iterate as close to the optimum as the iSAM2 estimate
         target = max(isam_dist, 1e-3)
-        dist = [float(np.max(np.abs(x - x_ref) / sig)) for _, _, x in tr.points]
+        dist = [metric.max_sigma(x) for _, _, x in tr.points]
         hit = _first_time(tr.points[1:], dist[1:], target)  # at least one iteration
         rows.append({"pass": k + 1, "update_seconds": update_s, "batch_seconds": whole if hit is None else hit,
                      "batch_reached_target": hit is not None, "batch_iterations": res.iterations,

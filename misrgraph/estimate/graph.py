@@ -353,18 +353,26 @@ def merge_problems(problems: list[Problem]) -> Problem:
     """One problem from several passes' problems built with a common ``shared`` key set:
     landmarks first, then every pass's navigation variables pass by pass, shared cameras last."""
     graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    dims: dict[int, int] = {}
     batches: list = []
     positions: list[NDArray[np.int64]] = []
-    first: list[int] = []
-    last: list[int] = []
     for p in problems:
         base = int(graph.size())
         graph.push_back(p.graph)
-        values.insert(p.initial)
         batches += p.batches
         positions += [base + pos for pos in p.batch_positions]
+    values, first, dims, last = _merged_variables(problems)
+    return Problem(graph, values, batches, first, dims, last, positions)
+
+
+def _merged_variables(problems: list[Problem]) -> tuple[gtsam.Values, list[int], dict[int, int], list[int]]:
+    """The merged problems' initial values, landmarks (eliminated first), dimensions and
+    variables eliminated last, in the order of :func:`merge_problems`."""
+    values = gtsam.Values()
+    dims: dict[int, int] = {}
+    first: list[int] = []
+    last: list[int] = []
+    for p in problems:
+        values.insert(p.initial)
         for k in p.eliminate_first:
             if k not in dims:
                 first.append(k)
@@ -373,7 +381,7 @@ def merge_problems(problems: list[Problem]) -> Problem:
         for k in p.eliminate_last:
             if k not in last:
                 last.append(k)
-    return Problem(graph, values, batches, first, dims, last, positions)
+    return values, first, dims, last
 
 
 def merge_flat(problems: list[Problem]) -> Problem:
@@ -414,9 +422,8 @@ def merge_flat(problems: list[Problem]) -> Problem:
         coll = CollinearityBatch.concatenate(colls)
     except ValueError as exc:
         raise NotFlat(str(exc)) from exc
-    layout = merge_problems(problems)
-    problem = Problem(gtsam.NonlinearFactorGraph(), layout.initial, [], layout.eliminate_first, layout.dims,
-                      layout.eliminate_last)
+    values, first, dims, last = _merged_variables(problems)
+    problem = Problem(gtsam.NonlinearFactorGraph(), values, [], first, dims, last)
     problem.add_batch(coll)
     if dems:
         problem.add_batch(DemBatch.concatenate(dems))
