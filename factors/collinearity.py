@@ -6,13 +6,16 @@ Model for one observation of landmark ``G`` (ECEF m) by camera ``c`` at exposure
     A   = A_meas - W . knots                           roll, pitch, yaw, rad (eqs. 22-27)
     v   = M^T T_os(A)^T u,   M = T_si(omega) Ry(beta) Rx(delta) Rz(eps)     detector frame
     xi  = f v_x / v_z,  eta = f v_y / v_z              focal-plane projection, m
-    r   = [ (xi - x_obs) / dx,  (eta - y_obs) / c_s ]  pixels (along track, cross track)
+    r   = [ (xi - x_obs) / a_s,  (eta - y_obs) / c_s ]  image lines and samples (pixels)
 
 with ``x_obs = -(k + (l - L) dx)`` and ``y_obs = f sum_i alpha_i (s - c_y)^i`` (eq. 2), ``E`` the
 ECI->ECEF matrix at ``t``, ``P_meas, T_go, A_meas`` the supplied navigation at ``t``, ``D`` the
 ephemeris design ``[(t - t_s) I, I]`` and ``W`` the Hermite weights of the bracketing knots.
-``c_s`` is the supplied model's cross-track pitch ``dy/ds`` at the observed sample (a constant
-scale, so the residual is in pixels and is exactly zero where the prediction matches).
+``c_s`` is the supplied model's cross-track pitch ``dy/ds`` at the observed sample and ``a_s =
+dx * rate`` the along-track focal-plane motion per image line (``rate`` ~1 for An, ~1.1 for the A
+cameras, ~0.4 for the D cameras, from the supplied geometry): constant scales, so the residual is
+in the image lines and samples a matcher measures and is exactly zero where the prediction matches.
+A matched observation has ``l = L`` (a continuous exposure index, focal-plane fraction 0).
 
 Camera parameters per observation are the 10-vector :data:`CAMERA_PARAMS`
 ``(delta, beta, eps, f, alpha_0..alpha_5)`` plus the common ``omega = (wx, wy, wz)``.
@@ -57,7 +60,8 @@ class CollinearityConstants:
 
     ``eci_to_ecef (N,3,3)``, ``p_meas (N,3)`` m ECI, ``t_go (N,3,3)``, ``eph_design (N,3,6)``,
     ``angles_meas (N,3)`` rad, ``hermite (N,3,4)``, ``k (N,)`` m, ``frac (N,)`` line fraction,
-    ``sample_offset (N,)`` = s - c_y (pixels), ``cross_scale (N,)`` m per pixel, ``dx`` m.
+    ``sample_offset (N,)`` = s - c_y (pixels), ``cross_scale (N,)`` m per pixel, ``dx`` m,
+    ``along_scale (N,)`` m of focal-plane x per image line (default ``dx``: residual in pitches).
     """
 
     eci_to_ecef: Array
@@ -71,6 +75,12 @@ class CollinearityConstants:
     sample_offset: Array
     cross_scale: Array
     dx: float
+    along_scale: Array | None = None
+
+    def __post_init__(self) -> None:
+        if self.along_scale is None:
+            self.along_scale = np.full(len(self), float(self.dx))
+        self.along_scale = np.asarray(self.along_scale, dtype=float)
 
     def __len__(self) -> int:
         return int(self.p_meas.shape[0])
@@ -79,6 +89,7 @@ class CollinearityConstants:
         return CollinearityConstants(
             self.eci_to_ecef[idx], self.p_meas[idx], self.t_go[idx], self.eph_design[idx], self.angles_meas[idx],
             self.hermite[idx], self.k[idx], self.frac[idx], self.sample_offset[idx], self.cross_scale[idx], self.dx,
+            self.along_scale[idx],
         )
 
 
@@ -138,12 +149,13 @@ def collinearity_residual(
     poly = np.sum(alpha * powers, axis=-1)
     x_obs = -(c.k + c.frac * c.dx)
     y_obs = f * poly
-    r = np.stack([(f * vx / vz - x_obs) / c.dx, (f * vy / vz - y_obs) / c.cross_scale], axis=-1)
+    a_s = c.along_scale
+    r = np.stack([(f * vx / vz - x_obs) / a_s, (f * vy / vz - y_obs) / c.cross_scale], axis=-1)
     if not jacobians:
         return r, None
     jv = np.zeros((n, 2, 3))
-    jv[:, 0, 0] = f / (c.dx * vz)
-    jv[:, 0, 2] = -f * vx / (c.dx * vz * vz)
+    jv[:, 0, 0] = f / (a_s * vz)
+    jv[:, 0, 2] = -f * vx / (a_s * vz * vz)
     jv[:, 1, 1] = f / (c.cross_scale * vz)
     jv[:, 1, 2] = -f * vy / (c.cross_scale * vz * vz)
     jm = jv @ _t(m)  # dr/dv_s
@@ -158,7 +170,7 @@ def collinearity_residual(
     dms = (u_tsi @ u_ryb @ drot_x(u_delta) @ u_rze, u_tsi @ drot_y(u_beta) @ u_rxd @ u_rze, u_tsi @ u_tic @ drot_z(u_eps))
     for i, dm in enumerate(dms):
         j_cam[:, :, i] = np.einsum("nij,nj->ni", jv, np.einsum("nji,nj->ni", dm[inv], v_s))
-    j_cam[:, 0, 3] = vx / (vz * c.dx)
+    j_cam[:, 0, 3] = vx / (vz * a_s)
     j_cam[:, 1, 3] = (vy / vz - poly) / c.cross_scale
     j_cam[:, 1, 4:10] = -(f / c.cross_scale)[:, None] * powers
     rest = u_tic @ u_rze
@@ -264,7 +276,8 @@ class CollinearityBatch:
         cat = np.concatenate
         const = CollinearityConstants(*(cat([getattr(b.const, f) for b in batches]) for f in
                                         ("eci_to_ecef", "p_meas", "t_go", "eph_design", "angles_meas", "hermite", "k",
-                                         "frac", "sample_offset", "cross_scale")), b0.const.dx)
+                                         "frac", "sample_offset", "cross_scale")), b0.const.dx,
+                                      cat([b.const.along_scale for b in batches]))
         groups, base = [], 0
         for b in batches:
             groups.append(b.group + base)

@@ -241,11 +241,14 @@ def build_pass_graph(
         else:
             lm_key_of[row] = K.landmark_key(orbit_pass.path, int(orbit_pass.landmarks.id[row]))
     obs_lm_key = np.array([lm_key_of[r] for r in obs.landmark[idx]], np.int64)
-    # --- constants and batch
+    # initial landmark positions: mean of each view's ray cast onto the DEM (supplied navigation)
+    init = _initial_landmarks(orbit_pass, geo, idx, lm_rows, dem, geoid, cfg.dem_method)
+    # --- constants and batch; the along-track residual is in image lines (a matcher's unit)
+    rate = geo.line_rate(cam, band, np.stack([init[int(r)] for r in obs.landmark[idx]]), t_obs)
     const = CollinearityConstants(
         nav.eci_to_ecef, nav.position, nav.t_go, design, nav.angles, hermite,
-        camera.k[cam, band], obs.line[idx] - obs.exposure[idx], obs.sample[idx] - camera.cy[cam, band],
-        camera.focal_plane_dy_ds(cam, band, obs.sample[idx]), camera.dx,
+        camera.k[cam, band], obs.line[idx] - obs.exposure_index[idx], obs.sample[idx] - camera.cy[cam, band],
+        camera.focal_plane_dy_ds(cam, band, obs.sample[idx]), camera.dx, camera.dx * rate,
     )
     keys = {"landmark": obs_lm_key, "ephemeris": np.array([K.ephemeris_key(pass_index, int(s)) for s in seg]),
             "knots": knot_keys}
@@ -281,9 +284,7 @@ def build_pass_graph(
         values.insert(int(key), np.asarray(value, dtype=float))
         return True
 
-    # initial landmark positions: mean of each view's ray cast onto the DEM (supplied navigation)
     surface = dem_surface(dem, geoid, cfg.dem_method) if dem is not None else None
-    init = _initial_landmarks(orbit_pass, geo, idx, lm_rows, dem, geoid, cfg.dem_method)
     dem_keys: list[int] = []
     dem_sig: list[float] = []
     dem_rows: list[int] = []
@@ -442,7 +443,7 @@ def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, met
     else:
         surface = None
     g = geo.pixel_to_ground(obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx],
-                            surface=surface, exposure=obs.exposure[idx])
+                            surface=surface, exposure=obs.exposure_index[idx])
     lm = obs.landmark[idx]
     order = np.argsort(lm, kind="stable")
     rows, starts = np.unique(lm[order], return_index=True)

@@ -8,7 +8,7 @@ HDF5 layout (kind ``orbit_pass``, see docs/data-model.md)::
     /timing           t0 (9, 4) s of line 0 per camera/band; attr line_time (s)
     /landmarks        id (M,), kind (M,) 0 tie / 1 GCP / 2 check point, gcp_index (M,) (-1 if not a GCP)
     /observations     landmark (N,) row into /landmarks, camera (N,), band (N,), line, sample,
-                      exposure (N,) integer exposure index, sigma_px (N,)
+                      exposure (N,) whole exposure index or NaN (continuous), sigma_px (N,)
     /truth            (simulated passes only) written and read by :mod:`misrgraph.io.truth`,
                       never by :meth:`OrbitPass.load`
 """
@@ -51,7 +51,14 @@ def _check_rows(field: str, values: NDArray[Any], bad: NDArray[np.bool_], expect
 @dataclass
 class Observations:
     """Image measurements, all ``(N,)``: ``landmark`` row index, ``camera``/``band`` indices,
-    ``line``/``sample`` (pixels, eq. 2), ``exposure`` (integer exposure index L), ``sigma_px``."""
+    ``line``/``sample`` (pixels), ``exposure``, ``sigma_px`` (image lines and samples, 1 sigma
+    per coordinate).
+
+    ``exposure`` NaN (what a matcher measures, and what the simulator writes) marks a continuous
+    image position: ``line`` is the continuous time index at which the point crossed the array
+    centre (time ``t0 + line * line_time``, focal-plane fraction 0). A whole ``exposure`` L is
+    eq. 2's discrete form: time ``t0 + L * line_time`` and focal-plane fraction ``line - L``.
+    :attr:`exposure_index` gives L for both (docs/conventions.md, "Observations")."""
 
     landmark: NDArray[np.int64]
     camera: NDArray[np.int64]
@@ -74,16 +81,28 @@ class Observations:
         _check_rows("observations.band", self.band, (self.band < 0) | (self.band >= len(BANDS)),
                     f"a band index 0..{len(BANDS) - 1}")
         _check_rows("observations.landmark", self.landmark, self.landmark < 0, "a landmark row >= 0")
-        for name in ("line", "sample", "exposure"):
+        _check_rows("observations.exposure", self.exposure, np.isinf(self.exposure),
+                    "a whole exposure index (or NaN: a continuous position)")
+        for name in ("line", "sample"):
             arr = getattr(self, name)
             _check_rows(f"observations.{name}", arr, ~np.isfinite(arr), "a finite number of pixels")
-        _check_rows("observations.exposure", self.exposure, self.exposure != np.round(self.exposure),
-                    "a whole exposure index")
+        _check_rows("observations.exposure", self.exposure, np.isfinite(self.exposure) & (self.exposure != np.round(self.exposure)),
+                    "a whole exposure index (or NaN: a continuous position)")
         _check_rows("observations.sigma_px", self.sigma_px, ~(np.isfinite(self.sigma_px) & (self.sigma_px > 0)),
                     "a positive, finite sigma in pixels")
 
     def __len__(self) -> int:
         return int(self.landmark.size)
+
+    @property
+    def exposure_index(self) -> Array:
+        """Exposure (time) index of every observation: ``exposure``, or ``line`` where it is NaN."""
+        return np.where(np.isnan(self.exposure), self.line, self.exposure)
+
+    @property
+    def continuous(self) -> NDArray[np.bool_]:
+        """True where an observation is a continuous (matched) image position."""
+        return np.isnan(self.exposure)
 
     def subset(self, mask: NDArray[np.bool_] | NDArray[np.int64]) -> "Observations":
         return Observations(*(getattr(self, f)[mask] for f in self.__dataclass_fields__))
@@ -139,6 +158,11 @@ class OrbitPass:
             raise InputError("timing.line_time", self.line_time, "a positive number of seconds")
         if not np.isfinite(self.temperature_c):
             raise InputError("temperature_c", self.temperature_c, "a finite temperature (deg C)")
+        if len(self.observations):
+            t = self.observation_times()
+            t_lo, t_hi = self.span
+            _check_rows("observations.line", self.observations.line, (t < t_lo) | (t > t_hi),
+                        f"a line whose exposure time lies within the pass's navigation [{t_lo:.3f}, {t_hi:.3f}] s")
         if not PASS_ID_PATTERN.fullmatch(str(self.pass_id)):
             raise InputError("pass_id", self.pass_id, "letters, digits, '_', '-' or '.' (1-64 characters, not starting with '.'; it names files)")
 
@@ -150,7 +174,7 @@ class OrbitPass:
     def observation_times(self) -> Array:
         """Exposure time (s) of every observation."""
         o = self.observations
-        return self.t0[o.camera, o.band] + o.exposure * self.line_time
+        return self.t0[o.camera, o.band] + o.exposure_index * self.line_time
 
     @property
     def span(self) -> tuple[float, float]:
@@ -191,7 +215,8 @@ class OrbitPass:
         write_dataset(g, "band", o.band.astype(np.int8), order=",".join(BANDS))
         write_dataset(g, "line", o.line, units="pixel")
         write_dataset(g, "sample", o.sample, units="pixel")
-        write_dataset(g, "exposure", o.exposure.astype(np.int64), units="line", meaning="integer exposure index L")
+        write_dataset(g, "exposure", o.exposure, units="line",
+                      meaning="whole exposure index L (time t0 + L line_time), NaN for a continuous position (time from line)")
         write_dataset(g, "sigma_px", o.sigma_px, units="pixel")
 
     @classmethod

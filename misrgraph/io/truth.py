@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +28,9 @@ from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES
 from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel
 from misrgraph.model.geolocation import PassGeometry
+
+if TYPE_CHECKING:
+    from misrgraph.io.imagery import PassImagery
 
 __all__ = ["PassTruth", "write_pass_truth", "save_pass_with_truth", "read_pass_truth", "read_gcp_truth", "has_truth"]
 
@@ -78,12 +81,18 @@ def write_pass_truth(f: Any, truth: PassTruth, n_landmarks: int, n_observations:
     write_camera_group(t.create_group("camera_model"), truth.camera_model)
 
 
-def save_pass_with_truth(orbit_pass: OrbitPass, truth: PassTruth | None, path: str | os.PathLike[str]) -> None:
-    """Write a simulated pass and its truth atomically into one ``orbit_pass`` file."""
+def save_pass_with_truth(orbit_pass: OrbitPass, truth: PassTruth | None, path: str | os.PathLike[str],
+                         imagery: "PassImagery | None" = None) -> None:
+    """Write a simulated pass, its truth and (optionally) its imagery atomically into one
+    ``orbit_pass`` file."""
     with atomic_h5(path, "orbit_pass") as f:
         orbit_pass.write_into(f)
         if truth is not None:
             write_pass_truth(f, truth, len(orbit_pass.landmarks), len(orbit_pass.observations))
+        if imagery is not None:
+            from misrgraph.io.imagery import write_imagery
+
+            write_imagery(f, imagery)
 
 
 def read_pass_truth(path: str | os.PathLike[str]) -> PassTruth | None:

@@ -149,12 +149,13 @@ class PassGeometry:
     ) -> tuple[Array, Array]:
         """ECEF ray origins (m) and unit directions for pixels, each ``(N, 3)``.
 
-        ``exposure`` (optional) is the integer exposure index ``L``; by default ``INT(l + 0.5)``.
-        The focal-plane fraction is always ``l - L``.
+        ``exposure`` (optional) is the integer exposure index ``L``; by default ``INT(l + 0.5)``;
+        NaN marks a continuous position (``L = l``). The focal-plane fraction is always ``l - L``.
         """
         c, b, ln, s = (np.ravel(x) for x in np.broadcast_arrays(
             np.asarray(cam, dtype=int), np.asarray(band, dtype=int), np.asarray(line, dtype=float), np.asarray(sample, dtype=float)))
         big_l = np.floor(ln + 0.5) if exposure is None else np.ravel(np.broadcast_to(np.asarray(exposure, dtype=float), ln.shape))
+        big_l = np.where(np.isnan(big_l), ln, big_l)  # NaN: a continuous position (time from the line)
         if np.any((c < 0) | (c >= len(CAMERAS))):
             raise InputError("camera", c[(c < 0) | (c >= len(CAMERAS))][0], f"an index in 0..{len(CAMERAS) - 1}")
         if np.any((b < 0) | (b >= len(BANDS))):
@@ -219,7 +220,8 @@ class PassGeometry:
         with np.errstate(divide="ignore", invalid="ignore"):
             return f * v_det[..., 0] / v_det[..., 2], f * v_det[..., 1] / v_det[..., 2], v_det[..., 2]
 
-    def ground_to_pixel(self, cam: ArrayLike, band: ArrayLike, ground: ArrayLike, coarse_step_s: float = 10.0) -> ImagePoints:
+    def ground_to_pixel(self, cam: ArrayLike, band: ArrayLike, ground: ArrayLike, coarse_step_s: float = 10.0,
+                        continuous: bool = False) -> ImagePoints:
         """Image coordinates at which camera ``cam``/band ``band`` sees ECEF ground points.
 
         The continuous time ``t*`` at which the point crosses the band's line array (detector
@@ -233,6 +235,11 @@ class PassGeometry:
         This inverse returns the canonical pixel, the exposure in which the point is closest to
         the array centre; ``pixel_to_ground(..., exposure=...)`` of the result reproduces the
         ground point exactly. Returns an :class:`ImagePoints`; invisible points get NaN.
+
+        With ``continuous=True`` the result is what an image matcher measures: ``line`` =
+        ``exposure`` = ``crossing_line`` (the continuous time index at which the point crosses the
+        array centre, focal-plane fraction 0) and ``sample`` the sample seen at that time
+        (docs/conventions.md, "Observations").
         """
         g = np.atleast_2d(np.asarray(ground, dtype=float))
         if g.ndim != 2 or g.shape[-1] != 3:
@@ -260,7 +267,7 @@ class PassGeometry:
         crossing = np.full(n, np.nan)
         if idx.size:
             f_t = lambda tt, ii: self._along_cross(c[ii], b[ii], g[ii], tt)[0] + k[ii]
-            t_star = _find_root(f_t, grid[j[idx]], grid[j[idx] + 1], tol=1e-7, index=idx)
+            t_star = _find_root(f_t, grid[j[idx]], grid[j[idx] + 1], tol=1e-9 if continuous else 1e-7, index=idx)
             assert self.t0 is not None
             dt = self.camera.line_time
             t0 = self.t0[c[idx], b[idx]]
@@ -268,14 +275,35 @@ class PassGeometry:
             big_l = np.floor((t_star - t0) / dt + 0.5)
             tl = t0 + big_l * dt
             inside = (tl >= t_lo) & (tl <= t_hi) & (big_l >= 0)
+            if continuous:
+                big_l = (t_star - t0) / dt
+                tl = t_star
+                inside = (big_l >= -0.5) & (tl >= t_lo) & (tl <= t_hi)
             xl, yl, _ = self._along_cross(c[idx], b[idx], g[idx], np.clip(tl, t_lo, t_hi))
-            frac = -(xl + k[idx]) / self.camera.dx
+            frac = np.zeros(idx.size) if continuous else -(xl + k[idx]) / self.camera.dx
             line[idx] = np.where(inside, big_l + frac, np.nan)
             exposure[idx] = np.where(inside, big_l, np.nan)
             sample[idx] = np.where(inside, self.camera.sample_from_focal_plane_y(c[idx], b[idx], yl), np.nan)
         visible = np.isfinite(line) & np.isfinite(sample) & (sample >= -0.5) & (sample <= N_PIXELS - 0.5)
         nan = lambda a: np.where(visible, a, np.nan)
         return ImagePoints(nan(line), nan(sample), visible, nan(exposure), nan(crossing))
+
+    def line_rate(self, cam: ArrayLike, band: ArrayLike, ground: ArrayLike, t: ArrayLike) -> Array:
+        """Along-track image motion ``|d xi / d l| / dx`` (detector pitches per image line, ``(N,)``)
+        of ECEF ``ground (N, 3)`` seen by ``cam``/``band`` near time ``t (N,)`` s: ~1 for An, ~1.1 for
+        the A cameras, ~0.4 for the D cameras. A focal-plane residual of ``d`` pitches is ``d / rate``
+        image lines (central difference over one line time)."""
+        g = np.atleast_2d(np.asarray(ground, dtype=float))
+        n = g.shape[0]
+        c = np.broadcast_to(np.asarray(cam, dtype=int), (n,))
+        b = np.broadcast_to(np.asarray(band, dtype=int), (n,))
+        tt = np.broadcast_to(np.asarray(t, dtype=float), (n,))
+        h = 0.5 * self.camera.line_time
+        t_lo, t_hi = self.ephemeris.span
+        ta, tb = np.clip(tt - h, t_lo, t_hi - 2 * h), np.clip(tt + h, t_lo + 2 * h, t_hi)
+        xa = self._along_cross(c, b, g, ta)[0]
+        xb = self._along_cross(c, b, g, tb)[0]
+        return np.abs(xb - xa) / self.camera.dx * (self.camera.line_time / (tb - ta))
 
     # ------------------------------------------------------------------ local frames
     def track_frame(self, ground: ArrayLike, t: ArrayLike) -> tuple[Array, Array, Array]:

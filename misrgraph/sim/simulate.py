@@ -56,6 +56,7 @@ from misrgraph.io.h5 import atomic_file, fsync_directory
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris, path_node_longitude, terra_like_orbit
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
 from misrgraph.io.camera import load_camera_model, save_camera_model
+from misrgraph.io.imagery import PassImagery
 from misrgraph.model.nominal import nominal_camera_model
 
 __all__ = [
@@ -173,6 +174,10 @@ class ScenarioConfig(Config):
     thermal_focal_ppm_per_c: float = 0.0
     bands: tuple = ("red",)
     band_misalignment_arcsec: float = 0.0
+    imagery: bool = False
+    cloud_fraction: float = 0.0
+    image_snr: float = 200.0
+    search_px: int = 8
 
     def __post_init__(self) -> None:
         if self.scenario not in ("pass", "month", "path"):
@@ -207,6 +212,14 @@ class ScenarioConfig(Config):
                      "dem_correlated_fraction", "mismatch_rate", "gcp_scene_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(name, getattr(self, name), "a fraction in [0, 1]")
+        if not 0.0 <= self.cloud_fraction < 1.0:
+            raise InputError("cloud_fraction", self.cloud_fraction, "a fraction in [0, 1)")
+        if not self.image_snr > 0:
+            raise InputError("image_snr", self.image_snr, "a positive signal-to-noise ratio")
+        if not (isinstance(self.search_px, int) and 1 <= self.search_px <= 64):
+            raise InputError("search_px", self.search_px, "an integer number of pixels in 1..64")
+        if self.imagery and self.scenario == "month":
+            raise InputError("imagery", True, "the pass or path scenario (month imagery is not rendered yet)")
         if len(self.attitude_sigma_arcsec) != 3 or len(self.knot_spacing_s) != 3:
             raise InputError("attitude_sigma_arcsec/knot_spacing_s", (self.attitude_sigma_arcsec, self.knot_spacing_s),
                              "three values (roll, pitch, yaw)")
@@ -375,14 +388,15 @@ def _observe(
     kinds: NDArray[np.int64],
     first_row: int,
 ) -> tuple[list[Array], NDArray[np.bool_]]:
-    """Measure landmarks in all cameras, in each of ``cfg.bands``. Visibility (and dropout) is decided
-    per camera on the red band; every band measures what its camera sees. Returns observation
-    columns and keep-mask."""
+    """Measure landmarks in all cameras, in each of ``cfg.bands``: the continuous image position
+    (line = time index of the array-centre crossing, sample there; exposure NaN) a matcher reports.
+    Visibility (and dropout) is decided per camera on the red band; every band measures what its
+    camera sees. Returns observation columns and keep-mask."""
     cols: list[list[Array]] = [[] for _ in range(7)]
     cams_seen = np.zeros(len(ecef), dtype=int)
     per_cam = []
     for c in range(len(CAMERAS)):
-        ln, sm, vis, ex, _ = geo.ground_to_pixel(c, RED, ecef)
+        ln, sm, vis, ex, _ = geo.ground_to_pixel(c, RED, ecef, continuous=True)
         dropout = rng.random(len(ecef)) >= cfg.view_probability
         vis = vis & ~(dropout & (kinds == KIND_TIE))
         per_cam.append((c, ln, sm, vis, ex))
@@ -394,7 +408,7 @@ def _observe(
             if b == RED:
                 s_b, ln_b, sm_b, ex_b = sel, ln[sel], sm[sel], ex[sel]
             else:
-                ip = geo.ground_to_pixel(c, b, ecef[sel])
+                ip = geo.ground_to_pixel(c, b, ecef[sel], continuous=True)
                 ok = ip.visible
                 s_b, ln_b, sm_b, ex_b = sel[ok], ip.line[ok], ip.sample[ok], ip.exposure[ok]
             cols[0].append(s_b)
@@ -402,7 +416,7 @@ def _observe(
             cols[2].append(np.full(s_b.size, b))
             cols[3].append(ln_b)
             cols[4].append(sm_b)
-            cols[5].append(ex_b)
+            cols[5].append(np.full(s_b.size, np.nan))  # continuous positions (a matcher's measurement)
             cols[6].append(np.where(kinds[s_b] == KIND_GCP, cfg.gcp_sigma_px, cfg.tie_sigma_px))
     return [np.concatenate(c) for c in cols], keep
 
@@ -686,7 +700,12 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                                  for i in range(len(p.landmarks)) if p.landmarks.kind[i] != KIND_GCP]
             if cfg.scenario == "month" and not np.any(p.landmarks.kind == KIND_GCP):
                 continue
-            save_pass_with_truth(p, p_truth, tmp / "passes" / f"{p.pass_id}.h5")
+            imagery = None
+            if cfg.imagery:
+                if progress:
+                    progress(f"pass {k + 1}/{len(plan)}: imagery", k, len(plan))
+                imagery = _render_imagery(cfg, p, p_truth, supplied, terrain, geoid, k)
+            save_pass_with_truth(p, p_truth, tmp / "passes" / f"{p.pass_id}.h5", imagery=imagery)
             gi = p.landmarks.gcp_index[p.landmarks.kind == KIND_GCP]
             seen_count[gi] += 1
             n_obs += len(p.observations)
@@ -721,6 +740,20 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return summary
+
+
+def _render_imagery(cfg: ScenarioConfig, p: OrbitPass, p_truth: PassTruth, supplied: "CameraModel | TabulatedCameraModel",
+                    terrain: SyntheticTerrain, geoid: Geoid, k: int) -> "PassImagery":
+    """The pass's image windows and GCP chips (:mod:`misrgraph.sim.imagery`), from a generator of
+    their own so that switching imagery on changes nothing else in the scenario."""
+    from misrgraph.sim.imagery import SceneRadiance, render_pass_imagery
+
+    surface = lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo)
+    scene = SceneRadiance(cfg.seed, surface, cloud_fraction=cfg.cloud_fraction)
+    true_geo = p_truth.geometry(p)
+    supplied_geo = p.geometry(supplied.at_temperature(p.temperature_c))
+    return render_pass_imagery(p, true_geo, supplied_geo, p_truth.landmark_ecef, scene, surface,
+                               np.random.default_rng([cfg.seed, 4242, k]), search_px=cfg.search_px, snr=cfg.image_snr)
 
 
 #: What :func:`run_simulate` writes into a scenario directory (nothing else is ever replaced).

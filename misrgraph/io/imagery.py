@@ -1,0 +1,224 @@
+"""Image windows and GCP chips stored in a pass file (``/imagery``), and matched observations
+(``/matched``).
+
+Layout (HDF5, chunked and gzip-compressed pixels)::
+
+    /imagery                  attrs: snr, cloud_fraction, search_px, full_scale_dn
+      tie/ gcp/               one group per window kind, W windows of S x S pixels each:
+        landmark (W,)           row into /landmarks
+        camera, band (W,)       indices
+        line0, sample0 (W,)     image line and sample of pixel (0, 0) (exposure index, sample)
+        pixels (W, S, S)        uint16 counts (14 bits)
+      chips/                  reference chips of the GCPs in the pass (G' GCPs):
+        landmark (G',)          row into /landmarks
+        pixels (G', 9, C, C)    float32 counts of another sensor, NaN where a camera does not see it
+    /matched                  what misrgraph match measured: landmarks/{id, kind, gcp_index} and
+                              observations/{landmark, camera, band, line, sample, exposure, sigma_px}
+                              as in the pass; /truth/matched/{landmark_ecef, blunder} when simulated
+
+Pixel ``(r, q)`` of a window is image line ``line0 + r`` (the exposure at ``t0 + (line0 + r)
+line_time``, focal-plane fraction 0) and sample ``sample0 + q``: a matched position there is the
+continuous observation the estimator adjusts.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+from numpy.typing import NDArray
+
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.h5 import (create_dataset, file_mode, fsync_directory, open_h5, read_dataset, reseal,
+                             stamp_content_digest, write_dataset)
+from misrgraph.io.passes import Landmarks, Observations
+
+__all__ = ["ImageWindows", "PassImagery", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
+           "write_matched", "read_matched", "has_matched"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class ImageWindows:
+    """``W`` square windows: ``landmark, camera, band, line0, sample0 (W,)`` ints and ``pixels (W, S, S)``."""
+
+    landmark: NDArray[np.int64]
+    camera: NDArray[np.int64]
+    band: NDArray[np.int64]
+    line0: NDArray[np.int64]
+    sample0: NDArray[np.int64]
+    pixels: NDArray[np.uint16]
+
+    def __post_init__(self) -> None:
+        n = int(np.asarray(self.landmark).size)
+        for name in ("landmark", "camera", "band", "line0", "sample0"):
+            arr = np.asarray(getattr(self, name), dtype=np.int64).ravel()
+            if arr.size != n:
+                raise InputError(f"imagery.{name}", arr.size, f"{n} values (one per window)")
+            setattr(self, name, arr)
+        px = np.asarray(self.pixels)
+        if px.ndim != 3 or px.shape[0] != n or px.shape[1] != px.shape[2]:
+            raise InputError("imagery.pixels", px.shape, f"shape ({n}, S, S)")
+        self.pixels = px
+
+    def __len__(self) -> int:
+        return int(self.landmark.size)
+
+    @property
+    def size(self) -> int:
+        return int(self.pixels.shape[1]) if self.pixels.ndim == 3 and self.pixels.shape[0] else 0
+
+    def find(self, landmark: int, camera: int, band: int) -> int | None:
+        """Index of the window of ``landmark`` in ``camera``/``band``, or None."""
+        hit = np.flatnonzero((self.landmark == landmark) & (self.camera == camera) & (self.band == band))
+        return int(hit[0]) if hit.size else None
+
+    @classmethod
+    def empty(cls, size: int) -> "ImageWindows":
+        z = np.zeros(0, np.int64)
+        return cls(z, z, z, z, z, np.zeros((0, size, size), np.uint16))
+
+
+@dataclass
+class PassImagery:
+    """Windows around tie/check features and GCPs, and the GCPs' reference chips."""
+
+    tie: ImageWindows
+    gcp: ImageWindows
+    chip_landmark: NDArray[np.int64]
+    chips: NDArray[np.float32]
+    attrs: dict[str, Any]
+
+
+def _write_windows(g: Any, w: ImageWindows) -> None:
+    for name in ("landmark", "camera", "band", "line0", "sample0"):
+        write_dataset(g, name, getattr(w, name))
+    s = max(w.size, 1)
+    create_dataset(g, "pixels", w.pixels, chunks=(1, s, s) if len(w) else None, compression="gzip",
+                   compression_opts=4, shuffle=True)
+    g["pixels"].attrs["units"] = "counts (14 bit)"
+
+
+def _read_windows(g: Any) -> ImageWindows:
+    n = g["landmark"].shape[0]
+    cols = [read_dataset(g, name, (n,), dtype=np.int64) for name in ("landmark", "camera", "band", "line0", "sample0")]
+    px = np.asarray(g["pixels"][...])
+    return ImageWindows(*cols, px)
+
+
+def write_imagery(f: Any, imagery: PassImagery) -> None:
+    """Write ``/imagery`` into an open pass file."""
+    g = f.create_group("imagery")
+    for k, v in imagery.attrs.items():
+        g.attrs[k] = v
+    _write_windows(g.create_group("tie"), imagery.tie)
+    _write_windows(g.create_group("gcp"), imagery.gcp)
+    c = g.create_group("chips")
+    write_dataset(c, "landmark", imagery.chip_landmark)
+    create_dataset(c, "pixels", imagery.chips, compression="gzip", compression_opts=4, shuffle=True)
+
+
+def has_imagery(path: str | os.PathLike[str]) -> bool:
+    with open_h5(path, "orbit_pass") as f:
+        return "imagery" in f
+
+
+def read_imagery(path: str | os.PathLike[str]) -> PassImagery:
+    """The ``/imagery`` of a pass file (FileFormatError if it has none)."""
+    with open_h5(path, "orbit_pass") as f:
+        if "imagery" not in f:
+            raise FileFormatError(path, "no /imagery group: simulate with --imagery (or supply imagery)")
+        g = f["imagery"]
+        c = g["chips"]
+        n = c["landmark"].shape[0]
+        return PassImagery(_read_windows(g["tie"]), _read_windows(g["gcp"]),
+                           read_dataset(c, "landmark", (n,), dtype=np.int64), np.asarray(c["pixels"][...]),
+                           {k: (v.item() if hasattr(v, "item") else v) for k, v in g.attrs.items()})
+
+
+# ---------------------------------------------------------------------------- matched observations
+@dataclass
+class MatchedSet:
+    """Observations measured by matching: their own landmarks (a tie point is defined by the An
+    interest point it was matched from) and, for simulated passes, their truth."""
+
+    landmarks: Landmarks
+    observations: Observations
+    truth_landmark_ecef: Array | None = None
+    truth_blunder: NDArray[np.bool_] | None = None
+    summary: dict[str, Any] | None = None
+
+
+def has_matched(path: str | os.PathLike[str]) -> bool:
+    with open_h5(path, "orbit_pass") as f:
+        return "matched" in f
+
+
+def write_matched(path: str | os.PathLike[str], matched: MatchedSet) -> None:
+    """Replace ``/matched`` (and ``/truth/matched``) of a pass file, atomically: the file is copied,
+    changed and renamed over the original, so a failure leaves the original intact."""
+    import json
+
+    path = Path(path)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        shutil.copyfile(path, tmp)
+        with h5py.File(tmp, "r+") as f:
+            if "matched" in f:
+                del f["matched"]
+            m = f.create_group("matched")
+            if matched.summary is not None:
+                m.attrs["summary_json"] = json.dumps(matched.summary)
+            lg = m.create_group("landmarks")
+            write_dataset(lg, "id", matched.landmarks.id)
+            write_dataset(lg, "kind", matched.landmarks.kind)
+            write_dataset(lg, "gcp_index", matched.landmarks.gcp_index)
+            og = m.create_group("observations")
+            o = matched.observations
+            for name in ("landmark", "camera", "band", "line", "sample", "exposure", "sigma_px"):
+                write_dataset(og, name, getattr(o, name))
+            if "truth" in f and "matched" in f["truth"]:
+                del f["truth"]["matched"]
+            if matched.truth_landmark_ecef is not None and "truth" in f:
+                tg = f["truth"].create_group("matched")
+                write_dataset(tg, "landmark_ecef", matched.truth_landmark_ecef, units="m", frame="ECEF")
+                write_dataset(tg, "blunder", np.asarray(matched.truth_blunder, np.uint8))
+            stamp_content_digest(f)
+        os.chmod(tmp, file_mode())
+        reseal(tmp)  # the whole-file SHA-256 of the edited copy, fsynced
+        os.replace(tmp, path)
+        fsync_directory(path.parent)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def read_matched(path: str | os.PathLike[str], with_truth: bool = False) -> MatchedSet:
+    """The matched observations of a pass file (FileFormatError if ``misrgraph match`` has not run)."""
+    import json
+
+    with open_h5(path, "orbit_pass") as f:
+        if "matched" not in f:
+            raise FileFormatError(path, "no /matched group: run 'misrgraph match' on the scenario first")
+        m = f["matched"]
+        lg, og = m["landmarks"], m["observations"]
+        nl, no = lg["id"].shape[0], og["landmark"].shape[0]
+        lms = Landmarks(*(read_dataset(lg, k, (nl,), dtype=np.int64) for k in ("id", "kind", "gcp_index")))
+        obs = Observations(*(read_dataset(og, k, (no,), dtype=(np.int64 if k in ("landmark", "camera", "band") else float))
+                             for k in ("landmark", "camera", "band", "line", "sample", "exposure", "sigma_px")))
+        summary = json.loads(m.attrs["summary_json"]) if "summary_json" in m.attrs else None
+        tl = tb = None
+        if with_truth and "truth" in f and "matched" in f["truth"]:
+            tg = f["truth"]["matched"]
+            tl = read_dataset(tg, "landmark_ecef", (nl, 3))
+            tb = read_dataset(tg, "blunder", (no,), dtype=bool)
+        return MatchedSet(lms, obs, tl, tb, summary)

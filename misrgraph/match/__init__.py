@@ -1,0 +1,1 @@
+"""Image matching: NCC and least-squares matching (lsm), the MISR matching pipeline (pipeline)."""

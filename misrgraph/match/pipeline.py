@@ -1,0 +1,263 @@
+"""The matching pipeline (seed sections 3.3 and 3.5): GCP chips and tie points measured in MISR imagery.
+
+* **GCPs.** For each GCP window: the GCP's catalogue position is projected through the supplied
+  navigation and camera model (continuous line/sample); the reference chip of that camera is
+  correlated over ``+-search_px`` around it (NCC), and the integer peak refined by least-squares
+  matching (:func:`misrgraph.match.lsm.lsm`). Rejected when the NCC peak is below ``min_ncc``,
+  ambiguous (peak ratio above ``max_peak_ratio``), LSM does not converge, or its sigma exceeds
+  ``max_sigma_px``.
+* **Tie points.** In each An window the strongest Foerstner interest point near the centre
+  (``skimage.feature.corner_foerstner``) defines the tie point: its An position is the An
+  observation (whole pixels; the point *is* what An sees there). Its conjugates are predicted
+  through the supplied navigation and the DEM (ray cast, then projected into each camera), found
+  by NCC and refined by LSM with the An patch as template, then **checked backwards**: the matched
+  patch is matched back into An and must land within ``back_tolerance_px`` of where it came
+  from (the forward-backward check stands in for the seed's consistent labelling: a wrong match
+  rarely maps back to its origin). A bright template (mean reflectance above
+  ``cloud_reflectance``; land is ~0.18) is screened as cloud. A tie point is kept when it is
+  matched in at least ``min_cameras`` cameras, An included.
+* **Sigma.** Each observation's sigma is the LSM's (residual variance times the residuals'
+  correlation area, :mod:`misrgraph.match.lsm`), at least ``sigma_floor_px``; one sigma per
+  observation, the larger of the line and sample ones.
+
+Every failure is reported per feature (reason counts), never raised: a window off the image, a
+flat chip or NaN pixels make that feature's match fail with its reason.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from misrgraph.config import Config
+from misrgraph.errors import InputError
+from misrgraph.io.imagery import PassImagery
+from misrgraph.match.lsm import lsm, ncc_search
+from misrgraph.model.constants import CAMERAS
+from misrgraph.model.geolocation import PassGeometry
+
+__all__ = ["MatchConfig", "MatchedObservations", "match_gcps", "match_ties"]
+
+log = logging.getLogger(__name__)
+Array = NDArray[np.float64]
+AN = CAMERAS.index("An")
+
+
+@dataclass(frozen=True)
+class MatchConfig(Config):
+    """Matching settings (pixels unless named otherwise). Unknown keys are rejected by ``from_dict``."""
+
+    template_px: int = 15
+    search_px: int = 6
+    min_ncc: float = 0.6
+    max_peak_ratio: float = 0.95
+    max_sigma_px: float = 0.5
+    back_tolerance_px: float = 0.3
+    min_cameras: int = 3
+    cloud_reflectance: float = 0.4
+    sigma_floor_px: float = 0.02
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.template_px, int) and self.template_px >= 7 and self.template_px % 2 == 1):
+            raise InputError("template_px", self.template_px, "an odd integer >= 7")
+        if not (isinstance(self.search_px, int) and self.search_px >= 1):
+            raise InputError("search_px", self.search_px, "an integer >= 1")
+        for name in ("min_ncc", "max_peak_ratio"):
+            if not 0 < getattr(self, name) <= 1:
+                raise InputError(name, getattr(self, name), "a number in (0, 1]")
+        for name in ("max_sigma_px", "back_tolerance_px", "sigma_floor_px", "cloud_reflectance"):
+            if not getattr(self, name) > 0:
+                raise InputError(name, getattr(self, name), "a positive number")
+        if not (isinstance(self.min_cameras, int) and 2 <= self.min_cameras <= 9):
+            raise InputError("min_cameras", self.min_cameras, "an integer in 2..9")
+
+
+@dataclass
+class MatchedObservations:
+    """Matched measurements, one row each: ``feature`` (landmark row for GCPs; tie feature index
+    for ties), ``camera``, ``line``, ``sample`` (continuous), ``sigma_px``; per-feature failure
+    ``reasons`` and the number of candidate (feature, camera) pairs."""
+
+    feature: list[int] = field(default_factory=list)
+    camera: list[int] = field(default_factory=list)
+    line: list[float] = field(default_factory=list)
+    sample: list[float] = field(default_factory=list)
+    sigma_px: list[float] = field(default_factory=list)
+    candidates: int = 0
+    reasons: Counter = field(default_factory=Counter)
+
+    def add(self, feature: int, camera: int, line: float, sample: float, sigma: float) -> None:
+        self.feature.append(int(feature))
+        self.camera.append(int(camera))
+        self.line.append(float(line))
+        self.sample.append(float(sample))
+        self.sigma_px.append(float(sigma))
+
+    def __len__(self) -> int:
+        return len(self.feature)
+
+
+def _pixels(raw: NDArray) -> Array | None:
+    px = np.asarray(raw, dtype=float)
+    return px if np.all(np.isfinite(px)) else None
+
+
+def _match_one(image: Array, template: Array, row_p: float, col_p: float, cfg: MatchConfig,
+               search: int) -> tuple[float, float, float] | str:
+    """NCC within ``+-search`` of the predicted template centre, then LSM; (row, col, sigma) or a reason."""
+    peak = ncc_search(image, template, (row_p - search, row_p + search), (col_p - search, col_p + search))
+    if peak is None:
+        return "no search area (window off the image, flat template or NaN pixels)"
+    if peak.value < cfg.min_ncc:
+        return "weak correlation"
+    if peak.ratio > cfg.max_peak_ratio:
+        return "ambiguous correlation peak"
+    res = lsm(image, template, peak.row, peak.col)
+    if not res.converged:
+        return f"LSM: {res.reason}"
+    sigma = max(res.sigma_row, res.sigma_col, cfg.sigma_floor_px)
+    if sigma > cfg.max_sigma_px:
+        return "LSM sigma too large"
+    return res.row, res.col, sigma
+
+
+def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef: Array, landmark_gcp_row: Callable[[int], int],
+               cfg: MatchConfig = MatchConfig()) -> MatchedObservations:
+    """Measure every GCP window (see the module docstring). ``catalogue_ecef (G, 3)`` m are the
+    database positions; ``landmark_gcp_row(landmark row)`` gives a window's GCP database row."""
+    out = MatchedObservations()
+    wins = imagery.gcp
+    chip_of = {int(r): i for i, r in enumerate(imagery.chip_landmark)}
+    band = int(imagery.attrs.get("band", 2))
+    for k in range(len(wins)):
+        out.candidates += 1
+        row, cam = int(wins.landmark[k]), int(wins.camera[k])
+        chip = imagery.chips[chip_of[row], cam] if row in chip_of else None
+        image = _pixels(wins.pixels[k])
+        if chip is None or not np.all(np.isfinite(chip)):
+            out.reasons["no reference chip"] += 1
+            continue
+        if image is None:
+            out.reasons["NaN pixels"] += 1
+            continue
+        p = supplied_geo.ground_to_pixel(cam, band, catalogue_ecef[landmark_gcp_row(row)][None], continuous=True)
+        if not p.visible[0]:
+            out.reasons["not predicted in the image"] += 1
+            continue
+        got = _match_one(image, np.asarray(chip, float), float(p.line[0] - wins.line0[k]),
+                         float(p.sample[0] - wins.sample0[k]), cfg, cfg.search_px + 2)
+        if isinstance(got, str):
+            out.reasons[got] += 1
+            continue
+        r, c, s = got
+        out.add(row, cam, wins.line0[k] + r, wins.sample0[k] + c, s)
+    return out
+
+
+@dataclass
+class TieFeature:
+    """A tie point defined by an An interest point: its ``window_row`` (the simulated feature whose
+    windows it lives in), An ``line``/``sample`` (whole pixels)."""
+
+    window_row: int
+    line: float
+    sample: float
+
+
+def _interest_point(image: Array, margin: int, search: int) -> tuple[int, int] | None:
+    """Strongest Foerstner point within ``search`` of the centre, at least ``margin`` from the edge."""
+    from skimage.feature import corner_foerstner
+
+    w, q = corner_foerstner(image / max(float(np.std(image)), 1e-9), sigma=1.0)
+    h = image.shape[0]
+    lo, hi = max(h // 2 - search, margin), min(h // 2 + search, h - 1 - margin)
+    if lo > hi:
+        return None
+    sub_w = np.where(q[lo:hi + 1, lo:hi + 1] > 0.3, w[lo:hi + 1, lo:hi + 1], 0.0)
+    if not np.isfinite(sub_w).all() or sub_w.max() <= 0:
+        return None
+    i, j = np.unravel_index(int(np.argmax(sub_w)), sub_w.shape)
+    return lo + int(i), lo + int(j)
+
+
+def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callable[[Array, Array], Array],
+               rows: NDArray[np.int64], cfg: MatchConfig = MatchConfig(),
+               progress: Callable[[int, int], None] | None = None) -> tuple[list[TieFeature], MatchedObservations]:
+    """Detect and match tie points in the windows of landmark ``rows`` (see the module docstring).
+    ``surface(lat, lon)`` is the DEM's ellipsoidal height, for the conjugates' prediction."""
+    wins = imagery.tie
+    band = int(imagery.attrs.get("band", 2))
+    half = cfg.template_px // 2
+    full = float(imagery.attrs.get("full_scale_dn", 2 ** 14 - 1))
+    features: list[TieFeature] = []
+    out = MatchedObservations()
+    for n_done, row in enumerate(rows):
+        if progress is not None:
+            progress(n_done, len(rows))
+        k_an = wins.find(int(row), AN, band)
+        if k_an is None:
+            out.reasons["no An window"] += 1
+            continue
+        an_img = _pixels(wins.pixels[k_an])
+        if an_img is None:
+            out.reasons["NaN pixels"] += 1
+            continue
+        ip = _interest_point(an_img, half + 1, cfg.search_px)
+        if ip is None:
+            out.reasons["no interest point (low texture)"] += 1
+            continue
+        r0, c0 = ip
+        tpl = an_img[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]
+        if tpl.mean() / full > cfg.cloud_reflectance:
+            out.reasons["cloud (bright template)"] += 1
+            continue
+        line_an, samp_an = float(wins.line0[k_an] + r0), float(wins.sample0[k_an] + c0)
+        ground = supplied_geo.pixel_to_ground(AN, band, line_an, samp_an, surface=surface, exposure=np.nan)
+        if not np.all(np.isfinite(ground)):
+            out.reasons["An ray misses the DEM"] += 1
+            continue
+        fi = len(features)
+        got: list[tuple[int, float, float, float]] = []
+        for k in np.flatnonzero((wins.landmark == row) & (wins.band == band) & (wins.camera != AN)):
+            cam = int(wins.camera[k])
+            out.candidates += 1
+            img = _pixels(wins.pixels[k])
+            if img is None:
+                out.reasons["NaN pixels"] += 1
+                continue
+            p = supplied_geo.ground_to_pixel(cam, band, ground, continuous=True)
+            if not p.visible[0]:
+                out.reasons["not predicted in the image"] += 1
+                continue
+            m = _match_one(img, tpl, float(p.line[0] - wins.line0[k]), float(p.sample[0] - wins.sample0[k]), cfg,
+                           cfg.search_px)
+            if isinstance(m, str):
+                out.reasons[m] += 1
+                continue
+            r, c, s = m
+            # forward-backward check: the matched patch, matched back into An, must land where it came from
+            ri, ci = int(round(r)), int(round(c))
+            back_tpl = img[ri - half:ri + half + 1, ci - half:ci + half + 1]
+            if back_tpl.shape != tpl.shape:
+                out.reasons["match at the window edge"] += 1
+                continue
+            er, ec = r0 + (ri - r), c0 + (ci - c)
+            b = _match_one(an_img, back_tpl, er, ec, cfg, 2)
+            if isinstance(b, str) or np.hypot(b[0] - er, b[1] - ec) > cfg.back_tolerance_px:
+                out.reasons["forward-backward check"] += 1
+                continue
+            got.append((cam, wins.line0[k] + r, wins.sample0[k] + c, s))
+        if len(got) + 1 < cfg.min_cameras:
+            out.reasons[f"seen in fewer than {cfg.min_cameras} cameras"] += 1
+            continue
+        features.append(TieFeature(int(row), line_an, samp_an))
+        sig_an = float(np.median([g[3] for g in got]))
+        out.add(fi, AN, line_an, samp_an, sig_an)
+        for cam, ln, sm, s in got:
+            out.add(fi, cam, ln, sm, s)
+    return features, out

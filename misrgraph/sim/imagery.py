@@ -1,0 +1,289 @@
+"""Simulated MISR imagery: ray-cast image windows and GCP reference chips (seed sections 3.3, 3.5).
+
+A matcher needs pixels. The simulator renders, for every camera, the image windows around each
+GCP and tie-point feature that matching reads, by casting every pixel through the *true* geometry
+onto the true terrain and sampling a ground reflectance field:
+
+* **Reflectance** (:class:`SceneRadiance`): deterministic from the seed, continuous everywhere.
+  Land is ``0.18 (1 + t)`` (floored at 0.018) with ``t`` a sum of 96 random 3-D plane waves of
+  60 m - 6 km wavelength (a ``1/f`` amplitude spectrum, 0.35 RMS), water 0.04 (real land mask), times
+  Lambertian terrain shading at a sun elevation/azimuth of the pass (``cos i / sin e``, the
+  terrain normal from the true height field by central differences over 30 m).
+* **Clouds** (optional, ``cloud_fraction``): a smooth field (5-40 km) on a layer ``cloud_height_m``
+  above the ellipsoid, thresholded to that fraction, reflectance 0.6 with its own texture. A ray
+  meets the layer before the ground, so a cloud appears displaced by ``h tan(view angle)`` (up to
+  8 km at 3 km for the D cameras): the reason matches on clouds are wrong.
+* **Point spread**: each pixel averages the scene over its footprint: the detector's along-track
+  extent (one pitch, ``1/rate`` lines: ~700 m for the D cameras), the motion during the line time
+  (one line, 275 m) and one sample across track, through the local ground Jacobian of the cast
+  pixel centres (relief included at pixel scale). The texture's footprint mean is exact (a sinc
+  per wave), so no sub-pixel wave aliases.
+* **Radiometry**: 14-bit counts, full scale at reflectance 1.0, Gaussian noise of SNR
+  ``snr`` at reflectance 0.18 growing as the square root of the signal, quantised.
+
+Image coordinates are MISR's: row ``L`` is the exposure at time ``t0 + L * line_time`` with the
+array centre (focal-plane fraction 0), column ``s`` the sample; a window is stored with the
+``(line0, sample0)`` of its first pixel, so a position ``(r, q)`` inside it is the continuous
+observation ``line = line0 + r``, ``sample = sample0 + q`` the estimator adjusts.
+
+GCP chips (:func:`render_chip`) are rendered from the same scene through the *supplied* geometry,
+centred on the true GCP (a Landsat chip shows the true feature; its catalogue coordinates carry
+the catalogue error), without MISR's noise and with a different linear radiometry (another
+sensor), 64 x 64 pixels at MISR's sampling. (Per pass here; a production database holds one
+set per GCP from a nominal orbit.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from misrgraph.model.frames import ecef_to_geodetic
+from misrgraph.model.geolocation import PassGeometry, ray_ellipsoid
+from misrgraph.sim.terrain import EARTH_R, land_mask
+
+if TYPE_CHECKING:
+    from misrgraph.io.imagery import PassImagery
+    from misrgraph.io.passes import OrbitPass
+
+__all__ = ["SceneRadiance", "render_window", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
+           "REFERENCE_REFLECTANCE"]
+
+Array = NDArray[np.float64]
+Surface = Callable[[Array, Array], Array]
+
+#: 14-bit counts at reflectance 1.0 (full scale)
+FULL_SCALE_DN = 2 ** 14 - 1
+#: the reflectance at which ``snr`` is stated
+REFERENCE_REFLECTANCE = 0.18
+
+
+def _waves(rng: np.random.Generator, n: int, lam_lo: float, lam_hi: float, rms: float) -> tuple[Array, Array, Array]:
+    """Wave vectors (n, 3) rad/m, phases and amplitudes of a 1/f field with total RMS ``rms``."""
+    lam = np.exp(rng.uniform(np.log(lam_lo), np.log(lam_hi), n))
+    u = rng.standard_normal((n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    amp = np.sqrt(lam)  # log-uniform wavelengths: power per log band ~ lambda, a 1/f amplitude spectrum
+    amp *= rms * np.sqrt(2.0 / np.sum(amp ** 2))
+    return (2 * np.pi / lam)[:, None] * u, rng.uniform(0, 2 * np.pi, n), amp
+
+
+def _sinc(x: Array) -> Array:
+    """``sin(x/2) / (x/2)``: the mean of ``exp(i x u)`` over ``u`` uniform in [-1/2, 1/2]."""
+    return np.sinc(x / (2 * np.pi))
+
+
+def _field(xyz: Array, waves: tuple[Array, Array, Array]) -> Array:
+    k, ph, amp = waves
+    out = np.zeros(xyz.shape[:-1])
+    for i in range(0, k.shape[0], 16):  # chunks keep the (points, waves) temporary small
+        out += np.sin(xyz @ k[i:i + 16].T + ph[i:i + 16]) @ amp[i:i + 16]
+    return out
+
+
+@dataclass(frozen=True)
+class SceneRadiance:
+    """The ground and cloud scene of a scenario (see the module docstring); deterministic from ``seed``.
+
+    ``height(lat, lon)`` is the true ellipsoidal height field (m) used for shading."""
+
+    seed: int
+    height: Surface
+    sun_elevation_deg: float = 45.0
+    sun_azimuth_deg: float = 135.0
+    cloud_fraction: float = 0.0
+    cloud_height_m: float = 3000.0
+    texture_rms: float = 0.35
+
+    def __post_init__(self) -> None:
+        rng = np.random.default_rng([self.seed, 17])
+        object.__setattr__(self, "_texture", _waves(rng, 96, 60.0, 6000.0, self.texture_rms))
+        object.__setattr__(self, "_cloud", _waves(rng, 24, 5e3, 40e3, 1.0))
+        object.__setattr__(self, "_cloud_texture", _waves(rng, 24, 300.0, 3000.0, 0.15))
+
+    # ------------------------------------------------------------------ ground
+    def ground_reflectance(self, ecef: Array, d_line: Array | None = None, d_sample: Array | None = None,
+                           rate: float = 1.0) -> Array:
+        """Shaded reflectance (dimensionless) of ground points ``(..., 3)`` ECEF m, averaged over a
+        pixel footprint when ``d_line``, ``d_sample`` (``(..., 3)`` m of ground per image line and
+        per sample) are given: the texture is linear in its plane waves, so its footprint mean is
+        exact, each wave's amplitude times ``sinc(k.d_line) sinc(k.d_line / rate) sinc(k.d_sample)``
+        (motion over one line, the detector's along-track extent, one sample; ``sinc(x) =
+        sin(x/2)/(x/2)``). Land mask and shading are taken at the footprint centre."""
+        shape = ecef.shape[:-1]
+        g = ecef.reshape(-1, 3)
+        lat, lon, _ = ecef_to_geodetic(g)
+        scale = EARTH_R / np.linalg.norm(g, axis=-1, keepdims=True)
+        k, ph, amp = self._texture
+        tex = np.zeros(g.shape[0])
+        for i in range(0, k.shape[0], 16):  # chunks keep the (points, waves) temporaries small
+            ki = k[i:i + 16]
+            arg = (g * scale) @ ki.T + ph[i:i + 16]
+            wgt = np.broadcast_to(amp[i:i + 16], arg.shape)
+            if d_line is not None and d_sample is not None:
+                a = (d_line.reshape(-1, 3) * scale) @ ki.T
+                w = (d_sample.reshape(-1, 3) * scale) @ ki.T
+                wgt = wgt * _sinc(a) * _sinc(a / max(rate, 1e-3)) * _sinc(w)
+            tex += np.sum(np.sin(arg) * wgt, axis=-1)
+        land = land_mask(lat, lon)
+        refl = np.where(land, REFERENCE_REFLECTANCE * np.maximum(1.0 + tex, 0.1), 0.04)
+        return (refl * self._shading(lat, lon)).reshape(shape)
+
+    def _shading(self, lat: Array, lon: Array) -> Array:
+        """Lambertian ``cos(i) / sin(e)`` of the true terrain (1 on flat ground), floored at 0.05."""
+        d = 30.0
+        dlat = np.degrees(d / EARTH_R)
+        dlon = dlat / np.maximum(np.cos(np.radians(lat)), 1e-3)
+        h = self.height
+        dz_dn = (h(lat + dlat, lon) - h(lat - dlat, lon)) / (2 * d)
+        dz_de = (h(lat, lon + dlon) - h(lat, lon - dlon)) / (2 * d)
+        e, a = np.radians(self.sun_elevation_deg), np.radians(self.sun_azimuth_deg)
+        sun = np.array([np.cos(e) * np.sin(a), np.cos(e) * np.cos(a), np.sin(e)])  # east, north, up
+        normal = np.stack([-dz_de, -dz_dn, np.ones_like(dz_de)], -1)
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+        return np.maximum(normal @ sun, 0.05 * np.sin(e)) / np.sin(e)
+
+    # ------------------------------------------------------------------ clouds
+    def cloud_cover(self, ecef: Array) -> Array:
+        """Cloud opacity 0..1 at points of the cloud layer ``(..., 3)``."""
+        if self.cloud_fraction <= 0:
+            return np.zeros(ecef.shape[:-1])
+        from scipy.stats import norm
+
+        xyz = ecef / np.linalg.norm(ecef, axis=-1, keepdims=True) * EARTH_R
+        c = _field(xyz, self._cloud)  # unit variance
+        thr = norm.ppf(1.0 - self.cloud_fraction)
+        return np.clip((c - thr) / 0.15 + 0.5, 0.0, 1.0)
+
+    def cloud_reflectance(self, ecef: Array) -> Array:
+        xyz = ecef / np.linalg.norm(ecef, axis=-1, keepdims=True) * EARTH_R
+        return 0.6 * np.exp(_field(xyz, self._cloud_texture))
+
+
+def _cast_grid(geo: PassGeometry, cam: int, band: int, lines: Array, samples: Array, surface: Surface) -> Array:
+    """Ground points (..., 3) of pixel centres (continuous exposure ``lines``, frac 0)."""
+    shape = np.broadcast_shapes(lines.shape, samples.shape)
+    ln = np.broadcast_to(lines, shape).ravel()
+    sm = np.broadcast_to(samples, shape).ravel()
+    g = geo.pixel_to_ground(np.full(ln.size, cam), np.full(ln.size, band), ln, sm, surface=surface,
+                            exposure=np.full(ln.size, np.nan), tol_m=0.05)
+    return g.reshape(shape + (3,))
+
+
+def _render(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, lines: Array, samples: Array,
+            surface: Surface, rate: float) -> Array:
+    """Mean scene reflectance over each pixel footprint, for a regular grid of continuous pixel
+    positions ``lines (H,)`` x ``samples (W,)`` (spacing ``dl``, ``ds`` pixels)."""
+    ll, ss = np.meshgrid(lines, samples, indexing="ij")
+    g = _cast_grid(geo, cam, band, ll, ss, surface)
+    # local ground Jacobian per pixel (m per line, m per sample) from the cast grid
+    dl = lines[1] - lines[0] if lines.size > 1 else 1.0
+    ds = samples[1] - samples[0] if samples.size > 1 else 1.0
+    g_l = np.gradient(g, dl, axis=0)
+    g_s = np.gradient(g, ds, axis=1)
+    refl = scene.ground_reflectance(g, g_l, g_s, rate)
+    if scene.cloud_fraction > 0:
+        origin, direction = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(),
+                                           np.full(ll.size, np.nan))
+        lam = ray_ellipsoid(origin, direction, np.full(ll.size, scene.cloud_height_m))
+        pc = (origin + lam[:, None] * direction).reshape(g.shape)
+        alpha = scene.cloud_cover(pc)
+        refl = (1 - alpha) * refl + alpha * scene.cloud_reflectance(pc)
+    return refl
+
+
+def render_window(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line0: int, sample0: int,
+                  size: int, surface: Surface, rng: np.random.Generator, snr: float = 200.0) -> NDArray[np.uint16]:
+    """A ``size x size`` window of 14-bit counts whose pixel ``(r, q)`` is image line ``line0 + r``,
+    sample ``sample0 + q`` of camera ``cam``/band ``band`` under ``geo`` (the true geometry)."""
+    lines = line0 + np.arange(size, dtype=float)
+    samples = sample0 + np.arange(size, dtype=float)
+    rate = _rate(geo, cam, band, lines[size // 2], samples[size // 2], surface)
+    refl = _render(geo, scene, cam, band, lines, samples, surface, rate)
+    return _counts(refl, rng, snr)
+
+
+def render_chip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line_c: float, sample_c: float,
+                size: int, surface: Surface, gain: float = 0.8, offset_dn: float = 300.0) -> Array:
+    """A reference chip ``(size, size)`` float32 counts, centred (between pixels ``size/2 - 1`` and
+    ``size/2``) on the continuous image position ``(line_c, sample_c)`` under ``geo``, with the
+    linear radiometry ``gain * counts + offset_dn`` of another sensor and no noise."""
+    off = np.arange(size, dtype=float) - (size - 1) / 2.0
+    rate = _rate(geo, cam, band, line_c, sample_c, surface)
+    refl = _render(geo, scene, cam, band, line_c + off, sample_c + off, surface, rate)
+    return (gain * np.clip(refl, 0, 1) * FULL_SCALE_DN + offset_dn).astype(np.float32)
+
+
+def _rate(geo: PassGeometry, cam: int, band: int, line: float, sample: float, surface: Surface) -> float:
+    g = _cast_grid(geo, cam, band, np.array([line]), np.array([sample]), surface)
+    t = geo.line_time(cam, band, line, np.array(line))
+    return float(geo.line_rate(cam, band, g, np.atleast_1d(t))[0])
+
+
+def _counts(refl: Array, rng: np.random.Generator, snr: float) -> NDArray[np.uint16]:
+    signal = np.clip(refl, 0, None) * FULL_SCALE_DN
+    ref = REFERENCE_REFLECTANCE * FULL_SCALE_DN
+    noise = rng.standard_normal(refl.shape) * (ref / snr) * np.sqrt(np.maximum(signal, 1.0) / ref)
+    return np.clip(np.round(signal + noise), 0, FULL_SCALE_DN).astype(np.uint16)
+
+
+
+def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplied_geo: PassGeometry,
+                        landmark_ecef: Array, scene: SceneRadiance, surface: Surface, rng: np.random.Generator,
+                        search_px: int = 8, template_px: int = 15, chip_px: int = 64, snr: float = 200.0,
+                        band: int = 2) -> "PassImagery":
+    """Render the windows a matcher reads for one pass (band ``band``, red by default).
+
+    For every landmark and camera with a simulated observation: a window of ``template_px + 2
+    search_px`` pixels (tie and check points) or ``chip_px + 2 search_px`` (GCPs), centred on
+    where the *supplied* geometry predicts the true ground point (``landmark_ecef (M, 3)``, the
+    pass's true landmark positions) -- so the matcher cannot read the truth off the window
+    centre -- and rendered through ``true_geo``. For every GCP, nine reference chips through
+    ``supplied_geo`` (:func:`render_chip`). ``search_px`` must cover the navigation's 3 sigma
+    prediction error (about 5 lines for the D cameras with the pass scenario's attitude errors)."""
+    from misrgraph.io.imagery import ImageWindows, PassImagery
+    from misrgraph.io.passes import KIND_GCP
+
+    o = orbit_pass.observations
+    kinds = orbit_pass.landmarks.kind
+    sel = np.flatnonzero(o.band == band)
+    pairs = np.unique(np.stack([o.landmark[sel], o.camera[sel]], 1), axis=0) if sel.size else np.zeros((0, 2), int)
+    out: dict[str, list] = {"tie": [], "gcp": []}
+    t_lo, t_hi = orbit_pass.span
+    for cam in np.unique(pairs[:, 1]) if len(pairs) else []:
+        rows = pairs[pairs[:, 1] == cam, 0]
+        pred = supplied_geo.ground_to_pixel(int(cam), band, landmark_ecef[rows], continuous=True)
+        for row, ln, sm, ok in zip(rows, pred.line, pred.sample, pred.visible):
+            if not ok:
+                continue
+            kind = "gcp" if kinds[row] == KIND_GCP else "tie"
+            size = (chip_px if kind == "gcp" else template_px) + 2 * search_px
+            l0, s0 = int(round(ln)) - size // 2, int(round(sm)) - size // 2
+            t_first, t_last = supplied_geo.line_time(int(cam), band, l0, l0), supplied_geo.line_time(int(cam), band, l0, l0 + size)
+            if t_first < t_lo or t_last > t_hi:  # the window would reach past the pass's navigation
+                continue
+            px = render_window(true_geo, scene, int(cam), band, l0, s0, size, surface, rng, snr)
+            out[kind].append((int(row), int(cam), band, l0, s0, px))
+    wins = {}
+    for kind, items in out.items():
+        size = (chip_px if kind == "gcp" else template_px) + 2 * search_px
+        if not items:
+            wins[kind] = ImageWindows.empty(size)
+            continue
+        cols = list(zip(*items))
+        wins[kind] = ImageWindows(*(np.array(c) for c in cols[:5]), np.stack(cols[5]))
+    gcp_rows = np.unique(wins["gcp"].landmark)
+    chips = np.full((gcp_rows.size, 9, chip_px, chip_px), np.nan, np.float32)
+    for i, row in enumerate(gcp_rows):
+        for cam in wins["gcp"].camera[wins["gcp"].landmark == row]:
+            p = supplied_geo.ground_to_pixel(int(cam), band, landmark_ecef[row][None], continuous=True)
+            if p.visible[0]:
+                chips[i, int(cam)] = render_chip(supplied_geo, scene, int(cam), band, float(p.line[0]),
+                                                 float(p.sample[0]), chip_px, surface)
+    attrs = {"snr": float(snr), "cloud_fraction": float(scene.cloud_fraction), "search_px": int(search_px),
+             "template_px": int(template_px), "chip_px": int(chip_px), "band": int(band),
+             "full_scale_dn": int(FULL_SCALE_DN)}
+    return PassImagery(wins["tie"], wins["gcp"], gcp_rows.astype(np.int64), chips, attrs)
