@@ -50,6 +50,20 @@ def small_pass_dir(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def imagery_pass_dir(tmp_path_factory):
+    """A reduced 'pass' scenario with imagery (seed 3): 60 tie points, 10 check points, 15-minute
+    pass over 45 N, matched once (``misrgraph match``) by the fixture."""
+    from misrgraph.runs.match import run_match
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+
+    out = tmp_path_factory.mktemp("scen") / "imagery"
+    run_simulate(ScenarioConfig(scenario="pass", seed=3, n_tie_points=60, n_check_points=10, duration_s=900.0,
+                                start_lat_deg=45.0, imagery=True), out)
+    run_match(out)
+    return out
+
+
+@pytest.fixture(scope="session")
 def path_dir(tmp_path_factory):
     """A repeat-path scenario (seed 41): ten 10-minute passes of one path, 40 tie points each."""
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate

@@ -144,6 +144,8 @@ def simulate(
     bands: str = typer.Option("red", "--bands", help="Bands observed, comma-separated from blue, green, red, nir (e.g. all four for band-to-band calibration)."),
     band_misalignment: float = typer.Option(0.0, "--band-misalignment-arcsec", help="Per-band truth: 1 sigma of each band's own delta, beta, epsilon offsets (arcsec)."),
     truth: str = typer.Option("model", "--truth", help="model (navigation errors drawn from the estimator's own parameterisations: checks the algebra) or independent (error sources the estimator does not share: an attitude process with jitter, a once-per-revolution ephemeris term, sub-posting terrain, DEM error correlated over 28 km, f/alpha camera errors, Student-t matching noise with 1-2 px mismatches, scene-correlated GCP errors; see docs/design.md: checks the estimator)."),
+    imagery: bool = typer.Option(False, "--imagery", help="Also render the image windows matching reads (ray-cast through the true geometry, red band, 14-bit) and the GCPs' reference chips, into each pass file (pass and path scenarios)."),
+    cloud_fraction: float = typer.Option(0.0, "--cloud-fraction", help="With --imagery: fraction of the sky covered by clouds on a layer 3 km up (they appear displaced with view angle)."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -158,7 +160,7 @@ def simulate(
                   noise_free=noise_free, with_chips=chips, camera_truth=str(camera_truth) if camera_truth else "",
                   thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm,
                   bands=tuple(b.strip() for b in bands.split(",") if b.strip()), band_misalignment_arcsec=band_misalignment,
-                  truth=truth)
+                  truth=truth, imagery=imagery, cloud_fraction=cloud_fraction)
     if config is not None:
         try:
             fields.update(json.loads(config.read_text()))
@@ -220,6 +222,7 @@ def adjust(
     snooping_rounds: int = typer.Option(4, "--snooping-rounds", help="Rounds of iterated data snooping (Baarda, alpha 0.001) after the least-squares solve; 0: off."),
     variance_components: int = typer.Option(0, "--variance-components", help="Rounds of variance-component estimation (tie-point and GCP sigmas rescaled by their sigma0); 0: keep the stated sigmas."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
+    observations: str = typer.Option("simulated", "--observations", help="simulated (the pass's observations) or matched (those 'misrgraph match' measured in the imagery)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
@@ -233,7 +236,7 @@ def adjust(
                                       accept_unconverged=accept_unconverged))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
-                             progress=lambda s: st.update(s))
+                             progress=lambda s: st.update(s), observations=observations)
     if plots is not None:
         if out is None:
             _fail("--plots: needs --out RESULT.h5 (the plots are drawn from it)")
@@ -244,6 +247,45 @@ def adjust(
         _print_json(summary)
         return
     _print_adjust_summary(summary)
+
+
+@app.command()
+@handle_errors
+def match(
+    scenario_dir: Path = typer.Argument(..., help="Scenario directory with imagery (misrgraph simulate --imagery)."),
+    pass_file: Optional[Path] = typer.Option(None, "--pass", help="Match only this pass file (default: every pass with imagery)."),
+    search: int = typer.Option(8, "--search-px", help="Search range (px) each side of the predicted position; it must cover the navigation's 3-sigma error."),
+    min_cameras: int = typer.Option(3, "--min-cameras", help="Keep a tie point matched in at least this many cameras (An included)."),
+    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of MatchConfig fields (overrides the options)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Measure GCPs (chip NCC + least-squares matching) and tie points (An interest points matched in the other cameras) in the imagery; write them into each pass file beside the simulated observations."""
+    from misrgraph.match.pipeline import MatchConfig
+    from misrgraph.runs.match import run_match
+
+    fields: dict[str, Any] = dict(search_px=search, min_cameras=min_cameras)
+    if config is not None:
+        try:
+            fields.update(json.loads(config.read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            _fail(f"--config: cannot read {config}: {exc}")
+    cfg = MatchConfig.from_dict(fields)
+    with err_console.status("matching...") as st:
+        res = run_match(scenario_dir, cfg, pass_file, progress=lambda s: st.update(s))
+    out = {k: v for k, v in res.items() if k != "passes"}
+    if as_json:
+        _print_json(out)
+        return
+    t = Table(title=f"matching in {scenario_dir}")
+    for col in ("kind", "candidates", "matched", "error RMS (px)", "error p95 (px)", "error / sigma RMS", "wrong", "s"):
+        t.add_column(col, justify="right")
+    for kind in ("gcp", "tie"):
+        v = out[kind]
+        e = v.get("error_px") or {}
+        fmt = (lambda x: f"{x:.3f}" if isinstance(x, float) else "-")
+        t.add_row(kind, str(v["candidates"]), str(v["matched"]), fmt(e.get("rms")), fmt(e.get("p95")),
+                  fmt(v.get("normalised_error_rms")), str(v.get("wrong_matches", "-")), f"{v['seconds']:.1f}")
+    console.print(t)
 
 
 def _print_adjust_summary(s: dict) -> None:

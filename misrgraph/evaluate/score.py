@@ -119,8 +119,11 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
     if blunders.any() or res.rejected.size:
         rej = np.zeros(blunders.size, bool)
         rej[res.rejected] = True
+        # observations of a tie point dropped whole (most of its rays rejected) are out of the solution too
+        excluded = rej | np.isin(orbit_pass.observations.landmark, res.dropped_landmarks)
         out["blunders"] = {"injected": int(blunders.sum()), "rejected": int(rej.sum()),
-                           "rejected_that_were_blunders": int((rej & blunders).sum())}
+                           "rejected_that_were_blunders": int((rej & blunders).sum()),
+                           "left_in_solution": int((blunders & ~excluded).sum())}
     return out
 
 

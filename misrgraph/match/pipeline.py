@@ -3,22 +3,26 @@
 * **GCPs.** For each GCP window: the GCP's catalogue position is projected through the supplied
   navigation and camera model (continuous line/sample); the reference chip of that camera is
   correlated over ``+-search_px`` around it (NCC), and the integer peak refined by least-squares
-  matching (:func:`misrgraph.match.lsm.lsm`). Rejected when the NCC peak is below ``min_ncc``,
+  matching (:func:`misrgraph.match.lsm.lsm`) (``search_px`` must cover the supplied navigation's
+  3 sigma prediction error: ~5 lines for the D cameras). Rejected when the NCC peak is below ``min_ncc``,
   ambiguous (peak ratio above ``max_peak_ratio``), LSM does not converge, or its sigma exceeds
   ``max_sigma_px``.
 * **Tie points.** In each An window the strongest Foerstner interest point near the centre
   (``skimage.feature.corner_foerstner``) defines the tie point: its An position is the An
   observation (whole pixels; the point *is* what An sees there). Its conjugates are predicted
   through the supplied navigation and the DEM (ray cast, then projected into each camera), found
-  by NCC and refined by LSM with the An patch as template, then **checked backwards**: the matched
-  patch is matched back into An and must land within ``back_tolerance_px`` of where it came
+  by NCC and refined by LSM with the An patch as template -- blurred along track by the
+  difference between the camera's footprint and An's (``1/rate`` lines each: the D cameras'
+  detector covers ~2.6 lines, An's one; Gaussian of the variances' difference) -- then **checked backwards**: the matched
+  patch is matched back into An and must land within ``back_tolerance_sigma`` times the two
+  matches' combined sigma (at least ``back_tolerance_px``, at most 1 px) of where it came
   from (the forward-backward check stands in for the seed's consistent labelling: a wrong match
   rarely maps back to its origin). A bright template (mean reflectance above
   ``cloud_reflectance``; land is ~0.18) is screened as cloud. A tie point is kept when it is
   matched in at least ``min_cameras`` cameras, An included.
 * **Sigma.** Each observation's sigma is the LSM's (residual variance times the residuals'
   correlation area, :mod:`misrgraph.match.lsm`), at least ``sigma_floor_px``; one sigma per
-  observation, the larger of the line and sample ones.
+  observation, the RMS of the line and sample ones.
 
 Every failure is reported per feature (reason counts), never raised: a window off the image, a
 flat chip or NaN pixels make that feature's match fail with its reason.
@@ -33,6 +37,7 @@ from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from misrgraph.config import Config
 from misrgraph.errors import InputError
@@ -40,6 +45,7 @@ from misrgraph.io.imagery import PassImagery
 from misrgraph.match.lsm import lsm, ncc_search
 from misrgraph.model.constants import CAMERAS
 from misrgraph.model.geolocation import PassGeometry
+from misrgraph.sim.imagery import INTEREST_RADIUS_PX
 
 __all__ = ["MatchConfig", "MatchedObservations", "match_gcps", "match_ties"]
 
@@ -53,11 +59,12 @@ class MatchConfig(Config):
     """Matching settings (pixels unless named otherwise). Unknown keys are rejected by ``from_dict``."""
 
     template_px: int = 15
-    search_px: int = 6
+    search_px: int = 8
     min_ncc: float = 0.6
     max_peak_ratio: float = 0.95
     max_sigma_px: float = 0.5
     back_tolerance_px: float = 0.3
+    back_tolerance_sigma: float = 3.0
     min_cameras: int = 3
     cloud_reflectance: float = 0.4
     sigma_floor_px: float = 0.02
@@ -70,7 +77,7 @@ class MatchConfig(Config):
         for name in ("min_ncc", "max_peak_ratio"):
             if not 0 < getattr(self, name) <= 1:
                 raise InputError(name, getattr(self, name), "a number in (0, 1]")
-        for name in ("max_sigma_px", "back_tolerance_px", "sigma_floor_px", "cloud_reflectance"):
+        for name in ("max_sigma_px", "back_tolerance_px", "back_tolerance_sigma", "sigma_floor_px", "cloud_reflectance"):
             if not getattr(self, name) > 0:
                 raise InputError(name, getattr(self, name), "a positive number")
         if not (isinstance(self.min_cameras, int) and 2 <= self.min_cameras <= 9):
@@ -120,7 +127,7 @@ def _match_one(image: Array, template: Array, row_p: float, col_p: float, cfg: M
     res = lsm(image, template, peak.row, peak.col)
     if not res.converged:
         return f"LSM: {res.reason}"
-    sigma = max(res.sigma_row, res.sigma_col, cfg.sigma_floor_px)
+    sigma = max(float(np.sqrt(0.5 * (res.sigma_row ** 2 + res.sigma_col ** 2))), cfg.sigma_floor_px)
     if sigma > cfg.max_sigma_px:
         return "LSM sigma too large"
     return res.row, res.col, sigma
@@ -207,7 +214,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
         if an_img is None:
             out.reasons["NaN pixels"] += 1
             continue
-        ip = _interest_point(an_img, half + 1, cfg.search_px)
+        ip = _interest_point(an_img, half + 1, INTEREST_RADIUS_PX)
         if ip is None:
             out.reasons["no interest point (low texture)"] += 1
             continue
@@ -223,6 +230,8 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             continue
         fi = len(features)
         got: list[tuple[int, float, float, float]] = []
+        t_an = supplied_geo.line_time(AN, band, line_an, line_an)
+        rate_an = float(supplied_geo.line_rate(AN, band, ground, np.atleast_1d(t_an))[0])
         for k in np.flatnonzero((wins.landmark == row) & (wins.band == band) & (wins.camera != AN)):
             cam = int(wins.camera[k])
             out.candidates += 1
@@ -234,7 +243,14 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             if not p.visible[0]:
                 out.reasons["not predicted in the image"] += 1
                 continue
-            m = _match_one(img, tpl, float(p.line[0] - wins.line0[k]), float(p.sample[0] - wins.sample0[k]), cfg,
+            # the camera's along-track footprint (1/rate lines) is longer than An's in the C and D cameras:
+            # blur An along track by the difference (variances of the box footprints) before matching
+            rate = float(supplied_geo.line_rate(cam, band, ground, np.atleast_1d(p.line[0] * 0 + supplied_geo.line_time(
+                cam, band, p.line[0], p.line[0])))[0])
+            blur = np.sqrt(max(1.0 / rate ** 2 - 1.0 / rate_an ** 2, 0.0) / 12.0)
+            ref = ndimage.gaussian_filter1d(an_img, blur, axis=0, mode="nearest") if blur > 0.05 else an_img
+            tpl_c = ref[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]
+            m = _match_one(img, tpl_c, float(p.line[0] - wins.line0[k]), float(p.sample[0] - wins.sample0[k]), cfg,
                            cfg.search_px)
             if isinstance(m, str):
                 out.reasons[m] += 1
@@ -247,8 +263,9 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
                 out.reasons["match at the window edge"] += 1
                 continue
             er, ec = r0 + (ri - r), c0 + (ci - c)
-            b = _match_one(an_img, back_tpl, er, ec, cfg, 2)
-            if isinstance(b, str) or np.hypot(b[0] - er, b[1] - ec) > cfg.back_tolerance_px:
+            b = _match_one(ref, back_tpl, er, ec, cfg, 2)
+            tol = max(cfg.back_tolerance_px, cfg.back_tolerance_sigma * np.hypot(s, b[2] if not isinstance(b, str) else 0.0))
+            if isinstance(b, str) or np.hypot(b[0] - er, b[1] - ec) > min(tol, 1.0):
                 out.reasons["forward-backward check"] += 1
                 continue
             got.append((cam, wins.line0[k] + r, wins.sample0[k] + c, s))

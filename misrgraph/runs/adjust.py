@@ -24,6 +24,7 @@ from misrgraph.io.camera import load_camera_model, write_camera_group
 from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_h5, write_dataset
+from misrgraph.io.imagery import load_pass_observations
 from misrgraph.io.passes import KIND_GCP, OrbitPass
 from misrgraph.io.results import capped_list
 from misrgraph.io.truth import PassTruth, read_pass_truth
@@ -92,8 +93,12 @@ def run_adjust(
     cfg: AdjustConfig = AdjustConfig(),
     progress: Callable[[str], None] | None = None,
     score_points: bool = False,
+    observations: str = "simulated",
 ) -> dict[str, Any]:
     """Adjust one pass of a scenario directory; write RESULT.h5 when ``out`` is given; return the summary.
+
+    ``observations``: ``"simulated"`` (the pass's own) or ``"matched"`` (what ``misrgraph match``
+    measured in the imagery, scored against their own truth).
 
     ``score_points``: with truth, the summary also lists each check point's error
     (``checkpoint_points``, :func:`misrgraph.evaluate.score.score_pass`).
@@ -114,8 +119,7 @@ def run_adjust(
             raise InputError("PASS_FILE", None, f"one of the scenario's {len(passes)} pass files ({names}): "
                                                 "name it with --pass")
         pass_file = passes[0]
-    orbit_pass = OrbitPass.load(pass_file)
-    truth = read_pass_truth(pass_file)
+    orbit_pass, truth = load_pass_observations(pass_file, observations)
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
     gcps = read_gcp_database(gcp_file or d / "gcp.h5")
     dem = read_dem(dem_file or d / "dem.h5")
@@ -124,6 +128,7 @@ def run_adjust(
     snooped = set(res.snooped.tolist())
     summary: dict[str, Any] = {
         "pass_id": orbit_pass.pass_id,
+        "observation_set": observations,
         "solver_status": res.status,
         "covariance": res.reliability.get("covariance", "gauss_newton"),
         "variance_factor": res.variance_factor,

@@ -9,6 +9,12 @@ onto the true terrain and sampling a ground reflectance field:
   60 m - 6 km wavelength (a ``1/f`` amplitude spectrum, 0.35 RMS), water 0.04 (real land mask), times
   Lambertian terrain shading at a sun elevation/azimuth of the pass (``cos i / sin e``, the
   terrain normal from the true height field by central differences over 30 m).
+* **Angular and temporal change**: each camera sees the land through a BRDF,
+  ``1 + brdf_strength (b1 mu + b2 mu^2)`` with ``mu = tan(view) / tan(70.5 deg)`` and ``b1, b2``
+  unit-variance fields (100 m - 3 km): the nine views of a patch differ as the surface's
+  anisotropy varies, which is what limits multi-angle matching. A GCP chip's source image is of
+  another date (:meth:`SceneRadiance.another_date`: an independent surface change of 15 % RMS,
+  sun elevation 35 deg instead of 45, nadir view).
 * **Clouds** (optional, ``cloud_fraction``): a smooth field (5-40 km) on a layer ``cloud_height_m``
   above the ellipsoid, thresholded to that fraction, reflectance 0.6 with its own texture. A ray
   meets the layer before the ground, so a cloud appears displaced by ``h tan(view angle)`` (up to
@@ -41,6 +47,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from misrgraph.model.constants import CAMERAS, VIEW_ANGLE_DEG
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.geolocation import PassGeometry, ray_ellipsoid
 from misrgraph.sim.terrain import EARTH_R, land_mask
@@ -49,7 +56,7 @@ if TYPE_CHECKING:
     from misrgraph.io.imagery import PassImagery
     from misrgraph.io.passes import OrbitPass
 
-__all__ = ["SceneRadiance", "render_window", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
+__all__ = ["SceneRadiance", "INTEREST_RADIUS_PX", "render_window", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
            "REFERENCE_REFLECTANCE"]
 
 Array = NDArray[np.float64]
@@ -97,12 +104,31 @@ class SceneRadiance:
     cloud_fraction: float = 0.0
     cloud_height_m: float = 3000.0
     texture_rms: float = 0.35
+    brdf_strength: float = 0.15
+    epoch: int = 0
+    change_rms: float = 0.0
 
     def __post_init__(self) -> None:
         rng = np.random.default_rng([self.seed, 17])
         object.__setattr__(self, "_texture", _waves(rng, 96, 60.0, 6000.0, self.texture_rms))
         object.__setattr__(self, "_cloud", _waves(rng, 24, 5e3, 40e3, 1.0))
         object.__setattr__(self, "_cloud_texture", _waves(rng, 24, 300.0, 3000.0, 0.15))
+        object.__setattr__(self, "_brdf", (_waves(rng, 48, 100.0, 3000.0, 1.0), _waves(rng, 48, 100.0, 3000.0, 1.0)))
+        object.__setattr__(self, "_change", _waves(np.random.default_rng([self.seed, 18, self.epoch]), 64, 60.0, 3000.0,
+                                                   1.0))
+
+    def for_view(self, view_angle_deg: float) -> "SceneRadiance":
+        """The same scene seen from a camera ``view_angle_deg`` along track (fore > 0)."""
+        out = SceneRadiance(self.seed, self.height, self.sun_elevation_deg, self.sun_azimuth_deg, self.cloud_fraction,
+                            self.cloud_height_m, self.texture_rms, self.brdf_strength, self.epoch, self.change_rms)
+        object.__setattr__(out, "_view", float(view_angle_deg))
+        return out
+
+    def another_date(self, epoch: int, change_rms: float = 0.15, sun_elevation_deg: float = 35.0) -> "SceneRadiance":
+        """The scene on another date (a reference image's): an independent change of the surface
+        (``change_rms`` relative) and another sun elevation."""
+        return SceneRadiance(self.seed, self.height, sun_elevation_deg, self.sun_azimuth_deg, 0.0, self.cloud_height_m,
+                             self.texture_rms, self.brdf_strength, epoch, change_rms)
 
     # ------------------------------------------------------------------ ground
     def ground_reflectance(self, ecef: Array, d_line: Array | None = None, d_sample: Array | None = None,
@@ -129,7 +155,15 @@ class SceneRadiance:
                 wgt = wgt * _sinc(a) * _sinc(a / max(rate, 1e-3)) * _sinc(w)
             tex += np.sum(np.sin(arg) * wgt, axis=-1)
         land = land_mask(lat, lon)
-        refl = np.where(land, REFERENCE_REFLECTANCE * np.maximum(1.0 + tex, 0.1), 0.04)
+        base = np.maximum(1.0 + tex, 0.1)
+        xyz = g * scale
+        mu = np.tan(np.radians(getattr(self, "_view", 0.0))) / np.tan(np.radians(70.5))
+        if self.brdf_strength > 0 and mu != 0:
+            b1, b2 = (_field(xyz, w) for w in self._brdf)
+            base = base * np.maximum(1.0 + self.brdf_strength * (b1 * mu + b2 * mu * mu), 0.1)
+        if self.change_rms > 0:
+            base = base * np.maximum(1.0 + self.change_rms * _field(xyz, self._change), 0.1)
+        refl = np.where(land, REFERENCE_REFLECTANCE * base, 0.04)
         return (refl * self._shading(lat, lon)).reshape(shape)
 
     def _shading(self, lat: Array, lon: Array) -> Array:
@@ -231,6 +265,18 @@ def _counts(refl: Array, rng: np.random.Generator, snr: float) -> NDArray[np.uin
 
 
 
+#: how far (px) from a tie window's centre the matcher may place its interest point
+INTEREST_RADIUS_PX = 3
+
+
+def _window_size(kind: str, search_px: int, template_px: int, chip_px: int) -> int:
+    """GCP windows: the chip plus the search range each side; tie windows: the template plus the
+    search range, the interest point's freedom and 2 px for the least-squares fit, each side."""
+    if kind == "gcp":
+        return chip_px + 2 * search_px
+    return template_px + 2 * (search_px + INTEREST_RADIUS_PX + 2)
+
+
 def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplied_geo: PassGeometry,
                         landmark_ecef: Array, scene: SceneRadiance, surface: Surface, rng: np.random.Generator,
                         search_px: int = 8, template_px: int = 15, chip_px: int = 64, snr: float = 200.0,
@@ -238,7 +284,7 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
     """Render the windows a matcher reads for one pass (band ``band``, red by default).
 
     For every landmark and camera with a simulated observation: a window of ``template_px + 2
-    search_px`` pixels (tie and check points) or ``chip_px + 2 search_px`` (GCPs), centred on
+    (search_px + 5)`` pixels (tie and check points) or ``chip_px + 2 search_px`` (GCPs), centred on
     where the *supplied* geometry predicts the true ground point (``landmark_ecef (M, 3)``, the
     pass's true landmark positions) -- so the matcher cannot read the truth off the window
     centre -- and rendered through ``true_geo``. For every GCP, nine reference chips through
@@ -253,6 +299,8 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
     pairs = np.unique(np.stack([o.landmark[sel], o.camera[sel]], 1), axis=0) if sel.size else np.zeros((0, 2), int)
     out: dict[str, list] = {"tie": [], "gcp": []}
     t_lo, t_hi = orbit_pass.span
+    views = [scene.for_view(VIEW_ANGLE_DEG[name]) for name in CAMERAS]
+    reference = scene.another_date(1)  # the chips' source image: another date, another sun
     for cam in np.unique(pairs[:, 1]) if len(pairs) else []:
         rows = pairs[pairs[:, 1] == cam, 0]
         pred = supplied_geo.ground_to_pixel(int(cam), band, landmark_ecef[rows], continuous=True)
@@ -260,16 +308,16 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
             if not ok:
                 continue
             kind = "gcp" if kinds[row] == KIND_GCP else "tie"
-            size = (chip_px if kind == "gcp" else template_px) + 2 * search_px
+            size = _window_size(kind, search_px, template_px, chip_px)
             l0, s0 = int(round(ln)) - size // 2, int(round(sm)) - size // 2
             t_first, t_last = supplied_geo.line_time(int(cam), band, l0, l0), supplied_geo.line_time(int(cam), band, l0, l0 + size)
             if t_first < t_lo or t_last > t_hi:  # the window would reach past the pass's navigation
                 continue
-            px = render_window(true_geo, scene, int(cam), band, l0, s0, size, surface, rng, snr)
+            px = render_window(true_geo, views[int(cam)], int(cam), band, l0, s0, size, surface, rng, snr)
             out[kind].append((int(row), int(cam), band, l0, s0, px))
     wins = {}
     for kind, items in out.items():
-        size = (chip_px if kind == "gcp" else template_px) + 2 * search_px
+        size = _window_size(kind, search_px, template_px, chip_px)
         if not items:
             wins[kind] = ImageWindows.empty(size)
             continue
@@ -281,7 +329,7 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
         for cam in wins["gcp"].camera[wins["gcp"].landmark == row]:
             p = supplied_geo.ground_to_pixel(int(cam), band, landmark_ecef[row][None], continuous=True)
             if p.visible[0]:
-                chips[i, int(cam)] = render_chip(supplied_geo, scene, int(cam), band, float(p.line[0]),
+                chips[i, int(cam)] = render_chip(supplied_geo, reference, int(cam), band, float(p.line[0]),
                                                  float(p.sample[0]), chip_px, surface)
     attrs = {"snr": float(snr), "cloud_fraction": float(scene.cloud_fraction), "search_px": int(search_px),
              "template_px": int(template_px), "chip_px": int(chip_px), "band": int(band),

@@ -1,0 +1,186 @@
+"""``run_match``: measure GCPs and tie points in a scenario's imagery (the action behind
+``misrgraph match``; notebooks import it too).
+
+For each pass file with ``/imagery`` (``misrgraph simulate --imagery``): GCP chips and tie points
+are matched (:mod:`misrgraph.match.pipeline`) with the supplied navigation, camera model and DEM
+(never the truth), and the measured observations written into the pass file's ``/matched`` group
+beside the simulated ones (atomically); ``misrgraph adjust --observations matched`` adjusts them.
+
+When the pass carries the simulator's truth, each measurement is scored against it: the true
+continuous position of the true ground point (a GCP's true position; for a tie point, the true
+ground point of the An pixel that defines it, cast onto the true terrain). The summary's
+``error_px`` is per coordinate (line and sample pooled: ``rms``, median ``p50`` and ``p95`` of the
+absolute error), ``normalised_error_rms`` the RMS of error / reported sigma (1 for an honest sigma),
+``wrong_matches`` the matches more than 1 px from the truth (flagged as blunders in the truth).
+An's tie observations define their tie points (zero error by construction) and are not scored.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.camera import load_camera_model
+from misrgraph.io.dem import read_dem
+from misrgraph.io.gcp import read_gcp_database
+from misrgraph.io.imagery import MatchedSet, has_imagery, read_imagery, write_matched
+from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
+from misrgraph.io.truth import read_pass_truth
+from misrgraph.match.pipeline import AN, MatchConfig, MatchedObservations, match_gcps, match_ties
+from misrgraph.model.dem import Geoid, fit_local_surface
+
+__all__ = ["run_match", "match_pass", "WRONG_MATCH_PX", "TIE_ID_BASE"]
+
+log = logging.getLogger(__name__)
+#: a match farther than this from the truth is a wrong match (px, radial)
+WRONG_MATCH_PX = 1.0
+#: matched tie points get ids TIE_ID_BASE + 20000 * (pass index) + feature index: an interest point
+#: is found anew in each pass, so matched tie points are never shared between passes
+TIE_ID_BASE = 500_000
+_TIES_PER_PASS = 20_000
+
+
+def _stats(err: np.ndarray, sig: np.ndarray) -> dict[str, Any]:
+    """Per-coordinate error statistics of ``err (n, 2)`` px with sigmas ``sig (n,)``."""
+    if err.size == 0:
+        return {"error_px": None, "normalised_error_rms": None, "wrong_matches": 0}
+    a = np.abs(err).ravel()
+    z = (err / sig[:, None]).ravel()
+    return {"error_px": {"rms": float(np.sqrt(np.mean(a ** 2))), "p50": float(np.median(a)),
+                         "p95": float(np.percentile(a, 95))},
+            "normalised_error_rms": float(np.sqrt(np.mean(z ** 2))),
+            "wrong_matches": int(np.sum(np.hypot(err[:, 0], err[:, 1]) > WRONG_MATCH_PX))}
+
+
+def _scenario_surface(directory: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+    """The simulator's true terrain (ellipsoidal m; zero geoid) from scenario.json, or None."""
+    meta = directory / "scenario.json"
+    if not meta.exists():
+        return None
+    from misrgraph.sim.terrain import SyntheticTerrain
+
+    cfg = json.loads(meta.read_text()).get("config", {})
+    independent = cfg.get("truth") == "independent"
+    terrain = SyntheticTerrain(seed=int(cfg.get("seed", 0)),
+                               fine_relief_m=float(cfg.get("subposting_relief_m", 0.0)) if independent else 0.0)
+    return terrain.height
+
+
+def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Path, pass_index: int,
+               cfg: MatchConfig = MatchConfig(), true_surface: Callable | None = None,
+               progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Match one pass file and write its ``/matched`` group; return its summary."""
+    p = OrbitPass.load(pass_file)
+    im = read_imagery(pass_file)
+    camera = load_camera_model(camera_path).at_temperature(p.temperature_c)
+    gcps = read_gcp_database(gcp_path)
+    dem = read_dem(dem_path)
+    geoid = Geoid("zero")
+    supplied = p.geometry(camera)
+    band = int(im.attrs.get("band", 2))
+
+    def dem_height(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+        s = fit_local_surface(dem, lat, lon, "bicubic")
+        return np.where(s.valid, s.height, 0.0) + geoid.undulation(lat, lon)
+
+    lm = p.landmarks
+    t0 = time.perf_counter()
+    g = match_gcps(im, supplied, gcps.ecef(), lambda row: int(lm.gcp_index[row]), cfg)
+    t_gcp = time.perf_counter() - t0
+    tie_rows = np.unique(im.tie.landmark[lm.kind[im.tie.landmark] == KIND_TIE])
+    t0 = time.perf_counter()
+    report = (lambda i, n: progress(f"{p.pass_id}: tie point {i}/{n}")) if progress else None
+    features, t = match_ties(im, supplied, dem_height, tie_rows, cfg, progress=report if report else None)
+    t_tie = time.perf_counter() - t0
+    if len(features) > _TIES_PER_PASS:
+        raise InputError("tie features", len(features), f"at most {_TIES_PER_PASS} per pass")
+    # candidates: the conjugates (non-An windows) of the features An sees
+    with_an = np.unique(im.tie.landmark[(im.tie.camera == AN) & np.isin(im.tie.landmark, tie_rows)])
+    tie_candidates = int(np.sum(np.isin(im.tie.landmark, with_an) & (im.tie.camera != AN)))
+    # --- the matched set: GCPs, tie points, and the pass's check points (scoring only, no observations)
+    gcp_rows = sorted(set(g.feature))
+    chk_rows = np.flatnonzero(lm.kind == KIND_CHECK)
+    new_gcp = {r: i for i, r in enumerate(gcp_rows)}
+    n_g, n_t = len(gcp_rows), len(features)
+    ids = np.concatenate([lm.id[gcp_rows], TIE_ID_BASE + _TIES_PER_PASS * pass_index + np.arange(n_t), lm.id[chk_rows]])
+    kinds = np.concatenate([np.full(n_g, KIND_GCP), np.full(n_t, KIND_TIE), np.full(chk_rows.size, KIND_CHECK)])
+    gidx = np.concatenate([lm.gcp_index[gcp_rows], -np.ones(n_t, np.int64), -np.ones(chk_rows.size, np.int64)])
+    landmarks = Landmarks(ids.astype(np.int64), kinds.astype(np.int64), gidx.astype(np.int64))
+
+    def obs_of(m: MatchedObservations, rows: np.ndarray) -> Observations:
+        n = len(m)
+        return Observations(rows, np.array(m.camera, np.int64), np.full(n, band), np.array(m.line), np.array(m.sample),
+                            np.full(n, np.nan), np.array(m.sigma_px))
+
+    o_g = obs_of(g, np.array([new_gcp[r] for r in g.feature], np.int64))
+    o_t = obs_of(t, n_g + np.array(t.feature, np.int64))
+    obs = Observations(*(np.concatenate([getattr(o_g, f), getattr(o_t, f)]) for f in Observations.__dataclass_fields__))
+    summary: dict[str, Any] = {
+        "pass_id": p.pass_id,
+        "gcp": {"candidates": g.candidates, "matched": len(g), "seconds": t_gcp, "rejected": dict(g.reasons)},
+        "tie": {"candidates": tie_candidates, "matched": int(np.sum(np.array(t.camera) != AN)) if len(t) else 0,
+                "features": n_t, "seconds": t_tie, "rejected": dict(t.reasons)},
+    }
+    truth = read_pass_truth(pass_file)
+    tl = tb = None
+    if truth is not None and true_surface is not None:
+        true_geo = truth.geometry(p)
+        tie_truth = (true_geo.pixel_to_ground(np.full(n_t, AN), band, [f.line for f in features], [f.sample for f in features],
+                                              surface=true_surface, exposure=np.full(n_t, np.nan))
+                     if n_t else np.zeros((0, 3)))
+        tl = np.concatenate([truth.landmark_ecef[gcp_rows].reshape(-1, 3), tie_truth, truth.landmark_ecef[chk_rows]])
+        err = np.full((len(obs), 2), np.nan)
+        for cam in np.unique(obs.camera):
+            sel = np.flatnonzero(obs.camera == cam)
+            ip = true_geo.ground_to_pixel(int(cam), band, tl[obs.landmark[sel]], continuous=True)
+            err[sel, 0] = obs.line[sel] - ip.line
+            err[sel, 1] = obs.sample[sel] - ip.sample
+        err = np.where(np.isfinite(err), err, 99.0)  # a match where the truth is not visible is wrong
+        tb = np.hypot(err[:, 0], err[:, 1]) > WRONG_MATCH_PX
+        is_g = np.arange(len(obs)) < len(o_g)
+        scored_t = ~is_g & (obs.camera != AN)
+        summary["gcp"].update(_stats(err[is_g], obs.sigma_px[is_g]))
+        summary["tie"].update(_stats(err[scored_t], obs.sigma_px[scored_t]))
+    write_matched(pass_file, MatchedSet(landmarks, obs, tl, tb, summary))
+    return summary
+
+
+def run_match(scenario_dir: str | os.PathLike[str], cfg: MatchConfig = MatchConfig(),
+              pass_file: str | os.PathLike[str] | None = None,
+              progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Match every pass of a scenario that has imagery (or only ``pass_file``); return
+    ``{"gcp": {...}, "tie": {...}, "passes": [...]}`` pooled over passes (see the module docstring)."""
+    d = Path(scenario_dir)
+    if not d.is_dir():
+        raise InputError("SCENARIO_DIR", str(d), "a directory written by 'misrgraph simulate --imagery'")
+    files = [Path(pass_file)] if pass_file else sorted((d / "passes").glob("*.h5"))
+    if not files:
+        raise FileFormatError(d / "passes", "no pass files (*.h5)")
+    with_imagery = [f for f in files if has_imagery(f)]
+    if not with_imagery:
+        raise FileFormatError(files[0], "no pass has /imagery: simulate with --imagery")
+    true_surface = _scenario_surface(d)
+    all_files = sorted((d / "passes").glob("*.h5"))
+    passes = []
+    for f in with_imagery:
+        idx = all_files.index(f) if f in all_files else 0
+        if progress:
+            progress(f"matching {f.name}")
+        passes.append(match_pass(f, d / "camera_model.h5", d / "gcp.h5", d / "dem.h5", idx, cfg, true_surface, progress))
+    out: dict[str, Any] = {"passes": passes}
+    for kind in ("gcp", "tie"):
+        pooled = {"candidates": sum(s[kind]["candidates"] for s in passes),
+                  "matched": sum(s[kind]["matched"] for s in passes),
+                  "seconds": sum(s[kind]["seconds"] for s in passes)}
+        for key in ("error_px", "normalised_error_rms", "wrong_matches"):
+            if len(passes) == 1 and key in passes[0][kind]:
+                pooled[key] = passes[0][kind][key]
+        out[kind] = pooled
+    return out

@@ -1,0 +1,103 @@
+"""misrgraph match on a reduced pass with imagery, scored against the simulator's truth, and the
+adjustment of the matched observations against the same adjustment of the simulated ones."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from misrgraph.errors import FileFormatError
+from misrgraph.io.imagery import read_imagery, read_matched
+from misrgraph.runs.adjust import run_adjust
+from misrgraph.runs.match import run_match
+from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
+
+
+def test_matching_meets_the_seed_accuracies_with_honest_sigma(imagery_pass_dir):
+    """GCPs to 1/8 px, tie points to 0.2 px (RMS per coordinate against truth), >= 80 % of the
+    candidates matched, error / reported sigma RMS in 0.7-1.4, no wrong match (no clouds)."""
+    m = read_matched(load_scenario(imagery_pass_dir).pass_files[0])
+    s = m.summary
+    for kind, limit in (("gcp", 0.125), ("tie", 0.2)):
+        v = s[kind]
+        assert v["error_px"]["rms"] <= limit, (kind, v)
+        assert v["matched"] >= 0.8 * v["candidates"], (kind, v)
+        assert 0.7 <= v["normalised_error_rms"] <= 1.4, (kind, v)
+        assert v["wrong_matches"] == 0, (kind, v)
+    assert np.isnan(m.observations.exposure).all()  # continuous positions
+
+
+def test_matched_adjustment_is_as_good_as_the_simulated_one(imagery_pass_dir):
+    """adjust --observations matched: check points within 1.3x of the simulated-observation run,
+    co-registration below 0.2 px in every camera."""
+    sim = run_adjust(imagery_pass_dir)
+    mat = run_adjust(imagery_pass_dir, observations="matched")
+    assert mat["observation_set"] == "matched" and mat["solver_status"] == "converged"
+
+    def pooled(s):
+        v = s["checkpoint_geolocation_m"].values()
+        return np.sqrt(np.mean([x["after"]["rms"] ** 2 for x in v]))
+
+    assert pooled(mat) <= 1.3 * pooled(sim)
+    assert max(mat["coregistration_px"].values()) < 0.2
+
+
+def test_match_cli_json(imagery_pass_dir):
+    r = subprocess.run([sys.executable, "-m", "misrgraph.commands.cli", "match", str(imagery_pass_dir), "--json"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    for kind in ("gcp", "tie"):
+        assert {"candidates", "matched", "error_px", "normalised_error_rms", "seconds"} <= set(out[kind])
+
+
+def test_bad_windows_are_reported_per_feature(imagery_pass_dir, tmp_path):
+    """NaN pixels in one window, a flat window: that feature's match fails with its reason; the rest
+    match; nothing raises."""
+    import shutil
+
+    from misrgraph.io.h5 import atomic_h5
+    from misrgraph.io.imagery import write_imagery
+    from misrgraph.io.passes import OrbitPass
+    from misrgraph.io.truth import read_pass_truth, write_pass_truth
+
+    d = tmp_path / "bad"
+    shutil.copytree(imagery_pass_dir, d)
+    f = load_scenario(d).pass_files[0]
+    p, t, im = OrbitPass.load(f), read_pass_truth(f), read_imagery(f)
+    px = im.gcp.pixels.astype(np.uint16)
+    px[0] = 4000  # a flat window
+    im.gcp.pixels = px
+    tie = im.tie.pixels
+    tie[tie.shape[0] // 2] = 0  # an all-dark window
+    with atomic_h5(f, "orbit_pass") as h:
+        p.write_into(h)
+        write_pass_truth(h, t, len(p.landmarks), len(p.observations))
+        write_imagery(h, im)
+    res = run_match(d)
+    reasons = res["passes"][0]["gcp"]["rejected"]
+    assert sum(reasons.values()) >= 1 and res["gcp"]["matched"] == res["gcp"]["candidates"] - sum(reasons.values())
+
+
+def test_match_without_imagery_is_a_clear_error(small_pass_dir):
+    with pytest.raises(FileFormatError, match="--imagery"):
+        run_match(small_pass_dir)
+
+
+def test_clouds_no_wrong_match_survives(tmp_path):
+    """30 % cloud: wrong matches (more than 1 px from the truth) are rejected by matching or by the
+    adjustment's blunder tests; none is left in the solution."""
+    out = tmp_path / "cloudy"
+    run_simulate(ScenarioConfig(scenario="pass", seed=5, n_tie_points=60, n_check_points=5, duration_s=900.0,
+                                start_lat_deg=45.0, imagery=True, cloud_fraction=0.3), out)
+    res = run_match(out)
+    s = run_adjust(out, observations="matched")
+    wrong = res["tie"]["wrong_matches"] + res["gcp"]["wrong_matches"]
+    assert wrong > 0  # the clouds did fool the matcher: the test exercises the adjustment's side
+    b = s["blunders"]
+    assert b["injected"] == wrong and b["left_in_solution"] == 0, b
+    assert res["passes"][0]["tie"]["rejected"].get("cloud (bright template)", 0) > 0
