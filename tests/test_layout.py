@@ -20,13 +20,14 @@ ALLOWED = {
     "io": {"model", "misr"},
     "sim": {"model", "misr", "io"},
     "estimate": {"model", "misr", "io"},
+    "match": {"model", "misr", "io"},
     "products": {"model", "misr", "io", "estimate"},
     "evaluate": {"model", "misr", "io", "sim", "estimate", "products"},
-    "viz": {"model", "misr", "io"},
-    "runs": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz"},
-    "campaign": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz", "runs"},
-    "bench": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "runs", "campaign"},
-    "commands": {"model", "misr", "io", "sim", "estimate", "products", "evaluate", "viz", "runs", "campaign", "bench"},
+    "viz": {"model", "misr", "io", "match"},
+    "runs": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "viz"},
+    "campaign": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "viz", "runs"},
+    "bench": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "runs", "campaign"},
+    "commands": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "viz", "runs", "campaign", "bench"},
 }
 BASE = {"misrgraph", "misrgraph.errors", "misrgraph.config", "misrgraph.__main__"}
 

@@ -63,6 +63,16 @@ def handle_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+def _merge_config(fields: dict[str, Any], config: Optional[Path]) -> None:
+    """Update ``fields`` from a ``--config`` JSON file (its keys win over the options)."""
+    if config is None:
+        return
+    try:
+        fields.update(json.loads(config.read_text()))
+    except (OSError, json.JSONDecodeError) as exc:
+        _fail(f"--config: cannot read {config}: {exc}")
+
+
 def _print_json(obj: Any) -> None:
     sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False) + "\n")
 
@@ -161,11 +171,7 @@ def simulate(
                   thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm,
                   bands=tuple(b.strip() for b in bands.split(",") if b.strip()), band_misalignment_arcsec=band_misalignment,
                   truth=truth, imagery=imagery, cloud_fraction=cloud_fraction)
-    if config is not None:
-        try:
-            fields.update(json.loads(config.read_text()))
-        except (OSError, json.JSONDecodeError) as exc:
-            _fail(f"--config: cannot read {config}: {exc}")
+    _merge_config(fields, config)
     cfg = ScenarioConfig.from_dict(fields)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err_console,
                   disable=as_json) as bar:
@@ -264,11 +270,7 @@ def match(
     from misrgraph.runs.match import run_match
 
     fields: dict[str, Any] = dict(search_px=search, min_cameras=min_cameras)
-    if config is not None:
-        try:
-            fields.update(json.loads(config.read_text()))
-        except (OSError, json.JSONDecodeError) as exc:
-            _fail(f"--config: cannot read {config}: {exc}")
+    _merge_config(fields, config)
     cfg = MatchConfig.from_dict(fields)
     with err_console.status("matching...") as st:
         res = run_match(scenario_dir, cfg, pass_file, progress=lambda s: st.update(s))
@@ -685,6 +687,38 @@ def bench_sba(
                   f"Marginals (one routine for all): {res['marginals']['seconds']:.2f} s, not included above.")
     console.print("'-': never within that distance before its own stop or its time budget "
                   f"({res['budget_seconds']:.0f} s); '>=': the ratio is then a lower bound (its whole run).")
+
+
+@bench_app.command("match")
+@handle_errors
+def bench_match(
+    tie_points: int = typer.Option(1000, "--tie-points", min=10),
+    seed: int = typer.Option(0, "--seed"),
+    duration: float = typer.Option(2700.0, "--duration", help="Pass duration (s)."),
+    cloud_fraction: float = typer.Option(0.0, "--cloud-fraction"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated scenarios here."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Imagery, matching and the matched adjustment on one pass: rendering cost, matching accuracy against truth, NCC+LSM vs a plain scikit-image template match on the same GCP chips, check points matched vs simulated."""
+    from misrgraph.bench.match import run_bench_match
+
+    with err_console.status("simulating with imagery, matching, adjusting..."):
+        res = run_bench_match(tie_points, seed, duration, cloud_fraction, workdir=workdir)
+    if as_json:
+        _print_json(res)
+        return
+    m, g, a = res["match"], res["gcp_chips"], res["adjust"]
+    for kind in ("gcp", "tie"):
+        v = m[kind]
+        console.print(f"{kind}: {v['matched']}/{v['candidates']} matched, error RMS {v['error_px']['rms']:.3f} px, "
+                      f"error/sigma {v['normalised_error_rms']:.2f}, wrong {v['wrong_matches']}, {v['seconds']:.1f} s")
+    if "ncc_lsm" in g:
+        console.print(f"GCP chips: NCC+LSM {g['ncc_lsm']['error_rms_px']:.3f} px at {g['ncc_lsm']['chips_per_second']:.0f}/s; "
+                      f"skimage+parabola {g['skimage_parabola']['error_rms_px']:.3f} px at "
+                      f"{g['skimage_parabola']['chips_per_second']:.0f}/s")
+    console.print(f"rendering {res['simulate_seconds']['rendering']:.0f} s; check points matched/simulated "
+                  f"{a['checkpoint_ratio_matched_over_simulated']:.2f}, co-registration max "
+                  f"{a['matched']['coregistration_px_max']:.3f} px")
 
 
 @bench_app.command("scaling")

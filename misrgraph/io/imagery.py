@@ -23,13 +23,12 @@ continuous observation the estimator adjusts.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import h5py
 import numpy as np
@@ -38,13 +37,13 @@ from numpy.typing import NDArray
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.h5 import (create_dataset, file_mode, fsync_directory, open_h5, read_dataset, reseal,
                              stamp_content_digest, write_dataset)
-from misrgraph.io.passes import Landmarks, Observations, OrbitPass
-
-if TYPE_CHECKING:
-    from misrgraph.io.truth import PassTruth
-
+from misrgraph.io.passes import Landmarks, Observations
 __all__ = ["ImageWindows", "PassImagery", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
-           "write_matched", "read_matched", "has_matched", "OBSERVATION_SETS", "load_pass_observations"]
+           "write_matched", "read_matched", "has_matched", "OBSERVATION_SETS", "INTEREST_RADIUS_PX"]
+
+#: how far (px) from a tie window's centre the matcher may place its interest point (the renderer
+#: sizes tie windows for it)
+INTEREST_RADIUS_PX = 3
 
 #: the observation sets a pass file can hold
 OBSERVATION_SETS = ("simulated", "matched")
@@ -230,24 +229,3 @@ def read_matched(path: str | os.PathLike[str], with_truth: bool = False) -> Matc
             tb = read_dataset(tg, "blunder", (no,), dtype=bool)
         return MatchedSet(lms, obs, tl, tb, summary)
 
-
-def load_pass_observations(path: str | os.PathLike[str], observations: str = "simulated") -> tuple[OrbitPass, "PassTruth | None"]:
-    """A pass with the chosen observation set, and its truth (None for real data): ``"simulated"``
-    the pass's own; ``"matched"`` the ``/matched`` group (landmarks and observations replaced, the
-    truth's landmarks and blunder flags those of the matched set)."""
-    from misrgraph.io.truth import PassTruth, read_pass_truth
-
-    if observations not in OBSERVATION_SETS:
-        raise InputError("--observations", observations, OBSERVATION_SETS)
-    p = OrbitPass.load(path)
-    truth = read_pass_truth(path)
-    if observations == "simulated":
-        return p, truth
-    m = read_matched(path, with_truth=truth is not None)
-    p = dataclasses.replace(p, landmarks=m.landmarks, observations=m.observations)
-    if truth is not None:
-        if m.truth_landmark_ecef is None or m.truth_blunder is None:
-            raise FileFormatError(path, "/matched has no /truth/matched (re-run 'misrgraph match')")
-        truth = PassTruth(truth.ephemeris_error, truth.attitude_error, m.truth_landmark_ecef, m.truth_blunder,
-                          truth.camera_model)
-    return p, truth

@@ -33,6 +33,15 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
             "landmarks": {KIND_NAMES[k]: int(np.sum(p.landmarks.kind == k)) for k in KIND_NAMES},
             "observations": len(p.observations), "temperature_c": p.temperature_c, "has_truth": has_truth(path, "orbit_pass"),
         })
+        from misrgraph.io.imagery import has_imagery, has_matched, read_imagery, read_matched
+
+        if has_imagery(path):
+            im = read_imagery(path)
+            out["imagery"] = {"tie_windows": len(im.tie), "tie_window_px": im.tie.size, "gcp_windows": len(im.gcp),
+                              "gcp_window_px": im.gcp.size, "gcp_chips": int(im.chip_landmark.size), **im.attrs}
+        if has_matched(path):
+            m = read_matched(path)
+            out["matched"] = {"landmarks": len(m.landmarks), "observations": len(m.observations)}
     elif kind == "camera_model":
         from misrgraph.model.camera import CameraModel
 

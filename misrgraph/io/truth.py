@@ -13,6 +13,7 @@ Pass file ``/truth`` layout: ``ephemeris_error/{boundaries (S+1,) s, params (S, 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -20,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from misrgraph.errors import InputError
+from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.camera import read_camera_group, write_camera_group
 from misrgraph.io.h5 import atomic_h5, open_h5, read_dataset, require_group, write_dataset
 from misrgraph.io.passes import OrbitPass
@@ -32,7 +33,8 @@ from misrgraph.model.geolocation import PassGeometry
 if TYPE_CHECKING:
     from misrgraph.io.imagery import PassImagery
 
-__all__ = ["PassTruth", "write_pass_truth", "save_pass_with_truth", "read_pass_truth", "read_gcp_truth", "has_truth"]
+__all__ = ["PassTruth", "write_pass_truth", "save_pass_with_truth", "read_pass_truth", "read_gcp_truth", "has_truth",
+           "load_pass_observations"]
 
 Array = NDArray[np.float64]
 
@@ -128,3 +130,25 @@ def has_truth(path: str | os.PathLike[str], kind: str) -> bool:
     """Whether a pass file (``kind="orbit_pass"``) or GCP database (``"gcp_database"``) carries truth."""
     with open_h5(path, kind) as f:
         return "truth" in f
+
+
+def load_pass_observations(path: str | os.PathLike[str], observations: str = "simulated") -> tuple[OrbitPass, PassTruth | None]:
+    """A pass with the chosen observation set, and its truth (None for real data): ``"simulated"``
+    the pass's own; ``"matched"`` the ``/matched`` group (landmarks and observations replaced, the
+    truth's landmarks and blunder flags those of the matched set)."""
+    from misrgraph.io.imagery import OBSERVATION_SETS, read_matched
+
+    if observations not in OBSERVATION_SETS:
+        raise InputError("--observations", observations, OBSERVATION_SETS)
+    p = OrbitPass.load(path)
+    truth = read_pass_truth(path)
+    if observations == "simulated":
+        return p, truth
+    m = read_matched(path, with_truth=truth is not None)
+    p = dataclasses.replace(p, landmarks=m.landmarks, observations=m.observations)
+    if truth is not None:
+        if m.truth_landmark_ecef is None or m.truth_blunder is None:
+            raise FileFormatError(path, "/matched has no /truth/matched (re-run 'misrgraph match')")
+        truth = PassTruth(truth.ephemeris_error, truth.attitude_error, m.truth_landmark_ecef, m.truth_blunder,
+                          truth.camera_model)
+    return p, truth

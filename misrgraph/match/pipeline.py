@@ -41,13 +41,12 @@ from scipy import ndimage
 
 from misrgraph.config import Config
 from misrgraph.errors import InputError
-from misrgraph.io.imagery import PassImagery
+from misrgraph.io.imagery import INTEREST_RADIUS_PX, PassImagery
 from misrgraph.match.lsm import lsm, ncc_search
 from misrgraph.model.constants import CAMERAS
 from misrgraph.model.geolocation import PassGeometry
-from misrgraph.sim.imagery import INTEREST_RADIUS_PX
 
-__all__ = ["MatchConfig", "MatchedObservations", "match_gcps", "match_ties"]
+__all__ = ["MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "match_ties"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -245,8 +244,8 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
                 continue
             # the camera's along-track footprint (1/rate lines) is longer than An's in the C and D cameras:
             # blur An along track by the difference (variances of the box footprints) before matching
-            rate = float(supplied_geo.line_rate(cam, band, ground, np.atleast_1d(p.line[0] * 0 + supplied_geo.line_time(
-                cam, band, p.line[0], p.line[0])))[0])
+            t_c = supplied_geo.line_time(cam, band, p.line[0], p.line[0])
+            rate = float(supplied_geo.line_rate(cam, band, ground, np.atleast_1d(t_c))[0])
             blur = np.sqrt(max(1.0 / rate ** 2 - 1.0 / rate_an ** 2, 0.0) / 12.0)
             ref = ndimage.gaussian_filter1d(an_img, blur, axis=0, mode="nearest") if blur > 0.05 else an_img
             tpl_c = ref[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]

@@ -24,10 +24,9 @@ from misrgraph.io.camera import load_camera_model, write_camera_group
 from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_h5, write_dataset
-from misrgraph.io.imagery import load_pass_observations
 from misrgraph.io.passes import KIND_GCP, OrbitPass
 from misrgraph.io.results import capped_list
-from misrgraph.io.truth import PassTruth, read_pass_truth
+from misrgraph.io.truth import PassTruth, load_pass_observations
 from misrgraph.model.constants import ANGLES, CAMERAS
 
 __all__ = ["run_adjust", "write_adjust_result"]

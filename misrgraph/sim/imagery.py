@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from misrgraph.io.imagery import INTEREST_RADIUS_PX
 from misrgraph.model.constants import CAMERAS, VIEW_ANGLE_DEG
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.geolocation import PassGeometry, ray_ellipsoid
@@ -56,7 +57,7 @@ if TYPE_CHECKING:
     from misrgraph.io.imagery import PassImagery
     from misrgraph.io.passes import OrbitPass
 
-__all__ = ["SceneRadiance", "INTEREST_RADIUS_PX", "render_window", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
+__all__ = ["SceneRadiance", "render_window", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
            "REFERENCE_REFLECTANCE"]
 
 Array = NDArray[np.float64]
@@ -265,10 +266,6 @@ def _counts(refl: Array, rng: np.random.Generator, snr: float) -> NDArray[np.uin
 
 
 
-#: how far (px) from a tie window's centre the matcher may place its interest point
-INTEREST_RADIUS_PX = 3
-
-
 def _window_size(kind: str, search_px: int, template_px: int, chip_px: int) -> int:
     """GCP windows: the chip plus the search range each side; tie windows: the template plus the
     search range, the interest point's freedom and 2 px for the least-squares fit, each side."""
@@ -283,7 +280,7 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
                         band: int = 2) -> "PassImagery":
     """Render the windows a matcher reads for one pass (band ``band``, red by default).
 
-    For every landmark and camera with a simulated observation: a window of ``template_px + 2
+    For every tie point or GCP and camera with a simulated observation: a window of ``template_px + 2
     (search_px + 5)`` pixels (tie and check points) or ``chip_px + 2 search_px`` (GCPs), centred on
     where the *supplied* geometry predicts the true ground point (``landmark_ecef (M, 3)``, the
     pass's true landmark positions) -- so the matcher cannot read the truth off the window
@@ -291,7 +288,7 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
     ``supplied_geo`` (:func:`render_chip`). ``search_px`` must cover the navigation's 3 sigma
     prediction error (about 5 lines for the D cameras with the pass scenario's attitude errors)."""
     from misrgraph.io.imagery import ImageWindows, PassImagery
-    from misrgraph.io.passes import KIND_GCP
+    from misrgraph.io.passes import KIND_CHECK, KIND_GCP
 
     o = orbit_pass.observations
     kinds = orbit_pass.landmarks.kind
@@ -305,7 +302,7 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
         rows = pairs[pairs[:, 1] == cam, 0]
         pred = supplied_geo.ground_to_pixel(int(cam), band, landmark_ecef[rows], continuous=True)
         for row, ln, sm, ok in zip(rows, pred.line, pred.sample, pred.visible):
-            if not ok:
+            if not ok or kinds[row] == KIND_CHECK:  # check points are scored from the truth, never matched
                 continue
             kind = "gcp" if kinds[row] == KIND_GCP else "tie"
             size = _window_size(kind, search_px, template_px, chip_px)

@@ -16,7 +16,7 @@ from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
 from misrgraph.io.truth import read_pass_truth
 from misrgraph.errors import require_extra
 
-__all__ = ["plot_adjustment", "plot_calibration", "plot_campaign"]
+__all__ = ["plot_adjustment", "plot_calibration", "plot_campaign", "plot_match"]
 
 
 def _save(fig: Any, path: Path) -> Path:
@@ -184,3 +184,68 @@ def plot_campaign(summary: dict[str, Any], points: dict[str, list[float]], out_d
         files.append(_save(fig, out / "stages.png"))
         plt.close(fig)
     return files
+
+
+def plot_match(pass_file: str | os.PathLike[str], out_dir: str | os.PathLike[str], camera: str = "Df") -> list[Path]:
+    """One GCP matched in ``camera``: the reference chip, its search window with the predicted,
+    matched and (simulated passes) true positions, the NCC surface, and the LSM residual. Needs
+    ``misrgraph match`` to have run on the pass (for the matched position)."""
+    matplotlib = require_extra("matplotlib", "viz", "the figures")
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from skimage.feature import match_template
+
+    from misrgraph.io.imagery import read_imagery, read_matched
+    from misrgraph.io.passes import OrbitPass
+    from misrgraph.match.lsm import lsm, ncc_search
+
+    cam = CAMERAS.index(camera)
+    im = read_imagery(pass_file)
+    m = read_matched(pass_file, with_truth=True)
+    p = OrbitPass.load(pass_file)
+    truth = read_pass_truth(pass_file)
+    chip_of = {int(r): i for i, r in enumerate(im.chip_landmark)}
+    ks = [k for k in range(len(im.gcp)) if im.gcp.camera[k] == cam and int(im.gcp.landmark[k]) in chip_of]
+    if not ks:
+        from misrgraph.errors import InputError
+
+        raise InputError("camera", camera, f"a camera whose GCP windows have chips in {pass_file}")
+    k = ks[0]
+    row = int(im.gcp.landmark[k])
+    window = im.gcp.pixels[k].astype(float)
+    chip = im.chips[chip_of[row], cam].astype(float)
+    cc = match_template(window, chip)
+    peak = ncc_search(window, chip)
+    res = lsm(window, chip, peak.row, peak.col) if peak is not None else None
+    fig, ax = plt.subplots(1, 4, figsize=(16, 4.2))
+    ax[0].imshow(chip, cmap="gray")
+    ax[0].set_title(f"reference chip ({camera}, GCP row {row})")
+    ax[1].imshow(window, cmap="gray")
+    if res is not None:
+        ax[1].plot(res.col, res.row, "r+", ms=14, label=f"matched (sigma {np.hypot(res.sigma_row, res.sigma_col):.3f} px)")
+    if truth is not None:
+        geo = truth.geometry(p)
+        ip = geo.ground_to_pixel(cam, int(im.gcp.band[k]), truth.landmark_ecef[row][None], continuous=True)
+        ax[1].plot(ip.sample[0] - im.gcp.sample0[k], ip.line[0] - im.gcp.line0[k], "gx", ms=12, label="truth")
+    ax[1].legend(loc="lower right", fontsize=8)
+    ax[1].set_title("search window (line down, sample across)")
+    half = (chip.shape[0] - 1) / 2
+    ax[2].imshow(cc, cmap="viridis", extent=(half - 0.5, half + cc.shape[1] - 0.5, half + cc.shape[0] - 0.5, half - 0.5))
+    ax[2].set_title(f"NCC surface (peak {peak.value:.2f}, ratio {peak.ratio:.2f})" if peak else "NCC surface")
+    if res is not None:
+        from scipy import ndimage
+
+        rr, qq = np.meshgrid(np.arange(chip.shape[0]) - half + res.row, np.arange(chip.shape[1]) - half + res.col, indexing="ij")
+        warped = ndimage.map_coordinates(window, [rr, qq], order=3)
+        fit = np.polyval(np.polyfit(chip.ravel(), warped.ravel(), 1), chip)
+        resid = warped - fit
+        lim = float(np.max(np.abs(resid)))
+        ax[3].imshow(resid, cmap="RdBu", vmin=-lim, vmax=lim)
+        ax[3].set_title(f"LSM residual (RMS {np.std(resid):.0f} counts)")
+    for a in ax:
+        a.set_xticks([])
+        a.set_yticks([])
+    fig.suptitle(f"{p.pass_id}: {len(m.observations)} matched observations")
+    out = [_save(fig, Path(out_dir) / f"match_{camera}.png")]
+    plt.close(fig)
+    return out

@@ -222,6 +222,43 @@ def _view_calibration(rec, rr, f: h5py.File, counts: dict[str, int]) -> None:
     counts["calibration/correlation"] = 1
 
 
+def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5) -> None:
+    """The GCP windows of a pass (up to ``max_gcps`` GCPs) per camera, as images in window pixels,
+    with the matched (red) and, for simulated passes, true (green) positions, one time step per GCP."""
+    from misrgraph.io.imagery import has_matched, read_imagery, read_matched
+    from misrgraph.io.passes import OrbitPass
+    from misrgraph.io.truth import read_pass_truth
+
+    im = read_imagery(path)
+    p = OrbitPass.load(path)
+    truth = read_pass_truth(path)
+    geo = truth.geometry(p) if truth is not None else None
+    matched = read_matched(path) if has_matched(path) else None
+    rows = list(dict.fromkeys(int(r) for r in im.gcp.landmark))[:max_gcps]
+    for n, row in enumerate(rows):
+        rec.set_time("gcp", sequence=n)
+        for k in np.flatnonzero(im.gcp.landmark == row):
+            cam = CAMERAS[int(im.gcp.camera[k])]
+            base = f"imagery/{cam}"
+            rec.log(f"{base}/window", rr.Image(im.gcp.pixels[k].astype(np.float32)))
+            counts["image windows"] = counts.get("image windows", 0) + 1
+            if matched is not None:
+                mo = matched.observations
+                gi = int(p.landmarks.gcp_index[row])
+                lm_rows = np.flatnonzero((matched.landmarks.gcp_index == gi) & (matched.landmarks.kind == 1))
+                sel = np.isin(mo.landmark, lm_rows) & (mo.camera == int(im.gcp.camera[k]))
+                if sel.any():
+                    rec.log(f"{base}/matched", rr.Points2D(np.stack([mo.sample[sel] - im.gcp.sample0[k],
+                                                                     mo.line[sel] - im.gcp.line0[k]], 1),
+                                                           colors=[255, 0, 0], radii=1.0))
+            if geo is not None:
+                ip = geo.ground_to_pixel(int(im.gcp.camera[k]), int(im.gcp.band[k]), truth.landmark_ecef[row][None],
+                                         continuous=True)
+                if ip.visible[0]:
+                    rec.log(f"{base}/truth", rr.Points2D([[ip.sample[0] - im.gcp.sample0[k], ip.line[0] - im.gcp.line0[k]]],
+                                                         colors=[0, 255, 0], radii=1.0))
+
+
 def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None = None, spawn: bool = False,
              exaggeration: float = DEFAULT_EXAGGERATION, notebook: bool = False) -> dict[str, Any]:
     """Log a result file to rerun; save a ``.rrd``, spawn the viewer and/or show it inline in a
@@ -235,8 +272,11 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
         raise InputError("--exaggeration", exaggeration, "a positive factor")
     with open_h5(result) as f:
         kind = str(read_attr(f, "misrgraph_kind"))
-        if kind not in ("adjustment_result", "camera_model"):
-            raise FileFormatError(result, f"misrgraph_kind {kind!r} cannot be viewed; expected an adjustment result or a calibrated camera model")
+        if kind not in ("adjustment_result", "camera_model", "orbit_pass"):
+            raise FileFormatError(result, f"misrgraph_kind {kind!r} cannot be viewed; expected an adjustment result, a "
+                                          "calibrated camera model or a pass file with imagery")
+        if kind == "orbit_pass" and "imagery" not in f:
+            raise FileFormatError(result, "a pass file without /imagery (simulate with --imagery)")
         if kind == "camera_model" and "calibration" not in f:
             raise FileFormatError(result, "a camera model without /calibration (write one with 'misrgraph calibrate --out')")
         rec = rr.RecordingStream("misrgraph")
@@ -258,6 +298,9 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
                              rrb.TimeSeriesView(origin="ephemeris", name="ephemeris error (m)")),
                 rrb.Vertical(rrb.TimeSeriesView(origin="residuals", name="residuals (px)"),
                              rrb.BarChartView(origin="residuals/An/histogram", name="An residual histogram"))))
+        elif kind == "orbit_pass":
+            _view_imagery(rec, rr, Path(result), counts)
+            bp = rrb.Blueprint(rrb.Grid(*[rrb.Spatial2DView(origin=f"imagery/{c}", name=c) for c in CAMERAS]))
         else:
             _view_calibration(rec, rr, f, counts)
             bp = rrb.Blueprint(rrb.Horizontal(rrb.TensorView(origin="calibration/correlation", name="correlation"),

@@ -101,3 +101,13 @@ def test_clouds_no_wrong_match_survives(tmp_path):
     b = s["blunders"]
     assert b["injected"] == wrong and b["left_in_solution"] == 0, b
     assert res["passes"][0]["tie"]["rejected"].get("cloud (bright template)", 0) > 0
+
+
+def test_info_shows_imagery_and_matched(imagery_pass_dir):
+    from misrgraph.io.info import run_info
+
+    f = load_scenario(imagery_pass_dir).pass_files[0]
+    out = run_info(f)
+    im = read_imagery(f)
+    assert out["imagery"]["tie_windows"] == len(im.tie) > 0 and out["imagery"]["gcp_chips"] == im.chip_landmark.size
+    assert out["matched"]["observations"] == len(read_matched(f).observations) > 0

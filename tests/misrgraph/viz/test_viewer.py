@@ -79,3 +79,11 @@ def test_calibration_recording(small_month_dir, tmp_path):
 def test_view_needs_a_destination(recording):
     with pytest.raises(InputError, match="--save/--spawn"):
         run_view(recording[0])
+
+
+def test_view_pass_imagery_logs_windows_with_matched_and_true_positions(imagery_pass_dir, tmp_path):
+    """A pass with imagery (matched by the fixture): one image per GCP window, written to an .rrd."""
+    f = sorted((imagery_pass_dir / "passes").glob("*.h5"))[0]
+    out = run_view(f, save=tmp_path / "img.rrd")
+    assert out["kind"] == "orbit_pass" and out["entities"]["image windows"] >= 9
+    assert (tmp_path / "img.rrd").stat().st_size > 10_000
