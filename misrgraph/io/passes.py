@@ -81,12 +81,11 @@ class Observations:
         _check_rows("observations.band", self.band, (self.band < 0) | (self.band >= len(BANDS)),
                     f"a band index 0..{len(BANDS) - 1}")
         _check_rows("observations.landmark", self.landmark, self.landmark < 0, "a landmark row >= 0")
-        _check_rows("observations.exposure", self.exposure, np.isinf(self.exposure),
-                    "a whole exposure index (or NaN: a continuous position)")
         for name in ("line", "sample"):
             arr = getattr(self, name)
             _check_rows(f"observations.{name}", arr, ~np.isfinite(arr), "a finite number of pixels")
-        _check_rows("observations.exposure", self.exposure, np.isfinite(self.exposure) & (self.exposure != np.round(self.exposure)),
+        e = self.exposure
+        _check_rows("observations.exposure", e, ~np.isnan(e) & (np.isinf(e) | (e != np.round(e))),
                     "a whole exposure index (or NaN: a continuous position)")
         _check_rows("observations.sigma_px", self.sigma_px, ~(np.isfinite(self.sigma_px) & (self.sigma_px > 0)),
                     "a positive, finite sigma in pixels")

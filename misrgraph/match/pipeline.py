@@ -229,28 +229,32 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             continue
         fi = len(features)
         got: list[tuple[int, float, float, float]] = []
-        t_an = supplied_geo.line_time(AN, band, line_an, line_an)
-        rate_an = float(supplied_geo.line_rate(AN, band, ground, np.atleast_1d(t_an))[0])
-        for k in np.flatnonzero((wins.landmark == row) & (wins.band == band) & (wins.camera != AN)):
-            cam = int(wins.camera[k])
+        ks = np.flatnonzero((wins.landmark == row) & (wins.band == band) & (wins.camera != AN))
+        # the conjugates' predictions, and each view's along-track image motion (An's first), in one call each
+        cams = wins.camera[ks]
+        pred = supplied_geo.ground_to_pixel(cams, band, np.repeat(ground, ks.size, axis=0), continuous=True)
+        rate_cams = np.concatenate([[AN], cams])
+        rate_lines = np.concatenate([[line_an], pred.line])
+        rates = supplied_geo.line_rate(rate_cams, band, np.repeat(ground, ks.size + 1, axis=0),
+                                       supplied_geo.line_time(rate_cams, band, rate_lines, rate_lines))
+        rate_an = float(rates[0])
+        for j, k in enumerate(ks):
             out.candidates += 1
             img = _pixels(wins.pixels[k])
             if img is None:
                 out.reasons["NaN pixels"] += 1
                 continue
-            p = supplied_geo.ground_to_pixel(cam, band, ground, continuous=True)
-            if not p.visible[0]:
+            if not pred.visible[j]:
                 out.reasons["not predicted in the image"] += 1
                 continue
+            cam = int(cams[j])
             # the camera's along-track footprint (1/rate lines) is longer than An's in the C and D cameras:
             # blur An along track by the difference (variances of the box footprints) before matching
-            t_c = supplied_geo.line_time(cam, band, p.line[0], p.line[0])
-            rate = float(supplied_geo.line_rate(cam, band, ground, np.atleast_1d(t_c))[0])
-            blur = np.sqrt(max(1.0 / rate ** 2 - 1.0 / rate_an ** 2, 0.0) / 12.0)
+            blur = np.sqrt(max(1.0 / float(rates[j + 1]) ** 2 - 1.0 / rate_an ** 2, 0.0) / 12.0)
             ref = ndimage.gaussian_filter1d(an_img, blur, axis=0, mode="nearest") if blur > 0.05 else an_img
             tpl_c = ref[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]
-            m = _match_one(img, tpl_c, float(p.line[0] - wins.line0[k]), float(p.sample[0] - wins.sample0[k]), cfg,
-                           cfg.search_px)
+            m = _match_one(img, tpl_c, float(pred.line[j] - wins.line0[k]), float(pred.sample[j] - wins.sample0[k]),
+                           cfg, cfg.search_px)
             if isinstance(m, str):
                 out.reasons[m] += 1
                 continue
@@ -263,8 +267,8 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
                 continue
             er, ec = r0 + (ri - r), c0 + (ci - c)
             b = _match_one(ref, back_tpl, er, ec, cfg, 2)
-            tol = max(cfg.back_tolerance_px, cfg.back_tolerance_sigma * np.hypot(s, b[2] if not isinstance(b, str) else 0.0))
-            if isinstance(b, str) or np.hypot(b[0] - er, b[1] - ec) > min(tol, 1.0):
+            if isinstance(b, str) or np.hypot(b[0] - er, b[1] - ec) > min(
+                    max(cfg.back_tolerance_px, cfg.back_tolerance_sigma * np.hypot(s, b[2])), 1.0):
                 out.reasons["forward-backward check"] += 1
                 continue
             got.append((cam, wins.line0[k] + r, wins.sample0[k] + c, s))

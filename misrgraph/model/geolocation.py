@@ -272,13 +272,13 @@ class PassGeometry:
             dt = self.camera.line_time
             t0 = self.t0[c[idx], b[idx]]
             crossing[idx] = (t_star - t0) / dt
-            big_l = np.floor((t_star - t0) / dt + 0.5)
-            tl = t0 + big_l * dt
-            inside = (tl >= t_lo) & (tl <= t_hi) & (big_l >= 0)
             if continuous:
-                big_l = (t_star - t0) / dt
-                tl = t_star
+                big_l, tl = (t_star - t0) / dt, t_star
                 inside = (big_l >= -0.5) & (tl >= t_lo) & (tl <= t_hi)
+            else:
+                big_l = np.floor((t_star - t0) / dt + 0.5)
+                tl = t0 + big_l * dt
+                inside = (tl >= t_lo) & (tl <= t_hi) & (big_l >= 0)
             xl, yl, _ = self._along_cross(c[idx], b[idx], g[idx], np.clip(tl, t_lo, t_hi))
             frac = np.zeros(idx.size) if continuous else -(xl + k[idx]) / self.camera.dx
             line[idx] = np.where(inside, big_l + frac, np.nan)

@@ -64,13 +64,11 @@ def _scenario_surface(directory: Path) -> Callable[[np.ndarray, np.ndarray], np.
     meta = directory / "scenario.json"
     if not meta.exists():
         return None
-    from misrgraph.sim.terrain import SyntheticTerrain
+    from misrgraph.sim.simulate import scenario_terrain
 
     cfg = json.loads(meta.read_text()).get("config", {})
-    independent = cfg.get("truth") == "independent"
-    terrain = SyntheticTerrain(seed=int(cfg.get("seed", 0)),
-                               fine_relief_m=float(cfg.get("subposting_relief_m", 0.0)) if independent else 0.0)
-    return terrain.height
+    return scenario_terrain(int(cfg.get("seed", 0)), str(cfg.get("truth", "model")),
+                            float(cfg.get("subposting_relief_m", 0.0))).height
 
 
 def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Path, pass_index: int,
@@ -97,7 +95,7 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
     tie_rows = np.unique(im.tie.landmark[lm.kind[im.tie.landmark] == KIND_TIE])
     t0 = time.perf_counter()
     report = (lambda i, n: progress(f"{p.pass_id}: tie point {i}/{n}")) if progress else None
-    features, t = match_ties(im, supplied, dem_height, tie_rows, cfg, progress=report if report else None)
+    features, t = match_ties(im, supplied, dem_height, tie_rows, cfg, progress=report)
     t_tie = time.perf_counter() - t0
     if len(features) > _TIES_PER_PASS:
         raise InputError("tie features", len(features), f"at most {_TIES_PER_PASS} per pass")

@@ -41,6 +41,7 @@ set per GCP from a nominal orbit.)
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
@@ -108,6 +109,7 @@ class SceneRadiance:
     brdf_strength: float = 0.15
     epoch: int = 0
     change_rms: float = 0.0
+    view_angle_deg: float = 0.0
 
     def __post_init__(self) -> None:
         rng = np.random.default_rng([self.seed, 17])
@@ -120,16 +122,13 @@ class SceneRadiance:
 
     def for_view(self, view_angle_deg: float) -> "SceneRadiance":
         """The same scene seen from a camera ``view_angle_deg`` along track (fore > 0)."""
-        out = SceneRadiance(self.seed, self.height, self.sun_elevation_deg, self.sun_azimuth_deg, self.cloud_fraction,
-                            self.cloud_height_m, self.texture_rms, self.brdf_strength, self.epoch, self.change_rms)
-        object.__setattr__(out, "_view", float(view_angle_deg))
-        return out
+        return dataclasses.replace(self, view_angle_deg=float(view_angle_deg))
 
     def another_date(self, epoch: int, change_rms: float = 0.15, sun_elevation_deg: float = 35.0) -> "SceneRadiance":
-        """The scene on another date (a reference image's): an independent change of the surface
-        (``change_rms`` relative) and another sun elevation."""
-        return SceneRadiance(self.seed, self.height, sun_elevation_deg, self.sun_azimuth_deg, 0.0, self.cloud_height_m,
-                             self.texture_rms, self.brdf_strength, epoch, change_rms)
+        """The scene on another date (a reference image's), seen at nadir without clouds: an
+        independent change of the surface (``change_rms`` relative) and another sun elevation."""
+        return dataclasses.replace(self, sun_elevation_deg=sun_elevation_deg, cloud_fraction=0.0, epoch=epoch,
+                                   change_rms=change_rms, view_angle_deg=0.0)
 
     # ------------------------------------------------------------------ ground
     def ground_reflectance(self, ecef: Array, d_line: Array | None = None, d_sample: Array | None = None,
@@ -158,7 +157,7 @@ class SceneRadiance:
         land = land_mask(lat, lon)
         base = np.maximum(1.0 + tex, 0.1)
         xyz = g * scale
-        mu = np.tan(np.radians(getattr(self, "_view", 0.0))) / np.tan(np.radians(70.5))
+        mu = np.tan(np.radians(self.view_angle_deg)) / np.tan(np.radians(70.5))
         if self.brdf_strength > 0 and mu != 0:
             b1, b2 = (_field(xyz, w) for w in self._brdf)
             base = base * np.maximum(1.0 + self.brdf_strength * (b1 * mu + b2 * mu * mu), 0.1)

@@ -65,6 +65,7 @@ __all__ = [
     "INDEPENDENT_SOURCES",
     "draw_thermal_truth",
     "run_simulate",
+    "scenario_terrain",
     "draw_ephemeris_error",
     "draw_attitude_error",
     "sample_process_knots",
@@ -624,6 +625,11 @@ def load_scenario(directory: str | os.PathLike[str]) -> Scenario:
     )
 
 
+def scenario_terrain(seed: int, truth: str, subposting_relief_m: float) -> SyntheticTerrain:
+    """The true terrain of a scenario (its seed; sub-posting relief only under the independent truth)."""
+    return SyntheticTerrain(seed=seed, fine_relief_m=subposting_relief_m if truth == "independent" else 0.0)
+
+
 def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Progress | None = None) -> dict[str, Any]:
     """Simulate a scenario into directory ``out`` (written atomically: a temporary sibling
     directory renamed into place). Returns a summary dict (also saved as scenario.json)."""
@@ -631,7 +637,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     _check_replaceable(out_dir)
     rng = np.random.default_rng(cfg.seed)
     independent = cfg.truth == "independent"
-    terrain = SyntheticTerrain(seed=cfg.seed, fine_relief_m=cfg.subposting_relief_m if independent else 0.0)
+    terrain = scenario_terrain(cfg.seed, cfg.truth, cfg.subposting_relief_m)
     geoid = Geoid("zero")
     nominal = nominal_camera_model()
     gcps, gcp_truth = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips,
