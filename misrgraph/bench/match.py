@@ -103,6 +103,8 @@ def run_bench_match(tie_points: int = 1000, seed: int = 0, duration_s: float = 2
         summary = {k: v for k, v in res.items() if k != "passes"}
         for kind in ("gcp", "tie"):
             summary[kind]["rejected"] = res["passes"][0][kind]["rejected"]
+        for key in ("per_camera", "sigma_scale"):
+            summary["tie"][key] = res["passes"][0]["tie"].get(key)
         sim = run_adjust(base / "imagery")
         mat = run_adjust(base / "imagery", observations="matched")
 

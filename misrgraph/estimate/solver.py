@@ -85,12 +85,18 @@ class SolverParams(Config):
 STATUSES = ("converged", "stalled", "iteration_limit")
 
 
+#: a small accepted decrease is "stalled", not "converged", when the undamped Gauss-Newton model
+#: still predicts this many times the convergence tolerance
+STALL_FACTOR = 100.0
+
+
 @dataclass
 class SolveResult:
     """The outcome of a solve. ``status``: ``"converged"`` (an accepted step decreased the cost by
-    less than the tolerances, or no step decreases it and the undamped Gauss-Newton model predicts
-    a decrease below them: the start is a numerical optimum); ``"stalled"`` (lambda reached its
-    bound while the model still predicts a decrease above the tolerances: not an optimum); or
+    less than the tolerances and the undamped Gauss-Newton model predicts no more than
+    :data:`STALL_FACTOR` times them, or no step decreases it and the model predicts a decrease
+    below them: the start is a numerical optimum); ``"stalled"`` (lambda reached its bound, or a
+    damped step decreased little, while the model still predicts more: not an optimum); or
     ``"iteration_limit"``. ``converged`` is ``status == "converged"``. ``predicted_decrease``:
     the undamped model's decrease at the end (cost units), where it was evaluated."""
 
@@ -192,8 +198,10 @@ def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
             zero.insert(int(k), np.zeros(problem.dims[k]))
         return float(lin.error(zero) - lin.error(d))
 
+    # a robust loss's reweighted quadratic model over-predicts near its optimum: no stall check there
+    robust = any(getattr(b, "robust", None) is not None for b in problem.batches)
     res = _levenberg_marquardt(values, lambda x: error(problem, x), lambda x, _: linearize(problem, x), step, params,
-                               progress, lambda x: x, model_decrease, on_iterate)
+                               progress, lambda x: x, model_decrease, on_iterate, check_small_decrease=not robust)
     res.backend = "gtsam"
     return res
 
@@ -225,13 +233,17 @@ def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at:
                          progress: Callable[[int, float, float], None] | None,
                          to_values: Callable[[object], gtsam.Values],
                          model_decrease: Callable[[object, object], float],
-                         on_iterate: Callable[[Any], None] | None = None) -> SolveResult:
+                         on_iterate: Callable[[Any], None] | None = None,
+                         check_small_decrease: bool = True) -> SolveResult:
     """The LM loop shared by both backends, with ``gtsam.LevenbergMarquardtOptimizer``'s rules:
     lambda divided by ``lambda_factor`` after an accepted step, multiplied after a rejected one;
     stop when the decrease is below the absolute or relative tolerance or lambda exceeds its bound.
     Unlike GTSAM, reaching lambda's bound is not taken as convergence: ``model_decrease(x,
     system)`` (the undamped Gauss-Newton model's predicted decrease at ``x``) must then be below
-    the tolerances too, else the status is ``"stalled"`` (see :class:`SolveResult`).
+    the tolerances too, else the status is ``"stalled"`` (see :class:`SolveResult`); and with
+    ``check_small_decrease`` (least squares: the model is exact to second order) a small accepted
+    decrease is convergence only if the model predicts at most :data:`STALL_FACTOR` times the
+    tolerance at the new point.
 
     ``system_at(x, second_order)``: the second flag turns true (and stays so) once an accepted
     step decreased the cost by less than ``params.second_order_below`` relative, if
@@ -277,7 +289,14 @@ def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at:
             status = "converged" if ok else "stalled"
             break
         if decrease <= params.absolute_error_tol or decrease <= params.relative_error_tol * err:
-            status = "converged"
+            # a small decrease is convergence only if the undamped model agrees: after rejected
+            # trials (e.g. steps that would take a landmark off the DEM) a heavily damped step
+            # decreases little far from the optimum
+            ok = True
+            if check_small_decrease:
+                predicted = float(model_decrease(x, system_at(x, second)))
+                ok = predicted <= STALL_FACTOR * max(params.absolute_error_tol, params.relative_error_tol * new_err)
+            status = "converged" if ok else "stalled"
             err = new_err
             break
         second = second or (params.dem_second_order and decrease < params.second_order_below * err)
@@ -398,8 +417,9 @@ def check_converged(result: SolveResult, what: str = "the solve", accept: bool =
     then only a warning is logged; the caller flags the result)."""
     if result.converged:
         return
-    why = ("lambda reached its bound while the model still predicts a decrease of "
-           f"{result.predicted_decrease:.3g}" if result.status == "stalled" else
+    why = ("it stalled (lambda at its bound, or damped steps decreasing the cost by almost nothing) while "
+           f"the Gauss-Newton model still predicts a decrease of {result.predicted_decrease:.3g} -- e.g. steps "
+           "that would take a landmark off the DEM tiles" if result.status == "stalled" else
            f"the iteration limit ({result.iterations}) was reached")
     msg = f"{what} did not converge: {why} (cost {result.final_error:.6g})"
     if accept:

@@ -9,11 +9,12 @@ and bookkeeping are in :mod:`misrgraph.match.pipeline`.
 * :func:`lsm` -- Gauss-Newton least-squares matching with an affine geometry and a linear
   radiometry. Model, for template pixel ``x`` (row, col relative to the template centre):
 
-      I(A x + t) = r0 + r1 T(x) + e(x),   A = [[1 + a00, a01], [a10, 1 + a11]]
+      I(A x + t + delta(x)) = r0 + r1 T(x) + e(x),   A = [[1 + a00, a01], [a10, 1 + a11]]
 
   with ``I`` the search image, interpolated by cubic splines (``scipy.ndimage.map_coordinates``),
-  and its gradient by central differences, interpolated the same way. The matched position of the
-  template centre is ``t`` (row, col of the search image). Its covariance is the sandwich
+  and its gradient by central differences, interpolated the same way; ``delta(x)`` is an optional
+  known non-affine distortion (zero at the centre: terrain relief predicted from a DEM). The
+  matched position of the template centre is ``t`` (row, col of the search image). Its covariance is the sandwich
   ``(J^T J)^-1 (J^T Sigma_e J) (J^T J)^-1`` restricted to ``t``, with ``J^T Sigma_e J`` from the
   residuals' own autocovariance (:func:`hac_meat`): residuals of a band-limited image (blur,
   BRDF and surface change between the two images) are not white, and ``s0^2 (J^T J)^-1`` -- the
@@ -27,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
+
+from misrgraph.errors import InputError
 
 __all__ = ["NccPeak", "LsmResult", "ncc_search", "lsm", "hac_meat"]
 
@@ -119,15 +122,25 @@ def hac_meat(e: Array, jac: Array, max_lag: int = 4) -> Array:
 
 
 def lsm(image: Array, template: Array, row0: float, col0: float, max_iter: int = 30, tol_px: float = 2e-3,
-        max_shift_px: float = 3.0) -> LsmResult:
+        max_shift_px: float = 3.0, distortion: Array | None = None) -> LsmResult:
     """Least-squares matching of ``template`` in ``image`` from the template-centre position
     ``(row0, col0)`` (see the module docstring). Not converged when it leaves the image, moves more
-    than ``max_shift_px`` from the start, the normal matrix is singular or ``max_iter`` is reached."""
+    than ``max_shift_px`` from the start, the normal matrix is singular or ``max_iter`` is reached.
+
+    ``distortion (th, tw, 2)`` px (rows, cols), optional: a known non-affine part of the mapping,
+    ``I(A x + t + delta(x))`` -- e.g. terrain relief predicted from a DEM. It must vanish at the
+    template centre (``delta(0) = 0``), so ``t`` stays the centre's match."""
     image = np.asarray(image, dtype=float)
     tpl = np.asarray(template, dtype=float)
     th, tw = tpl.shape
     xr, xc = np.meshgrid(np.arange(th) - _centre(th), np.arange(tw) - _centre(tw), indexing="ij")
     xr, xc, tv = xr.ravel(), xc.ravel(), tpl.ravel()
+    dr = dc = 0.0
+    if distortion is not None:
+        dist = np.asarray(distortion, dtype=float)
+        if dist.shape != (th, tw, 2) or not np.all(np.isfinite(dist)):
+            raise InputError("distortion", dist.shape, f"finite values of shape ({th}, {tw}, 2)")
+        dr, dc = dist[..., 0].ravel(), dist[..., 1].ravel()
     n = tv.size
     coeff = ndimage.spline_filter(image, order=3)
     gr, gc = np.gradient(image)
@@ -142,8 +155,8 @@ def lsm(image: Array, template: Array, row0: float, col0: float, max_iter: int =
     e = np.zeros(n)
     r0, r1 = 0.0, 1.0
     for it in range(1, max_iter + 1):
-        r = (1 + p[0]) * xr + p[1] * xc + p[4]
-        c = p[2] * xr + (1 + p[3]) * xc + p[5]
+        r = (1 + p[0]) * xr + p[1] * xc + p[4] + dr
+        c = p[2] * xr + (1 + p[3]) * xc + p[5] + dc
         if r.min() < 1 or c.min() < 1 or r.max() > h_img - 2 or c.max() > w_img - 2:
             reason = "left the search image"
             break

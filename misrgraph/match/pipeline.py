@@ -20,9 +20,17 @@
   rarely maps back to its origin). A bright template (mean reflectance above
   ``cloud_reflectance``; land is ~0.18) is screened as cloud. A tie point is kept when it is
   matched in at least ``min_cameras`` cameras, An included.
-* **Sigma.** Each observation's sigma is the LSM's (residual variance times the residuals'
+* **Sigma.** Each observation's sigma starts as the LSM's (residual variance times the residuals'
   correlation area, :mod:`misrgraph.match.lsm`), at least ``sigma_floor_px``; one sigma per
-  observation, the RMS of the line and sample ones.
+  observation, the RMS of the line and sample ones. The residuals cannot show the largest tie
+  error, the change of the pattern between view angles, so each camera's tie sigmas are then
+  scaled by its precision measured from the pass's own redundancy
+  (:func:`misrgraph.match.precision.camera_sigma_scales`: the scatter of matched minus predicted
+  positions about a smooth navigation model on ``sigma_knot_s`` knots and each feature's height
+  along An's ray), unless ``sigma_from_redundancy`` is off. An's defining observation gets the
+  median of its conjugates' sigmas. The same fit is a consistency check across the pass: a
+  conjugate beyond its 4 sigma clip is rejected ("inconsistent with the pass"), and a feature
+  left in fewer than ``min_cameras`` cameras with it.
 
 Every failure is reported per feature (reason counts), never raised: a window off the image, a
 flat chip or NaN pixels make that feature's match fail with its reason.
@@ -43,7 +51,9 @@ from misrgraph.config import Config
 from misrgraph.errors import InputError
 from misrgraph.io.imagery import INTEREST_RADIUS_PX, PassImagery
 from misrgraph.match.lsm import lsm, ncc_search
-from misrgraph.model.constants import CAMERAS
+from misrgraph.match.precision import PrecisionFit, camera_sigma_scales
+from misrgraph.model.constants import CAMERAS, N_PIXELS
+from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.geolocation import PassGeometry
 
 __all__ = ["MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "match_ties"]
@@ -51,6 +61,7 @@ __all__ = ["MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "ma
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 AN = CAMERAS.index("An")
+_CENTRE = (N_PIXELS - 1) / 2.0
 
 
 @dataclass(frozen=True)
@@ -67,6 +78,8 @@ class MatchConfig(Config):
     min_cameras: int = 3
     cloud_reflectance: float = 0.4
     sigma_floor_px: float = 0.02
+    sigma_from_redundancy: bool = True
+    sigma_knot_s: float = 60.0
 
     def __post_init__(self) -> None:
         if not (isinstance(self.template_px, int) and self.template_px >= 7 and self.template_px % 2 == 1):
@@ -76,7 +89,8 @@ class MatchConfig(Config):
         for name in ("min_ncc", "max_peak_ratio"):
             if not 0 < getattr(self, name) <= 1:
                 raise InputError(name, getattr(self, name), "a number in (0, 1]")
-        for name in ("max_sigma_px", "back_tolerance_px", "back_tolerance_sigma", "sigma_floor_px", "cloud_reflectance"):
+        for name in ("max_sigma_px", "back_tolerance_px", "back_tolerance_sigma", "sigma_floor_px", "cloud_reflectance",
+                     "sigma_knot_s"):
             if not getattr(self, name) > 0:
                 raise InputError(name, getattr(self, name), "a positive number")
         if not (isinstance(self.min_cameras, int) and 2 <= self.min_cameras <= 9):
@@ -96,6 +110,9 @@ class MatchedObservations:
     sigma_px: list[float] = field(default_factory=list)
     candidates: int = 0
     reasons: Counter = field(default_factory=Counter)
+    precision: PrecisionFit | None = None
+    #: rows (into these lists) of the redundancy fit's observations, in its order
+    pending_rows: NDArray[np.int64] | None = None
 
     def add(self, feature: int, camera: int, line: float, sample: float, sigma: float) -> None:
         self.feature.append(int(feature))
@@ -165,6 +182,12 @@ def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef:
     return out
 
 
+def _filled(surface: Callable[[Array, Array], Array]) -> Callable[[Array, Array], Array]:
+    """``surface`` with height 0 where it has none (NaN), so a ray cast can finish; the caller checks
+    that the point it finds is on the DEM."""
+    return lambda lat, lon: np.nan_to_num(np.asarray(surface(lat, lon), dtype=float), nan=0.0)
+
+
 @dataclass
 class TieFeature:
     """A tie point defined by an An interest point: its ``window_row`` (the simulated feature whose
@@ -195,13 +218,15 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
                rows: NDArray[np.int64], cfg: MatchConfig = MatchConfig(),
                progress: Callable[[int, int], None] | None = None) -> tuple[list[TieFeature], MatchedObservations]:
     """Detect and match tie points in the windows of landmark ``rows`` (see the module docstring).
-    ``surface(lat, lon)`` is the DEM's ellipsoidal height, for the conjugates' prediction."""
+    ``surface(lat, lon)`` is the DEM's ellipsoidal height (m; NaN outside the DEM), for the
+    conjugates' prediction; a feature whose An point falls outside the DEM is rejected."""
     wins = imagery.tie
     band = int(imagery.attrs.get("band", 2))
     half = cfg.template_px // 2
     full = float(imagery.attrs.get("full_scale_dn", 2 ** 14 - 1))
     features: list[TieFeature] = []
     out = MatchedObservations()
+    pending: list[tuple] = []  # (row in out, feature, camera, time, sample, d_line, d_sample, epipolar line, sample)
     for n_done, row in enumerate(rows):
         if progress is not None:
             progress(n_done, len(rows))
@@ -223,20 +248,24 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             out.reasons["cloud (bright template)"] += 1
             continue
         line_an, samp_an = float(wins.line0[k_an] + r0), float(wins.sample0[k_an] + c0)
-        ground = supplied_geo.pixel_to_ground(AN, band, line_an, samp_an, surface=surface, exposure=np.nan)
-        if not np.all(np.isfinite(ground)):
-            out.reasons["An ray misses the DEM"] += 1
+        ground = supplied_geo.pixel_to_ground(AN, band, line_an, samp_an, surface=_filled(surface), exposure=np.nan)
+        if not np.all(np.isfinite(ground)) or not np.all(np.isfinite(surface(*ecef_to_geodetic(ground)[:2]))):
+            out.reasons["An point outside the DEM"] += 1  # no prediction, and no height constraint in the adjustment
             continue
         fi = len(features)
-        got: list[tuple[int, float, float, float]] = []
+        got: list[tuple] = []  # (camera, line, sample, sigma, predicted line, sample, time, epipolar)
         ks = np.flatnonzero((wins.landmark == row) & (wins.band == band) & (wins.camera != AN))
         # the conjugates' predictions, and each view's along-track image motion (An's first), in one call each
         cams = wins.camera[ks]
         pred = supplied_geo.ground_to_pixel(cams, band, np.repeat(ground, ks.size, axis=0), continuous=True)
+        # the epipolar direction: where each conjugate moves per metre of height along An's ray
+        raised = supplied_geo.pixel_to_ground(AN, band, line_an, samp_an, exposure=np.nan,
+                                              height=ecef_to_geodetic(ground)[2] + _EPIPOLAR_STEP_M)
+        pred_up = supplied_geo.ground_to_pixel(cams, band, np.repeat(raised, ks.size, axis=0), continuous=True)
         rate_cams = np.concatenate([[AN], cams])
         rate_lines = np.concatenate([[line_an], pred.line])
-        rates = supplied_geo.line_rate(rate_cams, band, np.repeat(ground, ks.size + 1, axis=0),
-                                       supplied_geo.line_time(rate_cams, band, rate_lines, rate_lines))
+        times = supplied_geo.line_time(rate_cams, band, rate_lines, rate_lines)
+        rates = supplied_geo.line_rate(rate_cams, band, np.repeat(ground, ks.size + 1, axis=0), times)
         rate_an = float(rates[0])
         for j, k in enumerate(ks):
             out.candidates += 1
@@ -271,13 +300,65 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
                     max(cfg.back_tolerance_px, cfg.back_tolerance_sigma * np.hypot(s, b[2])), 1.0):
                 out.reasons["forward-backward check"] += 1
                 continue
-            got.append((cam, wins.line0[k] + r, wins.sample0[k] + c, s))
+            epi = ((pred_up.line[j] - pred.line[j]) / _EPIPOLAR_STEP_M, (pred_up.sample[j] - pred.sample[j]) / _EPIPOLAR_STEP_M)
+            got.append((cam, wins.line0[k] + r, wins.sample0[k] + c, s, pred.line[j], pred.sample[j], float(times[j + 1]), epi))
         if len(got) + 1 < cfg.min_cameras:
             out.reasons[f"seen in fewer than {cfg.min_cameras} cameras"] += 1
             continue
         features.append(TieFeature(int(row), line_an, samp_an))
-        sig_an = float(np.median([g[3] for g in got]))
-        out.add(fi, AN, line_an, samp_an, sig_an)
-        for cam, ln, sm, s in got:
+        out.add(fi, AN, line_an, samp_an, np.nan)  # An's sigma: set below from its conjugates'
+        for cam, ln, sm, s, pl, ps, tt, epi in got:
             out.add(fi, cam, ln, sm, s)
-    return features, out
+            pending.append((len(out) - 1, fi, cam, tt, sm, ln - pl, sm - ps, epi[0], epi[1]))
+    _rescale(out, pending, cfg)
+    return _drop_inconsistent(features, out, cfg)
+
+
+#: height step (m) along An's ray for the epipolar direction
+_EPIPOLAR_STEP_M = 100.0
+
+
+def _drop_inconsistent(features: list[TieFeature], out: MatchedObservations,
+                       cfg: MatchConfig) -> tuple[list[TieFeature], MatchedObservations]:
+    """Remove the conjugates the redundancy fit found inconsistent with the pass (beyond its clip),
+    then the features left in fewer than ``min_cameras`` cameras; renumber the features."""
+    fit = out.precision
+    if fit is None or not fit.outlier.any():
+        return features, out
+    idx = np.asarray(out.pending_rows, np.int64)[fit.outlier]
+    keep = np.ones(len(out), bool)
+    keep[idx] = False
+    out.reasons["inconsistent with the pass (redundancy check)"] += int(idx.size)
+    feat = np.asarray(out.feature)
+    cams = np.asarray(out.camera)
+    n_seen = np.bincount(feat[keep], minlength=len(features))  # An included
+    few = n_seen < cfg.min_cameras
+    out.reasons[f"seen in fewer than {cfg.min_cameras} cameras"] += int(np.sum(few & (np.bincount(feat, minlength=len(features)) > 0)))
+    keep &= ~few[feat]
+    new_index = np.cumsum(~few) - 1
+    kept = MatchedObservations(candidates=out.candidates, reasons=out.reasons, precision=fit)
+    for i in np.flatnonzero(keep):
+        kept.add(int(new_index[feat[i]]), int(cams[i]), out.line[i], out.sample[i], out.sigma_px[i])
+    return [f for f, drop in zip(features, few) if not drop], kept
+
+
+def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig) -> None:
+    """Scale each camera's tie sigmas by its precision from the pass's redundancy
+    (:func:`misrgraph.match.precision.camera_sigma_scales`) and give each An observation the
+    median of its conjugates' sigmas; the fit is kept in ``out.precision``."""
+    sig = np.asarray(out.sigma_px, float)
+    if pending and cfg.sigma_from_redundancy:
+        a = np.asarray(pending, float)
+        idx = a[:, 0].astype(np.int64)
+        cam = a[:, 2].astype(np.int64)
+        fit = camera_sigma_scales(a[:, 1].astype(np.int64), cam, a[:, 3], (a[:, 4] - _CENTRE) / _CENTRE,
+                                  a[:, 5:7], a[:, 7:9], sig[idx], knot_s=cfg.sigma_knot_s)
+        sig[idx] = np.maximum(sig[idx] * np.array([fit.scale[int(c)] for c in cam]), cfg.sigma_floor_px)
+        out.precision = fit
+        out.pending_rows = idx
+    feat = np.asarray(out.feature)
+    cams = np.asarray(out.camera)
+    for i in np.flatnonzero(cams == AN):
+        others = (feat == feat[i]) & (cams != AN)
+        sig[i] = float(np.median(sig[others]))
+    out.sigma_px = [float(v) for v in sig]

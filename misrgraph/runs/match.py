@@ -11,8 +11,10 @@ continuous position of the true ground point (a GCP's true position; for a tie p
 ground point of the An pixel that defines it, cast onto the true terrain). The summary's
 ``error_px`` is per coordinate (line and sample pooled: ``rms``, median ``p50`` and ``p95`` of the
 absolute error), ``normalised_error_rms`` the RMS of error / reported sigma (1 for an honest sigma),
-``wrong_matches`` the matches more than 1 px from the truth (flagged as blunders in the truth).
-An's tie observations define their tie points (zero error by construction) and are not scored.
+``wrong_matches`` the matches more than 1 px from the truth (flagged as blunders in the truth);
+the tie points' ``per_camera`` the same per camera. An's tie observations define their tie points
+(zero error by construction) and are not scored. ``tie.sigma_scale`` gives each camera's scale of
+the matcher's sigma measured from the pass's redundancy (:mod:`misrgraph.match.precision`).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from misrgraph.io.imagery import MatchedSet, has_imagery, read_imagery, write_ma
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
 from misrgraph.io.truth import read_pass_truth
 from misrgraph.match.pipeline import AN, MatchConfig, MatchedObservations, match_gcps, match_ties
+from misrgraph.model.constants import CAMERAS
 from misrgraph.model.dem import Geoid, fit_local_surface
 
 __all__ = ["run_match", "match_pass", "WRONG_MATCH_PX", "TIE_ID_BASE"]
@@ -85,8 +88,9 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
     band = int(im.attrs.get("band", 2))
 
     def dem_height(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+        """Ellipsoidal DEM height (m); NaN outside the DEM (no prediction there)."""
         s = fit_local_surface(dem, lat, lon, "bicubic")
-        return np.where(s.valid, s.height, 0.0) + geoid.undulation(lat, lon)
+        return np.where(s.valid, s.height, np.nan) + geoid.undulation(lat, lon)
 
     lm = p.landmarks
     t0 = time.perf_counter()
@@ -124,7 +128,8 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
         "pass_id": p.pass_id,
         "gcp": {"candidates": g.candidates, "matched": len(g), "seconds": t_gcp, "rejected": dict(g.reasons)},
         "tie": {"candidates": tie_candidates, "matched": int(np.sum(np.array(t.camera) != AN)) if len(t) else 0,
-                "features": n_t, "seconds": t_tie, "rejected": dict(t.reasons)},
+                "features": n_t, "seconds": t_tie, "rejected": dict(t.reasons),
+                "sigma_scale": t.precision.as_dict(CAMERAS) if t.precision is not None else None},
     }
     truth = read_pass_truth(pass_file)
     tl = tb = None
@@ -146,6 +151,9 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
         scored_t = ~is_g & (obs.camera != AN)
         summary["gcp"].update(_stats(err[is_g], obs.sigma_px[is_g]))
         summary["tie"].update(_stats(err[scored_t], obs.sigma_px[scored_t]))
+        summary["tie"]["per_camera"] = {
+            CAMERAS[c]: {"matched": int(np.sum(sel)), **_stats(err[sel], obs.sigma_px[sel])}
+            for c in range(len(CAMERAS)) if c != AN and np.any(sel := scored_t & (obs.camera == c))}
     write_matched(pass_file, MatchedSet(landmarks, obs, tl, tb, summary))
     return summary
 

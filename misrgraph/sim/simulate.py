@@ -84,6 +84,12 @@ RED = BANDS.index("red")
 #: the truths the simulator can draw (see :class:`ScenarioConfig`)
 TRUTHS = ("model", "independent")
 
+#: DEM postings each side of a landmark the tiles cover when imagery is rendered (8 without): a
+#: matched tie point is An's interest point, up to 3 px (825 m) from the window centre, which is
+#: itself the supplied navigation's prediction -- about 1 km from the simulated landmark, beyond
+#: 8 postings (520-740 m). A landmark the adjustment moves off the DEM stalls the solve.
+IMAGERY_DEM_PAD = 20
+
 #: The independent truth's error sources beyond the navigation (ScenarioConfig fields; each off at
 #: 0), with the value that switches them off: ``misrgraph bench sources`` turns them on one at a time.
 INDEPENDENT_SOURCES = {
@@ -725,6 +731,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         lm = np.concatenate(all_lm + [gcp_truth])
         lat, lon, _ = ecef_to_geodetic(lm)
         save_dem(simulate_dem_tiles(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction,
+                                    pad=IMAGERY_DEM_PAD if cfg.imagery else 8,
                                     correlated_fraction=cfg.dem_correlated_fraction if independent else 0.0), tmp / "dem.h5")
         save_camera_model(supplied, tmp / "camera_model.h5")
         save_camera_model(truth_model, tmp / "camera_truth.h5")

@@ -196,15 +196,17 @@ def test_backend_choices_that_cannot_apply_are_errors(noisy_graph, small_pass):
     assert solve(noisy_graph.problem, SolverParams(backend="gtsam", max_iterations=3)).backend == "gtsam"
 
 
-def _toy_lm(step_decreases: bool, model: float):
+def _toy_lm(step_decreases: bool, model: float | None = None, wall: float = np.inf):
     """The LM loop on cost (x - 3)^2 from 0: steps that reach the minimum, or steps that never
-    decrease the cost (so lambda climbs to its bound); ``model``: the predicted decrease there."""
+    decrease the cost (so lambda climbs to its bound); ``model``: the predicted decrease there
+    (default: the exact Gauss-Newton model's, (x - 3)^2). Beyond ``wall`` the cost is not finite
+    (a landmark stepping off the DEM)."""
     from misrgraph.estimate.solver import _levenberg_marquardt
 
-    cost = lambda x: float((x - 3.0) ** 2)
+    cost = lambda x: float((x - 3.0) ** 2) if x <= wall else float("nan")
     step = (lambda x, sys, lam: x + (3.0 - x) / (1.0 + lam)) if step_decreases else (lambda x, sys, lam: x)
-    return _levenberg_marquardt(0.0, cost, lambda x, second: None, step, SolverParams(), None, lambda x: x,
-                                lambda x, sys: model)
+    predicted = (lambda x, sys: float((x - 3.0) ** 2)) if model is None else (lambda x, sys: model)
+    return _levenberg_marquardt(0.0, cost, lambda x, second: None, step, SolverParams(), None, lambda x: x, predicted)
 
 
 def test_lambda_at_its_bound_is_not_convergence_unless_the_model_agrees():
@@ -215,8 +217,17 @@ def test_lambda_at_its_bound_is_not_convergence_unless_the_model_agrees():
     assert stalled.status == "stalled" and not stalled.converged and stalled.predicted_decrease == 9.0
     at_optimum = _toy_lm(False, model=0.0)
     assert at_optimum.status == "converged" and at_optimum.converged
-    normal = _toy_lm(True, model=float("nan"))
-    assert normal.status == "converged" and abs(normal.final_error) < 1e-9 and normal.predicted_decrease is None
+    normal = _toy_lm(True)
+    assert normal.status == "converged" and abs(normal.final_error) < 1e-9
+
+
+def test_damped_creep_against_a_wall_is_stalled_not_converged():
+    """Steps past x = 1 make the cost non-finite, so LM accepts ever more damped steps that
+    decrease it by almost nothing: that passes the small-decrease test, but the Gauss-Newton model
+    still predicts a decrease of ~4, so it is 'stalled' (it was reported 'converged')."""
+    res = _toy_lm(True, wall=1.0)
+    assert res.status == "stalled" and not res.converged
+    assert res.predicted_decrease > 3.0 and res.final_error > 3.0
 
 
 def test_iteration_limit_is_reported_and_refused(noisy_graph):

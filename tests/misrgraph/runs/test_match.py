@@ -111,3 +111,29 @@ def test_info_shows_imagery_and_matched(imagery_pass_dir):
     im = read_imagery(f)
     assert out["imagery"]["tie_windows"] == len(im.tie) > 0 and out["imagery"]["gcp_chips"] == im.chip_landmark.size
     assert out["matched"]["observations"] == len(read_matched(f).observations) > 0
+
+
+@pytest.fixture(scope="module")
+def dense_imagery_dir(tmp_path_factory):
+    """A 25-minute pass with 250 tie points: enough redundancy in every camera (the D cameras see
+    An's features of the middle 11 minutes only) to measure its precision."""
+    out = tmp_path_factory.mktemp("scen") / "dense"
+    run_simulate(ScenarioConfig(scenario="pass", seed=8, n_tie_points=250, n_check_points=5, duration_s=1500.0,
+                                start_lat_deg=55.0, imagery=True), out)
+    return out
+
+
+def test_sigma_from_redundancy_makes_the_d_cameras_honest(dense_imagery_dir):
+    """The LSM sigma alone is optimistic where the view angle changes the pattern most (the D
+    cameras); scaled by each camera's precision from the pass's redundancy it is honest there:
+    error / sigma RMS in 0.7-1.4 per D camera and pooled (truth never enters the scale)."""
+    from misrgraph.match.pipeline import MatchConfig
+
+    plain = run_match(dense_imagery_dir, MatchConfig(sigma_from_redundancy=False))["passes"][0]["tie"]
+    scaled = run_match(dense_imagery_dir)["passes"][0]["tie"]
+    assert all(v["estimated"] for v in scaled["sigma_scale"].values()), scaled["sigma_scale"]
+    for cam in ("Df", "Da"):
+        assert plain["per_camera"][cam]["normalised_error_rms"] > 1.4  # what the LSM sigma alone gives
+        assert 0.7 <= scaled["per_camera"][cam]["normalised_error_rms"] <= 1.4, scaled["per_camera"][cam]
+        assert scaled["sigma_scale"][cam]["scale"] > 1.2
+    assert 0.7 <= scaled["normalised_error_rms"] <= 1.4
