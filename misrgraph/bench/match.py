@@ -13,13 +13,13 @@
 
 from __future__ import annotations
 
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from misrgraph.bench.work import bench_workdir
 from misrgraph.io.imagery import read_imagery
 from misrgraph.match.lsm import lsm, ncc_search
 from misrgraph.runs.adjust import run_adjust
@@ -88,9 +88,7 @@ def _chips_side_by_side(scenario: Path) -> dict[str, Any]:
 def run_bench_match(tie_points: int = 1000, seed: int = 0, duration_s: float = 2700.0, cloud_fraction: float = 0.0,
                     check_points: int = 100, workdir: str | Path | None = None) -> dict[str, Any]:
     """Render, match and adjust one pass (see the module docstring); returns the figures."""
-    with tempfile.TemporaryDirectory(prefix="misrgraph-bench-match-") as tmp:
-        base = Path(workdir) if workdir is not None else Path(tmp)
-        base.mkdir(parents=True, exist_ok=True)
+    with bench_workdir(workdir, "misrgraph-bench-match-") as base:
         cfg = dict(scenario="pass", seed=seed, n_tie_points=tie_points, n_check_points=check_points,
                    duration_s=duration_s, cloud_fraction=cloud_fraction)
         t0 = time.perf_counter()

@@ -249,7 +249,11 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             continue
         line_an, samp_an = float(wins.line0[k_an] + r0), float(wins.sample0[k_an] + c0)
         ground = supplied_geo.pixel_to_ground(AN, band, line_an, samp_an, surface=_filled(surface), exposure=np.nan)
-        if not np.all(np.isfinite(ground)) or not np.all(np.isfinite(surface(*ecef_to_geodetic(ground)[:2]))):
+        on_dem = np.all(np.isfinite(ground))
+        if on_dem:
+            lat_g, lon_g, h_g = ecef_to_geodetic(ground)
+            on_dem = np.all(np.isfinite(surface(lat_g, lon_g)))
+        if not on_dem:
             out.reasons["An point outside the DEM"] += 1  # no prediction, and no height constraint in the adjustment
             continue
         fi = len(features)
@@ -260,7 +264,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
         pred = supplied_geo.ground_to_pixel(cams, band, np.repeat(ground, ks.size, axis=0), continuous=True)
         # the epipolar direction: where each conjugate moves per metre of height along An's ray
         raised = supplied_geo.pixel_to_ground(AN, band, line_an, samp_an, exposure=np.nan,
-                                              height=ecef_to_geodetic(ground)[2] + _EPIPOLAR_STEP_M)
+                                              height=h_g + _EPIPOLAR_STEP_M)
         pred_up = supplied_geo.ground_to_pixel(cams, band, np.repeat(raised, ks.size, axis=0), continuous=True)
         rate_cams = np.concatenate([[AN], cams])
         rate_lines = np.concatenate([[line_an], pred.line])

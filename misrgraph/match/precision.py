@@ -169,9 +169,14 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     keep = np.ones(n, bool)
     red: dict[int, float] = {}
     it = 0
+    cams = sorted(rows)
+    cam_pos = np.searchsorted(cams, camera)  # each row's camera, as a position in cams
+
+    def per_row(d: dict[int, float]) -> Array:
+        return np.array([d[c] for c in cams])[cam_pos]
+
     for it in range(1, max_iter + 1):
-        k_obs = np.array([scale[int(c)] for c in camera])
-        w = np.where(keep, 1.0 / (sigma * k_obs) ** 2, 0.0)
+        w = np.where(keep, 1.0 / (sigma * per_row(scale)) ** 2, 0.0)
         res, red = _solve(X, rows, feat_of, feat_ids.size, d, e, w, height_prior_m)
         z2 = np.sum(res ** 2, axis=1) / sigma ** 2  # against the stated sigma, both coordinates
         change = 0.0
@@ -181,7 +186,7 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
                 new = float(np.sqrt(np.sum(z2[r][k]) / red[c]))
                 change = max(change, abs(new / scale[c] - 1.0))
                 scale[c] = new
-        new_keep = np.array([z2[i] <= scale[int(camera[i])] ** 2 * chi2_clip for i in range(n)])
+        new_keep = z2 <= per_row(scale) ** 2 * chi2_clip
         if change < tol and np.array_equal(new_keep, keep):
             break
         keep = new_keep

@@ -403,21 +403,21 @@ def _observe(
     cams_seen = np.zeros(len(ecef), dtype=int)
     per_cam = []
     for c in range(len(CAMERAS)):
-        ln, sm, vis, ex, _ = geo.ground_to_pixel(c, RED, ecef, continuous=True)
+        ln, sm, vis, _, _ = geo.ground_to_pixel(c, RED, ecef, continuous=True)
         dropout = rng.random(len(ecef)) >= cfg.view_probability
         vis = vis & ~(dropout & (kinds == KIND_TIE))
-        per_cam.append((c, ln, sm, vis, ex))
+        per_cam.append((c, ln, sm, vis))
         cams_seen += vis
     keep = np.where(kinds == KIND_TIE, cams_seen >= 3, cams_seen >= 1)
-    for c, ln, sm, vis, ex in per_cam:
+    for c, ln, sm, vis in per_cam:
         sel = np.flatnonzero(vis & keep)
         for b in (BANDS.index(name) for name in cfg.bands):
             if b == RED:
-                s_b, ln_b, sm_b, ex_b = sel, ln[sel], sm[sel], ex[sel]
+                s_b, ln_b, sm_b = sel, ln[sel], sm[sel]
             else:
                 ip = geo.ground_to_pixel(c, b, ecef[sel], continuous=True)
                 ok = ip.visible
-                s_b, ln_b, sm_b, ex_b = sel[ok], ip.line[ok], ip.sample[ok], ip.exposure[ok]
+                s_b, ln_b, sm_b = sel[ok], ip.line[ok], ip.sample[ok]
             cols[0].append(s_b)
             cols[1].append(np.full(s_b.size, c))
             cols[2].append(np.full(s_b.size, b))

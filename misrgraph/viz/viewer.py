@@ -226,7 +226,7 @@ def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5
     """The GCP windows of a pass (up to ``max_gcps`` GCPs) per camera, as images in window pixels,
     with the matched (red) and, for simulated passes, true (green) positions, one time step per GCP."""
     from misrgraph.io.imagery import has_matched, read_imagery, read_matched
-    from misrgraph.io.passes import OrbitPass
+    from misrgraph.io.passes import KIND_GCP, OrbitPass
     from misrgraph.io.truth import read_pass_truth
 
     im = read_imagery(path)
@@ -245,7 +245,7 @@ def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5
             if matched is not None:
                 mo = matched.observations
                 gi = int(p.landmarks.gcp_index[row])
-                lm_rows = np.flatnonzero((matched.landmarks.gcp_index == gi) & (matched.landmarks.kind == 1))
+                lm_rows = np.flatnonzero((matched.landmarks.gcp_index == gi) & (matched.landmarks.kind == KIND_GCP))
                 sel = np.isin(mo.landmark, lm_rows) & (mo.camera == int(im.gcp.camera[k]))
                 if sel.any():
                     rec.log(f"{base}/matched", rr.Points2D(np.stack([mo.sample[sel] - im.gcp.sample0[k],
