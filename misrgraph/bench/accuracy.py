@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from misrgraph.bench.studies import standard_pass
 from misrgraph.bench.work import bench_workdir
 from misrgraph.estimate.graph import GraphConfig, build_pass_graph, merge_flat
+from misrgraph.estimate.incremental import DEFAULT_SETTLE_AFTER
 from misrgraph.estimate.solver import SolverParams, gauss_newton_step, solve
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
@@ -321,8 +322,12 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
 
 
 def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0,
-                          workdir: str | Path | None = None, linearization_tol: float | None = None) -> dict[str, Any]:
+                          workdir: str | Path | None = None, linearization_tol: float | None = None,
+                          settle_after: int | None = DEFAULT_SETTLE_AFTER) -> dict[str, Any]:
     """iSAM2 update per pass against a warm-started batch, over ``passes`` repeat passes (issue 20).
+
+    ``settle_after``: :class:`~misrgraph.estimate.incremental.IncrementalSolver`'s (None: every
+    factor stays live).
 
     For every k: the seconds of adding pass k to the iSAM2 state (``update_seconds``); the batch
     re-solve of all k passes (``batch_seconds``) -- the LM core on the Schur backend
@@ -350,7 +355,7 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
                                         n_check_points=0, duration_s=900.0, start_lat_deg=55.0), out)
         sc = load_scenario(out)
         orbit_passes = [sc.load_pass(k) for k in range(len(sc.pass_files))]
-    solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, cfg, linearization_tol=tol)
+    solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, cfg, linearization_tol=tol, settle_after=settle_after)
     tight = SolverParams(relative_error_tol=1e-14, absolute_error_tol=1e-14, max_iterations=100, backend="schur")
     warm = None
     rows = []
@@ -388,7 +393,7 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
     by_pass = {r["pass"]: r for r in rows}
     marks = [k for k in (10, 25, 50) if k in by_pass] or [rows[-1]["pass"]]
     return {
-        "passes": len(rows), "tie_points": tie_points, "linearization_tol": tol, "per_pass": rows,
+        "passes": len(rows), "tie_points": tie_points, "linearization_tol": tol, "settle_after": settle_after, "per_pass": rows,
         "at": {str(k): {"update_seconds": by_pass[k]["update_seconds"], "batch_seconds": by_pass[k]["batch_seconds"],
                         "update_over_batch": by_pass[k]["update_seconds"] / by_pass[k]["batch_seconds"]} for k in marks},
         "update_last_over_update_10": (rows[-1]["update_seconds"] / by_pass[10]["update_seconds"]) if 10 in by_pass else None,

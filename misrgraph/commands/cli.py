@@ -761,13 +761,17 @@ def bench_incremental(
     workdir: Optional[Path] = typer.Option(None, "--workdir"),
     linearization_tol: Optional[float] = typer.Option(None, "--linearization-tol", min=1e-6,
                                                       help="iSAM2 re-linearisation tolerance in sigma [default: the library's]."),
+    settle_after: Optional[int] = typer.Option(None, "--settle-after", min=0,
+                                               help="Summarise a pass once this many newer passes have arrived; 0: never "
+                                                    "[default: the library's, 3]."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Adding the k-th pass with iSAM2 against a warm-started batch re-solve of all k passes at the same accuracy, pass after pass."""
     from misrgraph.bench.accuracy import run_bench_incremental
 
     with err_console.status(f"simulating {passes} repeat passes and solving..."):
-        res = run_bench_incremental(passes, tie_points, seed, workdir, linearization_tol)
+        kw = {} if settle_after is None else {"settle_after": settle_after or None}
+        res = run_bench_incremental(passes, tie_points, seed, workdir, linearization_tol, **kw)
     if as_json:
         _print_json(res)
         return

@@ -22,12 +22,32 @@ new estimate ``x`` each factor's staleness is
 Rounds re-linearise the factors with the largest staleness (until the rest holds a quarter of the
 budget) and stop once the total is at most ``linearization_tol**2``. Measured on the 50-pass
 repeat path (``misrgraph bench incremental --passes 50``, 2026-11-24), the default 0.01 leaves
-the estimate up to 0.075 sigma (largest over every variable) from the converged batch, 0.034
-sigma over the first ten passes: the tolerance bounds the linearisation error of a round, not
-the distance to the optimum.
+the estimate up to 0.028 sigma (largest over every variable) from the converged batch: the
+tolerance bounds the linearisation error of a round, not the distance to the optimum.
 
 Shared variables: the camera corrections and GCPs (one key each for every pass), and the tie
 points of repeat passes of the same path (keyed by path and feature id).
+
+Keeping the update flat as passes accumulate (issue 20):
+
+* **Ordering.** Every update constrains the shared variables to be eliminated last
+  (``constrainedKeys``), so each pass's own variables (knots, ephemeris) form a subtree below a root
+  of shared variables. A new pass then re-eliminates only its own subtree and the root; the other
+  passes' subtrees enter through their cached marginals. iSAM2's default ordering put the newest
+  variables last and re-eliminated a growing top of the tree.
+* **Full back-substitution.** iSAM2's wildfire threshold (0.001 by default, in the variables' own
+  units) stops propagating a change once it is smaller than that -- every knot (radians) is
+  smaller, so after a new pass the older passes' knots kept stale values (up to 0.084 sigma from
+  the optimum on a 20-pass path, measured). The threshold is 0: back-substitution through every
+  clique is cheap.
+* **Settled passes are summarised.** In the first update after ``settle_after`` newer passes
+  have arrived, a pass's factors (all but the DEM factors on its landmarks, which stay live
+  because the DEM curves at its posting scale) are replaced by one ``HessianFactor`` -- the very
+  same quadratic, collected at the current estimate -- and are no longer re-linearised or checked
+  for staleness. Its knots and ephemeris stay variables of the tree, with estimates and marginals.
+  The approximation is that a settled pass's collinearity is not re-linearised again;
+  collinearity is nearly linear over the moves left after ``settle_after`` passes, and the
+  distance from the converged batch is measured by ``misrgraph bench incremental``.
 
 The persistent state behind ``misrgraph update`` is :mod:`misrgraph.runs.update`.
 """
@@ -54,8 +74,9 @@ from misrgraph.estimate.graph import PassGraph, build_pass_graph, merge_flat, me
 from misrgraph.io.passes import OrbitPass
 from misrgraph.estimate.solver import SolverParams, solve
 from misrgraph.estimate.problem import Marginals
+from factors import keys as K
 
-__all__ = ["IncrementalSolver", "batch_solution", "DEFAULT_LINEARIZATION_TOL"]
+__all__ = ["IncrementalSolver", "batch_solution", "DEFAULT_LINEARIZATION_TOL", "DEFAULT_SETTLE_AFTER"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -71,6 +92,12 @@ class _Record:
 #: Default re-linearisation tolerance (sigma units, module docstring); 0.04 (an earlier default)
 #: left 0.18 sigma after 10 passes once the knots were tied by the attitude process prior.
 DEFAULT_LINEARIZATION_TOL = 0.01
+
+#: Passes are summarised in the first update after this many newer passes (module docstring).
+DEFAULT_SETTLE_AFTER = 3
+
+#: Key letters of the variables shared between passes (eliminated last).
+_SHARED_LETTERS = frozenset(ord(c) for c in (K.LANDMARK, K.GCP, K.CAMERA, K.OMEGA))
 
 #: The factor families whose residuals are nonlinear (priors are linear and never go stale).
 _NONLINEAR = tuple(f for f in FlatProblem.FAMILIES if f != "priors")
@@ -99,20 +126,31 @@ class IncrementalSolver:
     ``linearization_tol`` (sigma units): rounds stop once the square root of the summed staleness
     of all factors is at most this -- a proxy for the distance (in sigma) between the estimate and
     the optimum. After each update, ``last_linearization_error`` holds that figure,
-    ``last_rounds`` the number of rounds and ``last_costs`` the nonlinear cost before each round
-    and at the end.
+    ``last_rounds`` the number of rounds and ``last_costs`` the live factors' nonlinear cost before
+    each round and at the end. ``settle_after``: passes are summarised in the first update after
+    this many newer passes (module docstring); None keeps every factor live.
     """
 
     def __init__(self, camera: CameraModel, gcps: GcpDatabase, dem: DemTiles | None, cfg: AdjustConfig = AdjustConfig(),
-                 linearization_tol: float = DEFAULT_LINEARIZATION_TOL, max_rounds: int = 20) -> None:
+                 linearization_tol: float = DEFAULT_LINEARIZATION_TOL, max_rounds: int = 20,
+                 settle_after: int | None = DEFAULT_SETTLE_AFTER) -> None:
         if not linearization_tol > 0:
             raise InputError("linearization_tol", linearization_tol, "a positive number (sigma units)")
+        if settle_after is not None and not (isinstance(settle_after, int) and settle_after >= 1):
+            raise InputError("settle_after", settle_after, "a whole number of passes >= 1, or None (never summarise)")
         self.camera, self.gcps, self.dem, self.cfg = camera, gcps, dem, cfg
         self.linearization_tol = float(linearization_tol)
         self.max_rounds = max_rounds
+        self.settle_after = settle_after
         p = gtsam.ISAM2Params()
         p.setRelinearizeThreshold(1e12)  # our containers are re-linearised by this class
+        p.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(0.0))  # full back-substitution (module docstring)
         self.isam = gtsam.ISAM2(p)
+        self._shared_groups = gtsam.KeyGroupMap()  # shared variables: eliminated last (module docstring)
+        self.settled: dict[int, int] = {}  # pass index -> iSAM2 index of its summary factor
+        # the landmark information (keys, 3x3 blocks) from settled passes' frozen collinearity rows
+        self._settled_info: tuple[NDArray[np.int64], Array] = (np.zeros(0, np.int64), np.zeros((0, 3, 3)))
+        self._record_ranges: list[tuple[int, int]] = []  # per pass: its records' index range
         self.graphs: list[PassGraph] = []
         self.passes: list[OrbitPass] = []
         self.exclusions: list[NDArray[np.bool_]] = []
@@ -154,12 +192,8 @@ class IncrementalSolver:
             for f in raw:
                 batches[f].clear()
         graph = gtsam.NonlinearFactorGraph()
-        for i in range(len(positions)):
-            gf = lin.at(i)
-            lp = gtsam.Values()
-            for k in gf.keys():
-                lp.insert(int(k), values.atVector(int(k)))
-            graph.add(gtsam.LinearContainerFactor(gf, lp))
+        for i in range(len(positions)):  # a container keeps only its own keys' values
+            graph.add(gtsam.LinearContainerFactor(lin.at(i), values))
         for f, out in raw.items():
             rows = fresh[f]
             r, J = m.flat.family_rows(x, f, True, raw=out)
@@ -177,12 +211,62 @@ class IncrementalSolver:
         return _PassModel(flat, {f: sp.csr_matrix((p.size, flat.n)) for f, p in pos.items()},
                           {f: np.zeros(p.size) for f, p in pos.items()}, pos, {f: first_record + p for f, p in pos.items()})
 
+    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, remove: list[int] | None = None) -> gtsam.ISAM2Result:
+        """One iSAM2 update with the shared variables constrained last (module docstring)."""
+        for k in values.keys():
+            if gtsam.Symbol(int(k)).chr() in _SHARED_LETTERS:
+                self._shared_groups.insert2(int(k), 1)
+        params = gtsam.ISAM2UpdateParams()
+        params.constrainedKeys = self._shared_groups
+        if remove:
+            params.removeFactorIndices = remove
+        return self.isam.update(graph, values, params)
+
+    def _summarise(self, pass_index: int) -> tuple[gtsam.LinearContainerFactor, list[int]]:
+        """A settled pass's factors except its DEM factors as one ``HessianFactor`` -- the same
+        quadratic, collected at the current estimate (each ``LinearContainerFactor`` is exactly
+        quadratic, so nothing is approximated here) -- and the iSAM2 indices it replaces. The
+        landmark information of the pass's collinearity rows (frozen from now on) is kept for the
+        DEM staleness term."""
+        m = self._models[pass_index]
+        start, stop = self._record_ranges[pass_index]
+        live = set(np.unique(m.record["dem"]).tolist()) if "dem" in m.record else set()
+        factors = self.isam.getFactorsUnsafe()
+        gfg = gtsam.GaussianFactorGraph()
+        remove = []
+        for j in range(start, stop):
+            if j in live:
+                continue
+            r = self.records[j]
+            gfg.push_back(factors.at(r.isam_index).linearize(self.estimate))
+            remove.append(r.isam_index)
+            r.isam_index = -1
+        hessian = gtsam.HessianFactor(gfg)
+        k, b = self._landmark_information(m)
+        self._settled_info = _information_sum([self._settled_info[0], k], [self._settled_info[1], b[:, :, None] * b[:, None, :]])
+        return gtsam.LinearContainerFactor(hessian, self.estimate), remove
+
+    @staticmethod
+    def _landmark_information(m: _PassModel) -> tuple[NDArray[np.int64], Array]:
+        """Each collinearity row's landmark key and whitened Jacobian block (rows x 3) of a pass's
+        linear model: the landmarks' information from the pass's views is the sum of ``b^T b``."""
+        lm_cols = np.repeat(m.flat._slot_cols[0], 2, axis=0)
+        keys = np.repeat(m.flat.coll.slot_keys[0], 2)
+        return keys, m.J["collinearity"][np.arange(lm_cols.shape[0])[:, None], lm_cols].toarray()
+
     def add_passes(self, passes: list[OrbitPass], exclusions: list[NDArray[np.bool_]] | None = None,
                    initial: gtsam.Values | None = None) -> float:
-        """Add passes in one iSAM2 update (then re-linearise); return the seconds spent."""
+        """Add passes in one iSAM2 update (then re-linearise); return the seconds spent. Passes
+        that ``settle_after`` newer passes have followed are summarised in the same update."""
         t0 = time.perf_counter()
         new_values = gtsam.Values()
         batch = gtsam.NonlinearFactorGraph()
+        remove: list[int] = []
+        due = [] if self.settle_after is None else [i for i in range(len(self.graphs) - self.settle_after) if i not in self.settled]
+        for i in due:
+            summary, gone = self._summarise(i)
+            batch.add(summary)
+            remove.extend(gone)
         first = len(self.graphs)
         for j, p in enumerate(passes):
             idx = len(self.graphs)
@@ -200,32 +284,42 @@ class IncrementalSolver:
         pending: list[tuple[int, int]] = []
         for pi in range(first, len(self.graphs)):
             n = int(self.graphs[pi].problem.graph.size())
-            self._models.append(self._new_model(self.graphs[pi], len(self.records) + len(pending)))
+            start = len(self.records) + len(pending)
+            self._record_ranges.append((start, start + n))
+            self._models.append(self._new_model(self.graphs[pi], start))
             g = self._linearize(pi, at, np.arange(n))
             for i in range(n):
                 batch.add(g.at(i))
                 pending.append((pi, i))
-        res = self.isam.update(batch, new_values)
-        self.records.extend(_Record(pi, pos, int(fi)) for (pi, pos), fi in zip(pending, res.getNewFactorsIndices()))
+        res = self._update(batch, new_values, remove)
+        indices = list(res.getNewFactorsIndices())
+        for i, fi in zip(due, indices[:len(due)]):
+            self.settled[i] = int(fi)
+        self.records.extend(_Record(pi, pos, int(fi)) for (pi, pos), fi in zip(pending, indices[len(due):]))
         self.estimate = self.isam.calculateEstimate()
         self._relinearize()
         return time.perf_counter() - t0
 
     def linearization_errors(self, values: gtsam.Values) -> tuple[Array, float]:
-        """Staleness of every record's factor at ``values`` and the nonlinear cost ``0.5 ||r(x)||^2``.
+        """Staleness of every live record's factor at ``values`` and their cost ``0.5 ||r(x)||^2``.
 
         Staleness (whitened, squared; a vector over records) is ``||e_i||^2`` with
         ``e_i = r_i(x) - (J_i x + c_i)`` the error of the factor's linear model, plus for a DEM
         factor the step its stale gradient would cause on its landmark alone,
         ``g_i^T H_l^-1 g_i`` with ``g_i = J_i(x)^T r_i(x) - J_i^T (J_i x + c_i)`` and ``H_l`` the
-        landmark's information from every factor on it (module docstring)."""
+        landmark's information from every factor on it (module docstring). The records a settled
+        pass's summary replaced are not evaluated (staleness 0) and the cost is that of the live
+        factors (the summaries' quadratics are left out)."""
         e2 = np.zeros(len(self.records))
         cost = 0.0
         dem_terms = []
         info_keys, info_blocks = [], []
-        for m in self._models:
+        for pi, m in enumerate(self._models):
+            settled = pi in self.settled
+            if settled and not m.record.get("dem", np.zeros(0)).size:
+                continue  # nothing of it is live
             x = m.flat.from_values(values)
-            for f in FlatProblem.FAMILIES:
+            for f in (("dem",) if settled else FlatProblem.FAMILIES):
                 r, J1 = m.flat.family_rows(x, f, f == "dem")
                 cost += 0.5 * float(r @ r)
                 if f not in m.J:
@@ -239,16 +333,13 @@ class IncrementalSolver:
                     j0, j1 = m.J[f][rows, cols].toarray(), J1[rows, cols].toarray()
                     dem_terms.append((m.record[f], m.flat.dem.keys, j1 * r[:, None] - j0 * p[:, None]))
                     info_keys.append(m.flat.dem.keys)
-                    info_blocks.append(j0)
-            # each collinearity row's landmark block (the landmark's information from its views)
-            lm_cols = np.repeat(m.flat._slot_cols[0], 2, axis=0)
-            info_keys.append(np.repeat(m.flat.coll.slot_keys[0], 2))
-            info_blocks.append(m.J["collinearity"][np.arange(lm_cols.shape[0])[:, None], lm_cols].toarray())
+                    info_blocks.append(j0[:, :, None] * j0[:, None, :])
+            if not settled:  # a settled pass's blocks are frozen (self._settled_info)
+                k, b = self._landmark_information(m)
+                info_keys.append(k)
+                info_blocks.append(b[:, :, None] * b[:, None, :])
         if dem_terms:
-            keys, inv = np.unique(np.concatenate(info_keys), return_inverse=True)
-            blocks = np.concatenate(info_blocks)
-            H = np.zeros((keys.size, 3, 3))
-            np.add.at(H, inv.ravel(), blocks[:, :, None] * blocks[:, None, :])
+            keys, H = _information_sum([self._settled_info[0], *info_keys], [self._settled_info[1], *info_blocks])
             for rec, k, g in dem_terms:
                 h = H[np.searchsorted(keys, k)]
                 e2[rec] += np.einsum("ni,ni->n", g, np.linalg.solve(h, g[:, :, None])[:, :, 0])
@@ -287,7 +378,7 @@ class IncrementalSolver:
                 for i, r in enumerate(recs):
                     graph.add(g.at(i))
                     swap.append(r)
-            res = self.isam.update(graph, gtsam.Values(), [r.isam_index for r in swap])
+            res = self._update(graph, gtsam.Values(), [r.isam_index for r in swap])
             for r, fi in zip(swap, res.getNewFactorsIndices()):
                 r.isam_index = int(fi)
             self.estimate = self.isam.calculateEstimate()
@@ -315,6 +406,15 @@ class IncrementalSolver:
         return AdjustResult(pg, v, marg, att, eph, cam, rej, np.zeros(rej.size), resid, self.last_rounds,
                             float(self.isam.getFactorsUnsafe().error(v)), [], seconds,
                             unresolved_attitude_rad=AdjustConfig().attitude_jitter_arcsec * ARCSEC)
+
+
+def _information_sum(keys: list[NDArray[np.int64]], blocks: list[Array]) -> tuple[NDArray[np.int64], Array]:
+    """Per-key sums of 3x3 information blocks: the sorted unique keys and their summed blocks."""
+    k = np.concatenate(keys)
+    u, inv = np.unique(k, return_inverse=True)
+    H = np.zeros((u.size, 3, 3))
+    np.add.at(H, inv.ravel(), np.concatenate(blocks))
+    return u, H
 
 
 def batch_solution(solver: IncrementalSolver, params: SolverParams = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12)):
