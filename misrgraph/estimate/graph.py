@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from collections.abc import Mapping
 from typing import Any
 
 import gtsam
@@ -171,6 +172,7 @@ def build_pass_graph(
     shared: set[int] | None = None,
     camera_for_pass: CameraModel | None = None,
     temperature_bin: int = 0,
+    known_landmarks: Mapping[int, Array] | None = None,
 ) -> PassGraph:
     """Build the factor graph of one pass (see the module docstring).
 
@@ -242,7 +244,10 @@ def build_pass_graph(
             lm_key_of[row] = K.landmark_key(orbit_pass.path, int(orbit_pass.landmarks.id[row]))
     obs_lm_key = np.array([lm_key_of[r] for r in obs.landmark[idx]], np.int64)
     # initial landmark positions: mean of each view's ray cast onto the DEM (supplied navigation)
-    init = _initial_landmarks(orbit_pass, geo, idx, lm_rows, dem, geoid, cfg.dem_method)
+    known = known_landmarks if known_landmarks is not None else {}
+    cast = np.array([lm_key_of[r] not in known for r in obs.landmark[idx]], bool)
+    init = _initial_landmarks(orbit_pass, geo, idx[cast], dem, geoid, cfg.dem_method)
+    init.update({int(r): np.asarray(known[lm_key_of[r]], float) for r in lm_rows if lm_key_of[r] in known})
     # --- constants and batch; the along-track residual is in image lines (a matcher's unit)
     rate = geo.line_rate(cam, band, np.stack([init[int(r)] for r in obs.landmark[idx]]), t_obs)
     const = CollinearityConstants(
@@ -433,9 +438,12 @@ def merge_flat(problems: list[Problem]) -> Problem:
     return problem
 
 
-def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, lm_rows, dem, geoid, method) -> dict[int, Array]:
-    """Median over views of each view's ray cast onto the DEM surface (or the ellipsoid)."""
+def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, dem, geoid, method) -> dict[int, Array]:
+    """Median over views ``idx`` of each view's ray cast onto the DEM surface (or the ellipsoid),
+    by landmark row."""
     obs = orbit_pass.observations
+    if idx.size == 0:
+        return {}
     if dem is not None:
         def surface(lat: Array, lon: Array) -> Array:
             s = fit_local_surface(dem, lat, lon, method)

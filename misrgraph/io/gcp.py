@@ -1,7 +1,7 @@
 """GCP database files (HDF5 kind ``gcp_database``): the one reader and writer.
 
 Layout: group ``/gcp`` with datasets ``id (G,)``, ``lat, lon (G,)`` deg WGS84, ``height (G,)`` m
-ellipsoidal, ``sigma_m (G,)`` m (1 sigma per ENU axis), ``region (G,)`` strings and optional
+ellipsoidal, ``sigma_m (G,)`` or ``(G, 3)`` m (1 sigma on every ENU axis, or per axis E, N, U), ``region (G,)`` strings and optional
 ``chips (G, 9, 64, 64)`` uint8 (attribute ``cameras``). A simulated database also holds
 ``/truth/ecef (G, 3)`` m, the true positions, read only by :mod:`misrgraph.io.truth`.
 """
@@ -38,7 +38,8 @@ def save_gcp_database(db: GcpDatabase, path: str | os.PathLike[str], truth_ecef:
         write_dataset(g, "lat", db.lat, units="deg", datum="WGS84")
         write_dataset(g, "lon", db.lon, units="deg", datum="WGS84")
         write_dataset(g, "height", db.height, units="m", reference="WGS84 ellipsoid")
-        write_dataset(g, "sigma_m", db.sigma_m, units="m", meaning="1 sigma per ENU axis")
+        write_dataset(g, "sigma_m", db.sigma_m, units="m",
+                      meaning="1 sigma per ENU axis" + (" (east, north, up)" if db.sigma_m.ndim == 2 else " (the same on all three)"))
         g.create_dataset("region", data=np.asarray(db.region, dtype=object), dtype=h5py.string_dtype())
         if db.chips is not None:
             create_dataset(g, "chips", db.chips, compression="gzip")
@@ -63,7 +64,7 @@ def read_gcp_database(path: str | os.PathLike[str]) -> GcpDatabase:
             read_dataset(g, "lat", (n,)),
             read_dataset(g, "lon", (n,)),
             read_dataset(g, "height", (n,)),
-            read_dataset(g, "sigma_m", (n,)),
+            read_dataset(g, "sigma_m", (n, 3) if "sigma_m" in g and g["sigma_m"].ndim == 2 else (n,)),
             region,
             chips,
         )

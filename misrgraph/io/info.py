@@ -55,11 +55,14 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         g = read_gcp_database(path)
         regions, counts = np.unique(g.region, return_counts=True)
         out.update({"gcps": len(g), "regions": {str(r): int(c) for r, c in zip(regions, counts)},
-                    "has_chips": g.chips is not None, "has_truth": has_truth(path, "gcp_database")})
+                    "has_chips": g.chips is not None, "has_truth": has_truth(path, "gcp_database"),
+                    "sigma_m_median": (np.median(g.sigma_m, axis=0).tolist() if g.sigma_m.ndim == 2
+                                       else float(np.median(g.sigma_m))) if len(g) else None})
     elif kind == "dem":
         d = read_dem(path)
         out.update({"tiles": int(d.lat0.size), "postings_per_side": d.size, "posting_arcsec": d.posting_deg * 3600,
-                    "dted1_fraction": float(np.mean(d.quality == 1)) if d.lat0.size else 0.0})
+                    "dted1_fraction": float(np.mean(d.quality == 1)) if d.lat0.size else 0.0,
+                    "height_reference": _dem_height_reference(path)})
     elif kind == "projection_parameters":
         from misrgraph.io.products import read_pp
 
@@ -72,3 +75,9 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
 
         out.update(summarise_result_file(path, kind))
     return out
+
+
+def _dem_height_reference(path: str | os.PathLike[str]) -> str:
+    with open_h5(path, "dem") as f:
+        ref = f["tiles"].attrs.get("height_reference", "mean sea level")
+    return ref.decode() if isinstance(ref, bytes) else str(ref)

@@ -34,8 +34,9 @@ GCP_REGIONS: list[tuple[str, int, list[tuple[float, float, float, float]]]] = [
 
 @dataclass
 class GcpDatabase:
-    """GCPs: ``id (G,)``, ``lat, lon (G,)`` deg, ``height (G,)`` m ellipsoidal, ``sigma_m (G,)``
-    (1 sigma per ENU axis), ``region (G,)`` names, optional ``chips (G, 9, 64, 64)`` uint8."""
+    """GCPs: ``id (G,)``, ``lat, lon (G,)`` deg, ``height (G,)`` m ellipsoidal, ``sigma_m`` m: 1 sigma
+    on every ENU axis ``(G,)`` or per axis (east, north, up) ``(G, 3)``, ``region (G,)`` names,
+    optional ``chips (G, 9, 64, 64)`` uint8."""
 
     id: NDArray[np.int64]
     lat: Array
@@ -49,12 +50,12 @@ class GcpDatabase:
         g = np.asarray(self.id).size
         for name in ("lat", "lon", "height", "sigma_m"):
             arr = np.asarray(getattr(self, name), dtype=float)
-            if arr.shape != (g,):
-                raise InputError(f"gcp.{name}", arr.shape, f"shape ({g},)")
+            if arr.shape != (g,) and not (name == "sigma_m" and arr.shape == (g, 3)):
+                raise InputError(f"gcp.{name}", arr.shape, f"shape ({g},)" + (f" or ({g}, 3)" if name == "sigma_m" else ""))
             setattr(self, name, arr)
         if np.any(np.abs(self.lat) > 90):
             raise InputError("gcp.lat", float(self.lat[np.abs(self.lat) > 90][0]), "latitudes within -90..90 deg")
-        if np.any(self.sigma_m <= 0):
+        if not np.all(self.sigma_m > 0):  # NaN fails too
             raise InputError("gcp.sigma_m", float(self.sigma_m.min()), "positive metres")
         self.id = np.asarray(self.id, dtype=np.int64)
         self.region = np.asarray(self.region).astype(str)
@@ -70,4 +71,4 @@ class GcpDatabase:
 
     def covariance_ecef(self) -> Array:
         """Full ECEF covariance ``(G, 3, 3)`` from sigma per ENU axis: ``R diag(s^2) R^T``."""
-        return enu_covariance(np.radians(self.lat), np.radians(self.lon), self.sigma_m[:, None])
+        return enu_covariance(np.radians(self.lat), np.radians(self.lon), self.sigma_m if self.sigma_m.ndim == 2 else self.sigma_m[:, None])

@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from misrgraph.commands.cli import app
+from misrgraph.estimate.graph import build_pass_graph
 from misrgraph.estimate.incremental import IncrementalSolver, batch_solution
 from misrgraph.runs.update import load_state, run_update
 from misrgraph.sim.simulate import load_scenario
@@ -219,3 +220,23 @@ def test_update_cli(path_dir, tmp_path):
     assert "nees" in r and "checkpoint_geolocation_m" in r
     res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), "--report", "P999_O9999"])
     assert res.exit_code == 2 and "--report" in res.output
+
+
+def test_replay_in_one_update_builds_the_same_graphs(path_dir):
+    """A restart replays the state's passes in one update: each pass graph must come out as it did
+    pass by pass (landmarks seen before are not ray cast again; their line scale is evaluated at
+    the position the first pass gave them, whichever way the passes arrive)."""
+    sc = load_scenario(path_dir)
+    passes = [sc.load_pass(i) for i in range(3)]
+    one = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem)
+    for p in passes:
+        one.add_passes([p])
+    replay = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem)
+    replay.add_passes(passes)
+    for a, b in zip(one.graphs, replay.graphs):
+        np.testing.assert_array_equal(a.collinearity.const.along_scale, b.collinearity.const.along_scale)
+        assert a.problem.dims == b.problem.dims
+    # and later passes reuse the first pass's positions instead of a fresh ray cast of their own
+    fresh = build_pass_graph(passes[2], sc.camera_model, sc.dem, sc.gcps, one.cfg.graph_config(), pass_index=2,
+                             shared=set(one.graphs[0].problem.dims) | set(one.graphs[1].problem.dims))
+    assert not np.array_equal(fresh.collinearity.const.along_scale, one.graphs[2].collinearity.const.along_scale)

@@ -1,0 +1,390 @@
+"""Real inputs a calibration scientist brings: GCP lists (CSV, GeoJSON), DEM rasters and geoid
+grids (any raster GDAL reads, through rasterio).
+
+**GCP lists** (:func:`read_gcp_table`) become a :class:`~misrgraph.model.gcp.GcpDatabase`:
+
+* CSV with a header row. Columns (case-insensitive; the first alias found is used):
+  ``lat``/``latitude`` and ``lon``/``long``/``longitude`` (deg, WGS84); the height either as
+  ``height``/``height_m``/``ellipsoid_height`` (m above the WGS84 ellipsoid) or as
+  ``height_msl``/``elevation``/``orthometric_height`` (m above the geoid; needs ``geoid``);
+  the 1-sigma (m) as ``sigma_m`` (every ENU axis), ``sigma_h_m`` + ``sigma_v_m`` (horizontal on
+  east and north, vertical) or ``sigma_e_m`` + ``sigma_n_m`` + ``sigma_u_m``; optional ``id``
+  (whole numbers, unique; default the row number from 0) and ``region``. Without a sigma column
+  ``default_sigma_m`` applies (m, every axis); without either the import stops.
+* GeoJSON (RFC 7946): a FeatureCollection of Point features; ``coordinates`` are
+  ``[lon, lat]`` or ``[lon, lat, h]`` with ``h`` the height above the WGS84 ellipsoid (RFC 7946
+  section 4); ``properties`` may give ``id``, ``region``, the sigma columns above and a height
+  column (which wins over the third coordinate).
+
+**DEM rasters** (:func:`read_raster_dem`, needs rasterio): one or more rasters in any CRS are
+resampled (each posting transformed into the raster's CRS by PROJ, then bilinear in its pixel
+grid; a posting that falls on a raster posting takes its value) onto a geographic
+WGS84 grid of ``posting_arcsec`` postings aligned to whole multiples of the posting, so that a
+3" DTED or SRTM raster keeps its own postings and values, and cut into square tiles of
+``tile_postings`` postings overlapping by :data:`TILE_OVERLAP` (every point at least 3 postings
+inside one tile, as :meth:`~misrgraph.model.dem.DemTiles.tile_of` needs). Tiles with a no-data
+posting are left out: points there are "not covered". Heights above a geoid become ellipsoidal
+with ``geoid`` (``h = H + N``); the estimator's tools then use the zero geoid on the result.
+
+**Geoid grids** (:func:`read_geoid_grid`): a global raster of the undulation ``N`` (m) on a
+geographic grid, e.g. PROJ's ``us_nga_egm96_15.tif`` (EGM96 on a 15' grid, from
+https://cdn.proj.org), interpolated bilinearly (longitude wraps). No package on PyPI ships
+EGM96 data: ``egm96`` 0.1.0 is an empty placeholder.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.model.dem import DemTiles, Geoid
+from misrgraph.model.gcp import GcpDatabase
+
+__all__ = ["GeoidGrid", "read_gcp_table", "read_geoid_grid", "read_raster_dem", "TILE_OVERLAP"]
+
+Array = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+#: postings shared by neighbouring imported tiles (>= 2 x 3 + 1, tile_of's margin on both sides)
+TILE_OVERLAP = 8
+
+_ALIASES: dict[str, tuple[str, ...]] = {
+    "id": ("id", "gcp_id", "name_id"),
+    "lat": ("lat", "latitude"),
+    "lon": ("lon", "long", "longitude"),
+    "height": ("height", "height_m", "ellipsoid_height", "h"),
+    "height_msl": ("height_msl", "elevation", "orthometric_height"),
+    "sigma_m": ("sigma_m", "sigma"),
+    "sigma_h_m": ("sigma_h_m",),
+    "sigma_v_m": ("sigma_v_m",),
+    "sigma_e_m": ("sigma_e_m",),
+    "sigma_n_m": ("sigma_n_m",),
+    "sigma_u_m": ("sigma_u_m",),
+    "region": ("region",),
+}
+
+
+def _rasterio() -> Any:
+    try:
+        import rasterio
+    except ImportError as exc:  # pragma: no cover - rasterio is in the 'real' extra
+        raise InputError("rasterio", None, "the rasterio package: pip install 'misrgraph[real]'") from exc
+    return rasterio
+
+
+# ---------------------------------------------------------------------------------- GCP lists
+def _records_csv(path: Path) -> list[dict[str, Any]]:
+    try:
+        with open(path, newline="") as fh:
+            reader = csv.DictReader(row for row in fh if row.strip() and not row.lstrip().startswith("#"))
+            if reader.fieldnames is None:
+                raise FileFormatError(path, "no header row (expected columns lat, lon, height, sigma_m, ...)")
+            return [{(k or "").strip().lower(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
+                    for row in reader]
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise FileFormatError(path, f"cannot read as CSV: {exc}") from exc
+
+
+def _records_geojson(path: Path) -> list[dict[str, Any]]:
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FileFormatError(path, f"cannot read as GeoJSON: {exc}") from exc
+    if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection" or not isinstance(doc.get("features"), list):
+        raise FileFormatError(path, "expected a GeoJSON FeatureCollection with a 'features' list")
+    out = []
+    for i, feat in enumerate(doc["features"]):
+        geom = feat.get("geometry") if isinstance(feat, dict) else None
+        if not isinstance(geom, dict) or geom.get("type") != "Point":
+            raise InputError(f"{path.name}: features[{i}].geometry", geom and geom.get("type"), "a Point")
+        coords = geom.get("coordinates")
+        if not isinstance(coords, list) or len(coords) not in (2, 3):
+            raise InputError(f"{path.name}: features[{i}].geometry.coordinates", coords, "[lon, lat] or [lon, lat, h]")
+        rec = {str(k).lower(): v for k, v in (feat.get("properties") or {}).items()}
+        rec.setdefault("lon", coords[0])
+        rec.setdefault("lat", coords[1])
+        if len(coords) == 3 and not any(a in rec for a in _ALIASES["height"] + _ALIASES["height_msl"]):
+            rec["height"] = coords[2]  # RFC 7946: height above the WGS84 ellipsoid
+        out.append(rec)
+    return out
+
+
+def _column(records: list[dict[str, Any]], name: str) -> str | None:
+    """The alias of ``name`` every record has (None when no record has any)."""
+    for alias in _ALIASES[name]:
+        if any(alias in r and r[alias] not in (None, "") for r in records):
+            return alias
+    return None
+
+
+def _numbers(records: list[dict[str, Any]], alias: str, where: str, what: str) -> Array:
+    out = np.empty(len(records))
+    for i, r in enumerate(records):
+        v = r.get(alias)
+        try:
+            out[i] = float(v)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: row {i} ({'id ' + str(r['id']) + ', ' if r.get('id') not in (None, '') else ''}"
+                             f"column {alias})", v, what) from None
+        if not math.isfinite(out[i]):
+            raise InputError(f"{where}: row {i} (column {alias})", v, what)
+    return out
+
+
+def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None = None,
+                   geoid: Geoid | None = None) -> GcpDatabase:
+    """A GCP database from a CSV or GeoJSON list (module docstring for the columns).
+
+    ``default_sigma_m`` (m): the 1-sigma on every ENU axis where the file has no sigma column.
+    ``geoid``: needed when heights are given above the geoid (``height_msl``). Every bad value
+    is reported with its row and column.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FileFormatError(p, "no such file")
+    suffix = p.suffix.lower()
+    if suffix == ".csv":
+        records = _records_csv(p)
+    elif suffix in (".geojson", ".json"):
+        records = _records_geojson(p)
+    else:
+        raise InputError("GCP list", p.name, "a .csv or .geojson (.json) file")
+    if not records:
+        raise InputError(f"{p.name}", "no rows", "at least one GCP")
+    where = p.name
+    cols = {k: _column(records, k) for k in _ALIASES}
+    for need in ("lat", "lon"):
+        if cols[need] is None:
+            raise InputError(f"{where}: column {need}", sorted(records[0]), f"a column named one of {', '.join(_ALIASES[need])}")
+    lat = _numbers(records, cols["lat"], where, "a latitude in degrees")  # type: ignore[arg-type]
+    lon = _numbers(records, cols["lon"], where, "a longitude in degrees")  # type: ignore[arg-type]
+    bad = np.flatnonzero(np.abs(lat) > 90)
+    if bad.size:
+        raise InputError(f"{where}: row {bad[0]} (column {cols['lat']})", float(lat[bad[0]]), "a latitude within -90..90 deg")
+    lon = (lon + 180.0) % 360.0 - 180.0
+    if cols["height"] is not None:
+        height = _numbers(records, cols["height"], where, "a height in metres above the WGS84 ellipsoid")
+    elif cols["height_msl"] is not None:
+        if geoid is None:
+            raise InputError(f"{where}: column {cols['height_msl']}", "heights above the geoid",
+                             "a geoid to make them ellipsoidal (--geoid GRID), or an ellipsoidal 'height' column")
+        height = _numbers(records, cols["height_msl"], where, "a height in metres above the geoid")
+        height = height + geoid.undulation(lat, lon)
+    else:
+        raise InputError(f"{where}: column height", sorted(records[0]),
+                         "a height column (height: m above the WGS84 ellipsoid, or height_msl with a geoid)")
+    n = lat.size
+    if cols["sigma_e_m"] and cols["sigma_n_m"] and cols["sigma_u_m"]:
+        sigma = np.stack([_numbers(records, cols[c], where, "a positive 1-sigma in metres")  # type: ignore[arg-type]
+                          for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m")], axis=1)
+    elif cols["sigma_h_m"] and cols["sigma_v_m"]:
+        h = _numbers(records, cols["sigma_h_m"], where, "a positive 1-sigma in metres")
+        v = _numbers(records, cols["sigma_v_m"], where, "a positive 1-sigma in metres")
+        sigma = np.stack([h, h, v], axis=1)
+    elif cols["sigma_m"]:
+        sigma = _numbers(records, cols["sigma_m"], where, "a positive 1-sigma in metres")
+    elif default_sigma_m is not None:
+        if not (default_sigma_m > 0 and math.isfinite(default_sigma_m)):
+            raise InputError("default_sigma_m", default_sigma_m, "a positive number of metres")
+        sigma = np.full(n, float(default_sigma_m))
+    else:
+        raise InputError(f"{where}: column sigma_m", sorted(records[0]),
+                         "a sigma column (sigma_m, sigma_h_m + sigma_v_m or sigma_e_m + sigma_n_m + sigma_u_m) "
+                         "or a default sigma (--sigma-m)")
+    bad = np.flatnonzero(~np.all(np.reshape(sigma, (n, -1)) > 0, axis=1))
+    if bad.size:
+        raise InputError(f"{where}: row {bad[0]} (sigma)", np.reshape(sigma, (n, -1))[bad[0]].tolist(), "positive metres")
+    if cols["id"] is not None:
+        raw = _numbers(records, cols["id"], where, "a whole number")
+        if not np.all(raw == np.round(raw)):
+            i = int(np.flatnonzero(raw != np.round(raw))[0])
+            raise InputError(f"{where}: row {i} (column {cols['id']})", float(raw[i]), "a whole number")
+        ids = raw.astype(np.int64)
+        u, counts = np.unique(ids, return_counts=True)
+        if np.any(counts > 1):
+            raise InputError(f"{where}: column {cols['id']}", int(u[counts > 1][0]), "unique ids (this one repeats)")
+    else:
+        ids = np.arange(n, dtype=np.int64)
+    region = np.array([str(r.get(cols["region"], "") or "") if cols["region"] else "" for r in records])
+    log.info("%s: %d GCPs", where, n)
+    return GcpDatabase(ids, lat, lon, height, sigma, region)
+
+
+# -------------------------------------------------------------------------------- geoid grids
+@dataclass
+class GeoidGrid:
+    """Bilinear interpolation of a global geographic grid of geoid undulation ``N`` (m):
+    ``lat (R,)`` ascending deg, ``lon (C,)`` ascending deg covering 360 deg (the first column is
+    repeated 360 deg east internally), ``values (R, C)`` m. Callable as ``N(lat, lon)``."""
+
+    lat: Array
+    lon: Array
+    values: Array
+
+    def __call__(self, lat: ArrayLike, lon: ArrayLike) -> Array:
+        la = np.asarray(lat, float)
+        lo = np.asarray(lon, float)
+        shape = np.broadcast(la, lo).shape
+        la, lo = np.broadcast_to(la, shape).ravel(), np.broadcast_to(lo, shape).ravel()
+        lon_ext = np.r_[self.lon, self.lon[0] + 360.0]
+        val = np.c_[self.values, self.values[:, :1]]
+        x = (lo - self.lon[0]) % 360.0 + self.lon[0]
+        j = np.clip(np.searchsorted(lon_ext, x, side="right") - 1, 0, lon_ext.size - 2)
+        i = np.clip(np.searchsorted(self.lat, la, side="right") - 1, 0, self.lat.size - 2)
+        u = np.clip((la - self.lat[i]) / (self.lat[i + 1] - self.lat[i]), 0.0, 1.0)
+        v = (x - lon_ext[j]) / (lon_ext[j + 1] - lon_ext[j])
+        out = ((1 - u) * (1 - v) * val[i, j] + (1 - u) * v * val[i, j + 1]
+               + u * (1 - v) * val[i + 1, j] + u * v * val[i + 1, j + 1])
+        return out.reshape(shape)
+
+
+def read_geoid_grid(path: str | os.PathLike[str]) -> Geoid:
+    """A :class:`~misrgraph.model.dem.Geoid` from a global raster of undulation (m) on a
+    geographic grid covering every longitude (e.g. ``us_nga_egm96_15.tif``; module docstring)."""
+    rio = _rasterio()
+    p = Path(path)
+    if not p.is_file():
+        raise FileFormatError(p, "no such file (a geoid grid, e.g. us_nga_egm96_15.tif from https://cdn.proj.org)")
+    try:
+        with rio.open(p) as ds:
+            if ds.crs is None or not ds.crs.is_geographic:
+                raise InputError(f"{p.name}: CRS", str(ds.crs), "a geographic (lat/lon) CRS for a geoid grid")
+            z = ds.read(1, masked=True).astype(float).filled(np.nan)
+            t = ds.transform
+            if t.b != 0 or t.d != 0:
+                raise InputError(f"{p.name}: transform", tuple(t)[:6], "a north-up grid (no rotation)")
+            cols = t.c + (np.arange(ds.width) + 0.5) * t.a
+            rows = t.f + (np.arange(ds.height) + 0.5) * t.e
+    except rio.errors.RasterioIOError as exc:
+        raise FileFormatError(p, f"cannot read as a raster: {exc}") from exc
+    if not np.all(np.isfinite(z)):
+        raise InputError(f"{p.name}: values", "no-data postings", "a complete grid")
+    span = ds.width * abs(t.a)
+    if span < 360.0 - 1e-6:
+        raise InputError(f"{p.name}: longitude span", round(span, 6), "a global grid covering 360 deg of longitude")
+    # pixel-is-point grids (GDAL marks them AREA_OR_POINT=Point) put postings on the cell corners
+    if str(ds.tags().get("AREA_OR_POINT", "Area")).lower() == "point":
+        cols, rows = cols - 0.5 * t.a, rows - 0.5 * t.e
+    order = np.argsort(rows)
+    lon = (cols + 180.0) % 360.0 - 180.0
+    lo = np.argsort(lon)
+    keep = np.r_[True, np.diff(lon[lo]) > 1e-9]  # a grid with both -180 and 180 holds one column twice
+    grid = GeoidGrid(rows[order], lon[lo][keep], z[order][:, lo[keep]])
+    return Geoid("function", function=grid)
+
+
+# -------------------------------------------------------------------------------- DEM rasters
+def _bilinear(z: Array, r: Array, c: Array) -> Array:
+    """Bilinear interpolation of ``z (R, C)`` at fractional pixel-centre indices ``r, c``; NaN
+    where a neighbour with a non-zero weight is no-data (NaN) or outside the raster. A point on a
+    posting takes that posting's value whatever its neighbours hold."""
+    r = np.where(np.abs(r - np.round(r)) < 1e-6, np.round(r), r)  # on a posting, to round-off
+    c = np.where(np.abs(c - np.round(c)) < 1e-6, np.round(c), c)
+    r0, c0 = np.floor(r).astype(np.int64), np.floor(c).astype(np.int64)
+    fr, fc = r - r0, c - c0
+    out = np.zeros(r.shape)
+    for dr, wr in ((0, 1.0 - fr), (1, fr)):
+        for dc, wc in ((0, 1.0 - fc), (1, fc)):
+            w = wr * wc
+            rr, cc = r0 + dr, c0 + dc
+            inside = (rr >= 0) & (rr < z.shape[0]) & (cc >= 0) & (cc < z.shape[1])
+            v = z[np.clip(rr, 0, z.shape[0] - 1), np.clip(cc, 0, z.shape[1] - 1)]
+            v = np.where(inside, v, np.nan)
+            out = out + np.where(w > 0, w * v, 0.0)
+    return out
+
+
+def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: float = 3.0, tile_postings: int = 1201,
+                    quality: int = 1, geoid: Geoid | None = None) -> DemTiles:
+    """DEM tiles from rasters of height (m) in any CRS GDAL reads (module docstring).
+
+    ``posting_arcsec``: the output grid's posting in latitude and longitude (arc seconds);
+    ``tile_postings``: postings per tile side (>= 32); ``quality``: the DEM's accuracy class for
+    every tile (:data:`misrgraph.model.dem.QUALITY_SIGMA_M`); ``geoid``: makes heights above the
+    geoid ellipsoidal (None: the raster's heights are used as they are).
+    """
+    rio = _rasterio()
+    from pyproj import Transformer
+    from rasterio.warp import transform_bounds
+
+    if not paths:
+        raise InputError("DEM rasters", [], "at least one raster file")
+    if not (posting_arcsec > 0 and math.isfinite(posting_arcsec)):
+        raise InputError("posting_arcsec", posting_arcsec, "a positive number of arc seconds")
+    if not (isinstance(tile_postings, int) and tile_postings >= 32):
+        raise InputError("tile_postings", tile_postings, "a whole number of postings >= 32")
+    post = posting_arcsec / 3600.0
+    step = tile_postings - TILE_OVERLAP
+    lat0s, lon0s, tiles = [], [], []
+    dropped = 0
+    for path in paths:
+        p = Path(path)
+        if not p.is_file():
+            raise FileFormatError(p, "no such file")
+        try:
+            ds = rio.open(p)
+        except rio.errors.RasterioIOError as exc:
+            raise FileFormatError(p, f"cannot read as a raster: {exc}") from exc
+        with ds:
+            if ds.crs is None:
+                raise InputError(f"{p.name}: CRS", None, "a raster with a coordinate reference system")
+            west, south, east, north = transform_bounds(ds.crs, "EPSG:4326", *ds.bounds, densify_pts=21)
+            if east < west:
+                raise InputError(f"{p.name}: bounds", (west, east), "a raster that does not cross the antimeridian")
+            z = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
+            inverse = ~ds.transform
+            crs = ds.crs
+        # postings on whole multiples of the posting inside the raster's bounds
+        i0, i1 = math.ceil(south / post - 1e-6), math.floor(north / post + 1e-6)
+        j0, j1 = math.ceil(west / post - 1e-6), math.floor(east / post + 1e-6)
+        n_rows, n_cols = i1 - i0 + 1, j1 - j0 + 1
+        if n_rows < tile_postings or n_cols < tile_postings:
+            raise InputError(f"{p.name}: size on the {posting_arcsec:g}\" grid", (n_rows, n_cols),
+                             f"at least {tile_postings} x {tile_postings} postings (tile_postings)")
+        lat_axis = np.arange(i0, i1 + 1) * post
+        lon_axis = np.arange(j0, j1 + 1) * post
+        # each posting in the raster's CRS (PROJ, exact), then bilinear in its pixel grid
+        lon_g, lat_g = np.meshgrid(lon_axis, lat_axis)
+        if crs.to_epsg() == 4326:
+            x, y = lon_g, lat_g
+        else:
+            x, y = Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon_g, lat_g)
+        ia, ib, ic, id_, ie, if_ = tuple(inverse)[:6]
+        col = ia * np.asarray(x) + ib * np.asarray(y) + ic
+        row = id_ * np.asarray(x) + ie * np.asarray(y) + if_
+        grid = _bilinear(z, np.asarray(row) - 0.5, np.asarray(col) - 0.5)
+        if geoid is not None:
+            grid = grid + geoid.undulation(lat_axis[:, None], lon_axis[None, :])
+        starts_r = list(range(0, n_rows - tile_postings + 1, step))
+        starts_c = list(range(0, n_cols - tile_postings + 1, step))
+        if starts_r[-1] != n_rows - tile_postings:
+            starts_r.append(n_rows - tile_postings)
+        if starts_c[-1] != n_cols - tile_postings:
+            starts_c.append(n_cols - tile_postings)
+        for r in starts_r:
+            for c in starts_c:
+                t = grid[r:r + tile_postings, c:c + tile_postings]
+                if not np.all(np.isfinite(t)):
+                    dropped += 1
+                    continue
+                lat0s.append(lat_axis[r])
+                lon0s.append(lon_axis[c])
+                tiles.append(t)
+        log.info("%s: %d x %d postings at %g\"", p.name, n_rows, n_cols, posting_arcsec)
+    if dropped:
+        log.warning("%d DEM tiles with no-data postings left out (points there are not covered)", dropped)
+    if not tiles:
+        raise InputError("DEM rasters", [str(p) for p in paths], "a tile of postings without no-data values")
+    heights = np.stack(tiles)
+    return DemTiles(np.array(lat0s), (np.array(lon0s) + 180.0) % 360.0 - 180.0, heights,
+                    np.ones(heights.shape, np.uint8), np.full(len(tiles), int(quality), np.int64), post)
