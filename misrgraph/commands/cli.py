@@ -519,7 +519,8 @@ def campaign(
 @app.command()
 @handle_errors
 def products(
-    scenario_dir: Path = typer.Argument(..., help="A scenario directory (misrgraph simulate)."),
+    scenario_dir: Path = typer.Argument(..., help="A scenario directory (misrgraph simulate), or an update state "
+                                                   "(misrgraph update; PP of its passes from the current estimate)."),
     out: Path = typer.Option(..., "--out", help="Output directory for PP_<pass id>.h5 and products.json."),
     blocks: Optional[str] = typer.Option(None, "--blocks", help="SOM blocks A-B (inclusive, 1..180); default 10 around the pass's features."),
     pass_file: Optional[Path] = typer.Option(None, "--pass", help="The pass (default: the scenario's first)."),
@@ -528,7 +529,8 @@ def products(
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Projection Parameters of an adjusted pass on its path's 1.1 km SOM grid, with their 1 sigma
-    (the pass is adjusted on the way); scored against the simulator's truth when the pass has it."""
+    (the pass is adjusted on the way; from an update state, every pass of the state from its
+    current estimate); scored against the simulator's truth when the pass has it."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from misrgraph.runs.products import run_products
@@ -545,18 +547,20 @@ def products(
     if as_json:
         _print_json(res)
         return
-    console.print(f"PP of pass {res['pass_id']}, path {res['path']}, blocks {res['blocks'][0]}-{res['blocks'][1]} "
-                  f"-> {res['files']['pp']} ({res['seconds']['total']:.0f} s)")
-    table = Table(title="geolocation of the PP (m)")
-    for col in ("camera", "seen", "median 1 sigma", "RMS vs truth", "predicted RMS", "NEES"):
-        table.add_column(col, justify="right")
-    err = res.get("pp_error_m", {})
-    for cam, frac in res["fraction_seen"].items():
-        e = err.get(cam, {})
-        sig = res["sigma_m_median"][cam]
-        table.add_row(cam, f"{frac:.0%}", "-" if sig is None else f"{sig:.1f}",
-                      *([f"{e['rms']:.1f}", f"{e['predicted_rms']:.1f}", f"{e['nees']:.2f}"] if e else ["-"] * 3))
-    console.print(table)
+    for one in res.get("passes", [res]):
+        console.print(f"PP of pass {one['pass_id']}, path {res['path']}, blocks {res['blocks'][0]}-{res['blocks'][1]} "
+                      f"-> {one['files']['pp']}")
+        table = Table(title="geolocation of the PP (m)")
+        for col in ("camera", "seen", "median 1 sigma", "RMS vs truth", "predicted RMS", "NEES"):
+            table.add_column(col, justify="right")
+        err = one.get("pp_error_m", {})
+        for cam, frac in one["fraction_seen"].items():
+            e = err.get(cam, {})
+            sig = one["sigma_m_median"][cam]
+            table.add_row(cam, f"{frac:.0%}", "-" if sig is None else f"{sig:.1f}",
+                          *([f"{e['rms']:.1f}", f"{e['predicted_rms']:.1f}", f"{e['nees']:.2f}"] if e else ["-"] * 3))
+        console.print(table)
+    console.print(f"{res['seconds']['total']:.0f} s")
 
 
 som_app = typer.Typer(help="MISR space: a path's SOM grid and blocks, and orbit <-> path <-> time.", no_args_is_help=True)

@@ -265,15 +265,16 @@ def read_geoid_grid(path: str | os.PathLike[str]) -> Geoid:
                 raise InputError(f"{p.name}: transform", tuple(t)[:6], "a north-up grid (no rotation)")
             cols = t.c + (np.arange(ds.width) + 0.5) * t.a
             rows = t.f + (np.arange(ds.height) + 0.5) * t.e
+            span = ds.width * abs(t.a)
+            point = str(ds.tags().get("AREA_OR_POINT", "Area")).lower() == "point"
     except rio.errors.RasterioIOError as exc:
         raise FileFormatError(p, f"cannot read as a raster: {exc}") from exc
     if not np.all(np.isfinite(z)):
         raise InputError(f"{p.name}: values", "no-data postings", "a complete grid")
-    span = ds.width * abs(t.a)
     if span < 360.0 - 1e-6:
         raise InputError(f"{p.name}: longitude span", round(span, 6), "a global grid covering 360 deg of longitude")
     # pixel-is-point grids (GDAL marks them AREA_OR_POINT=Point) put postings on the cell corners
-    if str(ds.tags().get("AREA_OR_POINT", "Area")).lower() == "point":
+    if point:
         cols, rows = cols - 0.5 * t.a, rows - 0.5 * t.e
     order = np.argsort(rows)
     lon = (cols + 180.0) % 360.0 - 180.0

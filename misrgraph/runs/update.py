@@ -54,7 +54,7 @@ from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, ARCSEC
 from misrgraph.model.nominal import MODEL_NAMES
 
-__all__ = ["run_update", "load_state", "State"]
+__all__ = ["run_update", "load_state", "restore_state", "State"]
 
 log = logging.getLogger(__name__)
 
@@ -242,6 +242,59 @@ def _load_estimate(path: Path) -> gtsam.Values:
     return out
 
 
+def _restore(d: Path, meta: dict[str, Any], linearization_tol: float | None,
+             progress: Callable[[str], None] | None) -> tuple[IncrementalSolver, CameraModel, list[Path]]:
+    """The solver of a state with its passes replayed (warm from the saved estimate, one update),
+    its camera model and its pass files; the inputs are checked against the state's digests."""
+    for key in _INPUTS:  # the inputs must be the ones the state was built on
+        if meta.get(key) is None:
+            continue
+        if not _is_builtin(key, meta[key]) and not Path(meta[key]).is_file():
+            raise InputError(key, meta[key], "the file this state was created with (it is missing)")
+        now = _input_sha256(meta[key], key)
+        if now != meta["input_sha256"][key]:
+            raise InputError(key, meta[key], f"the input this state was created with (SHA-256 "
+                                             f"{meta['input_sha256'][key][:12]}...; it is now {now[:12]}...: restore it "
+                                             "or start a new state)")
+    cfg = AdjustConfig.from_dict({k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()})
+    camera = load_camera_model(meta["camera_model"])
+    if not isinstance(camera, CameraModel):
+        raise InputError("--camera-model", meta["camera_model"], "a single-temperature camera model (not a temperature table)")
+    gcps = read_gcp_database(meta["gcps"])
+    dem = read_dem(meta["dem"]) if meta.get("dem") else None
+    solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol)
+    # replay the state (warm start from the saved estimate), in one update
+    files = [_checked_file(d, p) for p in meta["passes"]]
+    old = [OrbitPass.load(f) for f in files]
+    for p, entry in zip(old, meta["passes"]):
+        if p.pass_id != entry["pass_id"]:
+            raise FileFormatError(d / entry["file"], f"holds pass {p.pass_id!r}; state.json says {entry['pass_id']!r}")
+    if old:
+        if progress:
+            progress(f"restoring {len(old)} passes")
+        excl = []
+        for p, entry in zip(old, meta["passes"]):
+            e = np.zeros(len(p.observations), bool)
+            e[np.asarray(entry.get("rejected_indices", []), dtype=np.int64)] = True
+            excl.append(e)
+        warm = _load_estimate(_checked_file(d, meta["estimate"])) if meta["estimate"] else gtsam.Values()
+        solver.add_passes(old, excl, warm)
+    return solver, camera, files
+
+
+def restore_state(state_dir: str | os.PathLike[str], progress: Callable[[str], None] | None = None
+                  ) -> tuple[IncrementalSolver, CameraModel, list[Path]]:
+    """Read-only: the solver of the update state in ``state_dir`` with every pass replayed, its
+    camera model and its (digest-checked) pass files, for products and reports."""
+    d = Path(state_dir)
+    if not (d / "state.json").is_file():
+        raise InputError("STATE_DIR", str(d), "a directory written by 'misrgraph update' (it holds state.json)")
+    with _state_lock(d):
+        state = load_state(d)
+        assert state is not None
+        return _restore(d, state.meta, None, progress)
+
+
 def run_update(
     state_dir: str | os.PathLike[str],
     new_passes: list[str | os.PathLike[str]],
@@ -292,39 +345,7 @@ def _run_update_locked(
                 "config": dataclasses.asdict(cfg), "estimate": None, "passes": []}
         state = State(d, meta)
     meta = state.meta
-    for key in _INPUTS:  # the inputs must be the ones the state was built on
-        if meta.get(key) is None:
-            continue
-        if not _is_builtin(key, meta[key]) and not Path(meta[key]).is_file():
-            raise InputError(key, meta[key], "the file this state was created with (it is missing)")
-        now = _input_sha256(meta[key], key)
-        if now != meta["input_sha256"][key]:
-            raise InputError(key, meta[key], f"the input this state was created with (SHA-256 "
-                                             f"{meta['input_sha256'][key][:12]}...; it is now {now[:12]}...: restore it "
-                                             "or start a new state)")
-    cfg = AdjustConfig.from_dict({k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()})
-    camera = load_camera_model(meta["camera_model"])
-    if not isinstance(camera, CameraModel):
-        raise InputError("--camera-model", meta["camera_model"], "a single-temperature camera model (not a temperature table)")
-    gcps = read_gcp_database(meta["gcps"])
-    dem = read_dem(meta["dem"]) if meta.get("dem") else None
-    solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol)
-    # replay the state (warm start from the saved estimate), in one update
-    files = [_checked_file(d, p) for p in meta["passes"]]
-    old = [OrbitPass.load(f) for f in files]
-    for p, entry in zip(old, meta["passes"]):
-        if p.pass_id != entry["pass_id"]:
-            raise FileFormatError(d / entry["file"], f"holds pass {p.pass_id!r}; state.json says {entry['pass_id']!r}")
-    if old:
-        if progress:
-            progress(f"restoring {len(old)} passes")
-        excl = []
-        for p, entry in zip(old, meta["passes"]):
-            e = np.zeros(len(p.observations), bool)
-            e[np.asarray(entry.get("rejected_indices", []), dtype=np.int64)] = True
-            excl.append(e)
-        warm = _load_estimate(_checked_file(d, meta["estimate"])) if meta["estimate"] else gtsam.Values()
-        solver.add_passes(old, excl, warm)
+    solver, camera, files = _restore(d, meta, linearization_tol, progress)
     summaries = []
     added = []
     for f in new_passes:
@@ -334,7 +355,7 @@ def _run_update_locked(
             continue
         if progress:
             progress(f"pass {p.pass_id}: blunder screening")
-        rejected, norms = find_blunders(p, camera, dem, gcps, cfg)
+        rejected, norms = find_blunders(p, camera, solver.dem, solver.gcps, solver.cfg)
         if progress:
             progress(f"pass {p.pass_id}: iSAM2 update")
         seconds = solver.add_passes([p], [rejected])
