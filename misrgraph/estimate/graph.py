@@ -11,8 +11,8 @@ Check points (kind 2) are never put in the graph.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import gtsam

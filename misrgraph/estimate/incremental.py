@@ -98,6 +98,8 @@ DEFAULT_SETTLE_AFTER = 3
 
 #: Key letters of the variables shared between passes (eliminated last).
 _SHARED_LETTERS = frozenset(ord(c) for c in (K.LANDMARK, K.GCP, K.CAMERA, K.OMEGA))
+#: Key letters of ground points (tie points and GCPs).
+_POINT_LETTERS = frozenset(ord(c) for c in (K.LANDMARK, K.GCP))
 
 #: The factor families whose residuals are nonlinear (priors are linear and never go stale).
 _NONLINEAR = tuple(f for f in FlatProblem.FAMILIES if f != "priors")
@@ -171,7 +173,7 @@ class IncrementalSolver:
                               shared=self.owned, exclude_observations=exclude, known_landmarks=self._first_position)
         for k in pg.problem.initial.keys():
             self.owned.add(int(k))
-            if gtsam.Symbol(int(k)).chr() in (ord(K.LANDMARK), ord(K.GCP)):
+            if gtsam.Symbol(int(k)).chr() in _POINT_LETTERS:
                 self._first_position[int(k)] = pg.problem.initial.atVector(int(k))
         return pg
 

@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.model.dem import DemTiles, Geoid
+from misrgraph.model.dem import DemTiles, Geoid, wrap_deg
 from misrgraph.model.gcp import GcpDatabase
 
 __all__ = ["GeoidGrid", "read_gcp_table", "read_geoid_grid", "read_raster_dem", "TILE_OVERLAP"]
@@ -120,7 +120,8 @@ def _records_geojson(path: Path) -> list[dict[str, Any]]:
 
 
 def _column(records: list[dict[str, Any]], name: str) -> str | None:
-    """The alias of ``name`` every record has (None when no record has any)."""
+    """The first alias of ``name`` that some record fills (None when none does); a record that
+    lacks it is reported by :func:`_numbers`."""
     for alias in _ALIASES[name]:
         if any(alias in r and r[alias] not in (None, "") for r in records):
             return alias
@@ -134,10 +135,10 @@ def _numbers(records: list[dict[str, Any]], alias: str, where: str, what: str) -
         try:
             out[i] = float(v)  # type: ignore[arg-type]
         except (TypeError, ValueError):
-            raise InputError(f"{where}: row {i} ({'id ' + str(r['id']) + ', ' if r.get('id') not in (None, '') else ''}"
-                             f"column {alias})", v, what) from None
+            out[i] = np.nan
         if not math.isfinite(out[i]):
-            raise InputError(f"{where}: row {i} (column {alias})", v, what)
+            ident = f"id {r['id']}, " if r.get("id") not in (None, "") else ""
+            raise InputError(f"{where}: row {i} ({ident}column {alias})", v, what)
     return out
 
 
@@ -171,7 +172,7 @@ def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None =
     bad = np.flatnonzero(np.abs(lat) > 90)
     if bad.size:
         raise InputError(f"{where}: row {bad[0]} (column {cols['lat']})", float(lat[bad[0]]), "a latitude within -90..90 deg")
-    lon = (lon + 180.0) % 360.0 - 180.0
+    lon = wrap_deg(lon)
     if cols["height"] is not None:
         height = _numbers(records, cols["height"], where, "a height in metres above the WGS84 ellipsoid")
     elif cols["height_msl"] is not None:
@@ -232,20 +233,12 @@ class GeoidGrid:
     values: Array
 
     def __call__(self, lat: ArrayLike, lon: ArrayLike) -> Array:
-        la = np.asarray(lat, float)
-        lo = np.asarray(lon, float)
-        shape = np.broadcast(la, lo).shape
-        la, lo = np.broadcast_to(la, shape).ravel(), np.broadcast_to(lo, shape).ravel()
+        la, lo = np.broadcast_arrays(np.asarray(lat, float), np.asarray(lon, float))
         lon_ext = np.r_[self.lon, self.lon[0] + 360.0]
-        val = np.c_[self.values, self.values[:, :1]]
-        x = (lo - self.lon[0]) % 360.0 + self.lon[0]
-        j = np.clip(np.searchsorted(lon_ext, x, side="right") - 1, 0, lon_ext.size - 2)
-        i = np.clip(np.searchsorted(self.lat, la, side="right") - 1, 0, self.lat.size - 2)
-        u = np.clip((la - self.lat[i]) / (self.lat[i + 1] - self.lat[i]), 0.0, 1.0)
-        v = (x - lon_ext[j]) / (lon_ext[j + 1] - lon_ext[j])
-        out = ((1 - u) * (1 - v) * val[i, j] + (1 - u) * v * val[i, j + 1]
-               + u * (1 - v) * val[i + 1, j] + u * v * val[i + 1, j + 1])
-        return out.reshape(shape)
+        # fractional grid indices (latitude clamped to the grid's first and last rows)
+        r = np.interp(la, self.lat, np.arange(self.lat.size))
+        c = np.interp((lo - self.lon[0]) % 360.0 + self.lon[0], lon_ext, np.arange(lon_ext.size))
+        return _bilinear(np.c_[self.values, self.values[:, :1]], r, c)
 
 
 def read_geoid_grid(path: str | os.PathLike[str]) -> Geoid:
@@ -277,7 +270,7 @@ def read_geoid_grid(path: str | os.PathLike[str]) -> Geoid:
     if point:
         cols, rows = cols - 0.5 * t.a, rows - 0.5 * t.e
     order = np.argsort(rows)
-    lon = (cols + 180.0) % 360.0 - 180.0
+    lon = wrap_deg(cols)
     lo = np.argsort(lon)
     keep = np.r_[True, np.diff(lon[lo]) > 1e-9]  # a grid with both -180 and 180 holds one column twice
     grid = GeoidGrid(rows[order], lon[lo][keep], z[order][:, lo[keep]])
@@ -305,6 +298,15 @@ def _bilinear(z: Array, r: Array, c: Array) -> Array:
     return out
 
 
+def _tile_starts(n: int, size: int) -> list[int]:
+    """First postings of tiles of ``size`` covering ``n`` postings, overlapping by at least
+    :data:`TILE_OVERLAP` (the last tile ends on the last posting)."""
+    starts = list(range(0, n - size + 1, size - TILE_OVERLAP))
+    if starts[-1] != n - size:
+        starts.append(n - size)
+    return starts
+
+
 def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: float = 3.0, tile_postings: int = 1201,
                     quality: int = 1, geoid: Geoid | None = None) -> DemTiles:
     """DEM tiles from rasters of height (m) in any CRS GDAL reads (module docstring).
@@ -325,7 +327,6 @@ def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: flo
     if not (isinstance(tile_postings, int) and tile_postings >= 32):
         raise InputError("tile_postings", tile_postings, "a whole number of postings >= 32")
     post = posting_arcsec / 3600.0
-    step = tile_postings - TILE_OVERLAP
     lat0s, lon0s, tiles = [], [], []
     dropped = 0
     for path in paths:
@@ -366,14 +367,8 @@ def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: flo
         grid = _bilinear(z, np.asarray(row) - 0.5, np.asarray(col) - 0.5)
         if geoid is not None:
             grid = grid + geoid.undulation(lat_axis[:, None], lon_axis[None, :])
-        starts_r = list(range(0, n_rows - tile_postings + 1, step))
-        starts_c = list(range(0, n_cols - tile_postings + 1, step))
-        if starts_r[-1] != n_rows - tile_postings:
-            starts_r.append(n_rows - tile_postings)
-        if starts_c[-1] != n_cols - tile_postings:
-            starts_c.append(n_cols - tile_postings)
-        for r in starts_r:
-            for c in starts_c:
+        for r in _tile_starts(n_rows, tile_postings):
+            for c in _tile_starts(n_cols, tile_postings):
                 t = grid[r:r + tile_postings, c:c + tile_postings]
                 if not np.all(np.isfinite(t)):
                     dropped += 1
@@ -387,5 +382,5 @@ def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: flo
     if not tiles:
         raise InputError("DEM rasters", [str(p) for p in paths], "a tile of postings without no-data values")
     heights = np.stack(tiles)
-    return DemTiles(np.array(lat0s), (np.array(lon0s) + 180.0) % 360.0 - 180.0, heights,
+    return DemTiles(np.array(lat0s), wrap_deg(np.array(lon0s)), heights,
                     np.ones(heights.shape, np.uint8), np.full(len(tiles), int(quality), np.int64), post)

@@ -4,8 +4,10 @@
 The pass is adjusted on the way (:func:`misrgraph.estimate.adjust.adjust_pass`; the PP need the
 joint posterior of the navigation variables, which RESULT.h5 keeps only per angle), then
 :func:`misrgraph.products.pp.compute_pp` maps the chosen blocks, and a pass with the simulator's
-truth is scored (:func:`misrgraph.evaluate.products.score_pp`). Reference Orbit Imagery needs
-imagery, which the simulator does not render yet: it is not produced.
+truth is scored (:func:`misrgraph.evaluate.products.score_pp`). From an incremental update state,
+every pass gets its PP from the state's estimate instead. Reference Orbit Imagery needs
+whole-block imagery, which the simulator does not render yet (:data:`ROI_NOTE`): it is not
+produced.
 """
 
 from __future__ import annotations
@@ -35,6 +37,9 @@ from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.products.pp import compute_pp
 
 __all__ = ["run_products", "parse_blocks", "DEFAULT_BLOCKS"]
+
+#: Why the summaries carry ``"roi": null``.
+ROI_NOTE = "ROI not produced: the simulator renders image windows around features, not whole blocks"
 
 #: Blocks mapped when ``--blocks`` is not given: this many, centred on the pass's features.
 DEFAULT_BLOCKS = 10
@@ -99,40 +104,53 @@ def run_products(
     grid = SomGrid(int(orbit_pass.path), 1100)
     cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
-    out_dir = Path(out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("--out", str(out_dir), "a directory (created if missing)")
+    out_dir = _out_dir(out)
     if progress:
         progress("adjusting the pass", 0, 1)
     t0 = time.perf_counter()
     res = adjust_pass(orbit_pass, camera, read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5"), cfg)
     t_adjust = time.perf_counter() - t0
     chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
-    t0 = time.perf_counter()
-    pp = compute_pp(orbit_pass, res, grid.path, chosen, band=band, progress=progress)
-    t_pp = time.perf_counter() - t0
-    pp.provenance = {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
-                     "software": f"misrgraph {__version__}", "solver_status": res.status}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    pp_file = out_dir / f"PP_{orbit_pass.pass_id}.h5"
-    save_pp(pp, pp_file)
-    summary: dict[str, Any] = {
-        "path": grid.path, "pass_id": orbit_pass.pass_id, "band": band,
-        "blocks": [int(chosen.min()), int(chosen.max())],
-        "files": {"pp": str(pp_file)},
-        **pp.coverage(),
-        "roi": None,
-        "notes": ["ROI not produced: the simulator renders no imagery yet"],
-    }
-    truth = read_pass_truth(pass_file)
-    if truth is not None:
-        t0 = time.perf_counter()
-        summary.update(score_pp(pp, orbit_pass, truth, supplied_camera=camera))
-        summary["seconds_scoring"] = time.perf_counter() - t0
+    provenance = {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
+                  "software": f"misrgraph {__version__}", "solver_status": res.status}
+    row, t_pp = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, pass_file, camera, progress)
+    summary: dict[str, Any] = {"path": grid.path, "band": band, "blocks": [int(chosen.min()), int(chosen.max())], **row,
+                               "roi": None, "notes": [ROI_NOTE]}
     summary["seconds"] = {"adjust": t_adjust, "pp": t_pp, "total": time.perf_counter() - t_start}
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
     return summary
+
+
+def _out_dir(out: str | os.PathLike[str]) -> Path:
+    """``--out`` as a directory (created when the first PP is written); an existing file there
+    is refused."""
+    out_dir = Path(out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("--out", str(out_dir), "a directory (created if missing)")
+    return out_dir
+
+
+def _pass_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, chosen: np.ndarray, band: str, out_dir: Path,
+             provenance: dict[str, Any], pass_file: str | os.PathLike[str], camera: Any,
+             progress: Callable[[str, int, int], None] | None) -> tuple[dict[str, Any], float]:
+    """Compute and write ``OUT/PP_<pass id>.h5`` of one adjusted pass; its summary row
+    ``{"pass_id", "files", coverage..., "pp_error_m"?, "seconds_scoring"?}`` (scored when the pass
+    file holds truth) and the seconds the PP took."""
+    t0 = time.perf_counter()
+    pp = compute_pp(orbit_pass, res, path, chosen, band=band, progress=progress)
+    t_pp = time.perf_counter() - t0
+    pp.provenance = provenance
+    out_dir.mkdir(parents=True, exist_ok=True)
+    pp_file = out_dir / f"PP_{orbit_pass.pass_id}.h5"
+    save_pp(pp, pp_file)
+    row: dict[str, Any] = {"pass_id": orbit_pass.pass_id, "files": {"pp": str(pp_file)}, **pp.coverage()}
+    truth = read_pass_truth(pass_file)
+    if truth is not None:
+        t0 = time.perf_counter()
+        row.update(score_pp(pp, orbit_pass, truth, supplied_camera=camera))
+        row["seconds_scoring"] = time.perf_counter() - t0
+    return row, t_pp
 
 
 def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None, pass_file: str | os.PathLike[str] | None,
@@ -143,9 +161,7 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
     "seconds"}], "seconds"}``; ``OUT/PP_<pass id>.h5`` per pass and ``OUT/products.json``."""
     from misrgraph.runs.update import restore_state
 
-    out_dir = Path(out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("--out", str(out_dir), "a directory (created if missing)")
+    out_dir = _out_dir(out)
     t0 = time.perf_counter()
     solver, camera, files = restore_state(d)
     t_restore = time.perf_counter() - t0
@@ -162,7 +178,6 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
     if len(paths) != 1:
         raise InputError("state passes", sorted(paths), "passes of one path (PP are per path)")
     grid = SomGrid(paths.pop(), 1100)
-    out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     chosen = None
     for n, i in enumerate(chosen_idx):
@@ -173,20 +188,14 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
             chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
         if progress:
             progress(f"PP of pass {orbit_pass.pass_id} ({n + 1}/{len(chosen_idx)})", n, len(chosen_idx))
-        pp = compute_pp(orbit_pass, res, grid.path, chosen, band=band)
-        pp.provenance = {"state": str(d), "pass_file": str(files[i]), "camera_model": "the state's",
-                         "software": f"misrgraph {__version__}", "solver_status": "iSAM2 update state"}
-        pp_file = out_dir / f"PP_{orbit_pass.pass_id}.h5"
-        save_pp(pp, pp_file)
-        row: dict[str, Any] = {"pass_id": orbit_pass.pass_id, "files": {"pp": str(pp_file)}, **pp.coverage()}
-        truth = read_pass_truth(files[i])
-        if truth is not None:
-            row.update(score_pp(pp, orbit_pass, truth, supplied_camera=camera))
+        provenance = {"state": str(d), "pass_file": str(files[i]), "camera_model": "the state's",
+                      "software": f"misrgraph {__version__}", "solver_status": "iSAM2 update state"}
+        row, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, files[i], camera, None)
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
     assert chosen is not None
     summary: dict[str, Any] = {"path": grid.path, "state": str(d), "band": band, "blocks": [int(chosen.min()), int(chosen.max())],
-                               "passes": rows, "roi": None, "notes": ["ROI not produced: no whole-block imagery yet"],
+                               "passes": rows, "roi": None, "notes": [ROI_NOTE],
                                "seconds": {"restore": t_restore, "total": time.perf_counter() - t_start}}
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
