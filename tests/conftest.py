@@ -75,6 +75,28 @@ def path_dir(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def roi_path_dir(tmp_path_factory):
+    """Four passes of path 37 with imagery (seed 41, clouds 20 %) and whole-line strips over the
+    block under the mid-pass nadir point, reduced for the suite: cameras Df, An, Da, 256 of the
+    1504 samples (600-855), no feature windows."""
+    from misrgraph.misr.som import SomGrid
+    from misrgraph.model.frames import EarthOrientation, ecef_to_geodetic
+    from misrgraph.model.orbit import terra_like_orbit
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+
+    eph = terra_like_orbit(epoch_date="2001-06-15", path=37, start_lat_deg=52.0, duration_s=600.0)
+    t = np.array([eph.t[0] + 300.0])
+    lat, lon, _ = ecef_to_geodetic(EarthOrientation(eph.epoch_utc).eci_to_ecef(t)[0] @ eph.interpolate(t)[0][0])
+    block = int(SomGrid(37, 1100).latlon_to_bls(lat, lon)[0])
+    out = tmp_path_factory.mktemp("scen") / "roi"
+    run_simulate(ScenarioConfig(scenario="path", seed=41, n_passes=4, n_tie_points=30, n_check_points=5, n_gcps=20,
+                                duration_s=600.0, start_lat_deg=52.0, imagery=True, cloud_fraction=0.2,
+                                roi_blocks=(block, block), strip_cameras=("Df", "An", "Da"), strip_samples=(600, 256),
+                                feature_windows=False), out)
+    return out
+
+
+@pytest.fixture(scope="session")
 def small_pass(small_pass_dir):
     from misrgraph.sim.simulate import load_scenario
 

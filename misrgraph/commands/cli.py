@@ -17,7 +17,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from misrgraph.errors import MisrGraphError
+from misrgraph.errors import InputError, MisrGraphError
 
 __all__ = ["app", "main"]
 
@@ -155,8 +155,9 @@ def simulate(
     band_misalignment: float = typer.Option(0.0, "--band-misalignment-arcsec", help="Per-band truth: 1 sigma of each band's own delta, beta, epsilon offsets (arcsec)."),
     truth: str = typer.Option("model", "--truth", help="model (navigation errors drawn from the estimator's own parameterisations: checks the algebra) or independent (error sources the estimator does not share: an attitude process with jitter, a once-per-revolution ephemeris term, sub-posting terrain, DEM error correlated over 28 km, f/alpha camera errors, Student-t matching noise with 1-2 px mismatches, scene-correlated GCP errors; see docs/design.md: checks the estimator)."),
     imagery: bool = typer.Option(False, "--imagery", help="Also render the image windows matching reads (ray-cast through the true geometry, red band, 14-bit) and the GCPs' reference chips, into each pass file (pass and path scenarios)."),
-    cloud_fraction: float = typer.Option(0.0, "--cloud-fraction", help="With --imagery: fraction of the sky covered by clouds on a layer 3 km up (they appear displaced with view angle)."),
-    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options)."),
+    cloud_fraction: float = typer.Option(0.0, "--cloud-fraction", help="With --imagery: fraction of the sky covered by clouds on a layer 3 km up (they appear displaced with view angle; each pass has its own)."),
+    roi_blocks: Optional[str] = typer.Option(None, "--roi-blocks", help="With --imagery: also render every pass's whole image lines over these SOM blocks A-B (red band, all cameras; ~12 microseconds per pixel, ~2 min per block, camera and pass on 2 cores) and write dem_som.h5, for 'misrgraph products --roi'."),
+    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options; strip_cameras, strip_samples and roi_dem_sigma_m are set here)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Simulate a scenario directory: passes, GCP database, DEM, supplied and true camera models."""
@@ -171,6 +172,11 @@ def simulate(
                   thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm,
                   bands=tuple(b.strip() for b in bands.split(",") if b.strip()), band_misalignment_arcsec=band_misalignment,
                   truth=truth, imagery=imagery, cloud_fraction=cloud_fraction)
+    if roi_blocks:
+        from misrgraph.runs.products import parse_blocks
+
+        rb = parse_blocks(roi_blocks)
+        fields["roi_blocks"] = (int(rb[0]), int(rb[-1]))
     _merge_config(fields, config)
     cfg = ScenarioConfig.from_dict(fields)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err_console,
@@ -526,11 +532,17 @@ def products(
     pass_file: Optional[Path] = typer.Option(None, "--pass", help="The pass (default: the scenario's first)."),
     camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Camera model (default: the scenario's camera_model.h5)."),
     band: str = typer.Option("red", "--band", help="blue, green, red or nir."),
+    roi: bool = typer.Option(False, "--roi", help="Also build the Reference Orbit Imagery from every pass with whole-swath strips (at least 4): ROI_P<path>.h5 on the 275 m SOM grid, the clearest pass per block, a per-pixel source map, co-registration measured on it."),
+    geotiff: bool = typer.Option(False, "--geotiff", help="With --roi: one Cloud-Optimised GeoTIFF per camera in the path's misrsom CRS."),
+    quicklooks: bool = typer.Option(False, "--quicklooks", help="With --roi: one quick-look PNG per camera."),
+    som_dem: Optional[Path] = typer.Option(None, "--som-dem", help="With --roi: heights on the path's 275 m SOM grid (default: the scenario's dem_som.h5)."),
+    coreg_points: int = typer.Option(64, "--coreg-points", help="With --roi: co-registration matches per image pair and block (0: not measured)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Projection Parameters of an adjusted pass on its path's 1.1 km SOM grid, with their 1 sigma
     (the pass is adjusted on the way; from an update state, every pass of the state from its
-    current estimate); scored against the simulator's truth when the pass has it."""
+    current estimate); scored against the simulator's truth when the pass has it. With --roi, the
+    Reference Orbit Imagery of the path from all passes with imagery."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from misrgraph.runs.products import run_products
@@ -542,8 +554,14 @@ def products(
         def progress(desc: str, k: int, n: int) -> None:
             bar.update(task, description=desc, completed=k, total=max(n, 1))
 
+        from misrgraph.runs.products import RoiOptions
+
+        if not roi and (geotiff or quicklooks or som_dem):
+            raise InputError("--geotiff/--quicklooks/--som-dem", "given without --roi", "--roi as well")
+        opts = RoiOptions(som_dem=str(som_dem) if som_dem else None, geotiff=geotiff, quicklooks=quicklooks,
+                          coregistration_points=coreg_points) if roi else None
         res = run_products(scenario_dir, out, blocks=blocks, pass_file=pass_file, camera_model=camera_model,
-                           band=band, progress=progress)
+                           band=band, progress=progress, roi=roi, roi_options=opts)
     if as_json:
         _print_json(res)
         return
@@ -559,6 +577,16 @@ def products(
             sig = one["sigma_m_median"][cam]
             table.add_row(cam, f"{frac:.0%}", "-" if sig is None else f"{sig:.1f}",
                           *([f"{e['rms']:.1f}", f"{e['predicted_rms']:.1f}", f"{e['nees']:.2f}"] if e else ["-"] * 3))
+        console.print(table)
+    if res.get("roi"):
+        table = Table(title=f"Reference Orbit Imagery -> {res['roi']['file']}: co-registration (px)")
+        for col in ("camera", "matched, beyond noise", "truth: vs An", "truth: between passes"):
+            table.add_column(col, justify="right")
+        tr = res.get("roi_truth", {})
+        fmt = lambda v: "-" if v is None else f"{v:.3f}"
+        for cam in res["roi"]["cameras"]:
+            table.add_row(cam, fmt(res["roi_coregistration_px"].get(cam)), fmt(tr.get("between_cameras_px", {}).get(cam)),
+                          fmt(tr.get("between_passes_px", {}).get(cam)))
         console.print(table)
     console.print(f"{res['seconds']['total']:.0f} s")
 

@@ -1,4 +1,5 @@
-"""Scoring Projection Parameters against the simulator's truth.
+"""Scoring Projection Parameters (and the Reference Orbit Imagery made with them,
+:func:`score_roi`) against the simulator's truth.
 
 On the PP's covariance sub-grid (every ``step``-th 1.1 km point, where the stored 1-sigma is
 exact rather than interpolated) each camera's PP image position at height 0 is compared with
@@ -13,7 +14,7 @@ than their count suggests: judge honesty over several passes (``misrgraph bench`
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,12 +22,12 @@ from numpy.typing import NDArray
 from misrgraph.io.passes import OrbitPass
 from misrgraph.io.truth import PassTruth
 from misrgraph.model.camera import CameraModel
-from misrgraph.model.constants import BANDS
+from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.frames import enu_basis, geodetic_to_ecef
 from misrgraph.io.products import ProjectionParameters
 from misrgraph.products.pp import crossing, ground_derivatives
 
-__all__ = ["score_pp"]
+__all__ = ["score_pp", "score_roi"]
 
 Array = NDArray[np.float64]
 
@@ -56,11 +57,12 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
             if not ok.any():
                 continue
             assert true_geo.t0 is not None
-            t_guess = true_geo.t0[c, bi] + ln_pp[ok] * true_geo.camera.line_time
-            _, ln_t, sm_t = crossing(true_geo, c, bi, g[ok], t_guess)
+            ci = CAMERAS.index(name)  # the geometry's camera index (the PP may hold a subset)
+            t_guess = true_geo.t0[ci, bi] + ln_pp[ok] * true_geo.camera.line_time
+            _, ln_t, sm_t = crossing(true_geo, ci, bi, g[ok], t_guess)
             e = np.stack([ln_pp[ok] - ln_t, sm_pp[ok] - sm_t], -1)
             # the ground displacement that moves the true image position onto the PP's
-            d_en = ground_derivatives(true_geo, c, bi, g[ok], enu[ok], t_guess)
+            d_en = ground_derivatives(true_geo, ci, bi, g[ok], enu[ok], t_guess)
             good = np.isfinite(e).all(1) & np.isfinite(d_en).all((1, 2))
             e, d_en = e[good], d_en[good]
             e_en = np.linalg.solve(d_en, e[..., None])[..., 0]
@@ -73,7 +75,7 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
             per_cam[name]["nees"].append(np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0]) / 2.0)
             per_cam[name]["e_px"].append(np.hypot(e[:, 0], e[:, 1]))
             if supplied_geo is not None:
-                _, ln_s, sm_s = crossing(supplied_geo, c, bi, g[ok], t_guess)
+                _, ln_s, sm_s = crossing(supplied_geo, ci, bi, g[ok], t_guess)
                 e_s = np.stack([ln_s - ln_t, sm_s - sm_t], -1)[good]
                 e_s_en = np.linalg.solve(d_en, e_s[..., None])[..., 0]
                 per_cam[name]["sup_m"].append(np.hypot(e_s_en[:, 0], e_s_en[:, 1]))
@@ -90,3 +92,64 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
             sup = np.concatenate(v["sup_m"])
             out[name]["supplied_rms"] = float(np.sqrt(np.nanmean(sup**2)))
     return {"pp_error_m": out}
+
+
+def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]], heights: NDArray[np.float32],
+              cameras: tuple[str, ...], surface: Callable[[Array, Array], Array], n_points: int = 300,
+              seed: int = 0, reference: int | None = None) -> dict[str, dict[str, float]]:
+    """The ROI's true misregistration on ``block`` (simulated passes only), in 275 m pixels.
+
+    At ``n_points`` random grid points (fixed ``seed``) and for each pass, the ground point a
+    resampled image shows there is where the *true* geometry casts the image position the PP give
+    (at the SOM DEM's height ``heights (512, 2048)``) onto the true ``surface``; its SOM
+    (line, sample) minus the grid point is that camera's geolocation error, and its difference
+    from An's (same pass) or from its own in another pass is the co-registration error. Returns
+    ``{"geolocation_px": {camera: worst RMS over passes}, "between_cameras_px": {camera: worst RMS
+    against An over passes}, "between_passes_px": {camera: worst RMS over pairs of passes}}`` --
+    what matching on the ROI measures, without the matching error. With ``reference`` (a pass
+    index: the block's pass, as :func:`misrgraph.products.roi.coregistration` compares) the pairs
+    of passes are each pass with that one."""
+    from misrgraph.misr.som import SomGrid
+    from misrgraph.model.frames import ecef_to_geodetic
+
+    rng = np.random.default_rng(seed)
+    grid = SomGrid(int(passes[0][2].path), 275)
+    pl = rng.integers(8, grid.nline - 8, n_points)
+    ps = rng.integers(8, grid.nsample - 8, n_points)
+    err: dict[tuple[int, str], Array] = {}
+    for k, (orbit_pass, truth, pp) in enumerate(passes):
+        geo = truth.geometry(orbit_pass)
+        for cam in cameras:
+            ln, sm = pp.image_coords(cam, block, pl.astype(float), ps.astype(float), heights[pl, ps], resolution_m=275)
+            ok = np.isfinite(ln) & np.isfinite(sm)
+            e = np.full((n_points, 2), np.nan)
+            if ok.any():
+                g = geo.pixel_to_ground(np.full(ok.sum(), CAMERAS.index(cam)), np.full(ok.sum(), BANDS.index(pp.band)),
+                                        ln[ok], sm[ok], surface=surface, exposure=np.full(ok.sum(), np.nan), tol_m=0.05)
+                lat, lon, _ = ecef_to_geodetic(g)
+                b, gl, gs = grid.latlon_to_bls(lat, lon, strict=False)
+                e[ok] = np.stack([gl + (b - block) * grid.nline - pl[ok], gs - ps[ok]], 1)
+            err[(k, cam)] = e
+
+    def worst(pairs: list[tuple[Array, Array | None]]) -> float | None:
+        vals = []
+        for a, b in pairs:
+            d = a if b is None else a - b
+            fin = np.isfinite(d).all(1)
+            if fin.sum() >= 3:
+                vals.append(float(np.sqrt(np.mean(np.sum(d[fin] ** 2, 1)))))
+        return max(vals) if vals else None
+
+    n_p = len(passes)
+    out: dict[str, dict[str, float]] = {"geolocation_px": {}, "between_cameras_px": {}, "between_passes_px": {}}
+    for cam in cameras:
+        for kind, pairs in (("geolocation_px", [(err[(k, cam)], None) for k in range(n_p)]),
+                            ("between_cameras_px", [(err[(k, cam)], err[(k, "An")]) for k in range(n_p)]
+                             if cam != "An" and "An" in cameras else []),
+                            ("between_passes_px", [(err[(k, cam)], err[(q, cam)]) for k in range(n_p) for q in range(k)]
+                             if reference is None else [(err[(k, cam)], err[(reference, cam)]) for k in range(n_p)
+                                                        if k != reference])):
+            w = worst(pairs)
+            if w is not None:
+                out[kind][cam] = w
+    return out

@@ -1,4 +1,5 @@
-"""DEM files (HDF5 kind ``dem``): the one reader and writer.
+"""DEM files (HDF5 kind ``dem``): the one reader and writer; and DEMs on a path's SOM grid (kind
+``som_dem``, :class:`SomDem`), the heights Reference Orbit Imagery is orthorectified with.
 
 Layout: group ``/tiles`` with attributes ``posting_deg``, ``size``, ``height_reference`` and
 datasets ``lat0, lon0, lon_posting (T,)`` deg, ``heights (T, n, n)`` m above
@@ -13,11 +14,15 @@ import os
 
 import numpy as np
 
-from misrgraph.errors import FileFormatError
+from dataclasses import dataclass
+
+from numpy.typing import NDArray
+
+from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.h5 import atomic_h5, create_dataset, open_h5, read_attr, read_dataset, write_dataset
 from misrgraph.model.dem import DemTiles
 
-__all__ = ["save_dem", "read_dem"]
+__all__ = ["save_dem", "read_dem", "SomDem", "save_som_dem", "read_som_dem"]
 
 
 def save_dem(dem: DemTiles, path: str | os.PathLike[str], height_reference: str = "mean sea level") -> None:
@@ -57,3 +62,59 @@ def read_dem(path: str | os.PathLike[str]) -> DemTiles:
             float(read_attr(g, "posting_deg")),
             read_dataset(g, "lon_posting", (t,)),
         )
+
+
+@dataclass
+class SomDem:
+    """Heights on blocks of a path's SOM grid: ``heights (B, nline, nsample)`` m above the WGS84
+    ellipsoid (float32; NaN where unknown) at the pixel centres of ``blocks (B,)`` at
+    ``resolution_m`` (275: 512 x 2048 per block), with their 1-sigma ``sigma_m``."""
+
+    path: int
+    resolution_m: int
+    blocks: NDArray[np.int64]
+    heights: NDArray[np.float32]
+    sigma_m: float
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        from misrgraph.misr.som import SomGrid
+
+        self.blocks = np.asarray(self.blocks, dtype=np.int64).ravel()
+        grid = SomGrid(int(self.path), int(self.resolution_m))
+        shape = (self.blocks.size, grid.nline, grid.nsample)
+        self.heights = np.asarray(self.heights, dtype=np.float32)
+        if self.heights.shape != shape:
+            raise InputError("som_dem.heights", self.heights.shape, f"shape {shape} (blocks, lines, samples)")
+
+    def block(self, block: int) -> NDArray[np.float32]:
+        """The ``(nline, nsample)`` heights of one block (InputError when it has none)."""
+        hit = np.flatnonzero(self.blocks == int(block))
+        if hit.size == 0:
+            raise InputError("block", block, f"one of the SOM DEM's blocks {self.blocks.tolist()}")
+        return self.heights[int(hit[0])]
+
+
+def save_som_dem(dem: SomDem, path: str | os.PathLike[str]) -> None:
+    """Write a :class:`SomDem` atomically (HDF5 kind ``som_dem``)."""
+    with atomic_h5(path, "som_dem") as f:
+        f.attrs["path"] = int(dem.path)
+        f.attrs["resolution_m"] = int(dem.resolution_m)
+        f.attrs["sigma_m"] = float(dem.sigma_m)
+        f.attrs["source"] = dem.source
+        f.attrs["height_reference"] = "WGS84 ellipsoid"
+        write_dataset(f, "blocks", dem.blocks)
+        create_dataset(f, "heights", dem.heights, chunks=(1,) + dem.heights.shape[1:], compression="gzip", shuffle=True)
+        f["heights"].attrs["units"] = "m"
+
+
+def read_som_dem(path: str | os.PathLike[str]) -> SomDem:
+    """Read a :class:`SomDem`, checking the heights' shape against the path's grid."""
+    from misrgraph.misr.som import SomGrid
+
+    with open_h5(path, "som_dem") as f:
+        p, res = int(read_attr(f, "path")), int(read_attr(f, "resolution_m"))
+        blocks = read_dataset(f, "blocks", (None,), dtype=np.int64)
+        grid = SomGrid(p, res)
+        heights = read_dataset(f, "heights", (blocks.size, grid.nline, grid.nsample), dtype=np.float32)
+        return SomDem(p, res, blocks, heights, float(read_attr(f, "sigma_m")), str(f.attrs.get("source", "")))

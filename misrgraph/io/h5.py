@@ -48,6 +48,8 @@ FORMAT_VERSIONS: dict[str, int] = {
     "adjustment_result": 2,
     "update_state": 2,
     "projection_parameters": 1,
+    "som_dem": 1,
+    "reference_orbit_imagery": 1,
 }
 
 #: Why an older version of a kind is refused, when the reason is known (one line each).

@@ -23,6 +23,7 @@ continuous observation the estimator adjusts.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import tempfile
@@ -38,7 +39,8 @@ from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.h5 import (create_dataset, file_mode, fsync_directory, open_h5, read_dataset, reseal,
                              stamp_content_digest, write_dataset)
 from misrgraph.io.passes import Landmarks, Observations
-__all__ = ["ImageWindows", "PassImagery", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
+from misrgraph.model.constants import CAMERAS
+__all__ = ["ImageWindows", "ImageStrip", "PassImagery", "read_strip", "strip_cameras", "strip_blocks", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
            "write_matched", "read_matched", "has_matched", "OBSERVATION_SETS", "INTEREST_RADIUS_PX"]
 
 #: how far (px) from a tie window's centre the matcher may place its interest point (the renderer
@@ -93,14 +95,54 @@ class ImageWindows:
 
 
 @dataclass
+class ImageStrip:
+    """Whole image lines of one camera/band: pixel ``(r, q)`` of ``pixels (L, S)`` (uint16 counts)
+    is exposure ``line0 + r``, sample ``sample0 + q``."""
+
+    camera: str
+    band: int
+    line0: int
+    sample0: int
+    pixels: NDArray[np.uint16]
+
+    def __post_init__(self) -> None:
+        px = np.asarray(self.pixels)
+        if px.ndim != 2 or 0 in px.shape:
+            raise InputError(f"strips.{self.camera}.pixels", px.shape, "shape (lines, samples), both > 0")
+        self.pixels = px
+
+    @property
+    def lines(self) -> tuple[int, int]:
+        """First and one-past-last exposure the strip holds."""
+        return self.line0, self.line0 + int(self.pixels.shape[0])
+
+    def sample_at(self, line: Array, sample: Array) -> Array:
+        """Counts at continuous image positions (bilinear between pixel centres; NaN outside the
+        strip). ``line``, ``sample`` any shape; returns float32 of that shape."""
+        r = np.asarray(line, dtype=float) - self.line0
+        q = np.asarray(sample, dtype=float) - self.sample0
+        nl, ns = self.pixels.shape
+        ok = (r >= 0) & (r <= nl - 1) & (q >= 0) & (q <= ns - 1)
+        r0 = np.clip(np.floor(np.where(ok, r, 0)), 0, max(nl - 2, 0)).astype(np.int64)
+        q0 = np.clip(np.floor(np.where(ok, q, 0)), 0, max(ns - 2, 0)).astype(np.int64)
+        fr, fq = np.where(ok, r - r0, 0.0), np.where(ok, q - q0, 0.0)
+        px = self.pixels
+        r1, q1 = np.minimum(r0 + 1, nl - 1), np.minimum(q0 + 1, ns - 1)
+        v = ((1 - fr) * ((1 - fq) * px[r0, q0] + fq * px[r0, q1]) + fr * ((1 - fq) * px[r1, q0] + fq * px[r1, q1]))
+        return np.where(ok, v, np.nan).astype(np.float32)
+
+
+@dataclass
 class PassImagery:
-    """Windows around tie/check features and GCPs, and the GCPs' reference chips."""
+    """Windows around tie/check features and GCPs, the GCPs' reference chips and, optionally,
+    whole-swath strips per camera (the lines over the blocks Reference Orbit Imagery is made of)."""
 
     tie: ImageWindows
     gcp: ImageWindows
     chip_landmark: NDArray[np.int64]
     chips: NDArray[np.float32]
     attrs: dict[str, Any]
+    strips: dict[str, ImageStrip] = dataclasses.field(default_factory=dict)
 
 
 def _write_windows(g: Any, w: ImageWindows) -> None:
@@ -129,6 +171,56 @@ def write_imagery(f: Any, imagery: PassImagery) -> None:
     c = g.create_group("chips")
     write_dataset(c, "landmark", imagery.chip_landmark)
     create_dataset(c, "pixels", imagery.chips, compression="gzip", compression_opts=4, shuffle=True)
+    if imagery.strips:
+        sg = g.create_group("strips")
+        for name, st in imagery.strips.items():
+            cg = sg.create_group(name)
+            cg.attrs["band"] = int(st.band)
+            cg.attrs["line0"] = int(st.line0)
+            cg.attrs["sample0"] = int(st.sample0)
+            create_dataset(cg, "pixels", st.pixels, chunks=(min(64, st.pixels.shape[0]), min(256, st.pixels.shape[1])),
+                           compression="gzip", compression_opts=4, shuffle=True)
+            cg["pixels"].attrs["units"] = "counts (14 bit)"
+
+
+def strip_blocks(path: str | os.PathLike[str]) -> tuple[int, int] | None:
+    """The blocks ``(first, last)`` a pass file's strips were rendered for (None: no strips)."""
+    with open_h5(path, "orbit_pass") as f:
+        if "imagery" not in f or "strips" not in f["imagery"] or "roi_blocks" not in f["imagery"].attrs:
+            return None
+        a, b = (int(v) for v in np.asarray(f["imagery"].attrs["roi_blocks"]).ravel()[:2])
+        return a, b
+
+
+def strip_cameras(path: str | os.PathLike[str]) -> tuple[str, ...]:
+    """The cameras whose whole-swath strips a pass file holds (none: ``()``)."""
+    with open_h5(path, "orbit_pass") as f:
+        if "imagery" not in f or "strips" not in f["imagery"]:
+            return ()
+        return tuple(n for n in CAMERAS if n in f["imagery"]["strips"])
+
+
+def read_strip(path: str | os.PathLike[str], camera: str, lines: tuple[int, int] | None = None) -> ImageStrip | None:
+    """One camera's whole-swath strip of a pass file (FileFormatError naming what is missing), or
+    only its exposures ``lines = (first, one past last)`` (None when the strip holds none of them)."""
+    with open_h5(path, "orbit_pass") as f:
+        if "imagery" not in f or "strips" not in f["imagery"]:
+            raise FileFormatError(path, "no /imagery/strips: simulate with --imagery --roi-blocks A-B")
+        sg = f["imagery"]["strips"]
+        if camera not in sg:
+            raise FileFormatError(path, f"no strip of camera {camera} (it holds {', '.join(sorted(sg))})")
+        cg = sg[camera]
+        try:
+            band, line0, sample0 = (int(cg.attrs[k]) for k in ("band", "line0", "sample0"))
+        except KeyError as exc:
+            raise FileFormatError(path, f"/imagery/strips/{camera} lacks the attribute {exc}") from None
+        px = cg["pixels"]
+        if px.ndim != 2:
+            raise FileFormatError(path, f"/imagery/strips/{camera}/pixels has shape {px.shape}; expected (lines, samples)")
+        if lines is None:
+            return ImageStrip(camera, band, line0, sample0, np.asarray(px[...]))
+        a, b = max(int(lines[0]) - line0, 0), min(int(lines[1]) - line0, px.shape[0])
+        return ImageStrip(camera, band, line0 + a, sample0, np.asarray(px[a:b])) if b - a >= 2 else None
 
 
 def has_imagery(path: str | os.PathLike[str]) -> bool:
@@ -146,7 +238,7 @@ def read_imagery(path: str | os.PathLike[str]) -> PassImagery:
         n = c["landmark"].shape[0]
         return PassImagery(_read_windows(g["tie"]), _read_windows(g["gcp"]),
                            read_dataset(c, "landmark", (n,), dtype=np.int64), np.asarray(c["pixels"][...]),
-                           {k: (v.item() if hasattr(v, "item") else v) for k, v in g.attrs.items()})
+                           {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in g.attrs.items()})
 
 
 # ---------------------------------------------------------------------------- matched observations

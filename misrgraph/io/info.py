@@ -39,6 +39,10 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
             im = read_imagery(path)
             out["imagery"] = {"tie_windows": len(im.tie), "tie_window_px": im.tie.size, "gcp_windows": len(im.gcp),
                               "gcp_window_px": im.gcp.size, "gcp_chips": int(im.chip_landmark.size), **im.attrs}
+            from misrgraph.io.imagery import strip_cameras
+
+            if strip_cameras(path):
+                out["imagery"]["strip_cameras"] = list(strip_cameras(path))
         if has_matched(path):
             m = read_matched(path)
             out["matched"] = {"landmarks": len(m.landmarks), "observations": len(m.observations)}
@@ -70,6 +74,22 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         out.update({"path": pp.path, "resolution_m": pp.resolution_m, "band": pp.band, "pass_id": pp.pass_id,
                     "blocks": [int(pp.blocks.min()), int(pp.blocks.max())], "n_blocks": int(pp.blocks.size),
                     **pp.coverage()})
+    elif kind == "som_dem":
+        from misrgraph.io.dem import read_som_dem
+
+        sd = read_som_dem(path)
+        out.update({"path": sd.path, "resolution_m": sd.resolution_m, "blocks": [int(sd.blocks.min()), int(sd.blocks.max())],
+                    "sigma_m": sd.sigma_m, "source": sd.source, "height_reference": "WGS84 ellipsoid"})
+    elif kind == "reference_orbit_imagery":
+        from misrgraph.io.roi import read_roi
+
+        r = read_roi(path)
+        out.update({"path": r.path, "band": r.band, "cameras": list(r.cameras), "passes": list(r.pass_ids),
+                    "blocks": [int(r.blocks.min()), int(r.blocks.max())],
+                    "chosen_pass": {int(b): r.pass_ids[int(r.chosen[k])] for k, b in enumerate(r.blocks)},
+                    "fraction_imaged": {c: float(np.mean(r.source[i] >= 0)) for i, c in enumerate(r.cameras)},
+                    "fraction_cloudy": {c: float(np.mean(r.cloudy[i][r.source[i] >= 0])) if np.any(r.source[i] >= 0) else None
+                                        for i, c in enumerate(r.cameras)}})
     else:
         from misrgraph.io.results import summarise_result_file
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import RegularGridInterpolator
+from scipy.ndimage import map_coordinates
 
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, require_group, write_dataset
@@ -83,9 +83,11 @@ class ProjectionParameters:
         sm = (np.asarray(sample, dtype=float) + 0.5) / scale - 0.5
         h = np.asarray(height, dtype=float)
         nl, ns = self.line0.shape[2:]
-        axes = (np.arange(nl, dtype=float), np.arange(ns, dtype=float))
-        pts = np.stack(np.broadcast_arrays(np.clip(ln, 0, nl - 1), np.clip(sm, 0, ns - 1)), -1)
-        v = {k: RegularGridInterpolator(axes, self.coefficient(k)[c, b], bounds_error=False)(pts) for k in PP_COEFFICIENTS}
+        ln, sm = np.broadcast_arrays(np.clip(ln, 0, nl - 1), np.clip(sm, 0, ns - 1))
+        coords = np.stack([ln.ravel(), sm.ravel()])
+        # bilinear between grid points (order 1: a NaN corner makes the point NaN)
+        v = {k: map_coordinates(self.coefficient(k)[c, b], coords, order=1, mode="nearest", prefilter=False).reshape(ln.shape)
+             for k in PP_COEFFICIENTS}
         line_h = v["line0"] + v["dline_dh"] * h + v["d2line_dh2"] * h**2
         sample_h = v["sample0"] + v["dsample_dh"] * h + v["d2sample_dh2"] * h**2
         off = ~((sample_h >= -0.5) & (sample_h <= N_PIXELS - 0.5))  # beyond the array: not imaged

@@ -28,7 +28,7 @@ from misrgraph.errors import ConvergenceError, InputError
 from misrgraph.model.frames import WGS84_A, WGS84_B, EarthOrientation, ecef_to_geodetic, enu_basis
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris
 
-__all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid"]
+__all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid", "cast_from"]
 
 Array = NDArray[np.float64]
 Correction = Callable[[Array], Array]
@@ -202,6 +202,20 @@ class PassGeometry:
             lo_h, hi_h = np.minimum(h0, -500.0) - 500.0, np.maximum(h0, 0.0) + 9000.0
         return _cast(origin, direction, lo_h, hi_h, h_fun, tol_m)
 
+    def line_rays(self, cam: int, band: int, lines: ArrayLike, samples: ArrayLike) -> tuple[Array, Array]:
+        """Rays of whole image lines: ECEF origins ``(L, 3)`` m and unit directions ``(L, S, 3)``
+        of the pixels ``samples (S,)`` of the integer exposures ``lines (L,)`` (focal-plane
+        fraction 0), with the navigation evaluated once per line; the same rays as
+        :meth:`pixel_rays` at a fraction of its cost for a full swath."""
+        ln = np.asarray(lines, dtype=float).ravel()
+        s = np.asarray(samples, dtype=float).ravel()
+        nav = self.nav_state(self.line_time(cam, band, ln, ln))
+        r_scs = self.camera.direction_scs(np.full(s.size, cam), np.full(s.size, band), np.zeros(s.size), s,
+                                          exposure=np.zeros(s.size))
+        to_ecef = np.einsum("lij,ljk->lik", nav.eci_to_ecef, nav.r_eci_scs)
+        origin = np.einsum("lij,lj->li", nav.eci_to_ecef, nav.position)
+        return origin, np.einsum("lij,sj->lsi", to_ecef, r_scs)
+
     # ------------------------------------------------------------------ inverse
     def _along_cross(self, cam: Array, band: Array, ground: Array, t: Array) -> tuple[Array, Array, Array]:
         """Detector-plane coordinates (x, y in m) and depth of ground points seen at times ``t``."""
@@ -322,6 +336,48 @@ class PassGeometry:
         along /= np.linalg.norm(along, axis=-1, keepdims=True)
         cross = np.cross(along, up)
         return along, cross, up
+
+
+def cast_from(origin: Array, direction: Array, lam0: Array, surface: Callable[[Array, Array], Array],
+              tol_m: float = 0.05, max_iter: int = 8, step_m: float = 20.0, fallback: bool = True) -> Array:
+    """Rays ``origin + lam direction`` (``(N, 3)`` ECEF m, unit directions) cast onto the height
+    field ``surface(lat, lon)`` (ellipsoidal m) by secant steps on ``h(lam) - surface(lam)`` from a
+    guess ``lam0 (N,)`` (e.g. a neighbouring pixel's solution); rays that have not converged to
+    ``tol_m`` in ``max_iter`` steps (a poor guess, a slope nearly parallel to the ray) are cast
+    by the bracketed search of :meth:`PassGeometry.pixel_to_ground` (``fallback=False``: left
+    NaN, for the caller to cast them together). Returns the ground points ``(N, 3)``, NaN where a
+    ray misses."""
+    lam0 = np.asarray(lam0, dtype=float)
+    idx = np.flatnonzero(np.isfinite(lam0))
+
+    def f(lam: Array, ii: Array) -> Array:
+        lat, lon, h = ecef_to_geodetic(origin[ii] + lam[:, None] * direction[ii])
+        return h - np.asarray(surface(lat, lon), dtype=float)
+
+    a, b = lam0[idx], lam0[idx] - step_m
+    fa, fb = f(a, idx), f(b, idx)
+    out_lam = np.full(origin.shape[0], np.nan)
+    for _ in range(max_iter):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = b - fb * (b - a) / (fb - fa)
+        bad = ~np.isfinite(c) | (np.abs(c - b) > 5e3)
+        c = np.where(bad, np.nan, c)
+        done = np.abs(c - b) < tol_m
+        out_lam[idx[done]] = c[done]
+        keep = ~done & ~bad
+        if not keep.any():
+            break
+        idx, a, fa, b = idx[keep], b[keep], fb[keep], c[keep]
+        fb = f(b, idx)
+    rest = np.flatnonzero(~np.isfinite(out_lam))
+    out = origin + out_lam[:, None] * direction
+    if rest.size and fallback:  # the bracketed search (rays missing the Earth stay NaN)
+        lam_e = ray_ellipsoid(origin[rest], direction[rest], 0.0)
+        lat0, lon0, _ = ecef_to_geodetic(origin[rest] + lam_e[:, None] * direction[rest])
+        h0 = np.asarray(surface(lat0, lon0), dtype=float)
+        out[rest] = _cast(origin[rest], direction[rest], np.minimum(h0, -500.0) - 500.0, np.maximum(h0, 0.0) + 9000.0,
+                          lambda la, lo, ii: np.asarray(surface(la, lo), dtype=float), tol_m)
+    return out
 
 
 def _find_root(

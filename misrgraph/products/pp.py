@@ -248,13 +248,18 @@ def _upsample(sub: Array, sub_axes: tuple[Array, Array], shape: tuple[int, int],
 
 
 def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDArray[np.int64], band: str = "red",
-               sigma_step: int = 8, progress: Callable[[str, int, int], None] | None = None) -> ProjectionParameters:
-    """The PP of an adjusted pass on ``path``'s 1.1 km grid over ``blocks`` (module docstring).
+               sigma_step: int = 8, progress: Callable[[str, int, int], None] | None = None,
+               cameras: tuple[str, ...] = CAMERAS) -> ProjectionParameters:
+    """The PP of an adjusted pass on ``path``'s 1.1 km grid over ``blocks`` (module docstring), for
+    ``cameras`` (default all nine, in MISR's order).
 
     ``sigma_step`` (a divisor of 128) sets the sub-grid on which the height coefficients and the
     covariance are computed before bilinear interpolation."""
     if band not in BANDS:
         raise InputError("band", band, BANDS)
+    if not cameras or any(c not in CAMERAS for c in cameras) or len(set(cameras)) != len(cameras):
+        raise InputError("cameras", cameras, f"distinct names from {', '.join(CAMERAS)}")
+    cameras = tuple(c for c in CAMERAS if c in cameras)
     blocks = np.asarray(blocks, dtype=np.int64).ravel()
     if blocks.size == 0 or np.any((blocks < 1) | (blocks > N_BLOCKS)):
         raise InputError("blocks", blocks.tolist(), f"block numbers in 1..{N_BLOCKS}")
@@ -264,7 +269,7 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
     geo = corrected_geometry(orbit_pass, res.attitude, res.ephemeris, res.camera)
     post = _posterior(res)
     bi = BANDS.index(band)
-    nc, nb, nl, ns = len(CAMERAS), blocks.size, grid.nline, grid.nsample
+    nc, nb, nl, ns = len(cameras), blocks.size, grid.nline, grid.nsample
     out = {k: np.full((nc, nb, nl, ns), np.nan) for k in PP_COEFFICIENTS + PP_SIGMAS}
     sub_axes = (np.arange(0, nl, sigma_step, dtype=float), np.arange(0, ns, sigma_step, dtype=float))
     sub = (slice(None, None, sigma_step), slice(None, None, sigma_step))
@@ -279,9 +284,10 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
         g_heights = [geodetic_to_ecef(lat_s.ravel(), lon_s.ravel(), np.full(lat_s.size, h)) for h in PP_HEIGHTS_M]
         g_full = geodetic_to_ecef(lat.ravel(), lon.ravel(), np.zeros(lat.size))
         enu = enu_basis(lat_s.ravel(), lon_s.ravel())
-        for c in range(nc):
+        for jc, name in enumerate(cameras):
+            c = CAMERAS.index(name)  # the geometry's camera index; jc indexes the PP's arrays
             if progress:
-                progress(f"PP block {block} {CAMERAS[c]}", done, total)
+                progress(f"PP block {block} {name}", done, total)
             done += 1
             # the sub-grid by the general line search, then every point by secant steps from it
             ip = geo.ground_to_pixel(c, bi, g_heights[0])
@@ -294,14 +300,14 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
                 continue
             t_full_guess = _upsample(t_s.reshape(shape_s), sub_axes, (nl, ns)).ravel()
             _, ln0, sm0 = crossing(geo, c, bi, g_full, t_full_guess, margin_px=EDGE_MARGIN_PX)
-            out["line0"][c, j] = ln0.reshape(nl, ns)
-            out["sample0"][c, j] = sm0.reshape(nl, ns)
+            out["line0"][jc, j] = ln0.reshape(nl, ns)
+            out["sample0"][jc, j] = sm0.reshape(nl, ns)
             # height quadratic on the sub-grid (height 0 is the crossing just computed)
             ls = [(l_sub, s_sub)] + [crossing(geo, c, bi, gh, t_s, margin_px=2 * EDGE_MARGIN_PX)[1:] for gh in g_heights[1:]]
             for which, names in ((0, ("line0", "dline_dh", "d2line_dh2")), (1, ("sample0", "dsample_dh", "d2sample_dh2"))):
                 coef = np.linalg.solve(vand, np.stack([ls[k][which] for k in range(3)], 0))  # (3, n_sub)
                 for q in (1, 2):
-                    out[names[q]][c, j] = _upsample(coef[q].reshape(shape_s), sub_axes, (nl, ns))
+                    out[names[q]][jc, j] = _upsample(coef[q].reshape(shape_s), sub_axes, (nl, ns))
             # covariance on the sub-grid: the geometry removes the estimated errors (correction =
             # -error), so d(image)/d(knots, segments) is -J M while camera corrections enter with
             # their own sign (their cross-covariance with the navigation makes the sign matter)
@@ -324,12 +330,12 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
             for name, v in fields.items():
                 sub_field = np.full(t_s.size, np.nan)
                 sub_field[okp] = v
-                out[name][c, j] = _upsample(sub_field.reshape(shape_s), sub_axes, (nl, ns))
-            unseen = ~np.isfinite(out["line0"][c, j])
+                out[name][jc, j] = _upsample(sub_field.reshape(shape_s), sub_axes, (nl, ns))
+            unseen = ~np.isfinite(out["line0"][jc, j])
             for name in out:
-                out[name][c, j][unseen] = np.nan
+                out[name][jc, j][unseen] = np.nan
     if progress:
         progress("PP", total, total)
-    return ProjectionParameters(path=int(path), blocks=blocks, cameras=CAMERAS, band=band, pass_id=orbit_pass.pass_id,
+    return ProjectionParameters(path=int(path), blocks=blocks, cameras=cameras, band=band, pass_id=orbit_pass.pass_id,
                                 **{k: out[k] for k in out})
 

@@ -5,9 +5,13 @@ The pass is adjusted on the way (:func:`misrgraph.estimate.adjust.adjust_pass`; 
 joint posterior of the navigation variables, which RESULT.h5 keeps only per angle), then
 :func:`misrgraph.products.pp.compute_pp` maps the chosen blocks, and a pass with the simulator's
 truth is scored (:func:`misrgraph.evaluate.products.score_pp`). From an incremental update state,
-every pass gets its PP from the state's estimate instead. Reference Orbit Imagery needs
-whole-block imagery, which the simulator does not render yet (:data:`ROI_NOTE`): it is not
-produced.
+every pass gets its PP from the state's estimate instead.
+
+With ``roi=True`` every pass with whole-swath strips (at least four) is adjusted and mapped, and
+the Reference Orbit Imagery of the blocks is built from them (:mod:`misrgraph.products.roi`):
+``OUT/ROI_P<path>.h5``, optionally GeoTIFFs and quick-looks, its co-registration measured by
+matching on the ROI, and, for simulated passes, its true misregistration
+(:func:`misrgraph.evaluate.products.score_roi`).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import json
 import os
 import re
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -30,16 +35,19 @@ from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_file
 from misrgraph.io.passes import OrbitPass
-from misrgraph.io.products import save_pp
+from misrgraph.io.products import ProjectionParameters, save_pp
 from misrgraph.io.truth import read_pass_truth
 from misrgraph.misr.som import N_BLOCKS, SomGrid
 from misrgraph.model.frames import ecef_to_geodetic
+from misrgraph.model.constants import CAMERAS
 from misrgraph.products.pp import compute_pp
+from misrgraph.products.roi import MIN_ROI_PASSES
 
-__all__ = ["run_products", "parse_blocks", "DEFAULT_BLOCKS"]
+__all__ = ["run_products", "parse_blocks", "DEFAULT_BLOCKS", "RoiOptions"]
 
-#: Why the summaries carry ``"roi": null``.
-ROI_NOTE = "ROI not produced: the simulator renders image windows around features, not whole blocks"
+#: Why the summaries carry ``"roi": null`` without ``--roi``.
+ROI_NOTE = ("ROI not built: give --roi (it needs at least four passes with whole-swath strips, "
+            "simulated with --imagery --roi-blocks A-B)")
 
 #: Blocks mapped when ``--blocks`` is not given: this many, centred on the pass's features.
 DEFAULT_BLOCKS = 10
@@ -79,6 +87,8 @@ def run_products(
     cfg: AdjustConfig = AdjustConfig(),
     progress: Callable[[str, int, int], None] | None = None,
     default_blocks: int = DEFAULT_BLOCKS,
+    roi: bool = False,
+    roi_options: "RoiOptions | None" = None,
 ) -> dict[str, Any]:
     """Adjust one pass of ``scenario_dir`` (the only one, or ``pass_file``; for a multi-pass
     scenario the first pass when none is named), compute its PP over ``blocks`` (``"A-B"``;
@@ -88,13 +98,24 @@ def run_products(
     ``scenario_dir`` may instead be an incremental ``misrgraph update`` state (it holds
     ``state.json``): every pass of the state (or the one in ``pass_file``, by its pass id) gets its
     PP from the state's current estimate and iSAM2's joint marginals, without re-adjusting; the
-    summary then lists them under ``"passes"`` (:func:`_run_products_state`)."""
+    summary then lists them under ``"passes"`` (:func:`_run_products_state`).
+
+    ``roi``: build the Reference Orbit Imagery of the blocks (default: those the strips were
+    rendered for) from every pass with strips (:func:`_run_products_roi`; from a state, when
+    ``roi_options`` is given); the summary adds ``"roi"`` (files, clearest pass per block),
+    ``"roi_coregistration_px"`` (per camera, the worst misregistration measured by matching on
+    the ROI beyond matching noise) and, for simulated passes, ``"roi_truth"``."""
     t_start = time.perf_counter()
     d = Path(scenario_dir)
+    roi_options = (roi_options or RoiOptions()) if roi else None
+    if roi and pass_file is not None:
+        raise InputError("--pass", str(pass_file), "no --pass with --roi (the ROI is made of all the passes with strips)")
     if (d / "state.json").is_file():
-        return _run_products_state(d, out, blocks, pass_file, band, progress, default_blocks, t_start)
+        return _run_products_state(d, out, blocks, pass_file, band, progress, default_blocks, t_start, roi_options)
     if not d.is_dir():
         raise InputError("SCENARIO_DIR", str(d), "a directory written by 'misrgraph simulate'")
+    if roi:
+        return _run_products_roi(d, out, blocks, camera_model, band, cfg, progress, roi_options, t_start)
     if pass_file is None:
         passes = sorted((d / "passes").glob("*.h5"))
         if not passes:
@@ -113,7 +134,7 @@ def run_products(
     chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
     provenance = {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
                   "software": f"misrgraph {__version__}", "solver_status": res.status}
-    row, t_pp = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, pass_file, camera, progress)
+    row, t_pp, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, pass_file, camera, progress)
     summary: dict[str, Any] = {"path": grid.path, "band": band, "blocks": [int(chosen.min()), int(chosen.max())], **row,
                                "roi": None, "notes": [ROI_NOTE]}
     summary["seconds"] = {"adjust": t_adjust, "pp": t_pp, "total": time.perf_counter() - t_start}
@@ -133,12 +154,13 @@ def _out_dir(out: str | os.PathLike[str]) -> Path:
 
 def _pass_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, chosen: np.ndarray, band: str, out_dir: Path,
              provenance: dict[str, Any], pass_file: str | os.PathLike[str], camera: Any,
-             progress: Callable[[str, int, int], None] | None) -> tuple[dict[str, Any], float]:
+             progress: Callable[[str, int, int], None] | None,
+             cameras: tuple[str, ...] = CAMERAS) -> tuple[dict[str, Any], float, ProjectionParameters]:
     """Compute and write ``OUT/PP_<pass id>.h5`` of one adjusted pass; its summary row
     ``{"pass_id", "files", coverage..., "pp_error_m"?, "seconds_scoring"?}`` (scored when the pass
-    file holds truth) and the seconds the PP took."""
+    file holds truth), the seconds the PP took and the PP."""
     t0 = time.perf_counter()
-    pp = compute_pp(orbit_pass, res, path, chosen, band=band, progress=progress)
+    pp = compute_pp(orbit_pass, res, path, chosen, band=band, progress=progress, cameras=cameras)
     t_pp = time.perf_counter() - t0
     pp.provenance = provenance
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -150,12 +172,12 @@ def _pass_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, chosen: np.nda
         t0 = time.perf_counter()
         row.update(score_pp(pp, orbit_pass, truth, supplied_camera=camera))
         row["seconds_scoring"] = time.perf_counter() - t0
-    return row, t_pp
+    return row, t_pp, pp
 
 
 def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None, pass_file: str | os.PathLike[str] | None,
                         band: str, progress: Callable[[str, int, int], None] | None, default_blocks: int,
-                        t_start: float) -> dict[str, Any]:
+                        t_start: float, roi_options: "RoiOptions | None" = None) -> dict[str, Any]:
     """PP of the passes of an update state from its current estimate (see :func:`run_products`):
     ``{"path", "state", "band", "blocks", "passes": [{"pass_id", "files", coverage..., "pp_error_m"?,
     "seconds"}], "seconds"}``; ``OUT/PP_<pass id>.h5`` per pass and ``OUT/products.json``."""
@@ -178,6 +200,10 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
     if len(paths) != 1:
         raise InputError("state passes", sorted(paths), "passes of one path (PP are per path)")
     grid = SomGrid(paths.pop(), 1100)
+    if roi_options is not None:
+        adjusted = [(solver.passes[i], solver.pass_result(i), files[i]) for i in chosen_idx]
+        return _roi_stage(adjusted, grid.path, blocks, band, out_dir, d, camera, progress, roi_options,
+                          {"state": str(d), "restore": t_restore}, t_start)
     rows = []
     chosen = None
     for n, i in enumerate(chosen_idx):
@@ -190,7 +216,7 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
             progress(f"PP of pass {orbit_pass.pass_id} ({n + 1}/{len(chosen_idx)})", n, len(chosen_idx))
         provenance = {"state": str(d), "pass_file": str(files[i]), "camera_model": "the state's",
                       "software": f"misrgraph {__version__}", "solver_status": "iSAM2 update state"}
-        row, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, files[i], camera, None)
+        row, _, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, files[i], camera, None)
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
     assert chosen is not None
@@ -200,3 +226,167 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
     return summary
+
+
+# ---------------------------------------------------------------------------- Reference Orbit Imagery
+@dataclass(frozen=True)
+class RoiOptions:
+    """How ``--roi`` runs: the SOM DEM (default ``dem_som.h5`` of the scenario the passes come
+    from), GeoTIFF and quick-look exports, the co-registration matches per image pair and
+    block (0: not measured), and the points per block the simulator's truth is scored at."""
+
+    som_dem: str | None = None
+    geotiff: bool = False
+    quicklooks: bool = False
+    coregistration_points: int = 64
+    truth_points: int = 300
+
+    def __post_init__(self) -> None:
+        for name in ("coregistration_points", "truth_points"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise InputError(name, v, "an integer >= 0")
+
+
+def _run_products_roi(d: Path, out: str | os.PathLike[str], blocks: str | None, camera_model: str | os.PathLike[str] | None,
+                      band: str, cfg: AdjustConfig, progress: Callable[[str, int, int], None] | None,
+                      opts: RoiOptions, t_start: float) -> dict[str, Any]:
+    """Adjust every pass of scenario ``d`` that has whole-swath strips, then :func:`_roi_stage`."""
+    from misrgraph.io.imagery import strip_cameras
+
+    out_dir = _out_dir(out)
+    files = [f for f in sorted((d / "passes").glob("*.h5")) if strip_cameras(f)]
+    if len(files) < MIN_ROI_PASSES:
+        raise InputError("--roi", f"{len(files)} passes with whole-swath strips in {d / 'passes'}",
+                         f"at least {MIN_ROI_PASSES} (simulate a path scenario with --imagery --roi-blocks A-B)")
+    cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
+    camera_all = load_camera_model(cam_path)
+    dem, gcps = read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5")
+    adjusted = []
+    t0 = time.perf_counter()
+    for n, f in enumerate(files):
+        if progress:
+            progress(f"adjusting pass {n + 1}/{len(files)}", n, len(files))
+        orbit_pass = OrbitPass.load(f)
+        res = adjust_pass(orbit_pass, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg)
+        adjusted.append((orbit_pass, res, f))
+    return _roi_stage(adjusted, int(adjusted[0][0].path), blocks, band, out_dir, d, camera_all, progress, opts,
+                      {"scenario": str(d), "adjust": time.perf_counter() - t0}, t_start)
+
+
+def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, blocks: str | None, band: str, out_dir: Path,
+               source: Path, camera: Any, progress: Callable[[str, int, int], None] | None, opts: RoiOptions,
+               head: dict[str, Any], t_start: float) -> dict[str, Any]:
+    """PP of every adjusted pass over the ROI's blocks (for the cameras with strips), the ROI built
+    and written, its co-registration measured, exports and the summary (``products.json``)."""
+    from misrgraph.evaluate.products import score_roi
+    from misrgraph.io.dem import read_som_dem
+    from misrgraph.io.imagery import read_strip, strip_blocks, strip_cameras
+    from misrgraph.io.roi import export_roi_geotiff, read_roi, roi_writer, write_quicklooks
+    from misrgraph.products.roi import RoiPass, build_roi, coregistration
+    from misrgraph.sim.imagery import FULL_SCALE_DN
+
+    if band != "red":
+        raise InputError("--band", band, "red (the strips are rendered in the red band)")
+    with_strips = [(p, r, f) for p, r, f in adjusted if strip_cameras(f)]
+    if len(with_strips) < MIN_ROI_PASSES:
+        raise InputError("--roi", f"{len(with_strips)} passes with whole-swath strips",
+                         f"at least {MIN_ROI_PASSES} (simulate a path scenario with --imagery --roi-blocks A-B)")
+    if len({int(p.path) for p, _, _ in with_strips}) != 1:
+        raise InputError("passes", sorted({int(p.path) for p, _, _ in with_strips}), "passes of one path")
+    if blocks:
+        chosen = parse_blocks(blocks)
+    else:
+        rendered = {strip_blocks(f) for _, _, f in with_strips} - {None}
+        if not rendered:
+            raise InputError("--blocks", None, "a block range (the strips do not say which blocks they cover)")
+        a, b = max(r[0] for r in rendered), min(r[1] for r in rendered)  # type: ignore[index]
+        if a > b:
+            raise InputError("--blocks", None, f"a block range (the passes' strips cover different blocks: {sorted(rendered)})")
+        chosen = np.arange(a, b + 1)
+    scenario = Path(with_strips[0][2]).parent.parent  # passes/<id>.h5 of a scenario directory
+    dem_path = Path(opts.som_dem) if opts.som_dem else scenario / "dem_som.h5"
+    if not dem_path.is_file():
+        raise InputError("--som-dem", str(dem_path), "a SOM DEM file (dem_som.h5, written by 'misrgraph simulate --roi-blocks')")
+    som_dem = read_som_dem(dem_path)
+    missing = sorted(set(chosen.tolist()) - set(som_dem.blocks.tolist()))
+    if missing or som_dem.path != path:
+        raise InputError("--blocks", missing or chosen.tolist(), f"blocks of the SOM DEM {dem_path} (path {som_dem.path}, "
+                                                                 f"blocks {som_dem.blocks.min()}-{som_dem.blocks.max()})")
+    cameras = tuple(c for c in CAMERAS if any(c in strip_cameras(f) for _, _, f in with_strips))
+    rows, roi_passes, truths = [], [], []
+    t0 = time.perf_counter()
+    for n, (orbit_pass, res, f) in enumerate(with_strips):
+        if progress:
+            progress(f"PP of pass {orbit_pass.pass_id} ({n + 1}/{len(with_strips)})", n, len(with_strips))
+        provenance = {"source": str(source), "pass_file": str(f), "software": f"misrgraph {__version__}",
+                      "solver_status": str(getattr(res, "status", "iSAM2 update state"))}
+        cam_at = camera.at_temperature(orbit_pass.temperature_c) if hasattr(camera, "at_temperature") else camera
+        row, _, pp = _pass_pp(orbit_pass, res, path, chosen, band, out_dir, provenance, f, cam_at, None, cameras)
+        rows.append(row)
+        cams = strip_cameras(f)
+        roi_passes.append(RoiPass(orbit_pass.pass_id, pp,
+                                  lambda cam, lines, f=f, cams=cams: read_strip(f, cam, lines) if cam in cams else None))
+        truth = read_pass_truth(f)
+        if truth is not None:
+            truths.append((orbit_pass, truth, pp))
+    t_pp = time.perf_counter() - t0
+    pass_ids = [p.pass_id for p in roi_passes]
+    roi_file = out_dir / f"ROI_P{path:03d}.h5"
+    coreg: dict[str, dict[str, Any]] = {}
+    truth_scores: dict[str, dict[str, float]] = {}
+    surface = _truth_surface(scenario) if truths else None
+    t0 = time.perf_counter()
+    t_coreg = 0.0
+    with roi_writer(roi_file, path, band, cameras, pass_ids, chosen, FULL_SCALE_DN) as writer:
+        for blk in build_roi(roi_passes, som_dem, chosen, cameras, full_scale=FULL_SCALE_DN, progress=progress):
+            writer.write(blk)
+            t1 = time.perf_counter()
+            if opts.coregistration_points:
+                for cam, kinds in coregistration(blk, pass_ids, opts.coregistration_points).items():
+                    for kind, st in kinds.items():
+                        best = coreg.setdefault(cam, {}).get(kind)
+                        if best is None or st["excess_px"] > best["excess_px"]:
+                            coreg[cam][kind] = {**st, "block": blk.block}
+            if surface is not None and opts.truth_points and len(truths) == len(roi_passes):
+                sc = score_roi(blk.block, truths, som_dem.block(blk.block), cameras, surface, opts.truth_points,
+                               reference=blk.chosen)
+                for kind, per_cam in sc.items():
+                    for cam, v in per_cam.items():
+                        truth_scores.setdefault(kind, {})[cam] = max(truth_scores.get(kind, {}).get(cam, 0.0), v)
+            t_coreg += time.perf_counter() - t1
+    t_roi = time.perf_counter() - t0 - t_coreg
+    roi_summary: dict[str, Any] = {"file": str(roi_file), "cameras": list(cameras), "passes": pass_ids}
+    if opts.geotiff or opts.quicklooks:
+        r = read_roi(roi_file)
+        if opts.geotiff:
+            roi_summary["geotiff"] = export_roi_geotiff(r, out_dir)
+        if opts.quicklooks:
+            roi_summary["quicklooks"] = write_quicklooks(r, out_dir)
+        roi_summary["clear_fraction"] = {int(b): dict(zip(pass_ids, map(float, r.clear_fraction[k])))
+                                         for k, b in enumerate(r.blocks)}
+        roi_summary["chosen_pass"] = {int(b): pass_ids[int(r.chosen[k])] for k, b in enumerate(r.blocks)}
+    summary: dict[str, Any] = {"path": path, **{k: v for k, v in head.items() if isinstance(v, str)}, "band": band,
+                               "blocks": [int(chosen.min()), int(chosen.max())], "passes": rows, "roi": roi_summary,
+                               "roi_coregistration_px": {cam: max(float(st["excess_px"]) for st in kinds.values())
+                                                         for cam, kinds in coreg.items() if kinds},
+                               "roi_coregistration": coreg, "notes": []}
+    if truth_scores:
+        summary["roi_truth"] = truth_scores
+    summary["seconds"] = {**{k: v for k, v in head.items() if not isinstance(v, str)}, "pp": t_pp, "roi": t_roi,
+                          "coregistration_and_scoring": t_coreg, "total": time.perf_counter() - t_start}
+    with atomic_file(out_dir / "products.json") as fh:
+        fh.write(json.dumps(summary, indent=2))
+    return summary
+
+
+def _truth_surface(scenario: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+    """The simulator's true surface (ellipsoidal m) of ``scenario`` (None without ``scenario.json``)."""
+    from misrgraph.sim.simulate import scenario_terrain
+
+    meta = scenario / "scenario.json"
+    if not meta.is_file():
+        return None
+    cfg = json.loads(meta.read_text()).get("config", {})
+    terrain = scenario_terrain(int(cfg.get("seed", 0)), str(cfg.get("truth", "model")), float(cfg.get("subposting_relief_m", 0.0)))
+    return lambda la, lo: terrain.height(la, lo)  # the simulator's geoid is zero

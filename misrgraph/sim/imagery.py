@@ -18,7 +18,8 @@ onto the true terrain and sampling a ground reflectance field:
 * **Clouds** (optional, ``cloud_fraction``): a smooth field (5-40 km) on a layer ``cloud_height_m``
   above the ellipsoid, thresholded to that fraction, reflectance 0.6 with its own texture. A ray
   meets the layer before the ground, so a cloud appears displaced by ``h tan(view angle)`` (up to
-  8 km at 3 km for the D cameras): the reason matches on clouds are wrong.
+  8 km at 3 km for the D cameras): the reason matches on clouds are wrong. Each pass has its own
+  clouds (``cloud_epoch``; the ground is the same every pass).
 * **Point spread**: each pixel averages the scene over its footprint: the detector's along-track
   extent (one pitch, ``1/rate`` lines: ~700 m for the D cameras), the motion during the line time
   (one line, 275 m) and one sample across track, through the local ground Jacobian of the cast
@@ -32,6 +33,9 @@ array centre (focal-plane fraction 0), column ``s`` the sample; a window is stor
 ``(line0, sample0)`` of its first pixel, so a position ``(r, q)`` inside it is the continuous
 observation ``line = line0 + r``, ``sample = sample0 + q`` the estimator adjusts.
 
+Whole-swath strips (:func:`render_strip`) are the same image over whole lines, rendered for the
+blocks Reference Orbit Imagery is made of (``roi_blocks`` of the scenario).
+
 GCP chips (:func:`render_chip`) are rendered from the same scene through the *supplied* geometry,
 centred on the true GCP (a Landsat chip shows the true feature; its catalogue coordinates carry
 the catalogue error), without MISR's noise and with a different linear radiometry (another
@@ -42,6 +46,7 @@ set per GCP from a nominal orbit.)
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
@@ -55,10 +60,10 @@ from misrgraph.model.geolocation import PassGeometry, ray_ellipsoid
 from misrgraph.sim.terrain import EARTH_R, land_mask
 
 if TYPE_CHECKING:
-    from misrgraph.io.imagery import PassImagery
+    from misrgraph.io.imagery import ImageStrip, PassImagery
     from misrgraph.io.passes import OrbitPass
 
-__all__ = ["SceneRadiance", "render_window", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
+__all__ = ["SceneRadiance", "render_window", "render_strip", "render_block_strips", "strip_line_range", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
            "REFERENCE_REFLECTANCE"]
 
 Array = NDArray[np.float64]
@@ -82,7 +87,10 @@ def _waves(rng: np.random.Generator, n: int, lam_lo: float, lam_hi: float, rms: 
 
 def _sinc(x: Array) -> Array:
     """``sin(x/2) / (x/2)``: the mean of ``exp(i x u)`` over ``u`` uniform in [-1/2, 1/2]."""
-    return np.sinc(x / (2 * np.pi))
+    y = 0.5 * np.asarray(x, dtype=float)
+    out = np.ones_like(y)
+    np.divide(np.sin(y), y, out=out, where=np.abs(y) > 1e-12)
+    return out
 
 
 def _field(xyz: Array, waves: tuple[Array, Array, Array]) -> Array:
@@ -109,6 +117,7 @@ class SceneRadiance:
     brdf_strength: float = 0.15
     epoch: int = 0
     change_rms: float = 0.0
+    cloud_epoch: int = 0
     view_angle_deg: float = 0.0
 
     def __post_init__(self) -> None:
@@ -116,6 +125,10 @@ class SceneRadiance:
         object.__setattr__(self, "_texture", _waves(rng, 96, 60.0, 6000.0, self.texture_rms))
         object.__setattr__(self, "_cloud", _waves(rng, 24, 5e3, 40e3, 1.0))
         object.__setattr__(self, "_cloud_texture", _waves(rng, 24, 300.0, 3000.0, 0.15))
+        if self.cloud_epoch:  # another day's clouds (epoch 0 keeps the scene's first draw)
+            crng = np.random.default_rng([self.seed, 19, self.cloud_epoch])
+            object.__setattr__(self, "_cloud", _waves(crng, 24, 5e3, 40e3, 1.0))
+            object.__setattr__(self, "_cloud_texture", _waves(crng, 24, 300.0, 3000.0, 0.15))
         object.__setattr__(self, "_brdf", (_waves(rng, 48, 100.0, 3000.0, 1.0), _waves(rng, 48, 100.0, 3000.0, 1.0)))
         object.__setattr__(self, "_change", _waves(np.random.default_rng([self.seed, 18, self.epoch]), 64, 60.0, 3000.0,
                                                    1.0))
@@ -263,6 +276,130 @@ def _counts(refl: Array, rng: np.random.Generator, snr: float) -> NDArray[np.uin
     noise = rng.standard_normal(refl.shape) * (ref / snr) * np.sqrt(np.maximum(signal, 1.0) / ref)
     return np.clip(np.round(signal + noise), 0, FULL_SCALE_DN).astype(np.uint16)
 
+
+
+def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line0: int, n_lines: int,
+                 sample0: int, n_samples: int, surface: Surface, rng: np.random.Generator, snr: float = 200.0,
+                 chunk: int = 32, progress: Callable[[int, int], None] | None = None) -> NDArray[np.uint16]:
+    """A strip of whole image lines (``n_lines x n_samples`` 14-bit counts): pixel ``(r, q)`` is
+    exposure ``line0 + r``, sample ``sample0 + q`` of camera ``cam``/band ``band`` under ``geo``.
+
+    The same image :func:`render_window` makes (the scene's footprint mean at every pixel's ground
+    point, clouds, noise), computed ``chunk`` lines at a time for a full swath: the navigation once
+    per line (:meth:`PassGeometry.line_rays`), and each line's rays cast onto the terrain by secant
+    steps from the previous line's solution (:func:`misrgraph.model.geolocation.cast_from`, the
+    bracketed search where that fails). The along-track detector extent (``rate``) is taken per
+    chunk at its centre pixel."""
+    from misrgraph.model.geolocation import cast_from
+
+    samples = sample0 + np.arange(n_samples, dtype=float)
+    out = np.zeros((n_lines, n_samples), np.uint16)
+    lam_prev: Array | None = None
+    for a in range(0, n_lines, chunk):
+        if progress:
+            progress(a, n_lines)
+        b = min(a + chunk, n_lines)
+        lines = line0 + np.arange(a - 1, b + 1, dtype=float)  # one line each side: central differences
+        origin, direction = geo.line_rays(cam, band, lines, samples)
+        o = np.repeat(origin, n_samples, axis=0)
+        d = direction.reshape(-1, 3)
+        if lam_prev is None:  # the first line by the bracketed search, the others from it
+            first = cast_from(o[:n_samples], d[:n_samples], np.full(n_samples, np.nan), surface)
+            lam_prev = np.einsum("ni,ni->n", first - o[:n_samples], d[:n_samples])
+        g = np.empty_like(o)
+        for i in range(lines.size):  # line by line: each starts from its predecessor
+            sl = slice(i * n_samples, (i + 1) * n_samples)
+            g[sl] = cast_from(o[sl], d[sl], lam_prev, surface, fallback=False)
+            lam = np.einsum("ni,ni->n", g[sl] - o[sl], d[sl])
+            lam_prev = np.where(np.isfinite(lam), lam, lam_prev)
+            if i == b - a:  # the next chunk starts at this line (b - 1 + 1 - 1)
+                lam_next = lam_prev.copy()
+        lam_prev = lam_next
+        miss = np.flatnonzero(~np.isfinite(g[:, 0]))
+        if miss.size:  # the chunk's hard rays together, by the bracketed search
+            g[miss] = cast_from(o[miss], d[miss], np.full(miss.size, np.nan), surface)
+        g = g.reshape(lines.size, n_samples, 3)
+        g_l = 0.5 * (g[2:] - g[:-2])
+        g_s = np.gradient(g[1:-1], axis=1)
+        c = (b - a) // 2
+        t = geo.line_time(cam, band, lines[1 + c], lines[1 + c])
+        rate = float(geo.line_rate(cam, band, g[1 + c, n_samples // 2][None], np.atleast_1d(t))[0])
+        refl = scene.ground_reflectance(g[1:-1], g_l, g_s, rate if np.isfinite(rate) else 1.0)
+        if scene.cloud_fraction > 0:
+            dd = direction[1:-1].reshape(-1, 3)
+            oo = np.repeat(origin[1:-1], n_samples, axis=0)
+            lam_c = ray_ellipsoid(oo, dd, np.full(oo.shape[0], scene.cloud_height_m))
+            pc = (oo + lam_c[:, None] * dd).reshape(g_l.shape)
+            alpha = scene.cloud_cover(pc)
+            refl = (1 - alpha) * refl + alpha * scene.cloud_reflectance(pc)
+        out[a:b] = _counts(np.nan_to_num(refl, nan=0.0), rng, snr)
+    if progress:
+        progress(n_lines, n_lines)
+    return out
+
+
+#: Lines rendered beyond a block's extent in each camera (terrain parallax, PP margins)
+STRIP_MARGIN_LINES = 24
+
+
+def strip_line_range(geo: PassGeometry, cam: int, band: int, path: int, blocks: tuple[int, int],
+                     surface: Surface) -> tuple[int, int] | None:
+    """First and one-past-last exposure of camera ``cam`` that image blocks ``blocks[0]..blocks[1]``
+    of ``path`` (their 1.1 km grid every 8th point on the terrain, :data:`STRIP_MARGIN_LINES` more
+    each side, clipped to the pass); None when the camera sees none of them."""
+    from misrgraph.misr.som import SomGrid
+    from misrgraph.model.frames import geodetic_to_ecef
+
+    grid = SomGrid(int(path), 1100)
+    lines = []
+    for block in range(int(blocks[0]), int(blocks[1]) + 1):
+        lat, lon = grid.somxy_to_latlon(*grid.block_centres(block, step=8))
+        lat, lon = lat.ravel(), lon.ravel()
+        g = geodetic_to_ecef(lat, lon, np.asarray(surface(lat, lon), dtype=float))
+        ip = geo.ground_to_pixel(cam, band, g, continuous=True)
+        lines.append(ip.line[ip.visible])
+    ln = np.concatenate(lines)
+    if ln.size == 0:
+        return None
+    lo = max(int(np.floor(ln.min())) - STRIP_MARGIN_LINES, 0)
+    hi = min(int(np.ceil(ln.max())) + STRIP_MARGIN_LINES + 1, int(geo.lines_in_pass(cam, band)))
+    return (lo, hi) if hi > lo else None
+
+
+def render_block_strips(geo: PassGeometry, scene: SceneRadiance, surface: Surface, path: int, blocks: tuple[int, int],
+                        cameras: tuple[str, ...], samples: tuple[int, int] | tuple = (), seed: list[int] | None = None,
+                        snr: float = 200.0, band: int = 2, workers: int | None = None,
+                        progress: Callable[[str, int, int], None] | None = None) -> "dict[str, ImageStrip]":
+    """Whole-swath strips (:func:`render_strip`) of ``cameras`` over ``blocks`` of ``path``
+    (:func:`strip_line_range`), ``samples = (first, count)`` of the array (default all), each
+    camera's noise from its own generator ``default_rng(seed + [camera index])`` so the result does
+    not depend on the order or the ``workers`` threads (default: up to 2) that render them."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from misrgraph.io.imagery import ImageStrip
+    from misrgraph.model.constants import N_PIXELS
+
+    s0, ns = (int(samples[0]), int(samples[1])) if samples else (0, N_PIXELS)
+    seed = list(seed or [0])
+    done = [0]
+
+    def one(name: str) -> "ImageStrip | None":
+        cam = CAMERAS.index(name)
+        rng_lines = strip_line_range(geo, cam, band, path, blocks, surface)
+        if rng_lines is None:
+            return None
+        lo, hi = rng_lines
+        px = render_strip(geo, scene.for_view(VIEW_ANGLE_DEG[name]), cam, band, lo, hi - lo, s0, ns, surface,
+                          np.random.default_rng(seed + [cam]), snr)
+        done[0] += 1
+        if progress:
+            progress(f"strip {name} ({done[0]}/{len(cameras)})", done[0], len(cameras))
+        return ImageStrip(name, band, lo, s0, px)
+
+    n = workers or min(2, os.cpu_count() or 1)
+    with ThreadPoolExecutor(max_workers=max(1, n)) as pool:
+        strips = list(pool.map(one, cameras))
+    return {st.camera: st for st in strips if st is not None}
 
 
 def _window_size(kind: str, search_px: int, template_px: int, chip_px: int) -> int:

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from misrgraph import __version__
 from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.config import Config
-from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS, NODAL_PERIOD_S, REPEAT_PATHS
+from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS, N_PIXELS, NODAL_PERIOD_S, REPEAT_PATHS
 from misrgraph.model.dem import DemTiles, Geoid
 from misrgraph.sim.terrain import SyntheticTerrain, land_mask, simulate_dem_tiles
 from misrgraph.io.dem import read_dem, save_dem
@@ -129,6 +129,14 @@ class ScenarioConfig(Config):
     ``path`` scenario: ``n_passes`` repeat passes, one every 16 days from ``epoch_date``; or, when
     ``repeat_indices`` is given, only those repeat cycles (cycle k starts 16 k days after
     ``epoch_date``, orbit 233 k) -- the campaign simulates the passes it selects this way.
+
+    Imagery for Reference Orbit Imagery (with ``imagery``): ``roi_blocks = (first, last)`` renders
+    every pass's whole image lines over those blocks of the path (red band; ``strip_cameras``, default
+    all nine; ``strip_samples = (first, count)`` of the array, default all 1504) and writes
+    ``dem_som.h5``, the heights on the path's 275 m SOM grid with an error of ``roi_dem_sigma_m``
+    (1 sigma; :func:`misrgraph.sim.terrain.simulate_som_dem`). Each pass has its own clouds.
+    ``feature_windows=False`` renders the strips only (no windows or chips for matching).
+    Rendering costs ~12 microseconds per pixel: a block is ~560 lines x 1504 samples per camera.
     """
 
     scenario: str = "pass"
@@ -185,6 +193,11 @@ class ScenarioConfig(Config):
     cloud_fraction: float = 0.0
     image_snr: float = 200.0
     search_px: int = 8
+    roi_blocks: tuple = ()
+    strip_cameras: tuple = ()
+    strip_samples: tuple = ()
+    roi_dem_sigma_m: float = 10.0
+    feature_windows: bool = True
 
     def __post_init__(self) -> None:
         if self.scenario not in ("pass", "month", "path"):
@@ -225,6 +238,22 @@ class ScenarioConfig(Config):
             raise InputError("image_snr", self.image_snr, "a positive signal-to-noise ratio")
         if not (isinstance(self.search_px, int) and 1 <= self.search_px <= 64):
             raise InputError("search_px", self.search_px, "an integer number of pixels in 1..64")
+        if not self.feature_windows and not self.roi_blocks:
+            raise InputError("feature_windows", False, "True unless roi_blocks are rendered (the imagery would be empty)")
+        if self.roi_blocks:
+            rb = self.roi_blocks
+            if not self.imagery:
+                raise InputError("roi_blocks", rb, "() unless imagery is rendered (--imagery)")
+            if len(rb) != 2 or any(isinstance(b, bool) or not isinstance(b, int) for b in rb) \
+                    or not 1 <= rb[0] <= rb[1] <= 180:
+                raise InputError("roi_blocks", rb, "(first, last) block numbers, 1 <= first <= last <= 180")
+        if not self.roi_dem_sigma_m >= 0:
+            raise InputError("roi_dem_sigma_m", self.roi_dem_sigma_m, "a number >= 0 (m, 1 sigma)")
+        if any(c not in CAMERAS for c in self.strip_cameras) or len(set(self.strip_cameras)) != len(self.strip_cameras):
+            raise InputError("strip_cameras", self.strip_cameras, f"distinct names from {', '.join(CAMERAS)} (empty: all)")
+        if self.strip_samples and (len(self.strip_samples) != 2 or self.strip_samples[0] < 0 or self.strip_samples[1] < 16
+                                   or self.strip_samples[0] + self.strip_samples[1] > N_PIXELS):
+            raise InputError("strip_samples", self.strip_samples, f"(first sample, count): count >= 16, within 0..{N_PIXELS}")
         if self.imagery and self.scenario == "month":
             raise InputError("imagery", True, "the pass or path scenario (month imagery is not rendered yet)")
         if len(self.attitude_sigma_arcsec) != 3 or len(self.knot_spacing_s) != 3:
@@ -716,7 +745,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             if cfg.imagery:
                 if progress:
                     progress(f"pass {k + 1}/{len(plan)}: imagery", k, len(plan))
-                imagery = _render_imagery(cfg, p, p_truth, supplied, terrain, geoid, k)
+                imagery = _render_imagery(cfg, p, p_truth, supplied, terrain, geoid, k, progress)
             save_pass_with_truth(p, p_truth, tmp / "passes" / f"{p.pass_id}.h5", imagery=imagery)
             gi = p.landmarks.gcp_index[p.landmarks.kind == KIND_GCP]
             seen_count[gi] += 1
@@ -733,6 +762,13 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         save_dem(simulate_dem_tiles(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction,
                                     pad=IMAGERY_DEM_PAD if cfg.imagery else 8,
                                     correlated_fraction=cfg.dem_correlated_fraction if independent else 0.0), tmp / "dem.h5")
+        if cfg.roi_blocks:  # the heights the ROI is orthorectified with, on the path's 275 m SOM grid
+            from misrgraph.io.dem import save_som_dem
+            from misrgraph.sim.terrain import simulate_som_dem
+
+            save_som_dem(simulate_som_dem(lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo), cfg.path,
+                                          cfg.roi_blocks, int(rng.integers(0, 2**62)), cfg.roi_dem_sigma_m),
+                         tmp / "dem_som.h5")
         save_camera_model(supplied, tmp / "camera_model.h5")
         save_camera_model(truth_model, tmp / "camera_truth.h5")
         save_gcp_database(gcps, tmp / "gcp.h5", truth_ecef=gcp_truth)
@@ -756,21 +792,36 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
 
 
 def _render_imagery(cfg: ScenarioConfig, p: OrbitPass, p_truth: PassTruth, supplied: "CameraModel | TabulatedCameraModel",
-                    terrain: SyntheticTerrain, geoid: Geoid, k: int) -> "PassImagery":
+                    terrain: SyntheticTerrain, geoid: Geoid, k: int,
+                    progress: Callable[[str, int, int], None] | None = None) -> "PassImagery":
     """The pass's image windows and GCP chips (:mod:`misrgraph.sim.imagery`), from a generator of
     their own so that switching imagery on changes nothing else in the scenario."""
-    from misrgraph.sim.imagery import SceneRadiance, render_pass_imagery
+    from misrgraph.sim.imagery import SceneRadiance, render_block_strips, render_pass_imagery
 
     surface = lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo)
-    scene = SceneRadiance(cfg.seed, surface, cloud_fraction=cfg.cloud_fraction)
+    scene = SceneRadiance(cfg.seed, surface, cloud_fraction=cfg.cloud_fraction, cloud_epoch=k)
     true_geo = p_truth.geometry(p)
     supplied_geo = p.geometry(supplied.at_temperature(p.temperature_c))
-    return render_pass_imagery(p, true_geo, supplied_geo, p_truth.landmark_ecef, scene, surface,
-                               np.random.default_rng([cfg.seed, 4242, k]), search_px=cfg.search_px, snr=cfg.image_snr)
+    if cfg.feature_windows:
+        imagery = render_pass_imagery(p, true_geo, supplied_geo, p_truth.landmark_ecef, scene, surface,
+                                      np.random.default_rng([cfg.seed, 4242, k]), search_px=cfg.search_px, snr=cfg.image_snr)
+    else:  # strips only (a scenario for Reference Orbit Imagery, not for matching)
+        from misrgraph.io.imagery import ImageWindows, PassImagery
+
+        imagery = PassImagery(ImageWindows.empty(1), ImageWindows.empty(1), np.zeros(0, np.int64),
+                              np.zeros((0, len(CAMERAS), 1, 1), np.float32),
+                              {"snr": float(cfg.image_snr), "cloud_fraction": float(cfg.cloud_fraction), "band": 2,
+                               "full_scale_dn": 2**14 - 1, "feature_windows": 0})
+    if cfg.roi_blocks:
+        imagery.strips = render_block_strips(true_geo, scene, surface, p.path, cfg.roi_blocks, cfg.strip_cameras or CAMERAS,
+                                             cfg.strip_samples, [cfg.seed, 4343, k], cfg.image_snr, progress=progress)
+        imagery.attrs["roi_blocks"] = list(cfg.roi_blocks)
+    return imagery
 
 
 #: What :func:`run_simulate` writes into a scenario directory (nothing else is ever replaced).
-SCENARIO_ENTRIES = frozenset({"scenario.json", "passes", "dem.h5", "camera_model.h5", "camera_truth.h5", "gcp.h5"})
+SCENARIO_ENTRIES = frozenset({"scenario.json", "passes", "dem.h5", "dem_som.h5", "camera_model.h5", "camera_truth.h5",
+                              "gcp.h5"})
 
 
 def _check_replaceable(out_dir: Path) -> None:

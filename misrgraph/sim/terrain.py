@@ -14,6 +14,7 @@ hands the estimator (heights = terrain + a DEM error the estimator does not know
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -23,7 +24,10 @@ from misrgraph.sim.landmask import is_land
 from misrgraph.model.dem import (FLAG_BOUNDARY, FLAG_LAND, FLAG_WATER, POSTING_DEG, POSTINGS_360, QUALITY_SIGMA_M,
                                  DemTiles, dted_lon_posting_factor, wrap_deg)
 
-__all__ = ["SyntheticTerrain", "land_mask", "simulate_dem_tiles", "value_noise", "ERROR_CORRELATION_POSTINGS", "LONG_CORRELATION_POSTINGS", "EARTH_R"]
+__all__ = ["SyntheticTerrain", "land_mask", "simulate_dem_tiles", "simulate_som_dem", "value_noise", "ERROR_CORRELATION_POSTINGS", "LONG_CORRELATION_POSTINGS", "EARTH_R"]
+
+if TYPE_CHECKING:
+    from misrgraph.io.dem import SomDem
 
 Array = NDArray[np.float64]
 EARTH_R = 6371e3
@@ -47,6 +51,13 @@ class SyntheticTerrain:
     fine_relief_m: float = 0.0
 
     def _waves(self) -> tuple[Array, Array, Array]:
+        cached = self.__dict__.get("_wave_cache")
+        if cached is None:
+            cached = self._draw_waves()
+            object.__setattr__(self, "_wave_cache", cached)  # frozen: a derived cache, not state
+        return cached
+
+    def _draw_waves(self) -> tuple[Array, Array, Array]:
         rng = np.random.default_rng(self.seed)
         lam = np.exp(rng.uniform(np.log(1.5e3), np.log(300e3), self.n_waves))
         u = rng.standard_normal((self.n_waves, 3))
@@ -211,3 +222,32 @@ def simulate_dem_tiles(
         heights[c:c + 128], flags[c:c + 128] = chunk(i0[c:c + 128], j0[c:c + 128], fzc[c:c + 128])
     quality = cell_quality(lat0 + size / 2 * p, wrap_deg(lon0 + size / 2 * fzc * p))
     return DemTiles(lat0, lon0, heights, flags, quality, p, fzc * p)
+
+
+#: lattice spacing (275 m grid points, ~5 km) of a SOM DEM's correlated error
+SOM_DEM_CORRELATION_PX = 18
+
+
+def simulate_som_dem(surface: "Callable[[Array, Array], Array]", path: int, blocks: tuple[int, int], seed: int,
+                     sigma_m: float = 10.0, resolution_m: int = 275) -> "SomDem":
+    """A DEM on ``path``'s SOM grid over ``blocks[0]..blocks[1]``: the true surface
+    (ellipsoidal m) at every pixel centre plus an error of 1-sigma ``sigma_m`` -- a smooth field
+    correlated over ~5 km (:func:`value_noise` on the grid, 0.95 of the variance) and white noise
+    per point (0.05). Over water the heights are the surface's (0 m) exactly. ``sigma_m`` 10 m is
+    an SRTM-class DEM; the terrain parallax it leaves is ``sigma tan(view angle)`` (28 m, 0.1 pixel
+    at 275 m, for the D cameras)."""
+    from misrgraph.io.dem import SomDem
+    from misrgraph.misr.som import SomGrid
+
+    grid = SomGrid(int(path), int(resolution_m))
+    bl = np.arange(int(blocks[0]), int(blocks[1]) + 1)
+    out = np.zeros((bl.size, grid.nline, grid.nsample), np.float32)
+    li, si = np.meshgrid(np.arange(grid.nline), np.arange(grid.nsample), indexing="ij")
+    for k, b in enumerate(bl):
+        lat, lon = grid.somxy_to_latlon(*grid.block_centres(int(b)))
+        h = np.asarray(surface(lat, lon), dtype=float)
+        gi = (int(b) - 1) * grid.nline + li  # path-continuous line index: the error field crosses block edges
+        err = np.sqrt(0.95) * value_noise(gi, si, seed, SOM_DEM_CORRELATION_PX) \
+            + np.sqrt(0.05) * _hash_normal(gi, si, seed + 1)
+        out[k] = np.where(land_mask(lat, lon), h + sigma_m * err, h)
+    return SomDem(int(path), int(resolution_m), bl, out, float(sigma_m), source=f"simulated (surface + {sigma_m} m error)")

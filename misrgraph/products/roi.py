@@ -1,0 +1,242 @@
+"""Reference Orbit Imagery (ROI): cloud-free imagery of a path on its 275 m SOM grid, per camera,
+mosaicked from several adjusted passes (seed section 2).
+
+For each chosen block and camera, every pass's image is resampled onto the block's 275 m grid:
+the grid point at SOM (block, line, sample), with the height ``h`` of the SOM DEM there, lies at
+image position ``(line, sample)(h)`` of the pass by its Projection Parameters
+(:meth:`misrgraph.io.products.ProjectionParameters.image_coords`), where the pass's whole-swath
+strip is interpolated bilinearly. So the ROI inherits the adjustment's geolocation and the DEM's
+error (a height error ``dh`` moves a point by ``dh tan(view angle)``: 0.1 pixel for 10 m in the D
+cameras).
+
+**Clouds.** A pixel is cloudy when its reflectance (counts / full scale) exceeds
+:data:`CLOUD_REFLECTANCE` or its 9 x 9 mean exceeds :data:`CLOUD_MEAN_REFLECTANCE` (clouds are
+bright and extend over kilometres; land rarely exceeds 0.5 and its mean stays near 0.2), grown by
+:data:`CLOUD_MARGIN_PX`. A radiometric screen, not MISR's stereo cloud mask: thin or dark cloud
+passes it.
+
+**Mosaic.** Per block, the passes are ranked by their clear fraction (clear pixels over the
+pixels they image, all cameras); the clearest is the block's pass. Every pixel takes the
+highest-ranked pass that images it clear, else (no clear pass) the highest-ranked that images it
+at all, flagged ``cloudy``; ``source`` records the pass index per pixel (-1: no pass images it).
+
+**Co-registration** (:func:`coregistration`) is measured on the resampled images themselves: at
+points spread over each block, a 41 x 41 template (11 km) of one image is matched by
+least-squares matching (:func:`misrgraph.match.lsm.lsm`) into another; the offset is the
+misregistration of the second against the first. (The D cameras see the ground through another
+blur and BRDF than An: a 21 x 21 template matched them with errors twice its own sigma, 0.36
+pixel beyond noise where the simulator's truth says 0.12-0.14.) Each camera is compared with An of the same
+pass (between cameras) and with itself in the block's pass (between passes); points on clouds,
+water or without texture are skipped, and matches that do not converge or move more than 1 pixel
+are counted as failures, not offsets.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Callable, Iterator
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from misrgraph.errors import InputError
+from misrgraph.io.dem import SomDem
+from misrgraph.io.imagery import ImageStrip
+from misrgraph.io.products import ProjectionParameters
+from misrgraph.misr.som import SomGrid
+from misrgraph.model.constants import CAMERAS
+
+__all__ = ["RoiPass", "RoiBlock", "build_roi", "cloud_mask", "coregistration", "CLOUD_REFLECTANCE",
+           "CLOUD_MEAN_REFLECTANCE", "CLOUD_MARGIN_PX", "MIN_ROI_PASSES"]
+
+Array = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+#: A pixel brighter than this reflectance is cloud.
+CLOUD_REFLECTANCE = 0.55
+#: A pixel whose 9 x 9 mean reflectance exceeds this is cloud.
+CLOUD_MEAN_REFLECTANCE = 0.38
+#: Cloud masks grow by this many pixels (cloud edges, thin margins).
+CLOUD_MARGIN_PX = 4
+#: The seed's ROI is built from at least this many adjusted passes.
+MIN_ROI_PASSES = 4
+#: Template size (px) and the search margin each side (px) of the co-registration matches.
+COREG_TEMPLATE_PX = 41
+COREG_MARGIN_PX = 4
+
+
+@dataclass
+class RoiPass:
+    """One adjusted pass as the ROI sees it: its PP (1.1 km, all blocks the ROI needs) and a
+    loader of its whole-swath strip ``strip(camera, (first line, one past last))`` (None where the
+    pass has none there)."""
+
+    pass_id: str
+    pp: ProjectionParameters
+    strip: Callable[[str, tuple[int, int]], ImageStrip | None]
+
+
+@dataclass
+class RoiBlock:
+    """One block of ROI: ``pixels (C, nline, nsample)`` uint16 counts (0: no pass images it),
+    ``source`` int8 pass index per pixel (-1: none), ``cloudy`` bool (no clear pass there),
+    ``clear_fraction (P,)`` per pass and ``chosen`` (the block's clearest pass); ``resampled``
+    holds every pass's image on the grid (``(P, C, nline, nsample)`` float32 counts, NaN where it
+    has none) and ``clouds`` their cloud masks, for co-registration and views (not stored)."""
+
+    block: int
+    cameras: tuple[str, ...]
+    pixels: NDArray[np.uint16]
+    source: NDArray[np.int8]
+    cloudy: NDArray[np.bool_]
+    clear_fraction: Array
+    chosen: int
+    resampled: NDArray[np.float32] = field(repr=False)
+    clouds: NDArray[np.bool_] = field(repr=False)
+
+
+def cloud_mask(counts: NDArray[np.float32], full_scale: float) -> NDArray[np.bool_]:
+    """Cloudy pixels of an image of counts (NaN: no data, never cloudy); see the module docstring."""
+    refl = np.nan_to_num(np.asarray(counts, dtype=np.float32) / np.float32(full_scale), nan=0.0)
+    valid = np.isfinite(counts)
+    n = ndimage.uniform_filter(valid.astype(np.float32), 9, mode="nearest")
+    mean = ndimage.uniform_filter(refl, 9, mode="nearest") / np.maximum(n, 1e-6)
+    cloud = ((refl > CLOUD_REFLECTANCE) | ((mean > CLOUD_MEAN_REFLECTANCE) & (n > 0.25))) & valid
+    if CLOUD_MARGIN_PX and cloud.any():
+        cloud = ndimage.binary_dilation(cloud, iterations=CLOUD_MARGIN_PX) & valid
+    return cloud
+
+
+def _resample(p: RoiPass, camera: str, block: int, heights: NDArray[np.float32], lines: Array,
+              samples: Array) -> NDArray[np.float32] | None:
+    """A pass's image on the block's 275 m grid (NaN where it does not image the point; None where
+    it has no strip there): the PP give each point's image position at its DEM height, where
+    the strip (only the lines needed) is interpolated."""
+    if camera not in p.pp.cameras:
+        return None
+    ln, sm = p.pp.image_coords(camera, block, lines, samples, heights, resolution_m=275)
+    if not np.isfinite(ln).any():
+        return None
+    strip = p.strip(camera, (int(np.floor(np.nanmin(ln))) - 1, int(np.ceil(np.nanmax(ln))) + 2))
+    return None if strip is None else strip.sample_at(ln, sm)
+
+
+def build_roi(passes: list[RoiPass], dem: SomDem, blocks: NDArray[np.int64], cameras: tuple[str, ...] = CAMERAS,
+              full_scale: float = 2**14 - 1,
+              progress: Callable[[str, int, int], None] | None = None) -> Iterator[RoiBlock]:
+    """The ROI of ``blocks``, one :class:`RoiBlock` at a time (module docstring), from ``passes``
+    (at least :data:`MIN_ROI_PASSES`, all of one path) resampled with the heights of ``dem``."""
+    if len(passes) < MIN_ROI_PASSES:
+        raise InputError("passes", len(passes), f"at least {MIN_ROI_PASSES} adjusted passes with imagery")
+    paths = {int(p.pp.path) for p in passes}
+    if len(paths) != 1 or int(dem.path) not in paths:
+        raise InputError("passes/dem path", sorted(paths | {int(dem.path)}), "one path for every pass and the SOM DEM")
+    if dem.resolution_m != 275:
+        raise InputError("dem.resolution_m", dem.resolution_m, 275)
+    bad = [c for c in cameras if c not in CAMERAS]
+    if bad or not cameras:
+        raise InputError("cameras", bad or cameras, f"names from {', '.join(CAMERAS)}")
+    grid = SomGrid(paths.pop(), 275)
+    li, si = np.meshgrid(np.arange(grid.nline, dtype=float), np.arange(grid.nsample, dtype=float), indexing="ij")
+    n_p, n_c = len(passes), len(cameras)
+    for k, block in enumerate(np.asarray(blocks, dtype=np.int64)):
+        for p in passes:
+            if int(block) not in p.pp.blocks:
+                raise InputError("blocks", int(block), f"blocks of pass {p.pass_id}'s PP ({p.pp.blocks.min()}..{p.pp.blocks.max()})")
+        h = dem.block(int(block))
+        imgs = np.full((n_p, n_c, grid.nline, grid.nsample), np.nan, np.float32)
+        for i, p in enumerate(passes):
+            if progress:
+                progress(f"ROI block {block}: resampling pass {p.pass_id}", k * n_p + i, len(blocks) * n_p)
+            for j, cam in enumerate(cameras):
+                img = _resample(p, cam, int(block), h, li, si)
+                if img is not None:
+                    imgs[i, j] = img
+        clouds = np.stack([[cloud_mask(imgs[i, j], full_scale) for j in range(n_c)] for i in range(n_p)])
+        seen = np.isfinite(imgs)
+        clear = seen & ~clouds
+        n_seen = seen.reshape(n_p, -1).sum(1)
+        clear_fraction = np.where(n_seen > 0, clear.reshape(n_p, -1).sum(1) / np.maximum(n_seen, 1), 0.0)
+        order = np.argsort(-clear_fraction, kind="stable")
+        pixels = np.zeros((n_c, grid.nline, grid.nsample), np.uint16)
+        source = np.full((n_c, grid.nline, grid.nsample), -1, np.int8)
+        cloudy = np.zeros((n_c, grid.nline, grid.nsample), bool)
+        for mask_of in (clear, seen):  # clear pixels first, then any that some pass images
+            for i in order:
+                take = mask_of[i] & (source < 0)
+                source[take] = i
+                pixels[take] = np.clip(np.round(imgs[i][take]), 0, 65535).astype(np.uint16)
+                cloudy[take] = clouds[i][take]
+        log.info("ROI block %d: clearest pass %s (clear %.2f)", block, passes[int(order[0])].pass_id, clear_fraction[order[0]])
+        yield RoiBlock(int(block), tuple(cameras), pixels, source, cloudy, clear_fraction, int(order[0]), imgs, clouds)
+
+
+def _match_offsets(ref: NDArray[np.float32], img: NDArray[np.float32], bad: NDArray[np.bool_], n_points: int,
+                   min_std: float) -> tuple[Array, int]:
+    """Offsets and their LSM 1-sigma ``(n, 4)`` (line, sample, sigma_line, sigma_sample px) of
+    ``img`` against ``ref`` by LSM at up to ``n_points`` points spread evenly over where both images
+    hold data clear of ``bad`` over the whole search window, and the number of matches that failed."""
+    from misrgraph.match.lsm import lsm
+
+    t2, m = COREG_TEMPLATE_PX // 2, COREG_MARGIN_PX
+    w = 2 * (t2 + m) + 1
+    usable = ndimage.minimum_filter(np.isfinite(ref) & np.isfinite(img) & ~bad, size=w, mode="constant", cval=0)
+    usable[:t2 + m + 1] = usable[-(t2 + m + 1):] = False
+    usable[:, :t2 + m + 1] = usable[:, -(t2 + m + 1):] = False
+    cand = np.argwhere(usable[::8, ::8]) * 8  # candidates 8 px apart, then evenly thinned
+    if cand.shape[0] > n_points:
+        cand = cand[np.linspace(0, cand.shape[0] - 1, n_points).astype(int)]
+    out, failed = [], 0
+    for r, c in cand:
+        tpl = ref[r - t2:r + t2 + 1, c - t2:c + t2 + 1]
+        if tpl.std() < min_std:  # water, flat ground: nothing to match
+            continue
+        win = img[r - t2 - m:r + t2 + m + 1, c - t2 - m:c + t2 + m + 1]
+        centre = float(t2 + m)
+        res = lsm(win, tpl, centre, centre, max_shift_px=1.0)
+        if not res.converged:
+            failed += 1
+            continue
+        out.append((res.row - centre, res.col - centre, res.sigma_row, res.sigma_col))
+    return np.array(out, dtype=float).reshape(-1, 4), failed
+
+
+def coregistration(block: RoiBlock, pass_ids: list[str], points_per_pair: int = 64,
+                   min_std_counts: float = 150.0) -> dict[str, dict[str, dict[str, float | int | str]]]:
+    """Co-registration measured on a block's resampled images (module docstring).
+
+    Returns, per camera, ``{"between_cameras": stats, "between_passes": stats}``, each the worst
+    pair (largest ``excess_px``): ``{"rms_px", "noise_px", "excess_px", "mean_px", "matches",
+    "failed", "pair"}`` with ``rms_px`` the radial RMS of the offsets, ``noise_px`` the radial RMS
+    of the matches' own 1-sigma (LSM's), ``excess_px = sqrt(rms^2 - noise^2)`` the misregistration
+    beyond matching noise, ``mean_px`` the length of the offsets' mean vector (the systematic
+    part). A pair with fewer than 3 matches is left out."""
+    imgs, clouds = block.resampled, block.clouds
+    n_p = imgs.shape[0]
+    an = block.cameras.index("An") if "An" in block.cameras else None
+    out: dict[str, dict[str, dict[str, float | int | str]]] = {}
+
+    def stats(ref: tuple[int, int], other: tuple[int, int]) -> dict[str, float | int | str] | None:
+        (pr, cr), (po, co) = ref, other
+        d, failed = _match_offsets(imgs[pr, cr], imgs[po, co], clouds[pr, cr] | clouds[po, co], points_per_pair,
+                                   min_std_counts)
+        if d.shape[0] < 3:
+            return None
+        rms = float(np.sqrt(np.mean(np.sum(d[:, :2]**2, 1))))
+        noise = float(np.sqrt(np.mean(np.sum(d[:, 2:]**2, 1))))
+        return {"rms_px": rms, "noise_px": noise, "excess_px": float(np.sqrt(max(rms**2 - noise**2, 0.0))),
+                "mean_px": float(np.hypot(*d[:, :2].mean(0))), "matches": int(d.shape[0]), "failed": int(failed),
+                "pair": f"{block.cameras[co]}/{pass_ids[po]} vs {block.cameras[cr]}/{pass_ids[pr]}"}
+
+    for j, cam in enumerate(block.cameras):
+        res: dict[str, dict[str, float | int | str]] = {}
+        between_cams = [stats((i, an), (i, j)) for i in range(n_p)] if an is not None and j != an else []
+        between_passes = [stats((block.chosen, j), (i, j)) for i in range(n_p) if i != block.chosen]
+        for name, cand in (("between_cameras", between_cams), ("between_passes", between_passes)):
+            good = [c for c in cand if c is not None]
+            if good:
+                res[name] = max(good, key=lambda s: float(s["excess_px"]))
+        out[cam] = res
+    return out

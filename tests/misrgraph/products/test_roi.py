@@ -1,0 +1,116 @@
+"""Reference Orbit Imagery from four simulated passes (one block, cameras Df/An/Da, 256 samples):
+the mosaic's bookkeeping, its misregistration against the simulator's truth, the co-registration
+matching measures on it against that truth, and the GeoTIFF's georeferencing against the SOM grid."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from misrgraph.commands.cli import app
+from misrgraph.io.products import read_pp
+from misrgraph.io.roi import read_roi
+from misrgraph.misr.som import SomGrid
+from misrgraph.runs.products import RoiOptions, run_products
+
+#: The SOM DEM's error (1 sigma, m) times the D cameras' parallax against An (tan 70.5 deg), in
+#: 275 m pixels: what the ROI's co-registration cannot beat, whatever the navigation.
+DEM_PARALLAX_PX = 10.0 * np.tan(np.radians(70.5)) / 275.0
+
+
+@pytest.fixture(scope="module")
+def roi_run(roi_path_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("roi_out")
+    res = run_products(roi_path_dir, out, roi=True, roi_options=RoiOptions(geotiff=True, quicklooks=True))
+    return res, out
+
+
+def test_mosaic_bookkeeping(roi_run):
+    res, _ = roi_run
+    roi = read_roi(res["roi"]["file"])
+    assert roi.cameras == ("Df", "An", "Da") and len(roi.pass_ids) == 4 and roi.pixels.shape == (3, 1, 512, 2048)
+    # the block's pass is the clearest; every imaged pixel names a pass and holds counts, others are empty
+    assert roi.chosen[0] == int(np.argmax(roi.clear_fraction[0]))
+    src, px = roi.source, roi.pixels
+    assert set(np.unique(src).tolist()) <= {-1, 0, 1, 2, 3}
+    assert np.all(px[src < 0] == 0) and np.all(px[src >= 0] > 0)
+    # 256 samples of the swath: a band across the block, about 256/2048 of it per camera
+    frac = np.mean(src >= 0, axis=(1, 2, 3))
+    assert np.all((frac > 0.08) & (frac < 0.2)), frac
+    # clouds (20 % of the sky each pass, different every pass) are filled from other passes:
+    # few pixels are left cloudy, and the block's pass supplies the most clear pixels
+    clear = (src >= 0) & ~roi.cloudy
+    assert np.mean(roi.cloudy[src >= 0]) < 0.05
+    assert np.argmax(np.bincount(src[clear], minlength=4)) == roi.chosen[0]
+    assert all(p.endswith(".png") for p in res["roi"]["quicklooks"].values())
+
+
+def test_misregistration_against_truth(roi_run):
+    """The truth's misregistration of the resampled images: between cameras, the DEM's parallax
+    and the two cameras' PP errors; between passes, the two passes' PP errors. Each within 3x
+    what those predict (the PP's own 1 sigma, in pixels, over the block)."""
+    res, _ = roi_run
+    tr = res["roi_truth"]
+    pps = [read_pp(r["files"]["pp"]) for r in res["passes"]]
+
+    def pp_sigma(cam: str) -> float:  # radial 1 sigma (px), worst pass, median over the block
+        return max(float(np.nanmedian(np.hypot(pp.sigma_line[pp.cameras.index(cam)], pp.sigma_sample[pp.cameras.index(cam)])))
+                   for pp in pps)
+
+    for cam in ("Df", "Da"):
+        predicted = np.sqrt(DEM_PARALLAX_PX**2 + pp_sigma(cam)**2 + pp_sigma("An")**2)
+        assert tr["between_cameras_px"][cam] < 3 * predicted, (cam, tr["between_cameras_px"][cam], predicted)
+    for cam in ("Df", "An", "Da"):
+        predicted = np.sqrt(2) * pp_sigma(cam)
+        assert tr["between_passes_px"][cam] < 3 * predicted, (cam, tr["between_passes_px"][cam], predicted)
+
+
+def test_matched_coregistration_against_truth(roi_run):
+    """Matching on the ROI measures what the truth says: between passes (same camera, same
+    blur) to 0.05 px; between cameras it reads higher (another blur and BRDF: measured +0.03 to
+    +0.07 px beyond its own noise) but by less than 0.1 px."""
+    res, _ = roi_run
+    tr, co = res["roi_truth"], res["roi_coregistration"]
+    for cam in ("Df", "An", "Da"):
+        st = co[cam]["between_passes"]
+        assert st["matches"] >= 20 and st["failed"] <= 0.1 * st["matches"]
+        assert abs(st["excess_px"] - tr["between_passes_px"][cam]) < 0.05, (cam, st, tr["between_passes_px"][cam])
+    for cam in ("Df", "Da"):
+        st = co[cam]["between_cameras"]
+        assert st["matches"] >= 20
+        assert -0.05 < st["excess_px"] - tr["between_cameras_px"][cam] < 0.1, (cam, st, tr["between_cameras_px"][cam])
+    assert set(res["roi_coregistration_px"]) == {"Df", "An", "Da"}
+
+
+def test_geotiff_georeferencing(roi_run):
+    """A pixel of the GeoTIFF, found by its SOM coordinates through rasterio, holds the ROI's value
+    at that block/line/sample; the CRS is the path's misrsom."""
+    rasterio = pytest.importorskip("rasterio")
+    res, _ = roi_run
+    roi = read_roi(res["roi"]["file"])
+    grid = SomGrid(roi.path, 275)
+    c = roi.cameras.index("An")
+    lines, samples = np.nonzero(roi.pixels[c, 0])
+    pick = np.linspace(0, lines.size - 1, 25).astype(int)
+    with rasterio.open(res["roi"]["geotiff"]["An"]) as ds:
+        assert "misrsom" in ds.crs.to_proj4() and "+path=37" in ds.crs.to_proj4()
+        img = ds.read(1)
+        for k in pick:
+            x, y = grid.bls_to_somxy(int(roi.blocks[0]), lines[k], samples[k])
+            r, q = ds.index(float(x), float(y))
+            assert img[r, q] == roi.pixels[c, 0, lines[k], samples[k]]
+
+
+def test_cli_roi_refusals(roi_path_dir, path_dir, tmp_path):
+    runner = CliRunner()
+    r = runner.invoke(app, ["products", str(path_dir), "--out", str(tmp_path / "a"), "--roi"])
+    assert r.exit_code == 2 and "--roi" in r.output and "0 passes with whole-swath strips" in r.output
+    first = sorted((roi_path_dir / "passes").glob("*.h5"))[0]
+    r = runner.invoke(app, ["products", str(roi_path_dir), "--out", str(tmp_path / "b"), "--roi", "--pass", str(first)])
+    assert r.exit_code == 2 and "--pass" in r.output
+    r = runner.invoke(app, ["products", str(roi_path_dir), "--out", str(tmp_path / "c"), "--geotiff"])
+    assert r.exit_code == 2 and "--roi" in r.output
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
