@@ -21,7 +21,7 @@ ALLOWED = {
     "sim": {"model", "misr", "io"},
     "estimate": {"model", "misr", "io"},
     "match": {"model", "misr", "io"},
-    "products": {"model", "misr", "io", "estimate"},
+    "products": {"model", "misr", "io", "estimate", "match"},
     "evaluate": {"model", "misr", "io", "sim", "estimate", "products"},
     "viz": {"model", "misr", "io", "match"},
     "runs": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "viz"},

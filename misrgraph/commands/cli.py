@@ -934,6 +934,40 @@ def bench_pp(
     console.print(table)
 
 
+@bench_app.command("roi")
+@handle_errors
+def bench_roi(
+    passes: int = typer.Option(4, "--passes", help="Standard repeat passes of path 37 (at least 4)."),
+    blocks: int = typer.Option(2, "--blocks", help="Consecutive SOM blocks from block 62 (whole-line imagery of 9 cameras: ~3 min of rendering a block and pass on 2 cores)."),
+    seed: int = typer.Option(0, "--seed"),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the scenario and products here (a rerun reuses the scenario)."),
+    tie_points: int = typer.Option(1000, "--tie-points", help="Tie points per pass (1000: the standard size)."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Reference Orbit Imagery end to end at the seed's size: stage times, PP errors, and the ROI's co-registration measured by matching and against the truth."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from misrgraph.bench.roi import run_bench_roi
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err_console,
+                  disable=as_json) as bar:
+        task = bar.add_task("bench roi", total=None)
+        res = run_bench_roi(passes, blocks, seed, workdir, tie_points=tie_points,
+                            progress=lambda d, k, n: bar.update(task, description=d, completed=k, total=max(n, 1)))
+    if as_json:
+        _print_json(res)
+        return
+    table = Table(title=f"ROI of {passes} passes x {blocks} blocks x 9 cameras: co-registration (px)")
+    for col in ("camera", "matched, beyond noise", "truth: vs An", "truth: between passes"):
+        table.add_column(col, justify="right")
+    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    tr = res["roi_truth"]
+    for cam, v in res["roi_coregistration_px"].items():
+        table.add_row(cam, fmt(v), fmt(tr.get("between_cameras_px", {}).get(cam)), fmt(tr.get("between_passes_px", {}).get(cam)))
+    console.print(table)
+    console.print("seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in res["seconds"].items() if v is not None))
+
+
 @bench_app.command("sources")
 @handle_errors
 def bench_sources(

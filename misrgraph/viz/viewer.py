@@ -259,6 +259,39 @@ def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5
                                                          colors=[0, 255, 0], radii=1.0))
 
 
+def _view_roi(rec, rr, path: Path, counts: dict[str, int], step: int = 2) -> None:
+    """Reference Orbit Imagery: per camera and block (one time step per block), the mosaic (every
+    ``step``-th pixel, counts), its per-pixel source pass (annotated) and cloudy flags, on the
+    block's SOM grid (rows = lines along the path, columns = samples)."""
+    from misrgraph.io.roi import read_roi
+
+    roi = read_roi(path)
+    rec.log("roi/source", rr.AnnotationContext([(i + 1, pid) for i, pid in enumerate(roi.pass_ids)]), static=True)
+    for k, block in enumerate(roi.blocks):
+        rec.set_time("block", sequence=int(block))
+        for c, cam in enumerate(roi.cameras):
+            rec.log(f"roi/{cam}/image", rr.Image(roi.pixels[c, k, ::step, ::step].astype(np.float32)))
+            rec.log(f"roi/{cam}/source", rr.SegmentationImage((roi.source[c, k, ::step, ::step] + 1).astype(np.uint8)))
+            counts["ROI block images"] = counts.get("ROI block images", 0) + 1
+
+
+def _view_pp(rec, rr, path: Path, counts: dict[str, int]) -> None:
+    """Projection Parameters: per camera and block (one time step per block), the horizontal 1-sigma
+    (m) as a heat map on the block's 1.1 km grid (NaN: not imaged), and its line/sample 1-sigma."""
+    from misrgraph.io.products import read_pp
+
+    pp = read_pp(path)
+    for k, block in enumerate(pp.blocks):
+        rec.set_time("block", sequence=int(block))
+        for c, cam in enumerate(pp.cameras):
+            sig = pp.sigma_m[c, k].astype(np.float32)
+            rec.log(f"pp/{cam}/sigma_m", rr.Tensor(np.nan_to_num(sig, nan=0.0), dim_names=["line", "sample"]))
+            fin = np.isfinite(sig)
+            if fin.any():
+                rec.log(f"pp/{cam}/sigma_m_median", rr.Scalars(float(np.median(sig[fin]))))
+            counts["PP sigma maps"] = counts.get("PP sigma maps", 0) + 1
+
+
 def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None = None, spawn: bool = False,
              exaggeration: float = DEFAULT_EXAGGERATION, notebook: bool = False) -> dict[str, Any]:
     """Log a result file to rerun; save a ``.rrd``, spawn the viewer and/or show it inline in a
@@ -272,9 +305,11 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
         raise InputError("--exaggeration", exaggeration, "a positive factor")
     with open_h5(result) as f:
         kind = str(read_attr(f, "misrgraph_kind"))
-        if kind not in ("adjustment_result", "camera_model", "orbit_pass"):
+        if kind not in ("adjustment_result", "camera_model", "orbit_pass", "reference_orbit_imagery",
+                        "projection_parameters"):
             raise FileFormatError(result, f"misrgraph_kind {kind!r} cannot be viewed; expected an adjustment result, a "
-                                          "calibrated camera model or a pass file with imagery")
+                                          "calibrated camera model, a pass file with imagery, Reference Orbit Imagery "
+                                          "or Projection Parameters")
         if kind == "orbit_pass" and "imagery" not in f:
             raise FileFormatError(result, "a pass file without /imagery (simulate with --imagery)")
         if kind == "camera_model" and "calibration" not in f:
@@ -298,6 +333,14 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
                              rrb.TimeSeriesView(origin="ephemeris", name="ephemeris error (m)")),
                 rrb.Vertical(rrb.TimeSeriesView(origin="residuals", name="residuals (px)"),
                              rrb.BarChartView(origin="residuals/An/histogram", name="An residual histogram"))))
+        elif kind == "reference_orbit_imagery":
+            _view_roi(rec, rr, Path(result), counts)
+            cams = str(read_attr(f, "cameras")).split(",")
+            bp = rrb.Blueprint(rrb.Grid(*[rrb.Spatial2DView(origin=f"roi/{c}", name=f"ROI {c}") for c in cams]))
+        elif kind == "projection_parameters":
+            _view_pp(rec, rr, Path(result), counts)
+            cams = str(read_attr(f, "cameras")).split(",")
+            bp = rrb.Blueprint(rrb.Grid(*[rrb.TensorView(origin=f"pp/{c}/sigma_m", name=f"PP 1 sigma (m) {c}") for c in cams]))
         elif kind == "orbit_pass":
             _view_imagery(rec, rr, Path(result), counts)
             bp = rrb.Blueprint(rrb.Grid(*[rrb.Spatial2DView(origin=f"imagery/{c}", name=c) for c in CAMERAS]))

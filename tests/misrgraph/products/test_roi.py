@@ -114,3 +114,28 @@ def test_cli_roi_refusals(roi_path_dir, path_dir, tmp_path):
     r = runner.invoke(app, ["products", str(roi_path_dir), "--out", str(tmp_path / "c"), "--geotiff"])
     assert r.exit_code == 2 and "--roi" in r.output
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_view_roi_and_pp_sigma(roi_run, tmp_path):
+    """rerun: the ROI's blocks as images with their source maps, and a PP file's 1-sigma heat maps;
+    the logged images hold the file's pixels (every 2nd) and sigma grid."""
+    pytest.importorskip("rerun")
+    import rerun.chunk as rc
+
+    from misrgraph.viz.viewer import run_view
+
+    res, _ = roi_run
+    out = run_view(res["roi"]["file"], save=tmp_path / "roi.rrd")
+    assert out["kind"] == "reference_orbit_imagery" and out["entities"]["ROI block images"] == 3
+    out_pp = run_view(res["passes"][0]["files"]["pp"], save=tmp_path / "pp.rrd")
+    assert out_pp["kind"] == "projection_parameters" and out_pp["entities"]["PP sigma maps"] == 3
+    roi = read_roi(res["roi"]["file"])
+    logged = {}
+    for ch in rc.RrdReader(str(tmp_path / "roi.rrd")).store().stream():
+        if str(ch.entity_path) == "/roi/An/image":
+            rb = ch.to_record_batch()
+            col = [c for c in rb.schema.names if c.endswith("buffer")][0]
+            buf = rb.column(col).to_pylist()[0]
+            buf = buf[0] if buf and isinstance(buf[0], list) else buf  # one image per row
+            logged["An"] = np.asarray(buf, dtype=np.uint8).view(np.float32)
+    assert np.array_equal(logged["An"], roi.pixels[roi.cameras.index("An"), 0, ::2, ::2].astype(np.float32).ravel())
