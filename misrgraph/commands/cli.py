@@ -156,7 +156,7 @@ def simulate(
     truth: str = typer.Option("model", "--truth", help="model (navigation errors drawn from the estimator's own parameterisations: checks the algebra) or independent (error sources the estimator does not share: an attitude process with jitter, a once-per-revolution ephemeris term, sub-posting terrain, DEM error correlated over 28 km, f/alpha camera errors, Student-t matching noise with 1-2 px mismatches, scene-correlated GCP errors; see docs/design.md: checks the estimator)."),
     imagery: bool = typer.Option(False, "--imagery", help="Also render the image windows matching reads (ray-cast through the true geometry, red band, 14-bit) and the GCPs' reference chips, into each pass file (pass and path scenarios)."),
     cloud_fraction: float = typer.Option(0.0, "--cloud-fraction", help="With --imagery: fraction of the sky covered by clouds on a layer 3 km up (they appear displaced with view angle; each pass has its own)."),
-    roi_blocks: Optional[str] = typer.Option(None, "--roi-blocks", help="With --imagery: also render every pass's whole image lines over these SOM blocks A-B (red band, all cameras; ~12 microseconds per pixel, ~2 min per block, camera and pass on 2 cores) and write dem_som.h5, for 'misrgraph products --roi'."),
+    roi_blocks: Optional[str] = typer.Option(None, "--roi-blocks", help="With --imagery: also render every pass's whole image lines over these SOM blocks A-B (red band, all cameras; ~12 microseconds per pixel: ~80 s a block and pass of 9 cameras on 2 cores) and write dem_som.h5, for 'misrgraph products --roi'."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options; strip_cameras, strip_samples and roi_dem_sigma_m are set here)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -579,16 +579,22 @@ def products(
                           *([f"{e['rms']:.1f}", f"{e['predicted_rms']:.1f}", f"{e['nees']:.2f}"] if e else ["-"] * 3))
         console.print(table)
     if res.get("roi"):
-        table = Table(title=f"Reference Orbit Imagery -> {res['roi']['file']}: co-registration (px)")
-        for col in ("camera", "matched, beyond noise", "truth: vs An", "truth: between passes"):
-            table.add_column(col, justify="right")
-        tr = res.get("roi_truth", {})
-        fmt = lambda v: "-" if v is None else f"{v:.3f}"
-        for cam in res["roi"]["cameras"]:
-            table.add_row(cam, fmt(res["roi_coregistration_px"].get(cam)), fmt(tr.get("between_cameras_px", {}).get(cam)),
-                          fmt(tr.get("between_passes_px", {}).get(cam)))
-        console.print(table)
+        _print_coregistration(f"Reference Orbit Imagery -> {res['roi']['file']}: co-registration (px)", res["roi"]["cameras"],
+                              res["roi_coregistration_px"], res.get("roi_truth", {}))
     console.print(f"{res['seconds']['total']:.0f} s")
+
+
+def _print_coregistration(title: str, cameras: list[str], matched: dict[str, float], truth: dict[str, dict[str, float]]) -> None:
+    """The ROI's co-registration per camera: matched on the ROI (beyond matching noise) and, when
+    simulated, the truth against An and between passes (pixels)."""
+    table = Table(title=title)
+    for col in ("camera", "matched, beyond noise", "truth: vs An", "truth: between passes"):
+        table.add_column(col, justify="right")
+    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    for cam in cameras:
+        table.add_row(cam, fmt(matched.get(cam)), fmt(truth.get("between_cameras_px", {}).get(cam)),
+                      fmt(truth.get("between_passes_px", {}).get(cam)))
+    console.print(table)
 
 
 som_app = typer.Typer(help="MISR space: a path's SOM grid and blocks, and orbit <-> path <-> time.", no_args_is_help=True)
@@ -938,7 +944,7 @@ def bench_pp(
 @handle_errors
 def bench_roi(
     passes: int = typer.Option(4, "--passes", help="Standard repeat passes of path 37 (at least 4)."),
-    blocks: int = typer.Option(2, "--blocks", help="Consecutive SOM blocks from block 62 (whole-line imagery of 9 cameras: ~3 min of rendering a block and pass on 2 cores)."),
+    blocks: int = typer.Option(2, "--blocks", help="Consecutive SOM blocks from block 62 (whole-line imagery of 9 cameras: ~80 s of rendering a block and pass on 2 cores)."),
     seed: int = typer.Option(0, "--seed"),
     workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the scenario and products here (a rerun reuses the scenario)."),
     tie_points: int = typer.Option(1000, "--tie-points", help="Tie points per pass (1000: the standard size)."),
@@ -957,14 +963,8 @@ def bench_roi(
     if as_json:
         _print_json(res)
         return
-    table = Table(title=f"ROI of {passes} passes x {blocks} blocks x 9 cameras: co-registration (px)")
-    for col in ("camera", "matched, beyond noise", "truth: vs An", "truth: between passes"):
-        table.add_column(col, justify="right")
-    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
-    tr = res["roi_truth"]
-    for cam, v in res["roi_coregistration_px"].items():
-        table.add_row(cam, fmt(v), fmt(tr.get("between_cameras_px", {}).get(cam)), fmt(tr.get("between_passes_px", {}).get(cam)))
-    console.print(table)
+    _print_coregistration(f"ROI of {passes} passes x {blocks} blocks x 9 cameras: co-registration (px)",
+                          list(res["roi_coregistration_px"]), res["roi_coregistration_px"], res["roi_truth"])
     console.print("seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in res["seconds"].items() if v is not None))
 
 
