@@ -151,6 +151,12 @@ class CameraModel:
     def detector_to_spacecraft(self, cam: ArrayLike, band: ArrayLike | None = None) -> Array:
         """``T_si T_ic T_cd`` for camera (and band) indices, (..., 3, 3); without ``band`` the
         camera-level angles (no band offsets)."""
+        c = np.asarray(cam, dtype=int)
+        b = None if band is None else np.asarray(band, dtype=int)
+        if c.ndim and c.size > 1 and np.all(c == c.flat[0]) and (b is None or (b.shape == c.shape and np.all(b == b.flat[0]))):
+            # one camera/band for all (the common case): one matrix, broadcast
+            one = self.detector_to_spacecraft(int(c.flat[0]), None if b is None else int(b.flat[0]))
+            return np.broadcast_to(one, c.shape + (3, 3))
         return self.t_si() @ self.t_ic(cam, band) @ self.t_cd(cam, band)
 
     def detector_vectors(
@@ -179,15 +185,20 @@ class CameraModel:
         c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
         s = np.asarray(sample, dtype=float) - self.cy[c, b]
         a = self.alpha[c, b]
-        return self.focal_length[c, b] * np.sum(a * s[..., None] ** np.arange(N_ALPHA), axis=-1)
+        acc = a[..., N_ALPHA - 1] * np.ones_like(s)
+        for i in range(N_ALPHA - 2, -1, -1):  # Horner
+            acc = acc * s + a[..., i]
+        return self.focal_length[c, b] * acc
 
     def focal_plane_dy_ds(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
         """Derivative of :meth:`focal_plane_y` with respect to the sample (m per pixel)."""
         c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
         s = np.asarray(sample, dtype=float) - self.cy[c, b]
         a = self.alpha[c, b]
-        i = np.arange(1, N_ALPHA)
-        return self.focal_length[c, b] * np.sum(i * a[..., 1:] * s[..., None] ** (i - 1), axis=-1)
+        acc = (N_ALPHA - 1) * a[..., N_ALPHA - 1] * np.ones_like(s)
+        for i in range(N_ALPHA - 2, 0, -1):  # Horner on sum i alpha_i s^(i-1)
+            acc = acc * s + i * a[..., i]
+        return self.focal_length[c, b] * acc
 
     def sample_from_focal_plane_y(self, cam: ArrayLike, band: ArrayLike, y: ArrayLike, iterations: int = 8) -> Array:
         """Invert :meth:`focal_plane_y` by Newton's method (the polynomial is monotonic on the swath)."""
