@@ -101,8 +101,8 @@ def run_products(
     summary then lists them under ``"passes"`` (:func:`_run_products_state`).
 
     ``roi``: build the Reference Orbit Imagery of the blocks (default: those the strips were
-    rendered for) from every pass with strips (:func:`_run_products_roi`; from a state, when
-    ``roi_options`` is given); the summary adds ``"roi"`` (files, clearest pass per block),
+    rendered for) from every pass with strips (:func:`_run_products_roi`; from a state, its
+    passes with the state's estimate, the SOM DEM by default beside the state's DEM); the summary adds ``"roi"`` (files, clearest pass per block),
     ``"roi_coregistration_px"`` (per camera, the worst misregistration measured by matching on
     the ROI beyond matching noise) and, for simulated passes, ``"roi_truth"``."""
     t_start = time.perf_counter()
@@ -202,7 +202,10 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
     grid = SomGrid(paths.pop(), 1100)
     if roi_options is not None:
         adjusted = [(solver.passes[i], solver.pass_result(i), files[i]) for i in chosen_idx]
-        return _roi_stage(adjusted, grid.path, blocks, band, out_dir, d, camera, progress, roi_options,
+        # the scenario beside the state's DEM holds its SOM DEM (and, when simulated, its truth)
+        dem_file = json.loads((d / "state.json").read_text()).get("dem")
+        scenario = Path(dem_file).parent if dem_file else d
+        return _roi_stage(adjusted, grid.path, blocks, band, out_dir, d, scenario, camera, progress, roi_options,
                           {"state": str(d), "restore": t_restore}, t_start)
     rows = []
     chosen = None
@@ -270,15 +273,17 @@ def _run_products_roi(d: Path, out: str | os.PathLike[str], blocks: str | None, 
         orbit_pass = OrbitPass.load(f)
         res = adjust_pass(orbit_pass, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg)
         adjusted.append((orbit_pass, res, f))
-    return _roi_stage(adjusted, int(adjusted[0][0].path), blocks, band, out_dir, d, camera_all, progress, opts,
+    return _roi_stage(adjusted, int(adjusted[0][0].path), blocks, band, out_dir, d, d, camera_all, progress, opts,
                       {"scenario": str(d), "adjust": time.perf_counter() - t0}, t_start)
 
 
 def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, blocks: str | None, band: str, out_dir: Path,
-               source: Path, camera: Any, progress: Callable[[str, int, int], None] | None, opts: RoiOptions,
-               head: dict[str, Any], t_start: float) -> dict[str, Any]:
+               source: Path, scenario: Path, camera: Any, progress: Callable[[str, int, int], None] | None,
+               opts: RoiOptions, head: dict[str, Any], t_start: float) -> dict[str, Any]:
     """PP of every adjusted pass over the ROI's blocks (for the cameras with strips), the ROI built
-    and written, its co-registration measured, exports and the summary (``products.json``)."""
+    and written, its co-registration measured, exports and the summary (``products.json``).
+    ``scenario`` is the directory whose ``dem_som.h5`` is the default SOM DEM and whose
+    ``scenario.json`` (when simulated) gives the truth's surface."""
     from misrgraph.evaluate.products import score_roi
     from misrgraph.io.dem import read_som_dem
     from misrgraph.io.imagery import read_strip, strip_blocks, strip_cameras
@@ -304,7 +309,6 @@ def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, b
         if a > b:
             raise InputError("--blocks", None, f"a block range (the passes' strips cover different blocks: {sorted(rendered)})")
         chosen = np.arange(a, b + 1)
-    scenario = Path(with_strips[0][2]).parent.parent  # passes/<id>.h5 of a scenario directory
     dem_path = Path(opts.som_dem) if opts.som_dem else scenario / "dem_som.h5"
     if not dem_path.is_file():
         raise InputError("--som-dem", str(dem_path), "a SOM DEM file (dem_som.h5, written by 'misrgraph simulate --roi-blocks')")

@@ -139,3 +139,25 @@ def test_view_roi_and_pp_sigma(roi_run, tmp_path):
             buf = buf[0] if buf and isinstance(buf[0], list) else buf  # one image per row
             logged["An"] = np.asarray(buf, dtype=np.uint8).view(np.float32)
     assert np.array_equal(logged["An"], roi.pixels[roi.cameras.index("An"), 0, ::2, ::2].astype(np.float32).ravel())
+
+
+def test_roi_from_an_update_state(roi_path_dir, tmp_path):
+    """The ROI of an incremental update state's passes (iSAM2's joint estimate), its SOM DEM found
+    beside the state's DEM: scored against the truth like the per-pass ROI, and within 3x of
+    what the PP sigma and the DEM predict."""
+    from misrgraph.runs.update import run_update
+
+    files = sorted((roi_path_dir / "passes").glob("*.h5"))
+    state = tmp_path / "state"
+    run_update(state, [str(f) for f in files], roi_path_dir / "camera_model.h5", roi_path_dir / "gcp.h5",
+               roi_path_dir / "dem.h5")
+    res = run_products(state, tmp_path / "out", roi=True, roi_options=RoiOptions(coregistration_points=0, truth_points=200))
+    assert res["state"] == str(state) and len(res["passes"]) == 4 and read_roi(res["roi"]["file"]).pixels.shape[0] == 3
+    tr = res["roi_truth"]
+    pps = [read_pp(r["files"]["pp"]) for r in res["passes"]]
+    for cam in ("Df", "An", "Da"):
+        sig = max(float(np.nanmedian(np.hypot(pp.sigma_line[pp.cameras.index(cam)], pp.sigma_sample[pp.cameras.index(cam)])))
+                  for pp in pps)
+        assert tr["between_passes_px"][cam] < 3 * np.sqrt(2) * sig, (cam, tr["between_passes_px"][cam], sig)
+        if cam != "An":
+            assert tr["between_cameras_px"][cam] < 3 * np.sqrt(DEM_PARALLAX_PX**2 + 2 * sig**2)
