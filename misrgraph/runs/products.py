@@ -340,11 +340,15 @@ def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, b
     coreg: dict[str, dict[str, Any]] = {}
     truth_scores: dict[str, dict[str, float]] = {}
     surface = _truth_surface(scenario) if truths else None
+    clear: dict[int, dict[str, float]] = {}
+    chosen_pass: dict[int, str] = {}
     t0 = time.perf_counter()
     t_coreg = 0.0
     with roi_writer(roi_file, path, band, cameras, pass_ids, chosen, FULL_SCALE_DN) as writer:
         for blk in build_roi(roi_passes, som_dem, chosen, cameras, full_scale=FULL_SCALE_DN, progress=progress):
             writer.write(blk)
+            clear[blk.block] = dict(zip(pass_ids, map(float, blk.clear_fraction)))
+            chosen_pass[blk.block] = pass_ids[blk.chosen]
             t1 = time.perf_counter()
             if opts.coregistration_points:
                 for cam, kinds in coregistration(blk, pass_ids, opts.coregistration_points).items():
@@ -360,16 +364,14 @@ def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, b
                         truth_scores.setdefault(kind, {})[cam] = max(truth_scores.get(kind, {}).get(cam, 0.0), v)
             t_coreg += time.perf_counter() - t1
     t_roi = time.perf_counter() - t0 - t_coreg
-    roi_summary: dict[str, Any] = {"file": str(roi_file), "cameras": list(cameras), "passes": pass_ids}
+    roi_summary: dict[str, Any] = {"file": str(roi_file), "cameras": list(cameras), "passes": pass_ids,
+                                   "clear_fraction": clear, "chosen_pass": chosen_pass}
     if opts.geotiff or opts.quicklooks:
         r = read_roi(roi_file)
         if opts.geotiff:
             roi_summary["geotiff"] = export_roi_geotiff(r, out_dir)
         if opts.quicklooks:
             roi_summary["quicklooks"] = write_quicklooks(r, out_dir)
-        roi_summary["clear_fraction"] = {int(b): dict(zip(pass_ids, map(float, r.clear_fraction[k])))
-                                         for k, b in enumerate(r.blocks)}
-        roi_summary["chosen_pass"] = {int(b): pass_ids[int(r.chosen[k])] for k, b in enumerate(r.blocks)}
     summary: dict[str, Any] = {"path": path, **{k: v for k, v in head.items() if isinstance(v, str)}, "band": band,
                                "blocks": [int(chosen.min()), int(chosen.max())], "passes": rows, "roi": roi_summary,
                                "roi_coregistration_px": {cam: max(float(st["excess_px"]) for st in kinds.values())

@@ -152,7 +152,11 @@ def test_roi_from_an_update_state(roi_path_dir, tmp_path):
     run_update(state, [str(f) for f in files], roi_path_dir / "camera_model.h5", roi_path_dir / "gcp.h5",
                roi_path_dir / "dem.h5")
     res = run_products(state, tmp_path / "out", roi=True, roi_options=RoiOptions(coregistration_points=0, truth_points=200))
-    assert res["state"] == str(state) and len(res["passes"]) == 4 and read_roi(res["roi"]["file"]).pixels.shape[0] == 3
+    roi = read_roi(res["roi"]["file"])
+    assert res["state"] == str(state) and len(res["passes"]) == 4 and roi.pixels.shape[0] == 3
+    b = int(roi.blocks[0])
+    assert res["roi"]["chosen_pass"][b] == roi.pass_ids[int(roi.chosen[0])]
+    assert list(res["roi"]["clear_fraction"][b].values()) == roi.clear_fraction[0].tolist()
     tr = res["roi_truth"]
     pps = [read_pp(r["files"]["pp"]) for r in res["passes"]]
     for cam in ("Df", "An", "Da"):
