@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.model.dem import DemTiles, Geoid, wrap_deg
+from misrgraph.model.dem import DemTiles, Geoid, bilinear, wrap_deg
 from misrgraph.model.gcp import GcpDatabase
 
 __all__ = ["GeoidGrid", "read_gcp_table", "read_geoid_grid", "read_raster_dem", "TILE_OVERLAP"]
@@ -238,7 +238,7 @@ class GeoidGrid:
         # fractional grid indices (latitude clamped to the grid's first and last rows)
         r = np.interp(la, self.lat, np.arange(self.lat.size))
         c = np.interp((lo - self.lon[0]) % 360.0 + self.lon[0], lon_ext, np.arange(lon_ext.size))
-        return _bilinear(np.c_[self.values, self.values[:, :1]], r, c)
+        return bilinear(np.c_[self.values, self.values[:, :1]], r, c)
 
 
 def read_geoid_grid(path: str | os.PathLike[str]) -> Geoid:
@@ -278,26 +278,6 @@ def read_geoid_grid(path: str | os.PathLike[str]) -> Geoid:
 
 
 # -------------------------------------------------------------------------------- DEM rasters
-def _bilinear(z: Array, r: Array, c: Array) -> Array:
-    """Bilinear interpolation of ``z (R, C)`` at fractional pixel-centre indices ``r, c``; NaN
-    where a neighbour with a non-zero weight is no-data (NaN) or outside the raster. A point on a
-    posting takes that posting's value whatever its neighbours hold."""
-    r = np.where(np.abs(r - np.round(r)) < 1e-6, np.round(r), r)  # on a posting, to round-off
-    c = np.where(np.abs(c - np.round(c)) < 1e-6, np.round(c), c)
-    r0, c0 = np.floor(r).astype(np.int64), np.floor(c).astype(np.int64)
-    fr, fc = r - r0, c - c0
-    out = np.zeros(r.shape)
-    for dr, wr in ((0, 1.0 - fr), (1, fr)):
-        for dc, wc in ((0, 1.0 - fc), (1, fc)):
-            w = wr * wc
-            rr, cc = r0 + dr, c0 + dc
-            inside = (rr >= 0) & (rr < z.shape[0]) & (cc >= 0) & (cc < z.shape[1])
-            v = z[np.clip(rr, 0, z.shape[0] - 1), np.clip(cc, 0, z.shape[1] - 1)]
-            v = np.where(inside, v, np.nan)
-            out = out + np.where(w > 0, w * v, 0.0)
-    return out
-
-
 def _tile_starts(n: int, size: int) -> list[int]:
     """First postings of tiles of ``size`` covering ``n`` postings, overlapping by at least
     :data:`TILE_OVERLAP` (the last tile ends on the last posting)."""
@@ -364,7 +344,7 @@ def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: flo
         ia, ib, ic, id_, ie, if_ = tuple(inverse)[:6]
         col = ia * np.asarray(x) + ib * np.asarray(y) + ic
         row = id_ * np.asarray(x) + ie * np.asarray(y) + if_
-        grid = _bilinear(z, np.asarray(row) - 0.5, np.asarray(col) - 0.5)
+        grid = bilinear(z, np.asarray(row) - 0.5, np.asarray(col) - 0.5)
         if geoid is not None:
             grid = grid + geoid.undulation(lat_axis[:, None], lon_axis[None, :])
         for r in _tile_starts(n_rows, tile_postings):

@@ -40,6 +40,7 @@ from misrgraph.io.h5 import (create_dataset, file_mode, fsync_directory, open_h5
                              stamp_content_digest, write_dataset)
 from misrgraph.io.passes import Landmarks, Observations
 from misrgraph.model.constants import CAMERAS
+from misrgraph.model.dem import bilinear
 __all__ = ["ImageWindows", "ImageStrip", "PassImagery", "read_strip", "strip_cameras", "strip_blocks", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
            "write_matched", "read_matched", "has_matched", "OBSERVATION_SETS", "INTEREST_RADIUS_PX"]
 
@@ -121,15 +122,7 @@ class ImageStrip:
         strip). ``line``, ``sample`` any shape; returns float32 of that shape."""
         r = np.asarray(line, dtype=float) - self.line0
         q = np.asarray(sample, dtype=float) - self.sample0
-        nl, ns = self.pixels.shape
-        ok = (r >= 0) & (r <= nl - 1) & (q >= 0) & (q <= ns - 1)
-        r0 = np.clip(np.floor(np.where(ok, r, 0)), 0, max(nl - 2, 0)).astype(np.int64)
-        q0 = np.clip(np.floor(np.where(ok, q, 0)), 0, max(ns - 2, 0)).astype(np.int64)
-        fr, fq = np.where(ok, r - r0, 0.0), np.where(ok, q - q0, 0.0)
-        px = self.pixels
-        r1, q1 = np.minimum(r0 + 1, nl - 1), np.minimum(q0 + 1, ns - 1)
-        v = ((1 - fr) * ((1 - fq) * px[r0, q0] + fq * px[r0, q1]) + fr * ((1 - fq) * px[r1, q0] + fq * px[r1, q1]))
-        return np.where(ok, v, np.nan).astype(np.float32)
+        return bilinear(self.pixels, r, q).astype(np.float32)
 
 
 @dataclass

@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from misrgraph.errors import InputError
 
 __all__ = [
+    "bilinear",
     "DemTiles",
     "LocalSurface",
     "fit_local_surface",
@@ -137,6 +138,30 @@ class LocalSurface:
 #: at each posting is not even continuous there, which stalls Levenberg-Marquardt); it reproduces
 #: polynomials up to degree 2 and equals the 4-point Lagrange value at posting midpoints.
 _METHODS = {"bilinear": (1, 2), "biquadratic": (2, 4), "bicubic": (3, 4)}
+
+
+def bilinear(z: ArrayLike, r: Array, c: Array) -> Array:
+    """Bilinear interpolation of ``z (R, C)`` at fractional pixel-centre indices ``r, c``; NaN
+    where a neighbour with a non-zero weight is no-data (NaN) or outside the raster. A point on a
+    posting takes that posting's value whatever its neighbours hold. NaN indices give NaN."""
+    z = np.asarray(z)
+    r, c = np.broadcast_arrays(np.asarray(r, dtype=float), np.asarray(c, dtype=float))
+    finite = np.isfinite(r) & np.isfinite(c)
+    r, c = np.where(finite, r, -2.0), np.where(finite, c, -2.0)  # outside the raster: NaN below
+    r = np.where(np.abs(r - np.round(r)) < 1e-6, np.round(r), r)  # on a posting, to round-off
+    c = np.where(np.abs(c - np.round(c)) < 1e-6, np.round(c), c)
+    r0, c0 = np.floor(r).astype(np.int64), np.floor(c).astype(np.int64)
+    fr, fc = r - r0, c - c0
+    out = np.zeros(r.shape)
+    for dr, wr in ((0, 1.0 - fr), (1, fr)):
+        for dc, wc in ((0, 1.0 - fc), (1, fc)):
+            w = wr * wc
+            rr, cc = r0 + dr, c0 + dc
+            inside = (rr >= 0) & (rr < z.shape[0]) & (cc >= 0) & (cc < z.shape[1])
+            v = z[np.clip(rr, 0, z.shape[0] - 1), np.clip(cc, 0, z.shape[1] - 1)]
+            v = np.where(inside, v, np.nan)
+            out = out + np.where(w > 0, w * v, 0.0)
+    return out
 
 
 def _keys_weights(t: Array) -> tuple[Array, Array]:

@@ -194,12 +194,7 @@ class PassGeometry:
             h_fun: Callable[[Array, Array, Array], Array] = lambda lat, lon, idx: h_target[idx]
             lo_h, hi_h = h_target - 50.0, h_target + 50.0
         else:
-            lam0 = ray_ellipsoid(origin, direction, 0.0)
-            g0 = origin + lam0[:, None] * direction
-            lat0, lon0, _ = ecef_to_geodetic(g0)
-            h0 = np.asarray(surface(lat0, lon0), dtype=float)
-            h_fun = lambda lat, lon, idx: np.asarray(surface(lat, lon), dtype=float)
-            lo_h, hi_h = np.minimum(h0, -500.0) - 500.0, np.maximum(h0, 0.0) + 9000.0
+            return _cast_onto(origin, direction, surface, tol_m)
         return _cast(origin, direction, lo_h, hi_h, h_fun, tol_m)
 
     def line_rays(self, cam: int, band: int, lines: ArrayLike, samples: ArrayLike) -> tuple[Array, Array]:
@@ -372,12 +367,19 @@ def cast_from(origin: Array, direction: Array, lam0: Array, surface: Callable[[A
     rest = np.flatnonzero(~np.isfinite(out_lam))
     out = origin + out_lam[:, None] * direction
     if rest.size and fallback:  # the bracketed search (rays missing the Earth stay NaN)
-        lam_e = ray_ellipsoid(origin[rest], direction[rest], 0.0)
-        lat0, lon0, _ = ecef_to_geodetic(origin[rest] + lam_e[:, None] * direction[rest])
-        h0 = np.asarray(surface(lat0, lon0), dtype=float)
-        out[rest] = _cast(origin[rest], direction[rest], np.minimum(h0, -500.0) - 500.0, np.maximum(h0, 0.0) + 9000.0,
-                          lambda la, lo, ii: np.asarray(surface(la, lo), dtype=float), tol_m)
+        out[rest] = _cast_onto(origin[rest], direction[rest], surface, tol_m)
     return out
+
+
+def _cast_onto(origin: Array, direction: Array, surface: Callable[[Array, Array], Array], tol_m: float) -> Array:
+    """Rays cast onto the height field ``surface`` by the bracketed search, between the heights
+    it can take (from the surface where each ray meets the ellipsoid: 500 m below its lower of
+    that and -500 m, 9000 m above its higher of that and 0)."""
+    lam0 = ray_ellipsoid(origin, direction, 0.0)
+    lat0, lon0, _ = ecef_to_geodetic(origin + lam0[:, None] * direction)
+    h0 = np.asarray(surface(lat0, lon0), dtype=float)
+    return _cast(origin, direction, np.minimum(h0, -500.0) - 500.0, np.maximum(h0, 0.0) + 9000.0,
+                 lambda lat, lon, idx: np.asarray(surface(lat, lon), dtype=float), tol_m)
 
 
 def _find_root(

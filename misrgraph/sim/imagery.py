@@ -209,6 +209,17 @@ class SceneRadiance:
         xyz = ecef / np.linalg.norm(ecef, axis=-1, keepdims=True) * EARTH_R
         return 0.6 * np.exp(_field(xyz, self._cloud_texture))
 
+    def through_clouds(self, refl: Array, origin: Array, direction: Array) -> Array:
+        """Ground reflectance ``refl (...)`` seen through the cloud layer by rays ``origin,
+        direction (N, 3)`` (N = refl.size, row-major): blended with the cloud's reflectance by its
+        opacity where each ray crosses the layer (``refl`` unchanged without clouds)."""
+        if self.cloud_fraction <= 0:
+            return refl
+        lam = ray_ellipsoid(origin, direction, np.full(origin.shape[0], self.cloud_height_m))
+        pc = (origin + lam[:, None] * direction).reshape(np.shape(refl) + (3,))
+        alpha = self.cloud_cover(pc)
+        return (1 - alpha) * refl + alpha * self.cloud_reflectance(pc)
+
 
 def _cast_grid(geo: PassGeometry, cam: int, band: int, lines: Array, samples: Array, surface: Surface) -> Array:
     """Ground points (..., 3) of pixel centres (continuous exposure ``lines``, frac 0)."""
@@ -235,10 +246,7 @@ def _render(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, lines:
     if scene.cloud_fraction > 0:
         origin, direction = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(),
                                            np.full(ll.size, np.nan))
-        lam = ray_ellipsoid(origin, direction, np.full(ll.size, scene.cloud_height_m))
-        pc = (origin + lam[:, None] * direction).reshape(g.shape)
-        alpha = scene.cloud_cover(pc)
-        refl = (1 - alpha) * refl + alpha * scene.cloud_reflectance(pc)
+        refl = scene.through_clouds(refl, origin, direction)
     return refl
 
 
@@ -326,12 +334,7 @@ def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, l
         rate = float(geo.line_rate(cam, band, g[1 + c, n_samples // 2][None], np.atleast_1d(t))[0])
         refl = scene.ground_reflectance(g[1:-1], g_l, g_s, rate if np.isfinite(rate) else 1.0)
         if scene.cloud_fraction > 0:
-            dd = direction[1:-1].reshape(-1, 3)
-            oo = np.repeat(origin[1:-1], n_samples, axis=0)
-            lam_c = ray_ellipsoid(oo, dd, np.full(oo.shape[0], scene.cloud_height_m))
-            pc = (oo + lam_c[:, None] * dd).reshape(g_l.shape)
-            alpha = scene.cloud_cover(pc)
-            refl = (1 - alpha) * refl + alpha * scene.cloud_reflectance(pc)
+            refl = scene.through_clouds(refl, np.repeat(origin[1:-1], n_samples, axis=0), direction[1:-1].reshape(-1, 3))
         out[a:b] = _counts(np.nan_to_num(refl, nan=0.0), rng, snr)
     if progress:
         progress(n_lines, n_lines)
