@@ -23,13 +23,14 @@ continuous observation the estimator adjusts.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import h5py
 import numpy as np
@@ -41,7 +42,7 @@ from misrgraph.io.h5 import (create_dataset, file_mode, fsync_directory, open_h5
 from misrgraph.io.passes import Landmarks, Observations
 from misrgraph.model.constants import CAMERAS
 from misrgraph.model.dem import bilinear
-__all__ = ["ImageWindows", "ImageStrip", "PassImagery", "read_strip", "strip_cameras", "strip_blocks", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
+__all__ = ["ImageWindows", "ImageStrip", "PassImagery", "read_strip", "strip_cameras", "StripReader", "open_strips", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
            "write_matched", "read_matched", "has_matched", "OBSERVATION_SETS", "INTEREST_RADIUS_PX"]
 
 #: how far (px) from a tie window's centre the matcher may place its interest point (the renderer
@@ -176,44 +177,68 @@ def write_imagery(f: Any, imagery: PassImagery) -> None:
             cg["pixels"].attrs["units"] = "counts (14 bit)"
 
 
-def strip_blocks(path: str | os.PathLike[str]) -> tuple[int, int] | None:
-    """The blocks ``(first, last)`` a pass file's strips were rendered for (None: no strips)."""
-    with open_h5(path, "orbit_pass") as f:
-        if "imagery" not in f or "strips" not in f["imagery"] or "roi_blocks" not in f["imagery"].attrs:
+class StripReader:
+    """The whole-swath strips of one pass file opened (and validated) once: which cameras it
+    holds, the blocks they were rendered for, and any camera's lines (read as sliced)."""
+
+    def __init__(self, f: Any, path: str | os.PathLike[str]) -> None:
+        self.path = path
+        g = f.get("imagery")
+        self._group = g["strips"] if g is not None and "strips" in g else None
+        self._attrs = g.attrs if g is not None else {}
+
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        """The cameras with strips, in MISR's order (none: ``()``)."""
+        return () if self._group is None else tuple(n for n in CAMERAS if n in self._group)
+
+    @property
+    def blocks(self) -> tuple[int, int] | None:
+        """The blocks ``(first, last)`` the strips were rendered for (None: no strips)."""
+        if self._group is None or "roi_blocks" not in self._attrs:
             return None
-        a, b = (int(v) for v in np.asarray(f["imagery"].attrs["roi_blocks"]).ravel()[:2])
+        a, b = (int(v) for v in np.asarray(self._attrs["roi_blocks"]).ravel()[:2])
         return a, b
 
-
-def strip_cameras(path: str | os.PathLike[str]) -> tuple[str, ...]:
-    """The cameras whose whole-swath strips a pass file holds (none: ``()``)."""
-    with open_h5(path, "orbit_pass") as f:
-        if "imagery" not in f or "strips" not in f["imagery"]:
-            return ()
-        return tuple(n for n in CAMERAS if n in f["imagery"]["strips"])
-
-
-def read_strip(path: str | os.PathLike[str], camera: str, lines: tuple[int, int] | None = None) -> ImageStrip | None:
-    """One camera's whole-swath strip of a pass file (FileFormatError naming what is missing), or
-    only its exposures ``lines = (first, one past last)`` (None when the strip holds none of them)."""
-    with open_h5(path, "orbit_pass") as f:
-        if "imagery" not in f or "strips" not in f["imagery"]:
-            raise FileFormatError(path, "no /imagery/strips: simulate with --imagery --roi-blocks A-B")
-        sg = f["imagery"]["strips"]
-        if camera not in sg:
-            raise FileFormatError(path, f"no strip of camera {camera} (it holds {', '.join(sorted(sg))})")
-        cg = sg[camera]
+    def strip(self, camera: str, lines: tuple[int, int] | None = None) -> ImageStrip | None:
+        """One camera's strip (FileFormatError naming what is missing), or only its exposures
+        ``lines = (first, one past last)`` (None when the strip holds none of them)."""
+        if self._group is None:
+            raise FileFormatError(self.path, "no /imagery/strips: simulate with --imagery --roi-blocks A-B")
+        if camera not in self._group:
+            raise FileFormatError(self.path, f"no strip of camera {camera} (it holds {', '.join(sorted(self._group))})")
+        cg = self._group[camera]
         try:
             band, line0, sample0 = (int(cg.attrs[k]) for k in ("band", "line0", "sample0"))
         except KeyError as exc:
-            raise FileFormatError(path, f"/imagery/strips/{camera} lacks the attribute {exc}") from None
+            raise FileFormatError(self.path, f"/imagery/strips/{camera} lacks the attribute {exc}") from None
         px = cg["pixels"]
         if px.ndim != 2:
-            raise FileFormatError(path, f"/imagery/strips/{camera}/pixels has shape {px.shape}; expected (lines, samples)")
+            raise FileFormatError(self.path, f"/imagery/strips/{camera}/pixels has shape {px.shape}; expected (lines, samples)")
         if lines is None:
             return ImageStrip(camera, band, line0, sample0, np.asarray(px[...]))
         a, b = max(int(lines[0]) - line0, 0), min(int(lines[1]) - line0, px.shape[0])
         return ImageStrip(camera, band, line0 + a, sample0, np.asarray(px[a:b])) if b - a >= 2 else None
+
+
+@contextlib.contextmanager
+def open_strips(path: str | os.PathLike[str]) -> Iterator[StripReader]:
+    """A :class:`StripReader` of a pass file, valid inside the block (the file is validated once
+    on opening: keep it open to read many strips)."""
+    with open_h5(path, "orbit_pass") as f:
+        yield StripReader(f, path)
+
+
+def strip_cameras(path: str | os.PathLike[str]) -> tuple[str, ...]:
+    """The cameras whose whole-swath strips a pass file holds (none: ``()``)."""
+    with open_strips(path) as r:
+        return r.cameras
+
+
+def read_strip(path: str | os.PathLike[str], camera: str, lines: tuple[int, int] | None = None) -> ImageStrip | None:
+    """One camera's whole-swath strip of a pass file (:meth:`StripReader.strip`)."""
+    with open_strips(path) as r:
+        return r.strip(camera, lines)
 
 
 def has_imagery(path: str | os.PathLike[str]) -> bool:

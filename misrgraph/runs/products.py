@@ -16,6 +16,7 @@ matching on the ROI, and, for simulated passes, its true misregistration
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -36,7 +37,7 @@ from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_file
 from misrgraph.io.passes import OrbitPass
 from misrgraph.io.products import ProjectionParameters, save_pp
-from misrgraph.io.truth import read_pass_truth
+from misrgraph.io.truth import PassTruth, read_pass_truth
 from misrgraph.misr.som import N_BLOCKS, SomGrid
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.constants import CAMERAS
@@ -134,7 +135,8 @@ def run_products(
     chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
     provenance = {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
                   "software": f"misrgraph {__version__}", "solver_status": res.status}
-    row, t_pp, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, pass_file, camera, progress)
+    row, t_pp, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, read_pass_truth(pass_file),
+                            camera, progress)
     summary: dict[str, Any] = {"path": grid.path, "band": band, "blocks": [int(chosen.min()), int(chosen.max())], **row,
                                "roi": None, "notes": [ROI_NOTE]}
     summary["seconds"] = {"adjust": t_adjust, "pp": t_pp, "total": time.perf_counter() - t_start}
@@ -153,12 +155,12 @@ def _out_dir(out: str | os.PathLike[str]) -> Path:
 
 
 def _pass_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, chosen: np.ndarray, band: str, out_dir: Path,
-             provenance: dict[str, Any], pass_file: str | os.PathLike[str], camera: Any,
+             provenance: dict[str, Any], truth: PassTruth | None, camera: Any,
              progress: Callable[[str, int, int], None] | None,
              cameras: tuple[str, ...] = CAMERAS) -> tuple[dict[str, Any], float, ProjectionParameters]:
     """Compute and write ``OUT/PP_<pass id>.h5`` of one adjusted pass; its summary row
-    ``{"pass_id", "files", coverage..., "pp_error_m"?, "seconds_scoring"?}`` (scored when the pass
-    file holds truth), the seconds the PP took and the PP."""
+    ``{"pass_id", "files", coverage..., "pp_error_m"?, "seconds_scoring"?}`` (scored against
+    ``truth``, the pass file's, when it has one), the seconds the PP took and the PP."""
     t0 = time.perf_counter()
     pp = compute_pp(orbit_pass, res, path, chosen, band=band, progress=progress, cameras=cameras)
     t_pp = time.perf_counter() - t0
@@ -167,7 +169,6 @@ def _pass_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, chosen: np.nda
     pp_file = out_dir / f"PP_{orbit_pass.pass_id}.h5"
     save_pp(pp, pp_file)
     row: dict[str, Any] = {"pass_id": orbit_pass.pass_id, "files": {"pp": str(pp_file)}, **pp.coverage()}
-    truth = read_pass_truth(pass_file)
     if truth is not None:
         t0 = time.perf_counter()
         row.update(score_pp(pp, orbit_pass, truth, supplied_camera=camera))
@@ -219,7 +220,8 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
             progress(f"PP of pass {orbit_pass.pass_id} ({n + 1}/{len(chosen_idx)})", n, len(chosen_idx))
         provenance = {"state": str(d), "pass_file": str(files[i]), "camera_model": "the state's",
                       "software": f"misrgraph {__version__}", "solver_status": "iSAM2 update state"}
-        row, _, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, files[i], camera, None)
+        row, _, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, read_pass_truth(files[i]),
+                             camera, None)
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
     assert chosen is not None
@@ -283,17 +285,30 @@ def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, b
     """PP of every adjusted pass over the ROI's blocks (for the cameras with strips), the ROI built
     and written, its co-registration measured, exports and the summary (``products.json``).
     ``scenario`` is the directory whose ``dem_som.h5`` is the default SOM DEM and whose
-    ``scenario.json`` (when simulated) gives the truth's surface."""
+    ``scenario.json`` (when simulated) gives the truth's surface. Every pass file is opened (and
+    validated) once, for the whole build."""
+    from misrgraph.io.imagery import open_strips
+
+    if band != "red":
+        raise InputError("--band", band, "red (the strips are rendered in the red band)")
+    with contextlib.ExitStack() as stack:
+        readers = {str(f): stack.enter_context(open_strips(f)) for _, _, f in adjusted}
+        return _roi_build(adjusted, readers, path, blocks, band, out_dir, source, scenario, camera, progress, opts, head,
+                          t_start)
+
+
+def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dict[str, Any], path: int, blocks: str | None,
+               band: str, out_dir: Path, source: Path, scenario: Path, camera: Any,
+               progress: Callable[[str, int, int], None] | None, opts: RoiOptions, head: dict[str, Any],
+               t_start: float) -> dict[str, Any]:
+    """:func:`_roi_stage` with every pass file's strips open in ``readers`` (by file name)."""
     from misrgraph.evaluate.products import score_roi
     from misrgraph.io.dem import read_som_dem
-    from misrgraph.io.imagery import read_strip, strip_blocks, strip_cameras
     from misrgraph.io.roi import export_roi_geotiff, read_roi, roi_writer, write_quicklooks
     from misrgraph.products.roi import RoiPass, build_roi, coregistration
     from misrgraph.sim.imagery import FULL_SCALE_DN
 
-    if band != "red":
-        raise InputError("--band", band, "red (the strips are rendered in the red band)")
-    with_strips = [(p, r, f) for p, r, f in adjusted if strip_cameras(f)]
+    with_strips = [(p, r, f) for p, r, f in adjusted if readers[str(f)].cameras]
     if len(with_strips) < MIN_ROI_PASSES:
         raise InputError("--roi", f"{len(with_strips)} passes with whole-swath strips",
                          f"at least {MIN_ROI_PASSES} (simulate a path scenario with --imagery --roi-blocks A-B)")
@@ -302,7 +317,7 @@ def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, b
     if blocks:
         chosen = parse_blocks(blocks)
     else:
-        rendered = {strip_blocks(f) for _, _, f in with_strips} - {None}
+        rendered = {readers[str(f)].blocks for _, _, f in with_strips} - {None}
         if not rendered:
             raise InputError("--blocks", None, "a block range (the strips do not say which blocks they cover)")
         a, b = max(r[0] for r in rendered), min(r[1] for r in rendered)  # type: ignore[index]
@@ -317,7 +332,7 @@ def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, b
     if missing or som_dem.path != path:
         raise InputError("--blocks", missing or chosen.tolist(), f"blocks of the SOM DEM {dem_path} (path {som_dem.path}, "
                                                                  f"blocks {som_dem.blocks.min()}-{som_dem.blocks.max()})")
-    cameras = tuple(c for c in CAMERAS if any(c in strip_cameras(f) for _, _, f in with_strips))
+    cameras = tuple(c for c in CAMERAS if any(c in readers[str(f)].cameras for _, _, f in with_strips))
     rows, roi_passes, truths = [], [], []
     t0 = time.perf_counter()
     for n, (orbit_pass, res, f) in enumerate(with_strips):
@@ -326,12 +341,12 @@ def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, b
         provenance = {"source": str(source), "pass_file": str(f), "software": f"misrgraph {__version__}",
                       "solver_status": str(getattr(res, "status", "iSAM2 update state"))}
         cam_at = camera.at_temperature(orbit_pass.temperature_c) if hasattr(camera, "at_temperature") else camera
-        row, _, pp = _pass_pp(orbit_pass, res, path, chosen, band, out_dir, provenance, f, cam_at, None, cameras)
-        rows.append(row)
-        cams = strip_cameras(f)
-        roi_passes.append(RoiPass(orbit_pass.pass_id, pp,
-                                  lambda cam, lines, f=f, cams=cams: read_strip(f, cam, lines) if cam in cams else None))
         truth = read_pass_truth(f)
+        row, _, pp = _pass_pp(orbit_pass, res, path, chosen, band, out_dir, provenance, truth, cam_at, None, cameras)
+        rows.append(row)
+        rd = readers[str(f)]
+        roi_passes.append(RoiPass(orbit_pass.pass_id, pp,
+                                  lambda cam, lines, rd=rd: rd.strip(cam, lines) if cam in rd.cameras else None))
         if truth is not None:
             truths.append((orbit_pass, truth, pp))
     t_pp = time.perf_counter() - t0
