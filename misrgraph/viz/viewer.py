@@ -266,7 +266,8 @@ def _view_roi(rec, rr, path: Path, counts: dict[str, int], step: int = 2) -> Non
     from misrgraph.io.roi import read_roi
 
     roi = read_roi(path)
-    rec.log("roi/source", rr.AnnotationContext([(i + 1, pid) for i, pid in enumerate(roi.pass_ids)]), static=True)
+    # the pass names of the source maps: an annotation context applies to its entity's descendants
+    rec.log("roi", rr.AnnotationContext([(i + 1, pid) for i, pid in enumerate(roi.pass_ids)]), static=True)
     for k, block in enumerate(roi.blocks):
         rec.set_time("block", sequence=int(block))
         for c, cam in enumerate(roi.cameras):

@@ -139,6 +139,9 @@ def test_view_roi_and_pp_sigma(roi_run, tmp_path):
             buf = buf[0] if buf and isinstance(buf[0], list) else buf  # one image per row
             logged["An"] = np.asarray(buf, dtype=np.uint8).view(np.float32)
     assert np.array_equal(logged["An"], roi.pixels[roi.cameras.index("An"), 0, ::2, ::2].astype(np.float32).ravel())
+    # the pass names apply to the source maps: logged on their common ancestor
+    paths = {str(ch.entity_path) for ch in rc.RrdReader(str(tmp_path / "roi.rrd")).store().stream()}
+    assert "/roi" in paths and "/roi/An/source" in paths
 
 
 def test_roi_from_an_update_state(roi_path_dir, tmp_path):
