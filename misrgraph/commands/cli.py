@@ -847,7 +847,7 @@ def bench_incremental(
     linearization_tol: Optional[float] = typer.Option(None, "--linearization-tol", min=1e-6,
                                                       help="iSAM2 re-linearisation tolerance in sigma [default: the library's]."),
     settle_after: Optional[int] = typer.Option(None, "--settle-after", min=0,
-                                               help="Summarise a pass once this many newer passes have arrived; 0: never "
+                                               help="Marginalise a pass out of iSAM2 once this many newer passes have arrived; 0: never "
                                                     "[default: the library's, 3]."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:

@@ -207,9 +207,13 @@ class FlatProblem:
     def initial(self) -> Array:
         return self.from_values(self.problem.initial)
 
-    def from_values(self, values: gtsam.Values) -> Array:
+    def from_values(self, values: gtsam.Values, partial: bool = False) -> Array:
+        """The flat vector ``(n,)`` of ``values``; with ``partial``, keys ``values`` lacks are left
+        at zero (for evaluating families that do not involve them)."""
         x = np.zeros(self.n)
         for k in self.keys:
+            if partial and not values.exists(k):
+                continue
             x[self.offset[k]: self.offset[k] + self.problem.dims[k]] = values.atVector(k)
         return x
 

@@ -382,7 +382,7 @@ def _run_update_locked(
                 m = None
             worst = 0.0
             for k in prob.dims:
-                sig = np.sqrt(np.diag(m[k])) if m is not None else np.sqrt(np.diag(solver.isam.marginalCovariance(k)))
+                sig = np.sqrt(np.diag(m[k])) if m is not None else np.sqrt(np.diag(solver.marginal_covariance(k)))
                 worst = max(worst, float(np.max(np.abs(solver.estimate.atVector(k) - bres.values.atVector(k)) / sig)))
             s["batch"] = {"seconds": bsec, "ratio_update_over_batch": seconds / bsec, "max_difference_in_sigma": worst}
         summaries.append(s)

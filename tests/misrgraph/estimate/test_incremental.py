@@ -14,6 +14,7 @@ from misrgraph.estimate.incremental import IncrementalSolver, batch_solution
 from misrgraph.runs.update import load_state, run_update
 from misrgraph.sim.simulate import load_scenario
 from misrgraph.estimate.problem import marginal_covariances
+from factors import keys as K
 
 
 
@@ -36,10 +37,12 @@ def test_incremental_over_ten_passes_equals_batch(path_dir):
     assert len(lm) < sum(len(g.landmark_keys) for g in solver.graphs)
     # iSAM2's marginals agree with the batch's, to 1 % in correlation units (iSAM2 computes them
     # at its linearisation points, which may lag the estimate by what the re-linearisation rule
-    # tolerates)
-    for k in list(prob.dims)[::50]:
+    # tolerates), for variables it holds and for a settled pass's knots and ephemeris
+    settled = solver._conditionals[0].own_keys
+    assert sorted(solver.settled) == list(range(6)) and not solver.isam.valueExists(settled[0])
+    for k in list(prob.dims)[::50] + settled[:3] + settled[-3:]:
         d = np.sqrt(np.diag(m[k]))
-        assert np.max(np.abs(solver.isam.marginalCovariance(k) - m[k]) / np.outer(d, d)) < 1e-2
+        assert np.max(np.abs(solver.marginal_covariance(k) - m[k]) / np.outer(d, d)) < 1e-2
 
 
 def test_linear_model_mirror_matches_isam2(path_dir):
@@ -74,34 +77,54 @@ def test_linear_model_mirror_matches_isam2(path_dir):
     assert e2.max() < 1e-12
 
 
-def test_settled_pass_summary_is_the_same_quadratic(path_dir):
-    """A settled pass's summary (one HessianFactor) has the same error as the factors it replaces
-    at any point (they are exactly quadratic), its DEM factors stay live, and its knots stay
-    variables with marginals."""
+def test_marginalising_a_settled_pass_is_exact(path_dir):
+    """A settled pass leaves iSAM2's tree without moving anything: its knots' and ephemeris'
+    conditional reproduces their estimate from before (to rounding), every other variable keeps
+    its estimate and marginal, its DEM factors stay live, and the settled passes' marginals sit
+    in one merged factor."""
     import gtsam
 
     sc = load_scenario(path_dir)
-    solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, settle_after=None)
-    for i in range(3):
-        solver.add_passes([sc.load_pass(i)])
-    factors = solver.isam.getFactorsUnsafe()
+    passes = [sc.load_pass(i) for i in range(3)]
+    solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, settle_after=1)
+    for p in passes[:2]:
+        solver.add_passes([p])
+    before = gtsam.Values(solver.estimate)
+    own = {k for k in solver.graphs[0].problem.dims if chr(gtsam.Symbol(k).chr()) in (*K.KNOT, K.EPHEMERIS)}
+    sigma = {k: np.sqrt(np.diag(solver.isam.marginalCovariance(k))) for k in solver.graphs[0].problem.dims}
+    cov0 = solver.isam.jointMarginalCovariance(gtsam.KeyVector(list(sigma))).fullMatrix()
+    # marginalise pass 0 alone (as the next update does first), then compare
     start, stop = solver._record_ranges[0]
-    before = {j: solver.records[j].isam_index for j in range(start, stop)}
-    summary, removed = solver._summarise(0)
     dem = set(np.unique(solver._models[0].record["dem"]).tolist())
-    assert dem and set(removed) == {before[j] for j in before if j not in dem}
-    # a point 1 sigma-ish away from the estimate in every variable of the summary
-    rng = np.random.default_rng(3)
-    moved = gtsam.Values()
-    for k in summary.keys():
-        v = solver.estimate.atVector(int(k))
-        sig = np.sqrt(np.diag(solver.isam.marginalCovariance(int(k))))
-        moved.insert(int(k), v + sig * rng.standard_normal(v.size))
-    full = gtsam.Values(solver.estimate)
-    full.update(moved)
-    for at in (solver.estimate, full):
-        assert summary.error(at) == pytest.approx(sum(factors.at(i).error(at) for i in removed), rel=1e-9)
-    assert summary.error(full) - summary.error(solver.estimate) > 10  # the point does move the error
+    marginal = solver._marginalise(0)
+    cond = solver._conditionals[0]
+    assert set(cond.own_keys) == own and len(own) > 10
+    assert marginal and not any(solver.isam.valueExists(k) for k in cond.own_keys)
+    x_s = np.concatenate([before.atVector(k) for k in cond.shared_keys])
+    xo = np.split(cond.mean(x_s), np.cumsum(cond.own_dims)[:-1])
+    for k, v in zip(cond.own_keys, xo):
+        assert np.max(np.abs(v - before.atVector(k)) / sigma[k]) < 1e-6
+    # the joint covariance of the pass's variables (own and shared) is what iSAM2 had
+    keys = list(sigma)
+    cov1 = solver.joint_marginal_covariance(keys)
+    d = np.sqrt(np.diag(cov0))
+    assert np.max(np.abs(cov1 - cov0) / np.outer(d, d)) < 1e-6
+    # the records marginalisation removed are marked; the DEM factors (and GCP priors) stay live
+    live = {j for j in range(start, stop) if solver.records[j].isam_index >= 0}
+    assert dem and dem <= live and len(live) < stop - start
+    # the next update merges the marginal into one factor; a later settled pass adds to that factor
+    solver.add_passes([passes[2]])
+    first = solver._merged
+    fg = solver.isam.getFactorsUnsafe()
+    assert first is not None and not any(fg.exists(i) for i in marginal) and fg.exists(first)
+    assert {k for k in fg.at(first).keys()} >= set(cond.shared_keys)
+    solver.add_passes([sc.load_pass(3)])
+    fg = solver.isam.getFactorsUnsafe()
+    assert sorted(solver.settled) == [0, 1] and not fg.exists(first) and fg.exists(solver._merged)
+    shared_letters = {K.LANDMARK, K.GCP, K.CAMERA, K.OMEGA}
+    wide = [i for i in range(fg.size()) if fg.exists(i) and len(fg.at(i).keys()) > 3
+            and all(chr(gtsam.Symbol(k).chr()) in shared_letters for k in fg.at(i).keys())]
+    assert wide == [solver._merged]  # the one factor over the shared variables alone
 
 
 def test_settling_keeps_earlier_passes_usable(path_dir):
