@@ -6,8 +6,9 @@
 * :func:`solve_scipy_newton` is a second-order peer: ``scipy.optimize.minimize`` (trust-krylov)
   with Hessian-vector products of ``J^T J`` plus the DEM curvature the core also uses.
 * :func:`solve_ceres` gives the same pure residual functions to Ceres through ``pyceres``, one
-  cost function per landmark with numpy arrays in (as a Ceres bundle adjuster is written), when
-  ``pyceres`` is installed.
+  cost function per landmark (as a Ceres bundle adjuster is written; landmarks Schur-eliminated)
+  or per batch of landmarks (one vectorised call per batch; sparse Cholesky), numpy arrays in,
+  when ``pyceres`` is installed.
 
 Both stop on the same criterion as the core: relative decrease of the cost below ``ftol``.
 """
@@ -23,7 +24,7 @@ from numpy.typing import NDArray
 from factors.collinearity import collinearity_residual
 from factors.dem_height import dem_residual
 from misrgraph.estimate.problem import FlatProblem
-from misrgraph.errors import require_extra
+from misrgraph.errors import InputError, require_extra
 
 __all__ = ["solve_scipy", "solve_scipy_newton", "solve_ceres"]
 
@@ -106,20 +107,21 @@ def solve_scipy_newton(flat: FlatProblem, gtol: float = 1e-8, max_iterations: in
             "status": int(res.status)}
 
 
-class _LandmarkRows:
-    """The residual rows of one landmark for Ceres: its collinearity observations (the pure
+class _CostRows:
+    """The residual rows of a run of consecutive collinearity factors (landmarks) for one Ceres
+    cost function: their observations (the pure
     :func:`~factors.collinearity.collinearity_residual` on those observations, numpy arrays in,
-    no ``gtsam.Values``) and its DEM row if it has one, whitened; parameter blocks in the
-    collinearity factor's key order (landmark first)."""
+    no ``gtsam.Values``) and the DEM rows of their landmarks in ``dem_of`` (landmark key -> DEM
+    row), whitened; parameter blocks in first-seen key order of the factors (landmark first)."""
 
-    def __init__(self, flat: FlatProblem, f: int, dem_index: int | None) -> None:
+    def __init__(self, flat: FlatProblem, factors: range, dem_of: dict[int, int]) -> None:
         b = flat.coll
         lay = b.layout
-        self.a, self.z = int(lay.obs_start[f]), int(lay.obs_stop[f])
-        self.keys = [int(k) for k in lay.factor_keys[f]]
-        self.dims = [int(d) for d in lay.factor_dims[f]]
-        self.n_cols = int(lay.n_cols[f])
-        pos = {k: int(c) for k, c in zip(self.keys, lay.col_start[f])}
+        self.a, self.z = int(lay.obs_start[factors.start]), int(lay.obs_stop[factors.stop - 1])
+        self.keys = list(dict.fromkeys(int(k) for f in factors for k in lay.factor_keys[f]))
+        self.dims = [int(flat.problem.dims[k]) for k in self.keys]
+        self.n_cols = int(sum(self.dims))
+        pos = dict(zip(self.keys, np.concatenate([[0], np.cumsum(self.dims)[:-1]]).astype(int)))
         sl = slice(self.a, self.z)
         # local columns of each slot per observation, (n, d) or -1
         self.cols = []
@@ -131,9 +133,11 @@ class _LandmarkRows:
         self.cam0 = b.camera_supplied[sl]
         self.w = 1.0 / np.repeat(b.sigma_px[sl], 2)
         self.batch = b
-        self.dem_index = dem_index
+        lms = [int(k) for k in dict.fromkeys(b.slot_keys[0][sl].tolist()) if int(k) in dem_of]
+        self.dem_index = np.array([dem_of[k] for k in lms], np.int64)
+        self.dem_cols = np.array([pos[k] for k in lms], np.int64)[:, None] + np.arange(3)
         self.flat = flat
-        self.n_res = 2 * (self.z - self.a) + (dem_index is not None)
+        self.n_res = 2 * (self.z - self.a) + self.dem_index.size
 
     def evaluate(self, xl: Array, jacobian: bool) -> tuple[Array, Array | None]:
         """Whitened residual ``(n_res,)`` and Jacobian ``(n_res, n_cols)`` at the local vector ``xl``."""
@@ -141,7 +145,7 @@ class _LandmarkRows:
         cols = [np.where(c >= 0, xl[np.maximum(c, 0)], 0.0) for c in self.cols]
         knots = np.stack([np.concatenate([cols[2 + 2 * a], cols[3 + 2 * a]], -1) for a in range(3)], 1)
         cam = self.cam0.copy()
-        if self.cols[8][0, 0] >= 0:
+        if np.any(self.cols[8] >= 0):  # absent camera slots gather 0 (as the flat problem's)
             cam[:, list(b.camera_select)] += cols[8] * b.camera_scale
         om = np.broadcast_to(b.omega_supplied, (n, 3)) + cols[9]
         r, j = collinearity_residual(cols[0], cols[1], knots, cam, om, self.const, jacobians=jacobian)
@@ -155,30 +159,39 @@ class _LandmarkRows:
                 used = c[:, 0] >= 0
                 np.add.at(jm, (rows[used][:, :, None], c[used][:, None, :]), blk[used])
             jm[: 2 * n] *= self.w[:, None]
-        if self.dem_index is not None:
+        if self.dem_index.size:
             dem = self.flat.dem
-            rd, jd = dem_residual(xl[None, :3], dem.surface, jacobian)
+            rd, jd = dem_residual(xl[self.dem_cols], dem.surface, jacobian)
             s = dem.sigma_m[self.dem_index]
             res = np.concatenate([res, rd / s])
             if jm is not None and jd is not None:
-                jm[-1, :3] = jd[0, 0] / s
+                jm[2 * n + np.arange(s.size)[:, None], self.dem_cols] = jd[:, 0, :] / s[:, None]
         return res, jm
 
 
 def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100,
                 on_cost: Callable[[float], None] | None = None, max_seconds: float | None = None,
                 on_point: Callable[[Array, float], None] | None = None,
-                linear_solver: str = "DENSE_SCHUR") -> dict[str, Any]:
-    """Ceres (pyceres) on the same vectorised residuals: one cost function per landmark (its
-    collinearity observations and its DEM row, evaluated by the pure functions on numpy arrays,
-    :class:`_LandmarkRows`) and one per linear prior; Schur elimination of the landmarks
-    (``linear_solver``: a ``pyceres.LinearSolverType`` name), one thread.
+                linear_solver: str = "DENSE_SCHUR", group: int = 1) -> dict[str, Any]:
+    """Ceres (pyceres) on the same vectorised residuals: one cost function per ``group``
+    consecutive landmarks (their collinearity observations and DEM rows, evaluated by the pure
+    functions on numpy arrays in one call, :class:`_CostRows`) and one per linear prior;
+    ``linear_solver`` (a ``pyceres.LinearSolverType`` name), one thread. With ``group`` 1 the
+    landmarks are Schur-eliminated (``DENSE_SCHUR``); a cost function over several landmarks
+    couples them, and Schur elimination needs them independent (Ceres would eliminate only an
+    independent subset), so ``group`` > 1 is refused with a Schur solver and wants
+    ``SPARSE_NORMAL_CHOLESKY`` (SuiteSparse's supernodal Cholesky of the normal equations).
 
     ``on_cost(cost)`` / ``on_point(x, cost)`` are called after every iteration with the current
     cost (and point); ``max_seconds`` bounds Ceres' solver time. pyceres does not expose Ceres'
     ``EvaluationCallback``, so a cost function cannot see the whole point and the residuals are
-    evaluated landmark by landmark (one Python call per landmark per evaluation).
+    evaluated cost function by cost function (one Python call per group per evaluation).
     """
+    if not (isinstance(group, int) and group >= 1):
+        raise InputError("group", group, "a whole number of landmarks per cost function >= 1")
+    if group > 1 and linear_solver.endswith("SCHUR"):
+        raise InputError("linear_solver", linear_solver, "a non-Schur solver (e.g. SPARSE_NORMAL_CHOLESKY) when group > 1: "
+                         "a cost function over several landmarks couples them, and Schur elimination needs them independent")
     pyceres = require_extra("pyceres", "bench", "the Ceres comparison of misrgraph bench sba")
 
     problem = flat.problem
@@ -187,11 +200,12 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
     params = {k: x[flat.offset[k]: flat.offset[k] + problem.dims[k]].copy() for k in flat.keys}
     dem_of = {int(k): i for i, k in enumerate(flat.dem.keys)} if flat.dem is not None else {}
 
-    class Landmark(pyceres.CostFunction):
-        def __init__(self, f: int) -> None:
+    class Landmarks(pyceres.CostFunction):
+        def __init__(self, factors: range) -> None:
             super().__init__()
-            lm = int(b.slot_keys[0][b.layout.obs_start[f]])
-            self.rows = _LandmarkRows(flat, f, dem_of.pop(lm, None))
+            lay = b.layout
+            lms = {int(k) for k in b.slot_keys[0][lay.obs_start[factors.start]:lay.obs_stop[factors.stop - 1]]}
+            self.rows = _CostRows(flat, factors, {lm: dem_of.pop(lm) for lm in lms if lm in dem_of})
             self.keys = self.rows.keys
             self.set_num_residuals(self.rows.n_res)
             self.set_parameter_block_sizes(self.rows.dims)
@@ -240,8 +254,9 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
 
     prob = pyceres.Problem()
     costs = []  # keep the Python objects alive
-    for f in range(b.layout.n_factors):
-        c = Landmark(f)
+    n_f = b.layout.n_factors
+    for f in range(0, n_f, group):
+        c = Landmarks(range(f, min(f + group, n_f)))
         costs.append(c)
         prob.add_residual_block(c, None, [params[k] for k in c.keys])
     for lm, i in dem_of.items():  # DEM rows of landmarks whose views all sit in other factors

@@ -243,26 +243,29 @@ def test_iteration_limit_is_reported_and_refused(noisy_graph):
     assert full.status == "converged" and full.converged
 
 
-def test_ceres_landmark_rows_are_the_flat_rows(noisy_graph):
-    """Ceres' per-landmark cost function evaluates the same whitened rows and Jacobian blocks as
-    the flat problem (whose Jacobian is checked against numerical derivatives above)."""
-    from misrgraph.estimate.backends import _LandmarkRows
+def test_ceres_cost_rows_are_the_flat_rows(noisy_graph):
+    """Ceres' cost functions -- one landmark, or a run of several -- evaluate the same whitened
+    rows and Jacobian blocks as the flat problem (whose Jacobian is checked against numerical
+    derivatives above)."""
+    from misrgraph.errors import InputError
+    from misrgraph.estimate.backends import _CostRows, solve_ceres
 
     flat = noisy_graph.problem.flat()
     x = flat.initial()
     r_all, j_all = flat.residual(x), flat.jacobian(x).tocsr()
     lay = flat.coll.layout
     dem_of = {int(k): i for i, k in enumerate(flat.dem.keys)} if flat.dem is not None else {}
-    for f in (0, lay.n_factors // 2, lay.n_factors - 1):
-        lm = int(flat.coll.slot_keys[0][lay.obs_start[f]])
-        rows = _LandmarkRows(flat, f, dem_of.get(lm))
+    n = lay.n_factors
+    for factors in (range(0, 1), range(n // 2, n // 2 + 1), range(n - 1, n), range(3, min(n, 40))):
+        rows = _CostRows(flat, factors, dem_of)
         xl = np.concatenate([x[flat.offset[k]: flat.offset[k] + d] for k, d in zip(rows.keys, rows.dims)])
         r, jm = rows.evaluate(xl, True)
-        idx = list(range(2 * rows.a, 2 * rows.z))
-        if rows.dem_index is not None:
-            idx.append(flat.m_coll + rows.dem_index)
+        idx = list(range(2 * rows.a, 2 * rows.z)) + [flat.m_coll + int(i) for i in rows.dem_index]
+        assert len(idx) == rows.n_res and (len(factors) == 1 or rows.dem_index.size > 1)
         cols = np.concatenate([np.arange(flat.offset[k], flat.offset[k] + d) for k, d in zip(rows.keys, rows.dims)])
         assert np.allclose(r, r_all[idx], rtol=1e-12, atol=1e-12)
         assert np.allclose(jm, j_all[idx][:, cols].toarray(), rtol=1e-10, atol=1e-12)
         # the rows touch no other column
         assert np.allclose(np.abs(j_all[idx]).sum(), np.abs(jm).sum(), rtol=1e-12)
+    with pytest.raises(InputError, match="linear_solver.*non-Schur"):
+        solve_ceres(flat, group=8)  # several landmarks per cost function cannot be Schur-eliminated
