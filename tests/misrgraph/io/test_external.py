@@ -147,6 +147,49 @@ def test_jacksboro_geotiff_keeps_its_postings(tmp_path):
     np.testing.assert_allclose(s.height, interp(np.c_[la, lo]), atol=1e-3)
 
 
+def test_jacksboro_in_a_dted_cell_keeps_its_postings(tmp_path):
+    """A DTED level-1 cell (1201 x 1201 postings, 3", pixel-is-point, int16, -32767 null) written by
+    GDAL's DTED driver, holding the Jacksboro heights at their own postings (its pixel centres lie
+    on the cell's 3" grid) and nulls elsewhere: the import keeps the heights at every posting and
+    drops the tiles that reach into the nulls."""
+    from rasterio.io import MemoryFile
+    from rasterio.shutil import copy as rio_copy
+
+    z, west, north, dx = _jacksboro()
+    n = 1201
+    lat_top, lon_left = 37.0, -85.0  # the cell N36 W085
+    i0 = int(round((lat_top - (north - dx / 2)) / dx))
+    j0 = int(round(((west + dx / 2) - lon_left) / dx))
+    assert abs(lat_top - i0 * dx - (north - dx / 2)) < 1e-9 and abs(lon_left + j0 * dx - (west + dx / 2)) < 1e-9
+    cell = np.full((n, n), -32767, np.int16)
+    cell[i0:i0 + z.shape[0], j0:j0 + z.shape[1]] = z
+    transform = from_origin(lon_left - dx / 2, lat_top + dx / 2, dx, dx)
+    dt1 = tmp_path / "n36_w085.dt1"
+    with MemoryFile() as mem:
+        with mem.open(driver="GTiff", height=n, width=n, count=1, dtype="int16", crs="EPSG:4326",
+                      transform=transform, nodata=-32767) as ds:
+            ds.write(cell, 1)
+        with mem.open() as ds:
+            rio_copy(ds, dt1, driver="DTED")
+    with rasterio.open(dt1) as ds:  # GDAL reads it back as a DTED cell
+        assert ds.driver == "DTED" and ds.shape == (n, n) and ds.nodata == -32767
+    out = tmp_path / "dem.h5"
+    res = runner.invoke(app, ["import", "dem", str(dt1), "--out", str(out), "--tile-postings", "128", "--json"])
+    assert res.exit_code == 0, res.output
+    dem = read_dem(out)
+    tiles = json.loads(res.stdout)["tiles"]
+    assert 0 < tiles == dem.heights.shape[0] <= (z.shape[0] // 128) * (z.shape[1] // 128) + 4
+    # no tile holds a null: every height is Jacksboro's range
+    assert dem.heights.min() >= z.min() - 1e-3 and dem.heights.max() <= z.max() + 1e-3
+    lat_c = north - (np.arange(z.shape[0]) + 0.5) * dx
+    lon_c = west + (np.arange(z.shape[1]) + 0.5) * dx
+    rng = np.random.default_rng(4)
+    i, j = rng.integers(0, z.shape[0], 4000), rng.integers(0, z.shape[1], 4000)
+    s = fit_local_surface(dem, lat_c[i], lon_c[j], "bicubic")
+    assert s.valid.sum() > 300  # the postings inside the kept tiles
+    np.testing.assert_allclose(s.height[s.valid], z[i, j][s.valid], atol=1e-3)
+
+
 def test_projected_raster_is_resampled_to_geographic_postings(tmp_path):
     # a smooth analytic surface in UTM zone 16N: the geographic postings must carry its value
     from pyproj import Transformer
