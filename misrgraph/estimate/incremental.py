@@ -520,18 +520,20 @@ class IncrementalSolver:
         off = np.concatenate([[0], np.cumsum([dim[k] for k in keys])]).astype(int)
         T = np.zeros((off[-1], n_s))
         D = np.zeros((off[-1], off[-1]))
+        rows: dict[int, tuple[list[NDArray[np.int64]], list[NDArray[np.int64]]]] = {i: ([], []) for i in involved}
         for a, k in enumerate(keys):
-            ra = slice(off[a], off[a + 1])
+            ra = np.arange(off[a], off[a + 1])
             if k not in self._owner:
-                T[ra, off_s[k]:off_s[k] + dim[k]] = np.eye(dim[k])
+                T[ra, off_s[k] + np.arange(dim[k])] = 1.0
                 continue
             i = self._owner[k]
-            oa = own_off[i][k]
-            T[ra, s_cols[i]] = -A[i][oa:oa + dim[k]]
-            for b, k2 in enumerate(keys):
-                if self._owner.get(k2) == i:
-                    ob = own_off[i][k2]
-                    D[ra, off[b]:off[b + 1]] = Hinv[i][oa:oa + dim[k], ob:ob + dim[k2]]
+            own = own_off[i][k] + np.arange(dim[k])
+            T[ra[:, None], s_cols[i][None, :]] = -A[i][own]
+            rows[i][0].append(ra)
+            rows[i][1].append(own)
+        for i, (out, own) in rows.items():  # e is independent between passes and of x_s
+            o, w = np.concatenate(out), np.concatenate(own)
+            D[np.ix_(o, o)] = Hinv[i][np.ix_(w, w)]
         return T @ S @ T.T + D
 
     def pass_result(self, index: int, seconds: float = 0.0) -> AdjustResult:
