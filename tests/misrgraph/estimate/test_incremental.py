@@ -43,6 +43,12 @@ def test_incremental_over_ten_passes_equals_batch(path_dir):
     for k in list(prob.dims)[::50] + settled[:3] + settled[-3:]:
         d = np.sqrt(np.diag(m[k]))
         assert np.max(np.abs(solver.marginal_covariance(k) - m[k]) / np.outer(d, d)) < 1e-2
+    # and so do the per-pass results (one joint covariance, sliced), settled or live
+    for i in (0, 9):
+        res_i = solver.pass_result(i)
+        for k in res_i.pass_graph.knot_keys(1)[::5] + res_i.pass_graph.ephemeris_keys():
+            d = np.sqrt(np.diag(m[k]))
+            assert np.max(np.abs(res_i.marginals[k] - m[k]) / np.outer(d, d)) < 1e-2, (i, k)
 
 
 def test_linear_model_mirror_matches_isam2(path_dir):
