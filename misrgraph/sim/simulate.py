@@ -558,6 +558,13 @@ def simulate_pass(
         line[mis] += mag * np.cos(ang_m)
         sample[mis] += mag * np.sin(ang_m)
         blunder = blunder | mis
+    # a matcher measures inside the pass only: a point whose noise, blunder or mismatch moved it
+    # before the first or after the last line of the pass's navigation is not measured
+    t_obs = t0[cols[1].astype(np.int64), cols[2].astype(np.int64)] + line * camera_truth.line_time
+    inside = (t_obs >= eph.span[0]) & (t_obs <= eph.span[1])
+    if not inside.all():
+        obs_lm, line, sample, sigma, blunder = obs_lm[inside], line[inside], sample[inside], sigma[inside], blunder[inside]
+        cols = [c[inside] for c in cols]
     landmarks = Landmarks(
         np.array([lm.ident for lm in kept], np.int64),
         np.array([lm.kind for lm in kept], np.int64),

@@ -318,3 +318,24 @@ def test_focal_plane_perturbation_moves_the_swath_edge_by_its_sigma(nominal_came
         shifts.append((y1 - y0) / nominal_camera.alpha[:, 2, 1])
     rms = np.sqrt(np.mean(np.square(shifts)))
     assert abs(rms - 0.05 * np.sqrt(2)) < 0.15 * 0.05 * np.sqrt(2)
+
+
+def test_measurements_moved_outside_the_pass_are_not_made(tmp_path):
+    """Noise, blunders and mismatches can move a point near the pass's ends before its first or
+    after its last line; a matcher cannot measure there, so the simulator drops those
+    measurements instead of writing a pass file that fails its own check (seen at standard
+    size: a mismatch put a line at -0.56). Large blunders at a high rate make it certain here."""
+    out = tmp_path / "edge"
+    cfg = ScenarioConfig(scenario="pass", seed=4, n_tie_points=60, n_check_points=5, duration_s=600.0,
+                         start_lat_deg=50.0, tie_blunder_rate=0.5, blunder_min_px=200.0, blunder_max_px=400.0)
+    run_simulate(cfg, out)
+    sc = load_scenario(out)
+    p, tp = sc.load_pass(0), sc.load_truth(0)
+    t = p.observation_times()
+    lo, hi = p.span
+    assert lo <= t.min() and t.max() <= hi
+    assert tp.blunder.size == len(p.observations) and tp.blunder.sum() > 100  # the truth stays aligned
+    # the same scenario without blunders keeps every measurement it makes (nothing else moves)
+    clean = tmp_path / "clean"
+    run_simulate(dataclasses.replace(cfg, tie_blunder_rate=0.0), clean)
+    assert len(load_scenario(clean).load_pass(0).observations) > len(p.observations)
