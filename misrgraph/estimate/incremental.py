@@ -484,10 +484,7 @@ class IncrementalSolver:
     # ------------------------------------------------------------------ results
     def marginal_covariance(self, key: int) -> Array:
         """Marginal covariance of one variable (its own units), held by iSAM2 or settled."""
-        key = int(key)
-        if key not in self._owner:
-            return np.asarray(self.isam.marginalCovariance(key))
-        return self.joint_marginal_covariance([key])
+        return self.joint_marginal_covariance([int(key)])
 
     def joint_marginal_covariance(self, keys: list[int]) -> Array:
         """Joint marginal covariance of ``keys`` (dense, blocks in their order). A settled pass's

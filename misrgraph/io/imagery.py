@@ -179,10 +179,12 @@ def write_imagery(f: Any, imagery: PassImagery) -> None:
 
 class StripReader:
     """The whole-swath strips of one pass file opened (and validated) once: which cameras it
-    holds, the blocks they were rendered for, and any camera's lines (read as sliced)."""
+    holds, the blocks they were rendered for, and any camera's lines (read as sliced). ``file``
+    is the open pass file, for reading anything else from it without validating it again."""
 
     def __init__(self, f: Any, path: str | os.PathLike[str]) -> None:
         self.path = path
+        self.file = f
         g = f.get("imagery")
         self._group = g["strips"] if g is not None and "strips" in g else None
         self._attrs = g.attrs if g is not None else {}

@@ -33,7 +33,7 @@ from misrgraph.model.geolocation import PassGeometry
 if TYPE_CHECKING:
     from misrgraph.io.imagery import PassImagery
 
-__all__ = ["PassTruth", "write_pass_truth", "save_pass_with_truth", "read_pass_truth", "read_gcp_truth", "has_truth",
+__all__ = ["PassTruth", "write_pass_truth", "save_pass_with_truth", "read_pass_truth", "pass_truth_in", "read_gcp_truth", "has_truth",
            "load_pass_observations"]
 
 Array = NDArray[np.float64]
@@ -100,21 +100,26 @@ def save_pass_with_truth(orbit_pass: OrbitPass, truth: PassTruth | None, path: s
 def read_pass_truth(path: str | os.PathLike[str]) -> PassTruth | None:
     """The truth of a simulated pass file (``None`` for a pass without ``/truth``)."""
     with open_h5(path, "orbit_pass") as f:
-        if "truth" not in f:
-            return None
-        n_lm = require_group(f, "landmarks")["id"].shape[0]
-        n_obs = require_group(f, "observations")["landmark"].shape[0]
-        tg = require_group(f, "truth")
-        e = require_group(tg, "ephemeris_error")
-        eem = EphemerisErrorModel(read_dataset(e, "boundaries", (None,)), read_dataset(e, "params", (None, 6)))
-        a = require_group(tg, "attitude_error")
-        aem = AttitudeErrorModel(
-            [read_dataset(require_group(a, name), "knot_times", (None,)) for name in ANGLES],
-            [read_dataset(require_group(a, name), "knots", (None, 2)) for name in ANGLES],
-        )
-        return PassTruth(eem, aem, read_dataset(tg, "landmark_ecef", (n_lm, 3)),
-                         read_dataset(tg, "blunder", (n_obs,), dtype=bool),
-                         read_camera_group(require_group(tg, "camera_model")))
+        return pass_truth_in(f)
+
+
+def pass_truth_in(f: Any) -> PassTruth | None:
+    """:func:`read_pass_truth` from a pass file already opened (and validated) by ``open_h5``."""
+    if "truth" not in f:
+        return None
+    n_lm = require_group(f, "landmarks")["id"].shape[0]
+    n_obs = require_group(f, "observations")["landmark"].shape[0]
+    tg = require_group(f, "truth")
+    e = require_group(tg, "ephemeris_error")
+    eem = EphemerisErrorModel(read_dataset(e, "boundaries", (None,)), read_dataset(e, "params", (None, 6)))
+    a = require_group(tg, "attitude_error")
+    aem = AttitudeErrorModel(
+        [read_dataset(require_group(a, name), "knot_times", (None,)) for name in ANGLES],
+        [read_dataset(require_group(a, name), "knots", (None, 2)) for name in ANGLES],
+    )
+    return PassTruth(eem, aem, read_dataset(tg, "landmark_ecef", (n_lm, 3)),
+                     read_dataset(tg, "blunder", (n_obs,), dtype=bool),
+                     read_camera_group(require_group(tg, "camera_model")))
 
 
 def read_gcp_truth(path: str | os.PathLike[str]) -> Array | None:

@@ -37,7 +37,7 @@ from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_file
 from misrgraph.io.passes import OrbitPass
 from misrgraph.io.products import ProjectionParameters, save_pp
-from misrgraph.io.truth import PassTruth, read_pass_truth
+from misrgraph.io.truth import PassTruth, pass_truth_in, read_pass_truth
 from misrgraph.misr.som import N_BLOCKS, SomGrid
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.constants import CAMERAS
@@ -341,10 +341,10 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
         provenance = {"source": str(source), "pass_file": str(f), "software": f"misrgraph {__version__}",
                       "solver_status": str(getattr(res, "status", "iSAM2 update state"))}
         cam_at = camera.at_temperature(orbit_pass.temperature_c) if hasattr(camera, "at_temperature") else camera
-        truth = read_pass_truth(f)
+        rd = readers[str(f)]
+        truth = pass_truth_in(rd.file)  # from the file the reader validated (not opened again)
         row, _, pp = _pass_pp(orbit_pass, res, path, chosen, band, out_dir, provenance, truth, cam_at, None, cameras)
         rows.append(row)
-        rd = readers[str(f)]
         roi_passes.append(RoiPass(orbit_pass.pass_id, pp,
                                   lambda cam, lines, rd=rd: rd.strip(cam, lines) if cam in rd.cameras else None))
         if truth is not None:
