@@ -19,6 +19,7 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from misrgraph.errors import InputError
 from misrgraph.io.passes import OrbitPass
 from misrgraph.io.truth import PassTruth
 from misrgraph.model.camera import CameraModel
@@ -27,7 +28,7 @@ from misrgraph.model.frames import enu_basis, geodetic_to_ecef
 from misrgraph.io.products import ProjectionParameters
 from misrgraph.products.pp import crossing, ground_derivatives
 
-__all__ = ["score_pp", "score_roi"]
+__all__ = ["score_pp", "score_roi", "truth_hidden"]
 
 Array = NDArray[np.float64]
 
@@ -94,21 +95,65 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
     return {"pp_error_m": out}
 
 
+def _seen_ground(geo: Any, cam: int, band: int, line: Array, sample: Array,
+                 surface: Callable[[Array, Array], Array]) -> Array:
+    """The true ground ``(N, 3)`` ECEF that image positions show: the first crossing of their rays
+    with ``surface`` from the camera (:func:`misrgraph.model.geolocation.cast_first`, from the
+    crossing the bracketed search finds)."""
+    from misrgraph.model.geolocation import cast_first
+
+    n = line.size
+    exposure = np.full(n, np.nan)
+    g = geo.pixel_to_ground(np.full(n, cam), np.full(n, band), line, sample, surface=surface, exposure=exposure, tol_m=0.05)
+    origin, direction = geo.pixel_rays(np.full(n, cam), np.full(n, band), line, sample, exposure)
+    lam = np.einsum("ni,ni->n", g - origin, direction)
+    return cast_first(origin, direction, surface, lam)
+
+
+def truth_hidden(geo: Any, cam: int, band: int, ground: Array, surface: Callable[[Array, Array], Array],
+                 min_distance_m: float = 137.5) -> NDArray[np.bool_]:
+    """``(N,)`` bool: which ECEF points ``ground (N, 3)`` on the true ``surface`` camera ``cam``
+    cannot see under the geometry ``geo`` -- the ray from the camera at the moment it images the
+    point meets the surface first more than ``min_distance_m`` (half a 275 m pixel) before it.
+    Points the camera never images are False."""
+    from misrgraph.model.geolocation import cast_first
+
+    n = ground.shape[0]
+    ip = geo.ground_to_pixel(np.full(n, cam), np.full(n, band), ground, continuous=True)
+    out = np.zeros(n, bool)
+    ok = np.flatnonzero(ip.visible)
+    if ok.size == 0:
+        return out
+    origin, direction = geo.pixel_rays(np.full(ok.size, cam), np.full(ok.size, band), ip.line[ok], ip.sample[ok],
+                                       np.full(ok.size, np.nan))
+    lam = np.einsum("ni,ni->n", ground[ok] - origin, direction)
+    first = cast_first(origin, direction, surface, lam + 1.0)
+    d = np.linalg.norm(first - ground[ok], axis=1)
+    out[ok] = np.isfinite(d) & (d > min_distance_m)
+    return out
+
+
 def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]], heights: NDArray[np.float32],
               cameras: tuple[str, ...], surface: Callable[[Array, Array], Array], n_points: int = 300,
-              seed: int = 0, reference: int | None = None) -> dict[str, dict[str, float]]:
+              seed: int = 0, reference: int | None = None,
+              obscured: NDArray[np.bool_] | None = None) -> dict[str, dict[str, Any]]:
     """The ROI's true misregistration on ``block`` (simulated passes only), in 275 m pixels.
 
     At ``n_points`` random grid points (fixed ``seed``) and for each pass, the ground point a
-    resampled image shows there is where the *true* geometry casts the image position the PP give
-    (at the SOM DEM's height ``heights (512, 2048)``) onto the true ``surface``; its SOM
-    (line, sample) minus the grid point is that camera's geolocation error, and its difference
-    from An's (same pass) or from its own in another pass is the co-registration error. Returns
-    ``{"geolocation_px": {camera: worst RMS over passes}, "between_cameras_px": {camera: worst RMS
-    against An over passes}, "between_passes_px": {camera: worst RMS over pairs of passes}}`` --
-    what matching on the ROI measures, without the matching error. With ``reference`` (a pass
-    index: the block's pass, as :func:`misrgraph.products.roi.coregistration` compares) the pairs
-    of passes are each pass with that one."""
+    resampled image shows there is where the *true* geometry's ray through the image position the
+    PP give (at the SOM DEM's height ``heights (512, 2048)``) first meets the true ``surface``; its
+    SOM (line, sample) minus the grid point is that camera's geolocation error, and its difference
+    from An's (same pass) or from its own in another pass is the co-registration error. Points the
+    ROI flags as obscured by terrain (``obscured (P, C, 512, 2048)``, per pass and camera of
+    ``cameras``; :mod:`misrgraph.products.terrain`) are left out. Returns ``{"geolocation_px":
+    {camera: worst RMS over passes}, "between_cameras_px": {camera: worst RMS against An over
+    passes}, "between_passes_px": {camera: worst RMS over pairs of passes}, "obscured": {camera:
+    {"points", "flagged", "hidden", "missed", "false"}}}`` -- what matching on the ROI measures,
+    without the matching error; ``obscured`` counts, over passes and points the camera images,
+    those the ROI flags, those the truth hides (:func:`truth_hidden`), the hidden ones not flagged
+    and the flagged ones not hidden. With ``reference`` (a pass index: the block's pass, as
+    :func:`misrgraph.products.roi.coregistration` compares) the pairs of passes are each pass
+    with that one."""
     from misrgraph.misr.som import SomGrid
     from misrgraph.model.frames import ecef_to_geodetic
 
@@ -116,19 +161,36 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
     grid = SomGrid(int(passes[0][2].path), 275)
     pl = rng.integers(8, grid.nline - 8, n_points)
     ps = rng.integers(8, grid.nsample - 8, n_points)
+    if obscured is not None and obscured.shape != (len(passes), len(cameras), grid.nline, grid.nsample):
+        raise InputError("obscured", obscured.shape, f"(passes, cameras, lines, samples) = "
+                                                     f"{(len(passes), len(cameras), grid.nline, grid.nsample)}")
+    lat_g, lon_g = grid.bls_to_latlon(np.full(n_points, block), pl, ps)
+    ground_true = geodetic_to_ecef(lat_g, lon_g, np.asarray(surface(lat_g, lon_g), dtype=float))
     err: dict[tuple[int, str], Array] = {}
+    counts: dict[str, dict[str, int]] = {c: {"points": 0, "flagged": 0, "hidden": 0, "missed": 0, "false": 0}
+                                         for c in cameras}
     for k, (orbit_pass, truth, pp) in enumerate(passes):
         geo = truth.geometry(orbit_pass)
-        for cam in cameras:
+        bi = BANDS.index(pp.band)
+        for j, cam in enumerate(cameras):
             ln, sm = pp.image_coords(cam, block, pl.astype(float), ps.astype(float), heights[pl, ps], resolution_m=275)
             ok = np.isfinite(ln) & np.isfinite(sm)
             e = np.full((n_points, 2), np.nan)
             if ok.any():
-                g = geo.pixel_to_ground(np.full(ok.sum(), CAMERAS.index(cam)), np.full(ok.sum(), BANDS.index(pp.band)),
-                                        ln[ok], sm[ok], surface=surface, exposure=np.full(ok.sum(), np.nan), tol_m=0.05)
+                ci = CAMERAS.index(cam)
+                g = _seen_ground(geo, ci, bi, ln[ok], sm[ok], surface)
                 lat, lon, _ = ecef_to_geodetic(g)
                 b, gl, gs = grid.latlon_to_bls(lat, lon, strict=False)
                 e[ok] = np.stack([gl + (b - block) * grid.nline - pl[ok], gs - ps[ok]], 1)
+                flagged = obscured[k, j][pl, ps][ok] if obscured is not None else np.zeros(int(ok.sum()), bool)
+                hidden = truth_hidden(geo, ci, bi, ground_true[ok], surface)
+                c = counts[cam]
+                c["points"] += int(ok.sum())
+                c["flagged"] += int(flagged.sum())
+                c["hidden"] += int(hidden.sum())
+                c["missed"] += int((hidden & ~flagged).sum())
+                c["false"] += int((flagged & ~hidden).sum())
+                e[np.flatnonzero(ok)[flagged]] = np.nan  # the ROI leaves these out
             err[(k, cam)] = e
 
     def worst(pairs: list[tuple[Array, Array | None]]) -> float | None:
@@ -141,7 +203,8 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
         return max(vals) if vals else None
 
     n_p = len(passes)
-    out: dict[str, dict[str, float]] = {"geolocation_px": {}, "between_cameras_px": {}, "between_passes_px": {}}
+    out: dict[str, dict[str, Any]] = {"geolocation_px": {}, "between_cameras_px": {}, "between_passes_px": {},
+                                      "obscured": counts}
     for cam in cameras:
         for kind, pairs in (("geolocation_px", [(err[(k, cam)], None) for k in range(n_p)]),
                             ("between_cameras_px", [(err[(k, cam)], err[(k, "An")]) for k in range(n_p)]

@@ -94,6 +94,31 @@ class SomDem:
             raise InputError("block", block, f"one of the SOM DEM's blocks {self.blocks.tolist()}")
         return self.heights[int(hit[0])]
 
+    def extended_block(self, block: int, margin: int) -> NDArray[np.float32]:
+        """The heights of ``block`` with ``margin`` pixels around it, ``(nline + 2 margin,
+        nsample + 2 margin)``: row ``margin + l``, column ``margin + s`` is the block's (line l,
+        sample s); rows beyond its lines come from the neighbouring blocks, placed by the blocks'
+        cross-track offsets; NaN where the DEM holds no block there (or beyond the samples)."""
+        from misrgraph.misr.som import N_BLOCKS, SomGrid
+
+        grid = SomGrid(int(self.path), int(self.resolution_m))
+        if isinstance(margin, bool) or not isinstance(margin, (int, np.integer)) or not 0 <= margin <= grid.nline:
+            raise InputError("margin", margin, f"an integer number of pixels in 0..{grid.nline}")
+        nl, ns, m = grid.nline, grid.nsample, int(margin)
+        out = np.full((nl + 2 * m, ns + 2 * m), np.nan, np.float32)
+        out[m:m + nl, m:m + ns] = self.block(block)
+        off = grid.block_offsets
+        for nb, rows in ((int(block) - 1, slice(0, m)), (int(block) + 1, slice(m + nl, 2 * m + nl))):
+            if m == 0 or not 1 <= nb <= N_BLOCKS or not np.any(self.blocks == nb):
+                continue
+            h = self.block(nb)
+            part = h[nl - m:] if nb < block else h[:m]
+            shift = int(off[nb - 1] - off[int(block) - 1])  # column of the neighbour's sample 0 in this block's frame
+            lo, hi = max(0, shift + m), min(ns + 2 * m, shift + m + ns)
+            if lo < hi:
+                out[rows, lo:hi] = part[:, lo - shift - m:hi - shift - m]
+        return out
+
 
 def save_som_dem(dem: SomDem, path: str | os.PathLike[str]) -> None:
     """Write a :class:`SomDem` atomically (HDF5 kind ``som_dem``)."""

@@ -49,7 +49,7 @@ FORMAT_VERSIONS: dict[str, int] = {
     "update_state": 2,
     "projection_parameters": 1,
     "som_dem": 1,
-    "reference_orbit_imagery": 1,
+    "reference_orbit_imagery": 2,
 }
 
 #: Why an older version of a kind is refused, when the reason is known (one line each).
@@ -61,6 +61,9 @@ _OLD_VERSION_REASON: dict[tuple[str, int], str] = {
 }
 _OLD_VERSION_REASON.update({(kind, 1): "version 1 files carry no checksums or content digest; re-create the file "
                                        "with this version" for kind in ("gcp_database", "dem")})
+_OLD_VERSION_REASON[("reference_orbit_imagery", 1)] = (
+    "version 1 ROI files have no /obscured layer and hold pixels that terrain hides from the camera "
+    "(resampled from the terrain in front of them); rebuild the ROI with this version")
 _OLD_VERSION_REASON[("dem", 2)] = ("version 2 DEMs have 3-arcsecond longitude postings at every latitude (no "
                                    "/tiles/lon_posting, DTED's zones); re-create the file with this version")
 

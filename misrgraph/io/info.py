@@ -89,7 +89,8 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
                     "chosen_pass": {int(b): r.pass_ids[int(r.chosen[k])] for k, b in enumerate(r.blocks)},
                     "fraction_imaged": {c: float(np.mean(r.source[i] >= 0)) for i, c in enumerate(r.cameras)},
                     "fraction_cloudy": {c: float(np.mean(r.cloudy[i][r.source[i] >= 0])) if np.any(r.source[i] >= 0) else None
-                                        for i, c in enumerate(r.cameras)}})
+                                        for i, c in enumerate(r.cameras)},
+                    "fraction_obscured": {c: float(np.mean(r.obscured[i])) for i, c in enumerate(r.cameras)}})
     else:
         from misrgraph.io.results import summarise_result_file
 

@@ -10,6 +10,8 @@ HDF5 layout (written block by block into a temporary file, renamed into place wh
     pixels (C, B, 512, 2048) uint16  counts (0: no pass images the point)
     source (C, B, 512, 2048) int8    index into pass_ids of each pixel's pass (-1: none)
     cloudy (C, B, 512, 2048) uint8   1 where no pass images the point clear of cloud
+    obscured (C, B, 512, 2048) uint8 1 where terrain hides the point in every pass that would
+                                     image it (the pixel is then empty, source -1)
     clear_fraction (B, P)            clear share of each pass's pixels per block
     chosen (B,)                      the clearest pass of each block (index into pass_ids)
 
@@ -51,6 +53,7 @@ class RoiFile:
     pixels: NDArray[np.uint16]
     source: NDArray[np.int8]
     cloudy: NDArray[np.bool_]
+    obscured: NDArray[np.bool_]
     clear_fraction: NDArray[np.float64]
     chosen: NDArray[np.int64]
     full_scale_dn: int
@@ -68,6 +71,8 @@ class _Writer:
         self.source = f.create_dataset("source", shape=shape, dtype=np.int8, fillvalue=-1, **opts)
         self.source.attrs["meaning"] = "index into the pass_ids attribute; -1: no pass images the point"
         self.cloudy = f.create_dataset("cloudy", shape=shape, dtype=np.uint8, fillvalue=0, **opts)
+        self.obscured = f.create_dataset("obscured", shape=shape, dtype=np.uint8, fillvalue=0, **opts)
+        self.obscured.attrs["meaning"] = "1: terrain hides the point from the camera in every pass that would image it"
         self.clear = np.zeros((blocks.size, n_pass))
         self.chosen = np.full(blocks.size, -1, np.int64)
         self.written = np.zeros(blocks.size, bool)
@@ -81,6 +86,7 @@ class _Writer:
         self.pixels[:, k] = block.pixels
         self.source[:, k] = block.source
         self.cloudy[:, k] = block.cloudy.astype(np.uint8)
+        self.obscured[:, k] = block.obscured.astype(np.uint8)
         self.clear[k] = block.clear_fraction
         self.chosen[k] = block.chosen
         self.written[k] = True
@@ -125,6 +131,7 @@ def read_roi(path: str | os.PathLike[str]) -> RoiFile:
         return RoiFile(p, str(read_attr(f, "band")), cameras, pass_ids, blocks,
                        read_dataset(f, "pixels", shape, dtype=np.uint16), read_dataset(f, "source", shape, dtype=np.int8),
                        read_dataset(f, "cloudy", shape, dtype=np.uint8).astype(bool),
+                       read_dataset(f, "obscured", shape, dtype=np.uint8).astype(bool),
                        read_dataset(f, "clear_fraction", (blocks.size, len(pass_ids))),
                        read_dataset(f, "chosen", (blocks.size,), dtype=np.int64), int(read_attr(f, "full_scale_dn")))
 

@@ -11,7 +11,10 @@
   (``skimage.feature.corner_foerstner``) defines the tie point: its An position is the An
   observation (whole pixels; the point *is* what An sees there). Its conjugates are predicted
   through the supplied navigation and the DEM (ray cast, then projected into each camera), found
-  by NCC and refined by LSM with the An patch as template -- blurred along track by the
+  by NCC and refined by LSM with the An patch as template (a conjugate whose ground point the
+  DEM hides from that camera -- the supplied ray meets the DEM first more than half a pixel
+  before it, :func:`misrgraph.model.geolocation.cast_first` -- is not matched: "hidden by
+  terrain"; its image shows the ridge in front, the D cameras' classic failure) -- blurred along track by the
   difference between the camera's footprint and An's (``1/rate`` lines each: the D cameras'
   detector covers ~2.6 lines, An's one; Gaussian of the variances' difference) -- then **checked backwards**: the matched
   patch is matched back into An and must land within ``back_tolerance_sigma`` times the two
@@ -54,7 +57,7 @@ from misrgraph.match.lsm import lsm, ncc_search
 from misrgraph.match.precision import PrecisionFit, camera_sigma_scales
 from misrgraph.model.constants import CAMERAS, N_PIXELS
 from misrgraph.model.frames import ecef_to_geodetic
-from misrgraph.model.geolocation import PassGeometry
+from misrgraph.model.geolocation import ImagePoints, PassGeometry
 
 __all__ = ["MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "match_ties"]
 
@@ -188,6 +191,32 @@ def _filled(surface: Callable[[Array, Array], Array]) -> Callable[[Array, Array]
     return lambda lat, lon: np.nan_to_num(np.asarray(surface(lat, lon), dtype=float), nan=0.0)
 
 
+#: A conjugate is hidden when its ray meets the DEM first more than this (m, half a 275 m pixel)
+#: before its ground point; the DEM is searched from this height (m) above the point, every
+#: ``HIDDEN_STEP_M`` along the ray (17 m of height in the D cameras; a 3" DEM holds no thinner crest).
+HIDDEN_DISTANCE_M = 137.5
+HIDDEN_CLIMB_M = 3000.0
+HIDDEN_STEP_M = 50.0
+
+
+def _hidden_by_terrain(geo: PassGeometry, cams: NDArray[np.int64], band: int, pred: ImagePoints, ground: Array,
+                       surface: Callable[[Array, Array], Array]) -> NDArray[np.bool_]:
+    """``(len(cams),)``: whether the DEM hides ECEF ``ground (3,)`` from each camera at its
+    predicted image position ``pred`` (an :class:`ImagePoints`; not visible: False)."""
+    from misrgraph.model.geolocation import cast_first
+
+    hidden = np.zeros(cams.size, bool)
+    vis = np.flatnonzero(pred.visible)
+    if vis.size == 0:
+        return hidden
+    o, d = geo.pixel_rays(cams[vis], np.full(vis.size, band), pred.line[vis], pred.sample[vis], np.full(vis.size, np.nan))
+    lam = np.einsum("ni,ni->n", ground[None, :] - o, d)
+    first = cast_first(o, d, _filled(surface), lam + 1.0, climb_m=HIDDEN_CLIMB_M, step_m=HIDDEN_STEP_M)
+    dist = np.linalg.norm(first - ground[None, :], axis=1)
+    hidden[vis] = np.isfinite(dist) & (dist > HIDDEN_DISTANCE_M)
+    return hidden
+
+
 @dataclass
 class TieFeature:
     """A tie point defined by an An interest point: its ``window_row`` (the simulated feature whose
@@ -266,6 +295,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
         raised = supplied_geo.pixel_to_ground(AN, band, line_an, samp_an, exposure=np.nan,
                                               height=h_g + _EPIPOLAR_STEP_M)
         pred_up = supplied_geo.ground_to_pixel(cams, band, np.repeat(raised, ks.size, axis=0), continuous=True)
+        hidden = _hidden_by_terrain(supplied_geo, cams, band, pred, ground[0], surface)
         rate_cams = np.concatenate([[AN], cams])
         rate_lines = np.concatenate([[line_an], pred.line])
         times = supplied_geo.line_time(rate_cams, band, rate_lines, rate_lines)
@@ -279,6 +309,9 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
                 continue
             if not pred.visible[j]:
                 out.reasons["not predicted in the image"] += 1
+                continue
+            if hidden[j]:
+                out.reasons["hidden by terrain (DEM)"] += 1
                 continue
             cam = int(cams[j])
             # the camera's along-track footprint (1/rate lines) is longer than An's in the C and D cameras:

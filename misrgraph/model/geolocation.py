@@ -28,7 +28,7 @@ from misrgraph.errors import ConvergenceError, InputError
 from misrgraph.model.frames import WGS84_A, WGS84_B, EarthOrientation, ecef_to_geodetic, enu_basis
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris
 
-__all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid", "cast_from"]
+__all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid", "cast_from", "cast_first"]
 
 Array = NDArray[np.float64]
 Correction = Callable[[Array], Array]
@@ -368,6 +368,52 @@ def cast_from(origin: Array, direction: Array, lam0: Array, surface: Callable[[A
     out = origin + out_lam[:, None] * direction
     if rest.size and fallback:  # the bracketed search (rays missing the Earth stay NaN)
         out[rest] = _cast_onto(origin[rest], direction[rest], surface, tol_m)
+    return out
+
+
+def cast_first(origin: Array, direction: Array, surface: Callable[[Array, Array], Array], lam_end: Array,
+               climb_m: float = 3000.0, step_m: float = 25.0, tol_m: float = 0.05) -> Array:
+    """Where rays ``origin + lam direction`` (``(N, 3)`` ECEF m, unit directions) first meet the
+    height field ``surface(lat, lon)`` (ellipsoidal m) coming from the camera: the first crossing
+    from above, which is the ground the pixel sees even where terrain hides farther ground (the
+    bracketed search of :meth:`PassGeometry.pixel_to_ground` returns *a* crossing). ``lam_end (N,)``
+    is a distance at or beyond a crossing (e.g. one that search found); the rays are sampled every
+    ``step_m`` metres from where they are ``climb_m`` above the surface at ``lam_end`` down to
+    ``lam_end``, and the first sign change is refined to ``tol_m``. A crest thinner than ``step_m``
+    along the ray can be stepped over. Returns ``(N, 3)``, NaN where no crossing is found."""
+    origin, direction = np.asarray(origin, dtype=float), np.asarray(direction, dtype=float)
+    lam_end = np.asarray(lam_end, dtype=float)
+    n = origin.shape[0]
+    out = np.full((n, 3), np.nan)
+    idx = np.flatnonzero(np.isfinite(lam_end))
+    if idx.size == 0:
+        return out
+    end = origin[idx] + lam_end[idx, None] * direction[idx]
+    lat, lon, _ = ecef_to_geodetic(end)
+    top = ray_ellipsoid(origin[idx], direction[idx], np.asarray(surface(lat, lon), dtype=float) + climb_m)
+    top = np.where(np.isfinite(top) & (top < lam_end[idx]), top, lam_end[idx])
+
+    def f(lam: Array, ii: Array) -> Array:
+        la, lo, h = ecef_to_geodetic(origin[ii] + lam[:, None] * direction[ii])
+        return h - np.asarray(surface(la, lo), dtype=float)
+
+    prev = top.copy()
+    f_prev = f(prev, idx)
+    found = np.full(idx.size, np.nan)
+    live = np.flatnonzero(f_prev > 0)  # starts above the surface
+    k = 1
+    while live.size:
+        lam = np.minimum(top[live] + k * step_m, lam_end[idx[live]] + tol_m)
+        fl = f(lam, idx[live])
+        below = fl <= 0
+        if below.any():
+            j = live[below]
+            found[j] = _find_root(f, prev[j], lam[below], tol=tol_m, index=idx[j])
+        at_end = lam >= lam_end[idx[live]] + tol_m
+        prev[live] = lam
+        live = live[~below & ~at_end]
+        k += 1
+    out[idx] = origin[idx] + found[:, None] * direction[idx]
     return out
 
 

@@ -103,9 +103,13 @@ def run_products(
 
     ``roi``: build the Reference Orbit Imagery of the blocks (default: those the strips were
     rendered for) from every pass with strips (:func:`_run_products_roi`; from a state, its
-    passes with the state's estimate, the SOM DEM by default beside the state's DEM); the summary adds ``"roi"`` (files, clearest pass per block),
+    passes with the state's estimate, the SOM DEM by default beside the state's DEM); the summary
+    adds ``"roi"`` (files, clearest pass and share obscured by terrain per block),
     ``"roi_coregistration_px"`` (per camera, the worst misregistration measured by matching on
-    the ROI beyond matching noise) and, for simulated passes, ``"roi_truth"``."""
+    the ROI beyond matching noise) and, for simulated passes, ``"roi_truth"`` (the true
+    misregistration of the points the ROI keeps) and ``"roi_truth_obscured"`` (per camera, the
+    points the terrain mask flags against those the truth hides: ``points``, ``flagged``,
+    ``hidden``, ``missed``, ``false``) and ``"roi_truth_by_block"`` (the truth per block)."""
     t_start = time.perf_counter()
     d = Path(scenario_dir)
     roi_options = (roi_options or RoiOptions()) if roi else None
@@ -356,6 +360,9 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
     truth_scores: dict[str, dict[str, float]] = {}
     surface = _truth_surface(scenario) if truths else None
     clear: dict[int, dict[str, float]] = {}
+    obscured: dict[int, dict[str, float]] = {}
+    hidden_counts: dict[str, dict[str, int]] = {}
+    truth_by_block: dict[int, dict[str, dict[str, float]]] = {}
     chosen_pass: dict[int, str] = {}
     t0 = time.perf_counter()
     t_coreg = 0.0
@@ -364,6 +371,7 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
             writer.write(blk)
             clear[blk.block] = dict(zip(pass_ids, map(float, blk.clear_fraction)))
             chosen_pass[blk.block] = pass_ids[blk.chosen]
+            obscured[blk.block] = {cam: float(blk.obscured[j].mean()) for j, cam in enumerate(cameras)}
             t1 = time.perf_counter()
             if opts.coregistration_points:
                 for cam, kinds in coregistration(blk, pass_ids, opts.coregistration_points).items():
@@ -373,14 +381,19 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                             coreg[cam][kind] = {**st, "block": blk.block}
             if surface is not None and opts.truth_points and len(truths) == len(roi_passes):
                 sc = score_roi(blk.block, truths, som_dem.block(blk.block), cameras, surface, opts.truth_points,
-                               reference=blk.chosen)
+                               reference=blk.chosen, obscured=blk.hidden)
+                for cam, cnt in sc.pop("obscured").items():
+                    acc = hidden_counts.setdefault(cam, dict.fromkeys(cnt, 0))
+                    for key, v in cnt.items():
+                        acc[key] += v
+                truth_by_block[blk.block] = sc
                 for kind, per_cam in sc.items():
                     for cam, v in per_cam.items():
                         truth_scores.setdefault(kind, {})[cam] = max(truth_scores.get(kind, {}).get(cam, 0.0), v)
             t_coreg += time.perf_counter() - t1
     t_roi = time.perf_counter() - t0 - t_coreg
     roi_summary: dict[str, Any] = {"file": str(roi_file), "cameras": list(cameras), "passes": pass_ids,
-                                   "clear_fraction": clear, "chosen_pass": chosen_pass}
+                                   "clear_fraction": clear, "chosen_pass": chosen_pass, "obscured_fraction": obscured}
     if opts.geotiff or opts.quicklooks:
         r = read_roi(roi_file)
         if opts.geotiff:
@@ -394,6 +407,8 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                                "roi_coregistration": coreg, "notes": []}
     if truth_scores:
         summary["roi_truth"] = truth_scores
+        summary["roi_truth_obscured"] = hidden_counts
+        summary["roi_truth_by_block"] = truth_by_block
     summary["seconds"] = {**{k: v for k, v in head.items() if not isinstance(v, str)}, "pp": t_pp, "roi": t_roi,
                           "coregistration_and_scoring": t_coreg, "total": time.perf_counter() - t_start}
     with atomic_file(out_dir / "products.json") as fh:

@@ -25,6 +25,10 @@ onto the true terrain and sampling a ground reflectance field:
   (one line, 275 m) and one sample across track, through the local ground Jacobian of the cast
   pixel centres (relief included at pixel scale). The texture's footprint mean is exact (a sinc
   per wave), so no sub-pixel wave aliases.
+* **Terrain hides terrain**: each pixel shows the first ground its ray meets coming from the
+  camera (rows are cast in the camera's sweep direction, each from its neighbour,
+  :func:`_cast_rows`), so ridges hide the slopes behind them from the oblique cameras as they do
+  in MISR's imagery.
 * **Radiometry**: 14-bit counts, full scale at reflectance 1.0, Gaussian noise of SNR
   ``snr`` at reflectance 0.18 growing as the square root of the signal, quantised.
 
@@ -221,13 +225,69 @@ class SceneRadiance:
         return (1 - alpha) * refl + alpha * self.cloud_reflectance(pc)
 
 
+def _sweeps_backward(cam: int) -> bool:
+    """Whether rows of camera ``cam`` are cast from the last to the first (see :func:`_cast_rows`):
+    the aft-looking cameras, whose later lines see terrain come into the line of sight in front of
+    the ground they saw before."""
+    return CAMERAS[int(cam)].endswith("a")
+
+
+def _first_ground(origin: Array, direction: Array, surface: Surface) -> Array:
+    """The ground rays ``(N, 3)`` see: a crossing by the bracketed search, then the first crossing
+    from the camera before it (:func:`misrgraph.model.geolocation.cast_first`)."""
+    from misrgraph.model.geolocation import cast_first, cast_from
+
+    g = cast_from(origin, direction, np.full(origin.shape[0], np.nan), surface)
+    lam = np.einsum("ni,ni->n", g - origin, direction)
+    return cast_first(origin, direction, surface, lam, climb_m=FIRST_CROSSING_CLIMB_M)
+
+
+#: Height (m) above a ray's crossing from which :func:`_first_ground` looks for terrain in front
+#: of it (the simulator's relief stays below 2.5 km).
+FIRST_CROSSING_CLIMB_M = 4000.0
+
+
+def _cast_rows(origin: Array, direction: Array, surface: Surface, backward: bool,
+               lam_start: Array | None = None) -> tuple[Array, Array]:
+    """Rays ``(R, S, 3)`` of consecutive image rows cast onto ``surface`` row after row, each from
+    its neighbour's solution by secant steps (:func:`misrgraph.model.geolocation.cast_from`), the
+    first row (unless ``lam_start (S,)`` continues an earlier sweep) and rays that lose their
+    root by :func:`_first_ground`. Rows go from first to last, or from last to first with
+    ``backward``: in the direction in which terrain in front of a ray only ever leaves the line of
+    sight, so that continuing from the neighbour keeps the first crossing from the camera (the
+    ground the pixel sees) where terrain hides other ground. Returns the ground points
+    ``(R, S, 3)`` and the distances along the rays of the last row cast ``(S,)``."""
+    from misrgraph.model.geolocation import cast_from
+
+    n_rows, n_s = origin.shape[:2]
+    g = np.full(origin.shape, np.nan)
+    order = range(n_rows - 1, -1, -1) if backward else range(n_rows)
+    lam_prev = lam_start
+    for i in order:
+        o, d = origin[i], direction[i]
+        if lam_prev is None:
+            g[i] = _first_ground(o, d, surface)
+        else:
+            g[i] = cast_from(o, d, lam_prev, surface, fallback=False)
+            miss = np.flatnonzero(~np.isfinite(g[i, :, 0]))
+            if miss.size:
+                g[i, miss] = _first_ground(o[miss], d[miss], surface)
+        lam = np.einsum("ni,ni->n", g[i] - o, d)
+        lam_prev = lam if lam_prev is None else np.where(np.isfinite(lam), lam, lam_prev)
+    assert lam_prev is not None
+    return g, lam_prev
+
+
 def _cast_grid(geo: PassGeometry, cam: int, band: int, lines: Array, samples: Array, surface: Surface) -> Array:
-    """Ground points (..., 3) of pixel centres (continuous exposure ``lines``, frac 0)."""
+    """Ground points (..., 3) of pixel centres (continuous exposure ``lines``, frac 0) on the grid
+    ``lines (H, W)`` x ``samples (H, W)`` (rows of constant line; a single point also), cast row
+    by row in the camera's sweep direction (:func:`_cast_rows`): the ground each pixel sees."""
     shape = np.broadcast_shapes(lines.shape, samples.shape)
-    ln = np.broadcast_to(lines, shape).ravel()
-    sm = np.broadcast_to(samples, shape).ravel()
-    g = geo.pixel_to_ground(np.full(ln.size, cam), np.full(ln.size, band), ln, sm, surface=surface,
-                            exposure=np.full(ln.size, np.nan), tol_m=0.05)
+    ln = np.broadcast_to(lines, shape).reshape(-1, shape[-1] if len(shape) > 1 else 1)
+    sm = np.broadcast_to(samples, shape).reshape(ln.shape)
+    origin, direction = geo.pixel_rays(np.full(ln.size, cam), np.full(ln.size, band), ln.ravel(), sm.ravel(),
+                                       np.full(ln.size, np.nan))
+    g, _ = _cast_rows(origin.reshape(ln.shape + (3,)), direction.reshape(ln.shape + (3,)), surface, _sweeps_backward(cam))
     return g.reshape(shape + (3,))
 
 
@@ -295,38 +355,27 @@ def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, l
     The same image :func:`render_window` makes (the scene's footprint mean at every pixel's ground
     point, clouds, noise), computed ``chunk`` lines at a time for a full swath: the navigation once
     per line (:meth:`PassGeometry.line_rays`), and each line's rays cast onto the terrain by secant
-    steps from the previous line's solution (:func:`misrgraph.model.geolocation.cast_from`, the
-    bracketed search where that fails). The along-track detector extent (``rate``) is taken per
-    chunk at its centre pixel."""
-    from misrgraph.model.geolocation import cast_from
-
+    steps from the neighbouring line's solution, in the camera's sweep direction so that each
+    pixel shows the first ground its ray meets (:func:`_cast_rows`; the aft cameras' chunks go
+    from the last line to the first, their noise is still drawn in line order). The along-track
+    detector extent (``rate``) is taken per chunk at its centre pixel."""
     samples = sample0 + np.arange(n_samples, dtype=float)
     out = np.zeros((n_lines, n_samples), np.uint16)
-    lam_prev: Array | None = None
-    for a in range(0, n_lines, chunk):
+    backward = _sweeps_backward(cam)
+    starts = list(range(0, n_lines, chunk))
+    refl_of: dict[int, Array] = {}
+    lam_carry: Array | None = None
+    for n, a in enumerate(starts[::-1] if backward else starts):
         if progress:
-            progress(a, n_lines)
+            progress(n * chunk, n_lines)
         b = min(a + chunk, n_lines)
         lines = line0 + np.arange(a - 1, b + 1, dtype=float)  # one line each side: central differences
         origin, direction = geo.line_rays(cam, band, lines, samples)
-        o = np.repeat(origin, n_samples, axis=0)
-        d = direction.reshape(-1, 3)
-        if lam_prev is None:  # the first line by the bracketed search, the others from it
-            first = cast_from(o[:n_samples], d[:n_samples], np.full(n_samples, np.nan), surface)
-            lam_prev = np.einsum("ni,ni->n", first - o[:n_samples], d[:n_samples])
-        g = np.empty_like(o)
-        for i in range(lines.size):  # line by line: each starts from its predecessor
-            sl = slice(i * n_samples, (i + 1) * n_samples)
-            g[sl] = cast_from(o[sl], d[sl], lam_prev, surface, fallback=False)
-            lam = np.einsum("ni,ni->n", g[sl] - o[sl], d[sl])
-            lam_prev = np.where(np.isfinite(lam), lam, lam_prev)
-            if i == b - a:  # the next chunk starts at this line (b - 1 + 1 - 1)
-                lam_next = lam_prev.copy()
-        lam_prev = lam_next
-        miss = np.flatnonzero(~np.isfinite(g[:, 0]))
-        if miss.size:  # the chunk's hard rays together, by the bracketed search
-            g[miss] = cast_from(o[miss], d[miss], np.full(miss.size, np.nan), surface)
-        g = g.reshape(lines.size, n_samples, 3)
+        o = np.broadcast_to(origin[:, None, :], direction.shape)
+        g, _ = _cast_rows(o, direction, surface, backward, lam_carry)
+        # the next chunk starts from the line it shares with this one (b - 1 forward, a backward)
+        shared = 1 if backward else lines.size - 2
+        lam_carry = np.einsum("ni,ni->n", g[shared] - o[shared], direction[shared])
         g_l = 0.5 * (g[2:] - g[:-2])
         g_s = np.gradient(g[1:-1], axis=1)
         c = (b - a) // 2
@@ -335,7 +384,9 @@ def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, l
         refl = scene.ground_reflectance(g[1:-1], g_l, g_s, rate if np.isfinite(rate) else 1.0)
         if scene.cloud_fraction > 0:
             refl = scene.through_clouds(refl, np.repeat(origin[1:-1], n_samples, axis=0), direction[1:-1].reshape(-1, 3))
-        out[a:b] = _counts(np.nan_to_num(refl, nan=0.0), rng, snr)
+        refl_of[a] = refl
+    for a in starts:  # the noise drawn in line order whatever the sweep
+        out[a:a + chunk] = _counts(np.nan_to_num(refl_of.pop(a), nan=0.0), rng, snr)
     if progress:
         progress(n_lines, n_lines)
     return out

@@ -133,8 +133,10 @@ class ScenarioConfig(Config):
     Imagery for Reference Orbit Imagery (with ``imagery``): ``roi_blocks = (first, last)`` renders
     every pass's whole image lines over those blocks of the path (red band; ``strip_cameras``, default
     all nine; ``strip_samples = (first, count)`` of the array, default all 1504) and writes
-    ``dem_som.h5``, the heights on the path's 275 m SOM grid with an error of ``roi_dem_sigma_m``
-    (1 sigma; :func:`misrgraph.sim.terrain.simulate_som_dem`). Each pass has its own clouds.
+    ``dem_som.h5``, the heights on the path's 275 m SOM grid over those blocks and one more each
+    side (where terrain can hide their ends from the oblique cameras) with an error of
+    ``roi_dem_sigma_m`` (1 sigma; :func:`misrgraph.sim.terrain.simulate_som_dem`). Each pass has
+    its own clouds.
     ``feature_windows=False`` renders the strips only (no windows or chips for matching).
     Rendering costs ~12 microseconds per pixel: a block is ~560 lines x 1504 samples per camera.
     """
@@ -769,12 +771,15 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         save_dem(simulate_dem_tiles(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction,
                                     pad=IMAGERY_DEM_PAD if cfg.imagery else 8,
                                     correlated_fraction=cfg.dem_correlated_fraction if independent else 0.0), tmp / "dem.h5")
-        if cfg.roi_blocks:  # the heights the ROI is orthorectified with, on the path's 275 m SOM grid
+        if cfg.roi_blocks:  # the heights the ROI is orthorectified with, on the path's 275 m SOM grid,
+            # one block more each side: terrain there can hide the blocks' ends from the oblique cameras
             from misrgraph.io.dem import save_som_dem
+            from misrgraph.misr.som import N_BLOCKS
             from misrgraph.sim.terrain import simulate_som_dem
 
+            padded = (max(1, cfg.roi_blocks[0] - 1), min(N_BLOCKS, cfg.roi_blocks[1] + 1))
             save_som_dem(simulate_som_dem(lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo), cfg.path,
-                                          cfg.roi_blocks, int(rng.integers(0, 2**62)), cfg.roi_dem_sigma_m),
+                                          padded, int(rng.integers(0, 2**62)), cfg.roi_dem_sigma_m),
                          tmp / "dem_som.h5")
         save_camera_model(supplied, tmp / "camera_model.h5")
         save_camera_model(truth_model, tmp / "camera_truth.h5")

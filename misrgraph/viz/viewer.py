@@ -261,8 +261,9 @@ def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5
 
 def _view_roi(rec, rr, path: Path, counts: dict[str, int], step: int = 2) -> None:
     """Reference Orbit Imagery: per camera and block (one time step per block), the mosaic (every
-    ``step``-th pixel, counts), its per-pixel source pass (annotated) and cloudy flags, on the
-    block's SOM grid (rows = lines along the path, columns = samples)."""
+    ``step``-th pixel, counts) and its per-pixel source pass (annotated), on the block's SOM grid
+    (rows = lines along the path, columns = samples); points terrain hides from the camera in
+    every pass have no source (0, unlabelled) and are logged as ``obscured`` where a block has any."""
     from misrgraph.io.roi import read_roi
 
     roi = read_roi(path)
@@ -273,6 +274,8 @@ def _view_roi(rec, rr, path: Path, counts: dict[str, int], step: int = 2) -> Non
         for c, cam in enumerate(roi.cameras):
             rec.log(f"roi/{cam}/image", rr.Image(roi.pixels[c, k, ::step, ::step].astype(np.float32)))
             rec.log(f"roi/{cam}/source", rr.SegmentationImage((roi.source[c, k, ::step, ::step] + 1).astype(np.uint8)))
+            if roi.obscured[c, k].any():
+                rec.log(f"roi/{cam}/obscured", rr.SegmentationImage(roi.obscured[c, k, ::step, ::step].astype(np.uint8)))
             counts["ROI block images"] = counts.get("ROI block images", 0) + 1
 
 

@@ -32,3 +32,53 @@ def test_inconsistent_conjugates_are_dropped_and_features_renumbered():
     # positions travel with their observations
     i = [k for k, (f, c) in enumerate(zip(kept.feature, kept.camera)) if (f, c) == (1, 6)][0]
     assert kept.line[i] == 206.0 and kept.sample[i] == 56.0
+
+
+def test_conjugates_hidden_by_a_ridge_are_predicted_from_the_dem(imagery_pass_dir):
+    """A 2 km ridge across the track (Gaussian, 1.5 km wide). Ground points on a line along the
+    track through its crest: the matcher's prediction (the supplied ray into the camera, searched
+    for the DEM in front of the point) against the along-track profile in closed form -- a point
+    at ``s`` is hidden where ``h(s') > h(s) + |s' - s| tan(e)`` for some ``s'`` between it and the
+    camera, with ``e`` the ray's elevation in the along-track plane. They agree except within
+    150 m of the shadow's ends; Da has a shadow, An none."""
+    from misrgraph.match.pipeline import _hidden_by_terrain
+    from misrgraph.model.constants import CAMERAS
+    from misrgraph.sim.simulate import load_scenario
+
+    sc = load_scenario(imagery_pass_dir)
+    geo = sc.load_truth(0).geometry(sc.load_pass(0))
+    mid = 0.5 * float(geo.lines_in_pass(AN, 2))
+    g0 = geo.pixel_to_ground(np.array([AN]), np.array([2]), np.array([mid]), np.array([750.0]), height=0.0)[0]
+    g1 = geo.pixel_to_ground(np.array([AN]), np.array([2]), np.array([mid + 100]), np.array([750.0]), height=0.0)[0]
+    up = g0 / np.linalg.norm(g0)
+    along = g1 - g0 - ((g1 - g0) @ up) * up
+    along /= np.linalg.norm(along)
+    profile = lambda s: 2000.0 * np.exp(-0.5 * (np.asarray(s) / 1500.0) ** 2)  # noqa: E731
+
+    def ridge(lat, lon):
+        from misrgraph.model.frames import geodetic_to_ecef
+
+        q = geodetic_to_ecef(np.ravel(lat), np.ravel(lon), np.zeros(np.size(lat)))
+        return profile((q - g0) @ along).reshape(np.shape(lat))
+
+    s_pts = np.arange(-10000.0, 10001.0, 200.0)
+    shadows = {}
+    for name in ("Da", "An"):
+        cam = CAMERAS.index(name)
+        got, expect, near_edge = [], [], []
+        for s in s_pts:
+            ground = g0 + s * along + profile(s) * up
+            pred = geo.ground_to_pixel(np.array([cam]), 2, ground[None], continuous=True)
+            got.append(bool(_hidden_by_terrain(geo, np.array([cam]), 2, pred, ground, ridge)[0]))
+            o, d = geo.pixel_rays(np.array([cam]), np.array([2]), pred.line, pred.sample, np.full(1, np.nan))
+            to_cam = -d[0]
+            tan_e = (to_cam @ up) / abs(to_cam @ along)
+            side = np.sign(to_cam @ along)
+            s_between = s + side * np.arange(1.0, 20000.0, 10.0)
+            clearance = profile(s) + np.abs(s_between - s) * tan_e - profile(s_between)
+            expect.append(bool(np.any(clearance < 0)))
+            near_edge.append(bool(np.min(np.abs(clearance)) < 150.0 * tan_e))
+        got, expect, near_edge = map(np.array, (got, expect, near_edge))
+        assert np.all((got == expect) | near_edge), (name, s_pts[(got != expect) & ~near_edge])
+        shadows[name] = int(expect.sum())
+    assert shadows["Da"] >= 10 and shadows["An"] == 0, shadows

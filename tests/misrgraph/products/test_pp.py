@@ -25,21 +25,7 @@ from misrgraph.model.frames import geodetic_to_ecef
 from misrgraph.products.pp import _posterior, compute_pp, crossing
 
 RED = BANDS.index("red")
-BLOCK = 57  # the middle of the small pass's features (path 37, 55 N going south for 15 minutes)
-
-
-@pytest.fixture(scope="module")
-def adjusted(small_pass, small_pass_dir):
-    sc, op = small_pass
-    cam = load_camera_model(small_pass_dir / "camera_model.h5").at_temperature(op.temperature_c)
-    res = adjust_pass(op, cam, sc.dem, sc.gcps)
-    return sc, op, cam, res
-
-
-@pytest.fixture(scope="module")
-def pp(adjusted):
-    _, op, _, res = adjusted
-    return compute_pp(op, res, op.path, np.array([BLOCK]))
+BLOCK = 57  # the block of the ``pp`` fixture (conftest.py: PP_BLOCK)
 
 
 @pytest.fixture(scope="module")

@@ -126,14 +126,19 @@ def dense_imagery_dir(tmp_path_factory):
 def test_sigma_from_redundancy_makes_the_d_cameras_honest(dense_imagery_dir):
     """The LSM sigma alone is optimistic where the view angle changes the pattern most (the D
     cameras); scaled by each camera's precision from the pass's redundancy it is honest there:
-    error / sigma RMS in 0.7-1.4 per D camera and pooled (truth never enters the scale)."""
+    error / sigma RMS in 0.7-1.4 per D camera and pooled over the correct matches (truth never
+    enters the scale). Wrong matches (> 1 px: ~1 % here, which ones depends on the last count of
+    a pixel) are the blunder test's to reject; one among 60 doubles the RMS over all matches."""
     from misrgraph.match.pipeline import MatchConfig
 
     plain = run_match(dense_imagery_dir, MatchConfig(sigma_from_redundancy=False))["passes"][0]["tie"]
     scaled = run_match(dense_imagery_dir)["passes"][0]["tie"]
     assert all(v["estimated"] for v in scaled["sigma_scale"].values()), scaled["sigma_scale"]
     for cam in ("Df", "Da"):
-        assert plain["per_camera"][cam]["normalised_error_rms"] > 1.4  # what the LSM sigma alone gives
-        assert 0.7 <= scaled["per_camera"][cam]["normalised_error_rms"] <= 1.4, scaled["per_camera"][cam]
+        assert plain["per_camera"][cam]["normalised_error_rms_correct"] > 1.4  # what the LSM sigma alone gives
+        assert 0.7 <= scaled["per_camera"][cam]["normalised_error_rms_correct"] <= 1.4, scaled["per_camera"][cam]
         assert scaled["sigma_scale"][cam]["scale"] > 1.2
-    assert 0.7 <= scaled["normalised_error_rms"] <= 1.4
+    assert 0.7 <= scaled["normalised_error_rms_correct"] <= 1.4
+    # a sanity bound on the matcher, not a model figure: measured 14 of 1305 (1.1 %)
+    assert scaled["wrong_matches"] <= 0.03 * scaled["matched"], (scaled["wrong_matches"], scaled["matched"])
+    assert scaled["normalised_error_rms"] >= scaled["normalised_error_rms_correct"]

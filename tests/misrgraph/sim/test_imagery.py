@@ -98,6 +98,46 @@ def test_strip_equals_the_window_renderer(imagery_pass_dir):
         assert np.median(diff) <= 1 and np.mean(diff > 8) < 0.02, (cam, np.median(diff), np.mean(diff > 8))
 
 
+def test_pixels_show_the_first_ground_their_rays_meet(imagery_pass_dir):
+    """A 2 km ridge across the track (Gaussian, 1.5 km wide: back slopes to 39 deg, steeper than
+    the C and D cameras' rays) in the middle of the pass. The windows' rows, cast in each camera's
+    sweep direction, land where a march down every ray from 4 km above the ground first meets
+    the ridge (:func:`cast_first`, from an end point below all terrain), in every camera; the
+    bracketed search alone lands on hidden ground for some of the aft cameras' pixels (what
+    the renderer showed before)."""
+    from misrgraph.model.frames import enu_basis, geodetic_to_ecef
+    from misrgraph.model.geolocation import cast_first, ray_ellipsoid
+    from misrgraph.model.constants import CAMERAS
+    from misrgraph.sim.imagery import _cast_grid
+
+    sc = load_scenario(imagery_pass_dir)
+    p, tp = sc.load_pass(0), sc.load_truth(0)
+    geo = tp.geometry(p)
+    mid = 0.5 * float(geo.lines_in_pass(4, 2))  # An's middle line: every camera sees the ridge
+    g0 = geo.pixel_to_ground(np.array([4]), np.array([2]), np.array([mid]), np.array([750.0]), height=0.0)[0]
+    nadir_next = geo.pixel_to_ground(np.array([4]), np.array([2]), np.array([mid + 100]), np.array([750.0]), height=0.0)[0]
+    along = (nadir_next - g0) / np.linalg.norm(nadir_next - g0)
+
+    def ridge(lat, lon):
+        q = geodetic_to_ecef(np.ravel(lat), np.ravel(lon), np.zeros(np.size(lat)))
+        return (2000.0 * np.exp(-0.5 * (((q - g0) @ along) / 1500.0) ** 2)).reshape(np.shape(lat))
+
+    crest = g0 + 2000.0 * g0 / np.linalg.norm(g0)
+    hidden_by_bracketing = {}
+    for cam, name in enumerate(CAMERAS):
+        ip = geo.ground_to_pixel(cam, 2, crest[None], continuous=True)
+        assert ip.visible[0], name
+        ll, ss = np.meshgrid(ip.line[0] + np.arange(-50.0, 50.0), ip.sample[0] + np.arange(-8.0, 8.0), indexing="ij")
+        got = _cast_grid(geo, cam, 2, ll, ss, ridge).reshape(-1, 3)
+        o, d = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, 2), ll.ravel(), ss.ravel(), np.full(ll.size, np.nan))
+        first = cast_first(o, d, ridge, ray_ellipsoid(o, d, np.full(ll.size, -100.0)), climb_m=4000.0)
+        assert np.all(np.linalg.norm(got - first, axis=1) < 1.0), name
+        any_root = geo.pixel_to_ground(np.full(ll.size, cam), np.full(ll.size, 2), ll.ravel(), ss.ravel(), surface=ridge,
+                                       exposure=np.full(ll.size, np.nan), tol_m=0.05)
+        hidden_by_bracketing[name] = int(np.sum(np.linalg.norm(any_root - first, axis=1) > 1.0))
+    assert hidden_by_bracketing["Da"] > 0 or hidden_by_bracketing["Ca"] > 0, hidden_by_bracketing
+
+
 def test_cast_from_a_poor_guess_agrees_with_the_bracketed_cast(imagery_pass_dir):
     """Secant casting from guesses 300 m off (and NaN guesses, cast by the bracketed search) lands
     on the bracketed search's ground points to the tolerance."""
