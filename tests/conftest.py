@@ -74,26 +74,33 @@ def path_dir(tmp_path_factory):
     return out
 
 
-@pytest.fixture(scope="session")
-def roi_path_dir(tmp_path_factory):
+def _simulate_roi_path(out, camera_truth=None):
     """Four passes of path 37 with imagery (seed 41, clouds 20 %) and whole-line strips over the
     block under the mid-pass nadir point, reduced for the suite: cameras Df, An, Da, 256 of the
     1504 samples (600-855), no feature windows."""
-    from misrgraph.misr.som import SomGrid
-    from misrgraph.model.frames import EarthOrientation, ecef_to_geodetic
-    from misrgraph.model.orbit import terra_like_orbit
+    from misrgraph.campaign.tasks import mid_pass_block
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-    eph = terra_like_orbit(epoch_date="2001-06-15", path=37, start_lat_deg=52.0, duration_s=600.0)
-    t = np.array([eph.t[0] + 300.0])
-    lat, lon, _ = ecef_to_geodetic(EarthOrientation(eph.epoch_utc).eci_to_ecef(t)[0] @ eph.interpolate(t)[0][0])
-    block = int(SomGrid(37, 1100).latlon_to_bls(lat, lon)[0])
-    out = tmp_path_factory.mktemp("scen") / "roi"
+    block = mid_pass_block({"scenario": "path", "path": 37, "start_lat_deg": 52.0, "duration_s": 600.0})
     run_simulate(ScenarioConfig(scenario="path", seed=41, n_passes=4, n_tie_points=30, n_check_points=5, n_gcps=20,
                                 duration_s=600.0, start_lat_deg=52.0, imagery=True, cloud_fraction=0.2,
                                 roi_blocks=(block, block), strip_cameras=("Df", "An", "Da"), strip_samples=(600, 256),
-                                feature_windows=False), out)
+                                feature_windows=False, camera_truth=camera_truth or ""), out)
     return out
+
+
+@pytest.fixture(scope="session")
+def roi_path_dir(tmp_path_factory):
+    """The ROI scenario (:func:`_simulate_roi_path`) with its own instrument."""
+    return _simulate_roi_path(tmp_path_factory.mktemp("scen") / "roi")
+
+
+@pytest.fixture(scope="session")
+def campaign_roi_path_dir(tmp_path_factory, campaign_setup):
+    """The ROI scenario flown by the campaign month's instrument (its true camera model), so that
+    a campaign can calibrate on that month and map these passes."""
+    truth = campaign_setup[1] / "month" / "camera_truth.h5"
+    return _simulate_roi_path(tmp_path_factory.mktemp("scen") / "campaign_roi", str(truth))
 
 
 @pytest.fixture(scope="session")

@@ -57,7 +57,10 @@ class CampaignConfig(Config):
     ``passes_per_path``; ``size`` of the simulated scenarios (:data:`SIZES`); ``truth`` of the
     simulator (``independent``: a world the estimator does not share; ``model``: algebra checks);
     ``pp_blocks``: SOM blocks of each path's Projection Parameters (0: the size's default);
-    ``products``: build the per-path incremental state and products.
+    ``products``: build the per-path incremental state and products; ``roi``: build each path's
+    Reference Orbit Imagery from its state too (the path's inputs need whole-swath strips and a
+    SOM DEM: when the campaign simulates them, it renders ``roi_blocks`` blocks from the one under
+    the middle of the pass, all nine cameras, at ~80 s a block and pass on 2 cores).
     """
 
     months: float = 6.0
@@ -70,6 +73,8 @@ class CampaignConfig(Config):
     epoch_date: str = "2001-06-15"
     pp_blocks: int = 0
     products: bool = True
+    roi: bool = False
+    roi_blocks: int = 1
 
     def __post_init__(self) -> None:
         if not self.months > 0:
@@ -87,6 +92,10 @@ class CampaignConfig(Config):
             raise InputError("truth", self.truth, ("independent", "model"))
         if not 0 <= self.pp_blocks <= N_BLOCKS:
             raise InputError("pp_blocks", self.pp_blocks, f"0 (the size's default) to {N_BLOCKS}")
+        if self.roi and not self.products:
+            raise InputError("roi", self.roi, "False unless products is True (the ROI is built from each path's state)")
+        if isinstance(self.roi_blocks, bool) or not isinstance(self.roi_blocks, int) or not 1 <= self.roi_blocks <= 20:
+            raise InputError("roi_blocks", self.roi_blocks, "an integer number of blocks in 1..20")
 
     @property
     def blocks(self) -> int:

@@ -86,8 +86,11 @@ def write_report(report_dir: Path, plan: dict[str, Any], summary: dict[str, Any]
     for p, v in summary["paths"].items():
         prod = v.get("products") or {}
         pp = _f(prod.get("pp_error_rms_m")) if prod.get("status") == "done" else ("failed" if prod else "not built")
+        roi = prod.get("roi")
+        roi_txt = (f"co-registration ≤ {_f(roi['coregistration_px_max'], '.2f')} px (blocks {roi['blocks'][0]}–{roi['blocks'][1]})"
+                   if roi else "not built (campaign --roi; needs imagery)")
         L.append(f"| {p} | {v['passes']['done']}/{v['passes']['planned']} | {_f(v['checkpoint_rms_m'])} | "
-                 f"{_f(v['coregistration_px_max'], '.3f')} | {pp} | not built (needs imagery) |")
+                 f"{_f(v['coregistration_px_max'], '.3f')} | {pp} | {roi_txt} |")
     L += ["", "## Time per stage", "", "Task seconds are summed over the workers; wall seconds run from the stage's first task "
           "start to its last task's end (stages overlap).", "",
           "| stage | tasks | found done | failed | task seconds | wall seconds |", "|---|---:|---:|---:|---:|---:|"]

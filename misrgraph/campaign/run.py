@@ -285,7 +285,8 @@ def _execute(ex: Any, plan: CampaignPlan, out: str, month_dir: Path | None, path
         else:
             pin = submit("inputs", f"path {pp.path}", tasks.simulate_path, out, cfg, pp.path, pp.cycles, month, priority=5)
         if cfg.products:  # the longest tasks first, so that they do not end the campaign alone
-            submit("path", f"path {pp.path}", tasks.path_products, out, pp.path, pp.pass_ids, pin, cal, cfg.blocks, priority=2)
+            submit("path", f"path {pp.path}", tasks.path_products, out, pp.path, pp.pass_ids, pin, cal, cfg.blocks, cfg.roi,
+                   priority=2)
         for pid in pp.pass_ids:
             submit("adjust", pid, tasks.adjust, out, pp.path, pid, pin, cal)
     cluster = ex.describe()
@@ -312,6 +313,18 @@ def _execute(ex: Any, plan: CampaignPlan, out: str, month_dir: Path | None, path
 def _rms(values: Iterable[float | None]) -> float | None:
     v = np.array([x for x in values if x is not None], float)
     return float(np.sqrt(np.mean(v**2))) if v.size else None
+
+
+def _roi_entry(path_dir: str, roi: dict[str, Any] | None) -> dict[str, Any] | None:
+    """A path's ROI in the campaign summary: its file, blocks and worst co-registration (matched
+    on the ROI; and against the truth when simulated), or None when not built."""
+    if roi is None:
+        return None
+    truth = roi.get("truth_px") or {}
+    worst_truth = [v for kind in ("between_cameras_px", "between_passes_px") for v in (truth.get(kind) or {}).values()]
+    return {"file": str(Path(path_dir) / roi["file"]), "blocks": roi["blocks"],
+            "coregistration_px_max": max(roi["coregistration_px"].values()) if roi["coregistration_px"] else None,
+            "truth_coregistration_px_max": max(worst_truth) if worst_truth else None}
 
 
 def _summarise(plan: CampaignPlan, records: list[dict[str, Any]], cluster: dict[str, Any], seconds: float) -> dict[str, Any]:
@@ -346,7 +359,8 @@ def _summarise(plan: CampaignPlan, records: list[dict[str, Any]], cluster: dict[
         if pr is not None:
             entry["products"] = ({"status": "done", "dir": pr["output"],
                                   "pp_error_rms_m": _rms(v["rms"] for v in (pr["summary"]["products"].get("pp_error_m") or {}).values()),
-                                  "pp_blocks": pr["summary"]["products"]["blocks"], "roi": None}
+                                  "pp_blocks": pr["summary"]["products"]["blocks"],
+                                  "roi": _roi_entry(pr["output"], pr["summary"]["products"].get("roi"))}
                                  if pr["status"] == "done" else {"status": "failed", "reason": pr.get("reason")})
         paths[str(pp.path)] = entry
     stages: dict[str, Any] = {}

@@ -31,6 +31,8 @@ import traceback
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from misrgraph.campaign.plan import SIZES, CampaignConfig, digest
 from misrgraph.errors import FileFormatError, MisrGraphError
 
@@ -126,14 +128,34 @@ def simulate_month(out: str, cfg: CampaignConfig) -> dict[str, Any]:
     return _task("inputs", "month", (), lambda: _simulate(d, scfg))
 
 
+def mid_pass_block(scfg: dict[str, Any]) -> int:
+    """The SOM block (1.1 km grid) under the nadir point half-way through the pass a path
+    scenario configuration ``scfg`` describes."""
+    from misrgraph.misr.som import SomGrid
+    from misrgraph.model.frames import EarthOrientation, ecef_to_geodetic
+    from misrgraph.model.orbit import terra_like_orbit
+    from misrgraph.sim.simulate import ScenarioConfig
+
+    sc = ScenarioConfig.from_dict(scfg)
+    eph = terra_like_orbit(epoch_date=sc.epoch_date, path=sc.path, start_lat_deg=sc.start_lat_deg, duration_s=sc.duration_s)
+    t = np.array([eph.t[0] + 0.5 * sc.duration_s])
+    lat, lon, _ = ecef_to_geodetic(EarthOrientation(eph.epoch_utc).eci_to_ecef(t)[0] @ eph.interpolate(t)[0][0])
+    return int(np.ravel(SomGrid(sc.path, 1100).latlon_to_bls(lat, lon)[0])[0])
+
+
 def simulate_path(out: str, cfg: CampaignConfig, path: int, cycles: tuple[int, ...], month: dict[str, Any]) -> dict[str, Any]:
     """Simulate the chosen repeat passes of ``path`` (the month's instrument: its true camera
-    model) into ``OUT/inputs/path_PPP-<digest>``."""
+    model) into ``OUT/inputs/path_PPP-<digest>``; with ``cfg.roi``, with whole-swath strips of
+    ``cfg.roi_blocks`` blocks from the one under the middle of the pass (clouds over 20 % of the
+    sky) and the SOM DEM the ROI is made with."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
         truth = Path(month["output"]) / "camera_truth.h5"
         seed = int.from_bytes(bytes.fromhex(digest("path seed", cfg.seed, path)[:8]), "big")
         scfg = _scenario_cfg(cfg, "path", seed=seed, path=path, repeat_indices=list(cycles), camera_truth=str(truth))
+        if cfg.roi:
+            b0 = mid_pass_block(scfg)
+            scfg.update(imagery=True, cloud_fraction=0.2, feature_windows=False, roi_blocks=[b0, b0 + cfg.roi_blocks - 1])
         d = Path(out) / "inputs" / f"path_{path:03d}-{digest(scfg, _sha(truth))[:12]}"
         return _simulate(d, scfg)
 
@@ -224,10 +246,12 @@ def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------- per path
 def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[str, Any], calibration: dict[str, Any],
-                  blocks: int) -> dict[str, Any]:
+                  blocks: int, roi: bool = False) -> dict[str, Any]:
     """The path's incremental state over its passes (``misrgraph update``, one pass at a time)
     and the Projection Parameters of its first pass (``misrgraph products``) into
-    ``OUT/paths/path_PPP-<digest>/{state/, products/, path.json}``."""
+    ``OUT/paths/path_PPP-<digest>/{state/, products/, path.json}``; with ``roi``, the Reference
+    Orbit Imagery of the blocks its strips cover, from every pass of the state with the state's
+    estimate (``misrgraph products STATE --roi``), into ``products/roi/``."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
         from misrgraph.estimate.adjust import AdjustConfig
@@ -241,7 +265,7 @@ def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[s
             raise FileFormatError(d / "passes", f"planned passes missing: {', '.join(missing)}")
         cam = Path(calibration["output"])
         key = digest("path", [_sha(f) for f in files], _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"),
-                     AdjustConfig().to_dict(), blocks)
+                     AdjustConfig().to_dict(), blocks, {"roi": True} if roi else {})
         final = Path(out) / "paths" / f"path_{path:03d}-{key[:12]}"
         if (final / SUMMARY_FILE).exists():
             return final, True, json.loads((final / SUMMARY_FILE).read_text())
@@ -254,6 +278,15 @@ def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[s
             pp_name = Path(prod["files"]["pp"]).name
             prod["files"]["pp"] = str(final / "products" / pp_name)  # where it will be after the rename
             (tmp / "products" / "products.json").write_text(json.dumps(prod, indent=2))
+            roi_summary = None
+            if roi:
+                from misrgraph.runs.products import RoiOptions
+
+                r = run_products(tmp / "state", tmp / "products" / "roi", roi=True, roi_options=RoiOptions(quicklooks=True))
+                roi_summary = {"file": f"products/roi/{Path(r['roi']['file']).name}", "blocks": r["blocks"],
+                               "passes": r["roi"]["passes"], "chosen_pass": r["roi"]["chosen_pass"],
+                               "coregistration_px": r["roi_coregistration_px"], "truth_px": r.get("roi_truth"),
+                               "obscured_fraction": r["roi"]["obscured_fraction"], "seconds": r["seconds"]["total"]}
             summary = {
                 "path": path, "passes": list(pass_ids),
                 "update": [{k: u.get(k) for k in ("pass_id", "status", "update_seconds", "rejected_observations")}
@@ -262,7 +295,7 @@ def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[s
                 "update_seconds": t_update,
                 "products": {"pass_id": prod["pass_id"], "blocks": prod["blocks"],
                              "pp_file": f"products/{pp_name}",
-                             "pp_error_m": prod.get("pp_error_m"), "roi": None, "seconds": prod["seconds"]},
+                             "pp_error_m": prod.get("pp_error_m"), "roi": roi_summary, "seconds": prod["seconds"]},
             }
             (tmp / SUMMARY_FILE).write_text(json.dumps(summary, indent=2))
         return final, False, summary

@@ -285,14 +285,16 @@ def match(
         _print_json(out)
         return
     t = Table(title=f"matching in {scenario_dir}")
-    for col in ("kind", "candidates", "matched", "error RMS (px)", "error p95 (px)", "error / sigma RMS", "wrong", "s"):
+    for col in ("kind", "candidates", "matched", "error RMS (px)", "error p95 (px)", "error / sigma RMS",
+                "error / sigma RMS, correct matches", "wrong", "s"):
         t.add_column(col, justify="right")
     for kind in ("gcp", "tie"):
         v = out[kind]
         e = v.get("error_px") or {}
         fmt = (lambda x: f"{x:.3f}" if isinstance(x, float) else "-")
         t.add_row(kind, str(v["candidates"]), str(v["matched"]), fmt(e.get("rms")), fmt(e.get("p95")),
-                  fmt(v.get("normalised_error_rms")), str(v.get("wrong_matches", "-")), f"{v['seconds']:.1f}")
+                  fmt(v.get("normalised_error_rms")), fmt(v.get("normalised_error_rms_correct")),
+                  str(v.get("wrong_matches", "-")), f"{v['seconds']:.1f}")
     console.print(t)
 
 
@@ -476,6 +478,9 @@ def campaign(
     seed: int = typer.Option(0, "--seed", help="Seed of the simulated inputs."),
     pp_blocks: int = typer.Option(0, "--pp-blocks", help="SOM blocks of each path's PP (0: 10 standard, 2 reduced)."),
     no_products: bool = typer.Option(False, "--no-products", help="Skip the per-path state and products."),
+    roi: bool = typer.Option(False, "--roi", help="Build each path's Reference Orbit Imagery from its state (inputs with "
+                                                  "whole-swath strips and a SOM DEM; simulated ones get them, ~80 s a block and pass)."),
+    roi_blocks: int = typer.Option(1, "--roi-blocks", help="Blocks of strips a simulated path gets with --roi, from the one under mid-pass."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -488,7 +493,7 @@ def campaign(
         _fail("--workers and --scheduler: give one (--workers starts a local cluster, --scheduler uses yours)")
     cfg = CampaignConfig.from_dict(dict(months=months, fraction=fraction, paths=parse_paths(paths) if paths else (),
                                         passes_per_path=passes_per_path, size=size, truth=truth, seed=seed,
-                                        pp_blocks=pp_blocks, products=not no_products))
+                                        pp_blocks=pp_blocks, products=not no_products, roi=roi, roi_blocks=roi_blocks))
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err_console, disable=as_json) as bar:
         task = bar.add_task("campaign: starting", total=None)
@@ -509,12 +514,13 @@ def campaign(
         if cal.get("status") == "done" and cal.get("max_pointing_error_px") is not None:
             console.print(f"calibration: largest pointing error {cal['max_pointing_error_px']:.3f} px -> {cal['file']}")
         table = Table(title="per path")
-        for col in ("path", "passes", "check-point RMS (m)", "co-registration max (px)", "PP error RMS (m)"):
+        for col in ("path", "passes", "check-point RMS (m)", "co-registration max (px)", "PP error RMS (m)", "ROI co-registration (px)"):
             table.add_column(col, justify="right")
         fmt = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
         for path_, v in res["paths"].items():
             table.add_row(path_, f"{v['passes']['done']}/{v['passes']['planned']}", fmt(v["checkpoint_rms_m"], ".1f"),
-                          fmt(v["coregistration_px_max"], ".3f"), fmt((v.get("products") or {}).get("pp_error_rms_m"), ".1f"))
+                          fmt(v["coregistration_px_max"], ".3f"), fmt((v.get("products") or {}).get("pp_error_rms_m"), ".1f"),
+                          fmt(((v.get("products") or {}).get("roi") or {}).get("coregistration_px_max"), ".2f"))
         console.print(table)
         for f in res["failed"]:
             err_console.print(f"failed: {f['stage']} {f['name']}: {f['reason']}", markup=False)

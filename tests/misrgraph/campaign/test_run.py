@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -76,6 +77,44 @@ def test_a_rerun_on_a_users_scheduler_finds_everything_done(runs) -> None:
     assert all(s["found_done"] == s["tasks"] for s in again["stages"].values()), again["stages"]
     assert again["passes"] == clu["passes"]  # each planned pass counted once
     assert campaign_fingerprint(base / "cluster") == before
+
+
+def test_a_path_with_strips_gets_its_reference_orbit_imagery(runs, campaign_roi_path_dir, tmp_path) -> None:
+    """``campaign --roi``: a path whose passes carry whole-swath strips (the ROI scenario, the
+    month's instrument) gets its incremental state, PP and ROI from that state (iSAM2's joint
+    estimate, the calibrated camera; the SOM DEM beside the inputs' DEM). The ROI's true
+    misregistration stays within 3x of what its PP's 1 sigma and the DEM predict, as the per-pass
+    ROI's does (tests/misrgraph/products/test_roi.py), and the report names it."""
+    from misrgraph.bench.campaign import _seed_calibration
+    from misrgraph.io.products import read_pp
+    from misrgraph.io.roi import read_roi
+
+    cfg, inputs, base, _, _ = runs
+    mine = tmp_path / "inputs"
+    mine.mkdir()
+    (mine / "month").symlink_to(inputs / "month")
+    (mine / "path_037").symlink_to(campaign_roi_path_dir)
+    out = tmp_path / "campaign"
+    _seed_calibration(base / "sequential", out)  # the month's calibration, found done
+    res = run_campaign(out, cfg.replace(paths=(37,), roi=True), inputs=mine, workers=0)
+    assert res["failed"] == [] and res["stages"]["calibration"]["found_done"] == 1
+    roi_entry = res["paths"]["37"]["products"]["roi"]
+    roi = read_roi(roi_entry["file"])
+    assert roi.cameras == ("Df", "An", "Da") and len(roi.pass_ids) == 4 and roi_entry["blocks"] == [int(roi.blocks[0])] * 2
+    summary = json.loads((Path(res["paths"]["37"]["products"]["dir"]) / "path.json").read_text())
+    r = summary["products"]["roi"]
+    assert r["passes"] == list(roi.pass_ids)
+    pps = [read_pp(p) for p in sorted((out / "paths").glob("path_037-*/products/roi/PP_*.h5"))]
+    assert len(pps) == 4
+    dem_parallax_px = 10.0 * np.tan(np.radians(70.5)) / 275.0  # the SOM DEM's 10 m in the D cameras
+    for cam in ("Df", "An", "Da"):
+        sig = max(float(np.nanmedian(np.hypot(pp.sigma_line[pp.cameras.index(cam)], pp.sigma_sample[pp.cameras.index(cam)])))
+                  for pp in pps)
+        assert r["truth_px"]["between_passes_px"][cam] < 3 * np.sqrt(2) * sig, (cam, r["truth_px"], sig)
+        if cam != "An":
+            assert r["truth_px"]["between_cameras_px"][cam] < 3 * np.sqrt(dem_parallax_px**2 + 2 * sig**2), (cam, r["truth_px"])
+    assert 0 < roi_entry["coregistration_px_max"] < 0.5
+    assert "co-registration ≤" in (out / "report" / "campaign.md").read_text()
 
 
 def test_a_failing_pass_is_reported_and_the_others_go_on(campaign_setup, tmp_path) -> None:
