@@ -192,11 +192,9 @@ def _filled(surface: Callable[[Array, Array], Array]) -> Callable[[Array, Array]
 
 
 #: A conjugate is hidden when its ray meets the DEM first more than this (m, half a 275 m pixel)
-#: before its ground point; the DEM is searched from this height (m) above the point, every
-#: ``HIDDEN_STEP_M`` along the ray (17 m of height in the D cameras; a 3" DEM holds no thinner crest).
+#: before its ground point; the DEM is searched from this height (m) above the point.
 HIDDEN_DISTANCE_M = 137.5
 HIDDEN_CLIMB_M = 3000.0
-HIDDEN_STEP_M = 50.0
 
 
 def _hidden_by_terrain(geo: PassGeometry, cams: NDArray[np.int64], band: int, pred: ImagePoints, ground: Array,
@@ -211,7 +209,7 @@ def _hidden_by_terrain(geo: PassGeometry, cams: NDArray[np.int64], band: int, pr
         return hidden
     o, d = geo.pixel_rays(cams[vis], np.full(vis.size, band), pred.line[vis], pred.sample[vis], np.full(vis.size, np.nan))
     lam = np.einsum("ni,ni->n", ground[None, :] - o, d)
-    first = cast_first(o, d, _filled(surface), lam + 1.0, climb_m=HIDDEN_CLIMB_M, step_m=HIDDEN_STEP_M)
+    first = cast_first(o, d, _filled(surface), lam + 1.0, climb_m=HIDDEN_CLIMB_M)
     dist = np.linalg.norm(first - ground[None, :], axis=1)
     hidden[vis] = np.isfinite(dist) & (dist > HIDDEN_DISTANCE_M)
     return hidden

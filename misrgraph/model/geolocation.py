@@ -372,15 +372,21 @@ def cast_from(origin: Array, direction: Array, lam0: Array, surface: Callable[[A
 
 
 def cast_first(origin: Array, direction: Array, surface: Callable[[Array, Array], Array], lam_end: Array,
-               climb_m: float = 3000.0, step_m: float = 25.0, tol_m: float = 0.05) -> Array:
+               climb_m: float = 3000.0, max_step_m: float = 200.0, max_slope: float = 1.5,
+               tol_m: float = 0.05) -> Array:
     """Where rays ``origin + lam direction`` (``(N, 3)`` ECEF m, unit directions) first meet the
     height field ``surface(lat, lon)`` (ellipsoidal m) coming from the camera: the first crossing
     from above, which is the ground the pixel sees even where terrain hides farther ground (the
     bracketed search of :meth:`PassGeometry.pixel_to_ground` returns *a* crossing). ``lam_end (N,)``
-    is a distance at or beyond a crossing (e.g. one that search found); the rays are sampled every
-    ``step_m`` metres from where they are ``climb_m`` above the surface at ``lam_end`` down to
-    ``lam_end``, and the first sign change is refined to ``tol_m``. A crest thinner than ``step_m``
-    along the ray can be stepped over. Returns ``(N, 3)``, NaN where no crossing is found."""
+    is a distance at or beyond a crossing (e.g. one that search found).
+
+    Each ray is followed from where it is ``climb_m`` above the surface at ``lam_end`` towards
+    ``lam_end`` by steps no terrain of slope below ``max_slope`` can hide a crossing in (sphere
+    tracing on the height field): a clearance ``c`` (ray height minus surface) allows
+    ``c / (cos z + max_slope sin z)`` metres along a ray of zenith angle ``z``, at most
+    ``max_step_m``; the first step that ends below the surface is refined to ``tol_m``. Terrain
+    steeper than ``max_slope`` (56 deg by default) and thinner than ``max_step_m`` along the ray can
+    be stepped over. Returns ``(N, 3)``, NaN where no crossing is found."""
     origin, direction = np.asarray(origin, dtype=float), np.asarray(direction, dtype=float)
     lam_end = np.asarray(lam_end, dtype=float)
     n = origin.shape[0]
@@ -392,27 +398,34 @@ def cast_first(origin: Array, direction: Array, surface: Callable[[Array, Array]
     lat, lon, _ = ecef_to_geodetic(end)
     top = ray_ellipsoid(origin[idx], direction[idx], np.asarray(surface(lat, lon), dtype=float) + climb_m)
     top = np.where(np.isfinite(top) & (top < lam_end[idx]), top, lam_end[idx])
+    up = end / np.linalg.norm(end, axis=1, keepdims=True)
+    cos_z = np.clip(-np.einsum("ni,ni->n", direction[idx], up), 1e-3, 1.0)  # the ray descends towards the ground
+    rate = cos_z + max_slope * np.sqrt(1.0 - cos_z**2)  # clearance lost per metre along the ray, at most
 
     def f(lam: Array, ii: Array) -> Array:
         la, lo, h = ecef_to_geodetic(origin[ii] + lam[:, None] * direction[ii])
         return h - np.asarray(surface(la, lo), dtype=float)
 
-    prev = top.copy()
-    f_prev = f(prev, idx)
+    lam = top.copy()
+    c = f(lam, idx)
     found = np.full(idx.size, np.nan)
-    live = np.flatnonzero(f_prev > 0)  # starts above the surface
-    k = 1
+    live = np.flatnonzero(c > 0)  # starts above the surface
+    found[c <= 0] = lam[c <= 0]  # already at (or in) the surface where it starts
+    c_live = c[live]
     while live.size:
-        lam = np.minimum(top[live] + k * step_m, lam_end[idx[live]] + tol_m)
-        fl = f(lam, idx[live])
-        below = fl <= 0
+        stop = lam_end[idx[live]] + tol_m
+        step = np.clip(c_live / rate[live], tol_m, max_step_m)
+        nxt = np.minimum(lam[live] + step, stop)
+        fn = f(nxt, idx[live])
+        below = fn <= 0
         if below.any():
             j = live[below]
-            found[j] = _find_root(f, prev[j], lam[below], tol=tol_m, index=idx[j])
-        at_end = lam >= lam_end[idx[live]] + tol_m
-        prev[live] = lam
-        live = live[~below & ~at_end]
-        k += 1
+            found[j] = _find_root(f, lam[j], nxt[below], tol=tol_m, index=idx[j])
+        close = ~below & (fn < tol_m)  # on the surface to the tolerance
+        found[live[close]] = nxt[close]
+        lam[live] = nxt
+        keep = ~below & ~close & (nxt < stop)
+        live, c_live = live[keep], fn[keep]
     out[idx] = origin[idx] + found[:, None] * direction[idx]
     return out
 
