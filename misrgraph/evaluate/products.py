@@ -98,16 +98,12 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
 def _seen_ground(geo: Any, cam: int, band: int, line: Array, sample: Array,
                  surface: Callable[[Array, Array], Array]) -> Array:
     """The true ground ``(N, 3)`` ECEF that image positions show: the first crossing of their rays
-    with ``surface`` from the camera (:func:`misrgraph.model.geolocation.cast_first`, from the
-    crossing the bracketed search finds)."""
-    from misrgraph.model.geolocation import cast_first
+    with ``surface`` from the camera (:func:`misrgraph.model.geolocation.cast_seen`)."""
+    from misrgraph.model.geolocation import cast_seen
 
     n = line.size
-    exposure = np.full(n, np.nan)
-    g = geo.pixel_to_ground(np.full(n, cam), np.full(n, band), line, sample, surface=surface, exposure=exposure, tol_m=0.05)
-    origin, direction = geo.pixel_rays(np.full(n, cam), np.full(n, band), line, sample, exposure)
-    lam = np.einsum("ni,ni->n", g - origin, direction)
-    return cast_first(origin, direction, surface, lam)
+    origin, direction = geo.pixel_rays(np.full(n, cam), np.full(n, band), line, sample, np.full(n, np.nan))
+    return cast_seen(origin, direction, surface)
 
 
 def truth_hidden(geo: Any, cam: int, band: int, ground: Array, surface: Callable[[Array, Array], Array],
@@ -116,7 +112,7 @@ def truth_hidden(geo: Any, cam: int, band: int, ground: Array, surface: Callable
     cannot see under the geometry ``geo`` -- the ray from the camera at the moment it images the
     point meets the surface first more than ``min_distance_m`` (half a 275 m pixel) before it.
     Points the camera never images are False."""
-    from misrgraph.model.geolocation import cast_first
+    from misrgraph.model.geolocation import hidden_from_camera
 
     n = ground.shape[0]
     ip = geo.ground_to_pixel(np.full(n, cam), np.full(n, band), ground, continuous=True)
@@ -126,10 +122,7 @@ def truth_hidden(geo: Any, cam: int, band: int, ground: Array, surface: Callable
         return out
     origin, direction = geo.pixel_rays(np.full(ok.size, cam), np.full(ok.size, band), ip.line[ok], ip.sample[ok],
                                        np.full(ok.size, np.nan))
-    lam = np.einsum("ni,ni->n", ground[ok] - origin, direction)
-    first = cast_first(origin, direction, surface, lam + 1.0)
-    d = np.linalg.norm(first - ground[ok], axis=1)
-    out[ok] = np.isfinite(d) & (d > min_distance_m)
+    out[ok] = hidden_from_camera(origin, direction, ground[ok], surface, min_distance_m)
     return out
 
 

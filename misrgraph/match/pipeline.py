@@ -201,17 +201,15 @@ def _hidden_by_terrain(geo: PassGeometry, cams: NDArray[np.int64], band: int, pr
                        surface: Callable[[Array, Array], Array]) -> NDArray[np.bool_]:
     """``(len(cams),)``: whether the DEM hides ECEF ``ground (3,)`` from each camera at its
     predicted image position ``pred`` (an :class:`ImagePoints`; not visible: False)."""
-    from misrgraph.model.geolocation import cast_first
+    from misrgraph.model.geolocation import hidden_from_camera
 
     hidden = np.zeros(cams.size, bool)
     vis = np.flatnonzero(pred.visible)
     if vis.size == 0:
         return hidden
     o, d = geo.pixel_rays(cams[vis], np.full(vis.size, band), pred.line[vis], pred.sample[vis], np.full(vis.size, np.nan))
-    lam = np.einsum("ni,ni->n", ground[None, :] - o, d)
-    first = cast_first(o, d, _filled(surface), lam + 1.0, climb_m=HIDDEN_CLIMB_M)
-    dist = np.linalg.norm(first - ground[None, :], axis=1)
-    hidden[vis] = np.isfinite(dist) & (dist > HIDDEN_DISTANCE_M)
+    hidden[vis] = hidden_from_camera(o, d, np.repeat(ground[None, :], vis.size, axis=0), _filled(surface),
+                                     HIDDEN_DISTANCE_M, HIDDEN_CLIMB_M)
     return hidden
 
 

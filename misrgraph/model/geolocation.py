@@ -28,7 +28,8 @@ from misrgraph.errors import ConvergenceError, InputError
 from misrgraph.model.frames import WGS84_A, WGS84_B, EarthOrientation, ecef_to_geodetic, enu_basis
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris
 
-__all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid", "cast_from", "cast_first"]
+__all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid", "cast_from", "cast_first", "cast_seen",
+           "hidden_from_camera"]
 
 Array = NDArray[np.float64]
 Correction = Callable[[Array], Array]
@@ -428,6 +429,28 @@ def cast_first(origin: Array, direction: Array, surface: Callable[[Array, Array]
         live, c_live = live[keep], fn[keep]
     out[idx] = origin[idx] + found[:, None] * direction[idx]
     return out
+
+
+def cast_seen(origin: Array, direction: Array, surface: Callable[[Array, Array], Array], climb_m: float = 3000.0,
+              tol_m: float = 0.05) -> Array:
+    """The ground rays ``(N, 3)`` see on ``surface``: a crossing by the bracketed search, then the
+    first crossing from the camera before it (:func:`cast_first`, searched from ``climb_m`` above
+    that crossing). NaN where a ray misses."""
+    g = _cast_onto(origin, direction, surface, tol_m)
+    lam = np.einsum("ni,ni->n", g - origin, direction)
+    return cast_first(origin, direction, surface, lam, climb_m=climb_m, tol_m=tol_m)
+
+
+def hidden_from_camera(origin: Array, direction: Array, ground: Array, surface: Callable[[Array, Array], Array],
+                       min_distance_m: float = 137.5, climb_m: float = 3000.0) -> NDArray[np.bool_]:
+    """``(N,)``: whether ``surface`` hides each ECEF point ``ground (N, 3)`` from the camera whose
+    ray towards it is ``origin + lam direction`` (``(N, 3)``): the ray meets the surface first
+    (:func:`cast_first`) more than ``min_distance_m`` (default half a 275 m pixel) before the
+    point. Rays that find no crossing count as not hidden."""
+    lam = np.einsum("ni,ni->n", ground - origin, direction)
+    first = cast_first(origin, direction, surface, lam + 1.0, climb_m=climb_m)
+    dist = np.linalg.norm(first - ground, axis=1)
+    return np.isfinite(dist) & (dist > min_distance_m)
 
 
 def _cast_onto(origin: Array, direction: Array, surface: Callable[[Array, Array], Array], tol_m: float) -> Array:

@@ -232,50 +232,39 @@ def _sweeps_backward(cam: int) -> bool:
     return CAMERAS[int(cam)].endswith("a")
 
 
-def _first_ground(origin: Array, direction: Array, surface: Surface) -> Array:
-    """The ground rays ``(N, 3)`` see: a crossing by the bracketed search, then the first crossing
-    from the camera before it (:func:`misrgraph.model.geolocation.cast_first`)."""
-    from misrgraph.model.geolocation import cast_first, cast_from
-
-    g = cast_from(origin, direction, np.full(origin.shape[0], np.nan), surface)
-    lam = np.einsum("ni,ni->n", g - origin, direction)
-    return cast_first(origin, direction, surface, lam, climb_m=FIRST_CROSSING_CLIMB_M)
-
-
-#: Height (m) above a ray's crossing from which :func:`_first_ground` looks for terrain in front
-#: of it (the simulator's relief stays below 2.5 km).
+#: Height (m) above a ray's crossing from which :func:`_cast_rows` looks for terrain in front of
+#: it (the simulator's relief stays below 2.5 km).
 FIRST_CROSSING_CLIMB_M = 4000.0
 
 
 def _cast_rows(origin: Array, direction: Array, surface: Surface, backward: bool,
-               lam_start: Array | None = None) -> tuple[Array, Array]:
+               lam_start: Array | None = None) -> Array:
     """Rays ``(R, S, 3)`` of consecutive image rows cast onto ``surface`` row after row, each from
     its neighbour's solution by secant steps (:func:`misrgraph.model.geolocation.cast_from`), the
     first row (unless ``lam_start (S,)`` continues an earlier sweep) and rays that lose their
-    root by :func:`_first_ground`. Rows go from first to last, or from last to first with
+    root by :func:`misrgraph.model.geolocation.cast_seen`. Rows go from first to last, or from last to first with
     ``backward``: in the direction in which terrain in front of a ray only ever leaves the line of
     sight, so that continuing from the neighbour keeps the first crossing from the camera (the
     ground the pixel sees) where terrain hides other ground. Returns the ground points
-    ``(R, S, 3)`` and the distances along the rays of the last row cast ``(S,)``."""
-    from misrgraph.model.geolocation import cast_from
+    ``(R, S, 3)``."""
+    from misrgraph.model.geolocation import cast_from, cast_seen
 
-    n_rows, n_s = origin.shape[:2]
+    n_rows = origin.shape[0]
     g = np.full(origin.shape, np.nan)
     order = range(n_rows - 1, -1, -1) if backward else range(n_rows)
     lam_prev = lam_start
     for i in order:
         o, d = origin[i], direction[i]
         if lam_prev is None:
-            g[i] = _first_ground(o, d, surface)
+            g[i] = cast_seen(o, d, surface, FIRST_CROSSING_CLIMB_M)
         else:
             g[i] = cast_from(o, d, lam_prev, surface, fallback=False)
             miss = np.flatnonzero(~np.isfinite(g[i, :, 0]))
             if miss.size:
-                g[i, miss] = _first_ground(o[miss], d[miss], surface)
+                g[i, miss] = cast_seen(o[miss], d[miss], surface, FIRST_CROSSING_CLIMB_M)
         lam = np.einsum("ni,ni->n", g[i] - o, d)
         lam_prev = lam if lam_prev is None else np.where(np.isfinite(lam), lam, lam_prev)
-    assert lam_prev is not None
-    return g, lam_prev
+    return g
 
 
 def _cast_grid(geo: PassGeometry, cam: int, band: int, lines: Array, samples: Array, surface: Surface) -> Array:
@@ -287,7 +276,7 @@ def _cast_grid(geo: PassGeometry, cam: int, band: int, lines: Array, samples: Ar
     sm = np.broadcast_to(samples, shape).reshape(ln.shape)
     origin, direction = geo.pixel_rays(np.full(ln.size, cam), np.full(ln.size, band), ln.ravel(), sm.ravel(),
                                        np.full(ln.size, np.nan))
-    g, _ = _cast_rows(origin.reshape(ln.shape + (3,)), direction.reshape(ln.shape + (3,)), surface, _sweeps_backward(cam))
+    g = _cast_rows(origin.reshape(ln.shape + (3,)), direction.reshape(ln.shape + (3,)), surface, _sweeps_backward(cam))
     return g.reshape(shape + (3,))
 
 
@@ -372,7 +361,7 @@ def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, l
         lines = line0 + np.arange(a - 1, b + 1, dtype=float)  # one line each side: central differences
         origin, direction = geo.line_rays(cam, band, lines, samples)
         o = np.broadcast_to(origin[:, None, :], direction.shape)
-        g, _ = _cast_rows(o, direction, surface, backward, lam_carry)
+        g = _cast_rows(o, direction, surface, backward, lam_carry)
         # the next chunk starts from the line it shares with this one (b - 1 forward, a backward)
         shared = 1 if backward else lines.size - 2
         lam_carry = np.einsum("ni,ni->n", g[shared] - o[shared], direction[shared])
