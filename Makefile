@@ -19,8 +19,11 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/misrgraph demo --out demo-output
 
+# the suite on TEST_WORKERS processes (pytest-xdist; whole files per process, so that a file's
+# fixtures are built once); TEST_WORKERS=0 runs it in this process
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # every dependency at the floor pyproject.toml declares, in .venv-min, then the suite's fast part
 min-versions:

@@ -61,7 +61,7 @@ from misrgraph.io.imagery import INTEREST_RADIUS_PX
 from misrgraph.model.constants import CAMERAS, VIEW_ANGLE_DEG
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.geolocation import PassGeometry, ray_ellipsoid
-from misrgraph.sim.terrain import EARTH_R, land_mask
+from misrgraph.sim.terrain import EARTH_R, SyntheticTerrain, land_mask
 
 if TYPE_CHECKING:
     from misrgraph.io.imagery import ImageStrip, PassImagery
@@ -233,8 +233,9 @@ def _sweeps_backward(cam: int) -> bool:
 
 
 #: Height (m) above a ray's crossing from which :func:`_cast_rows` looks for terrain in front of
-#: it (the simulator's relief stays below 2.5 km).
-FIRST_CROSSING_CLIMB_M = 4000.0
+#: it: the simulator's relief spans 0..``max_relief_m`` (2.5 km) above the sea, plus 200 m for the
+#: sub-posting relief (< 50 m) and the geoid's change over a window (metres).
+FIRST_CROSSING_CLIMB_M = SyntheticTerrain.max_relief_m + 200.0
 
 
 def _cast_rows(origin: Array, direction: Array, surface: Surface, backward: bool,
@@ -281,11 +282,17 @@ def _cast_grid(geo: PassGeometry, cam: int, band: int, lines: Array, samples: Ar
 
 
 def _render(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, lines: Array, samples: Array,
-            surface: Surface, rate: float) -> Array:
+            surface: Surface, rate: float | None = None) -> Array:
     """Mean scene reflectance over each pixel footprint, for a regular grid of continuous pixel
-    positions ``lines (H,)`` x ``samples (W,)`` (spacing ``dl``, ``ds`` pixels)."""
+    positions ``lines (H,)`` x ``samples (W,)`` (spacing ``dl``, ``ds`` pixels). ``rate`` (image
+    lines per line of ground motion, :meth:`PassGeometry.line_rate`) is taken by default at the
+    grid's centre point ``(H // 2, W // 2)`` from the cast grid itself."""
     ll, ss = np.meshgrid(lines, samples, indexing="ij")
     g = _cast_grid(geo, cam, band, ll, ss, surface)
+    if rate is None:
+        r, q = lines.size // 2, samples.size // 2
+        t = geo.line_time(cam, band, lines[r], np.array(lines[r]))
+        rate = float(geo.line_rate(cam, band, g[r, q][None], np.atleast_1d(t))[0])
     # local ground Jacobian per pixel (m per line, m per sample) from the cast grid
     dl = lines[1] - lines[0] if lines.size > 1 else 1.0
     ds = samples[1] - samples[0] if samples.size > 1 else 1.0
@@ -305,8 +312,7 @@ def render_window(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, 
     sample ``sample0 + q`` of camera ``cam``/band ``band`` under ``geo`` (the true geometry)."""
     lines = line0 + np.arange(size, dtype=float)
     samples = sample0 + np.arange(size, dtype=float)
-    rate = _rate(geo, cam, band, lines[size // 2], samples[size // 2], surface)
-    refl = _render(geo, scene, cam, band, lines, samples, surface, rate)
+    refl = _render(geo, scene, cam, band, lines, samples, surface)  # rate at the centre pixel
     return _counts(refl, rng, snr)
 
 
@@ -316,8 +322,9 @@ def render_chip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, li
     ``size/2``) on the continuous image position ``(line_c, sample_c)`` under ``geo``, with the
     linear radiometry ``gain * counts + offset_dn`` of another sensor and no noise."""
     off = np.arange(size, dtype=float) - (size - 1) / 2.0
-    rate = _rate(geo, cam, band, line_c, sample_c, surface)
-    refl = _render(geo, scene, cam, band, line_c + off, sample_c + off, surface, rate)
+    # the along-track extent at pixel (size/2, size/2), half a pixel from the centre: it varies over
+    # hundreds of pixels
+    refl = _render(geo, scene, cam, band, line_c + off, sample_c + off, surface)
     return (gain * np.clip(refl, 0, 1) * FULL_SCALE_DN + offset_dn).astype(np.float32)
 
 

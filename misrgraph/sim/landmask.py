@@ -104,16 +104,26 @@ def _mask() -> tuple[NDArray[np.uint8], NDArray[np.float64], NDArray[np.float64]
     return np.load(path, mmap_mode="r"), lat, lon
 
 
+@functools.lru_cache(maxsize=1)
+def _axes() -> tuple[float, float, float, float, float, float, float, float]:
+    """The grid's (min, max, first, step) of latitude, then of longitude (deg), computed once:
+    :func:`is_land` is called with a few dozen points at a time by the ray casting."""
+    _, glat, glon = _mask()
+    return (float(glat.min()), float(glat.max()), float(glat[0]), float(glat[1] - glat[0]),
+            float(glon.min()), float(glon.max()), float(glon[0]), float(glon[1] - glon[0]))
+
+
 def is_land(lat: ArrayLike, lon: ArrayLike) -> NDArray[np.bool_]:
     """True over land at geodetic ``lat, lon`` (deg; any broadcastable shapes). Latitudes outside
     the grid are clamped to its first/last row, as ``global_land_mask`` does; longitudes must be in
     [-180, 180)."""
-    bits, glat, glon = _mask()
+    bits = _mask()[0]
+    lat_min, lat_max, lat0, dlat, lon_min, lon_max, lon0, dlon = _axes()
     la, lo = np.broadcast_arrays(np.asarray(lat, dtype=float), np.asarray(lon, dtype=float))
-    la = np.clip(la, glat.min(), glat.max())
-    lo = np.clip(lo, glon.min(), glon.max())
-    i = ((la - glat[0]) / (glat[1] - glat[0])).astype(np.int64)
-    j = ((lo - glon[0]) / (glon[1] - glon[0])).astype(np.int64)
+    la = np.clip(la, lat_min, lat_max)
+    lo = np.clip(lo, lon_min, lon_max)
+    i = ((la - lat0) / dlat).astype(np.int64)
+    j = ((lo - lon0) / dlon).astype(np.int64)
     byte = bits[i.ravel(), (j >> 3).ravel()]
     ocean = (byte >> (7 - (j.ravel() & 7)).astype(np.uint8)) & 1  # the data are an ocean mask
     return (ocean == 0).reshape(la.shape)
