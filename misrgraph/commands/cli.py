@@ -154,7 +154,7 @@ def simulate(
     bands: str = typer.Option("red", "--bands", help="Bands observed, comma-separated from blue, green, red, nir (e.g. all four for band-to-band calibration)."),
     band_misalignment: float = typer.Option(0.0, "--band-misalignment-arcsec", help="Per-band truth: 1 sigma of each band's own delta, beta, epsilon offsets (arcsec)."),
     truth: str = typer.Option("model", "--truth", help="model (navigation errors drawn from the estimator's own parameterisations: checks the algebra) or independent (error sources the estimator does not share: an attitude process with jitter, a once-per-revolution ephemeris term, sub-posting terrain, DEM error correlated over 28 km, f/alpha camera errors, Student-t matching noise with 1-2 px mismatches, scene-correlated GCP errors; see docs/design.md: checks the estimator)."),
-    imagery: bool = typer.Option(False, "--imagery", help="Also render the image windows matching reads (ray-cast through the true geometry, red band, 14-bit) and the GCPs' reference chips, into each pass file (pass and path scenarios)."),
+    imagery: bool = typer.Option(False, "--imagery", help="Also render the image windows matching reads (ray-cast through the true geometry, red band, 14-bit) and the GCPs' reference chips, into each pass file (every scenario; a month gets its GCP windows and chips, ~0.3 s per GCP observation)."),
     cloud_fraction: float = typer.Option(0.0, "--cloud-fraction", help="With --imagery: fraction of the sky covered by clouds on a layer 3 km up (they appear displaced with view angle; each pass has its own)."),
     roi_blocks: Optional[str] = typer.Option(None, "--roi-blocks", help="With --imagery: also render every pass's whole image lines over these SOM blocks A-B (red band, all cameras; ~12 microseconds per pixel: ~80 s a block and pass of 9 cameras on 2 cores) and write dem_som.h5, for 'misrgraph products --roi'."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options; strip_cameras, strip_samples and roi_dem_sigma_m are set here)."),
@@ -339,6 +339,7 @@ def calibrate(
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write PNG plots here."),
     max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged) instead of failing with exit 1."),
+    observations: str = typer.Option("simulated", "--observations", help="simulated (each pass's observations) or matched (those 'misrgraph match' measured in a month simulated with --imagery)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Camera calibration by space resection over GCP passes (per-pass navigation errors as nuisance)."""
@@ -356,7 +357,8 @@ def calibrate(
                                          temperature_bins=temperature_bins, max_iterations=max_iterations,
                                          accept_unconverged=accept_unconverged))
     with err_console.status("calibrating...") as st:
-        s = run_calibrate(scenario_dir, camera_model, gcp_file, out, cfg, max_passes, progress=lambda m: st.update(m))
+        s = run_calibrate(scenario_dir, camera_model, gcp_file, out, cfg, max_passes, progress=lambda m: st.update(m),
+                          observations=observations)
     if plots is not None:
         from misrgraph.viz.plots import plot_calibration
 

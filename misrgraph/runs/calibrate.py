@@ -24,6 +24,7 @@ from misrgraph.io.camera import load_camera_model, write_camera_group, write_cam
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_h5, write_dataset
 from misrgraph.io.passes import OrbitPass
+from misrgraph.io.truth import load_pass_observations
 from misrgraph.model.camera import CameraModel
 
 __all__ = ["run_calibrate"]
@@ -37,8 +38,13 @@ def run_calibrate(
     cfg: CalibrateConfig = CalibrateConfig(),
     max_passes: int | None = None,
     progress: Callable[[str], None] | None = None,
+    observations: str = "simulated",
 ) -> dict[str, Any]:
-    """Calibrate from every pass of a scenario directory; write the recalibrated model when ``out``."""
+    """Calibrate from every pass of a scenario directory; write the recalibrated model when ``out``.
+
+    ``observations``: ``"simulated"`` (each pass's own) or ``"matched"`` (what ``misrgraph match``
+    measured in the imagery of a month simulated with ``--imagery``); a pass whose matching kept
+    no observation is left out."""
     d = Path(scenario_dir)
     if not d.is_dir():
         raise InputError("SCENARIO_DIR", str(d), "a directory written by 'misrgraph simulate --scenario month'")
@@ -54,13 +60,21 @@ def run_calibrate(
     for i, f in enumerate(files):
         if progress and i % 25 == 0:
             progress(f"reading pass {i + 1}/{len(files)}")
-        passes.append(OrbitPass.load(f))
+        if observations == "simulated":
+            passes.append(OrbitPass.load(f))
+            continue
+        p, _ = load_pass_observations(f, observations)
+        if len(p.observations):
+            passes.append(p)
+    if not passes:
+        raise InputError("--observations", observations, "a set with observations in at least one pass")
     supplied = table if isinstance(table, CameraModel) else table.at_temperature(
         float(np.median([p.temperature_c for p in passes])))
     truth_path = d / "camera_truth.h5"
     truth = load_camera_model(truth_path) if truth_path.exists() else None
     res = calibrate_passes(passes, supplied, gcps, cfg, progress, table=None if isinstance(table, CameraModel) else table)
     summary = summarise(res, cfg, supplied)
+    summary["observation_set"] = observations
     if truth is not None:
         score_calibration(summary, res, cfg, supplied, truth)
     if out is not None:

@@ -81,8 +81,11 @@ def _scenario_surface(directory: Path) -> Callable[[np.ndarray, np.ndarray], np.
 
 def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Path, pass_index: int,
                cfg: MatchConfig = MatchConfig(), true_surface: Callable | None = None,
-               progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Match one pass file and write its ``/matched`` group; return its summary."""
+               progress: Callable[[str], None] | None = None,
+               scored: dict[str, list[tuple[np.ndarray, np.ndarray]]] | None = None) -> dict[str, Any]:
+    """Match one pass file and write its ``/matched`` group; return its summary. With truth,
+    ``scored`` (when given) collects each kind's ``(error (n, 2) px, sigma (n,) px)`` for pooling
+    over passes."""
     p = OrbitPass.load(pass_file)
     im = read_imagery(pass_file)
     camera = load_camera_model(camera_path).at_temperature(p.temperature_c)
@@ -156,6 +159,9 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
         scored_t = ~is_g & (obs.camera != AN)
         summary["gcp"].update(_stats(err[is_g], obs.sigma_px[is_g]))
         summary["tie"].update(_stats(err[scored_t], obs.sigma_px[scored_t]))
+        if scored is not None:
+            scored.setdefault("gcp", []).append((err[is_g], obs.sigma_px[is_g]))
+            scored.setdefault("tie", []).append((err[scored_t], obs.sigma_px[scored_t]))
         summary["tie"]["per_camera"] = {
             CAMERAS[c]: {"matched": int(np.sum(sel)), **_stats(err[sel], obs.sigma_px[sel])}
             for c in range(len(CAMERAS)) if c != AN and np.any(sel := scored_t & (obs.camera == c))}
@@ -180,18 +186,20 @@ def run_match(scenario_dir: str | os.PathLike[str], cfg: MatchConfig = MatchConf
     true_surface = _scenario_surface(d)
     all_files = sorted((d / "passes").glob("*.h5"))
     passes = []
-    for f in with_imagery:
+    scored: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for i, f in enumerate(with_imagery):
         idx = all_files.index(f) if f in all_files else 0
         if progress:
-            progress(f"matching {f.name}")
-        passes.append(match_pass(f, d / "camera_model.h5", d / "gcp.h5", d / "dem.h5", idx, cfg, true_surface, progress))
+            progress(f"matching {f.name} ({i + 1}/{len(with_imagery)})")
+        passes.append(match_pass(f, d / "camera_model.h5", d / "gcp.h5", d / "dem.h5", idx, cfg, true_surface, progress,
+                                 scored))
     out: dict[str, Any] = {"passes": passes}
     for kind in ("gcp", "tie"):
         pooled = {"candidates": sum(s[kind]["candidates"] for s in passes),
                   "matched": sum(s[kind]["matched"] for s in passes),
                   "seconds": sum(s[kind]["seconds"] for s in passes)}
-        for key in ("error_px", "normalised_error_rms", "wrong_matches", "normalised_error_rms_correct"):
-            if len(passes) == 1 and key in passes[0][kind]:
-                pooled[key] = passes[0][kind][key]
+        if scored.get(kind):  # with truth: the statistics over every pass's matches
+            pooled.update(_stats(np.concatenate([e for e, _ in scored[kind]]).reshape(-1, 2),
+                                 np.concatenate([s for _, s in scored[kind]])))
         out[kind] = pooled
     return out

@@ -256,8 +256,6 @@ class ScenarioConfig(Config):
         if self.strip_samples and (len(self.strip_samples) != 2 or self.strip_samples[0] < 0 or self.strip_samples[1] < 16
                                    or self.strip_samples[0] + self.strip_samples[1] > N_PIXELS):
             raise InputError("strip_samples", self.strip_samples, f"(first sample, count): count >= 16, within 0..{N_PIXELS}")
-        if self.imagery and self.scenario == "month":
-            raise InputError("imagery", True, "the pass or path scenario (month imagery is not rendered yet)")
         if len(self.attitude_sigma_arcsec) != 3 or len(self.knot_spacing_s) != 3:
             raise InputError("attitude_sigma_arcsec/knot_spacing_s", (self.attitude_sigma_arcsec, self.knot_spacing_s),
                              "three values (roll, pitch, yaw)")

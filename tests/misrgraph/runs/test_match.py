@@ -142,3 +142,41 @@ def test_sigma_from_redundancy_makes_the_d_cameras_honest(dense_imagery_dir):
     # a sanity bound on the matcher, not a model figure: measured 14 of 1305 (1.1 %)
     assert scaled["wrong_matches"] <= 0.03 * scaled["matched"], (scaled["wrong_matches"], scaled["matched"])
     assert scaled["normalised_error_rms"] >= scaled["normalised_error_rms_correct"]
+
+
+def test_a_month_calibrates_from_gcps_matched_in_its_imagery(tmp_path):
+    """A reduced month with imagery (GCP windows and chips in every GCP pass): the GCPs matched
+    in it to 1/8 px with no wrong match, and ``calibrate --observations matched`` recovers every
+    camera within 3 sigma of the truth and better than the supplied model, as the calibration of
+    the simulated observations does."""
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+    from misrgraph.runs.calibrate import run_calibrate
+
+    out = tmp_path / "month"
+    s = run_simulate(ScenarioConfig(scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True), out)
+    res = run_match(out)
+    g = res["gcp"]
+    assert len(res["passes"]) == s["passes"] > 1 and res["tie"]["candidates"] == 0
+    assert g["error_px"]["rms"] <= 0.125 and g["matched"] >= 0.8 * g["candidates"] and g["wrong_matches"] == 0, g
+    sim = run_calibrate(out)
+    r = CliRunner().invoke(app, ["calibrate", str(out), "--observations", "matched", "--json"])
+    assert r.exit_code == 0, r.output
+    mat = json.loads(r.stdout)
+    assert mat["observation_set"] == "matched" and sim["observation_set"] == "simulated"
+    assert mat["passes"] == sim["passes"]
+    for cam, v in mat["cameras"].items():
+        assert v["pointing_error_px"] < 3 * v["sigma_px"], (cam, v["pointing_error_px"], v["sigma_px"])
+        assert v["pointing_error_px"] < v["pointing_error_before_px"], cam
+    # as good as the simulated observations (the criterion the matched adjustment meets, above)
+    assert mat["max_pointing_error_px"] <= 1.3 * sim["max_pointing_error_px"], (mat["max_pointing_error_px"],
+                                                                                sim["max_pointing_error_px"])
+
+
+def test_calibrate_refuses_matched_observations_without_matching(small_pass_dir):
+    from misrgraph.errors import MisrGraphError
+    from misrgraph.runs.calibrate import run_calibrate
+
+    with pytest.raises(MisrGraphError, match="matched|imagery"):
+        run_calibrate(small_pass_dir, observations="matched")
