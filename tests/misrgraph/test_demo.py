@@ -17,6 +17,12 @@ def test_small_demo_runs_every_stage(tmp_path):
     for f in ("camera_calibrated.h5", "pass_result.h5", "pass_result.rrd", "calibration.rrd",
               "plots/attitude_error.png", "plots/calibration_pointing.png", "state/state.json"):
         assert (tmp_path / "d" / f).exists(), f
+    # the images stage matched the pass it rendered (the observations are in its pass file)
+    from misrgraph.io.imagery import read_matched
+
+    (f,) = sorted((tmp_path / "d" / "imagery" / "passes").glob("*.h5"))
+    s = read_matched(f).summary
+    assert s["gcp"]["matched"] > 0 and s["tie"]["matched"] > 0 and s["tie"]["error_px"]["rms"] <= 0.2, s
     # the adjusted pass's attitude sigma never exceeds its prior (Hermite interpolation: <= 0.3 %)
     with h5py.File(tmp_path / "d" / "pass_result.h5", "r") as f:
         att = json.loads(f.attrs["summary_json"])["attitude_sigma"]
