@@ -5,7 +5,8 @@ passes and calibrate the cameras; simulate a 45-minute pass and adjust it with t
 model; render the images of a shorter pass (the same instrument), measure its GCPs and tie
 points in them (``misrgraph match``) and adjust what was measured; simulate repeat passes of one
 path and add them incrementally (iSAM2) against a batch re-solve; write a rerun recording and PNG
-plots. Each stage reports its accuracy against the simulator's truth and its time. Sizes can be reduced (``small=True``, used by the tests).
+plots. Each stage reports its accuracy against the simulator's truth and its time. Sizes can be
+reduced (``small=True``, used by the tests).
 """
 
 from __future__ import annotations
