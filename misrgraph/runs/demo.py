@@ -79,12 +79,21 @@ def _match(out: Path, st: dict[str, Any]) -> str:
     from misrgraph.runs.adjust import run_adjust
     from misrgraph.runs.match import run_match
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+    from misrgraph.errors import InputError
+    from misrgraph.viz.plots import plot_match
 
     n = 40 if st["small"] else 80
     run_simulate(ScenarioConfig(scenario="pass", seed=3, n_tie_points=n, n_check_points=10, start_lat_deg=45.0,
                                 duration_s=600.0 if st["small"] else 900.0, imagery=True,
                                 camera_truth=str(out / "month" / "camera_truth.h5")), out / "imagery")
     m = run_match(out / "imagery")
+    (pass_file,) = sorted((out / "imagery" / "passes").glob("*.h5"))
+    for cam in ("Df", "Da", "Cf", "Ca", "Bf", "Ba", "Af", "Aa", "An"):  # the most oblique view with a GCP
+        try:
+            plot_match(pass_file, out / "plots", camera=cam)  # a chip, its window, the NCC surface, the LSM fit
+            break
+        except InputError:  # no GCP window in that camera
+            continue
     a = run_adjust(out / "imagery", camera_model=out / "camera_calibrated.h5", observations="matched")
     g, t = m["gcp"], m["tie"]
     cp = [v["after"]["rms"] for v in a["checkpoint_geolocation_m"].values()]
