@@ -266,7 +266,7 @@ def adjust(
 def match(
     scenario_dir: Path = typer.Argument(..., help="Scenario directory with imagery (misrgraph simulate --imagery)."),
     pass_file: Optional[Path] = typer.Option(None, "--pass", help="Match only this pass file (default: every pass with imagery)."),
-    search: int = typer.Option(8, "--search-px", help="Search range (px) each side of the predicted position; it must cover the navigation's 3-sigma error."),
+    search: Optional[int] = typer.Option(None, "--search-px", help="Search range (px) each side of the predicted position; it must cover the navigation's 3-sigma error (default: the range the windows were rendered for)."),
     min_cameras: int = typer.Option(3, "--min-cameras", help="Keep a tie point matched in at least this many cameras (An included)."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of MatchConfig fields (overrides the options)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),

@@ -4,7 +4,8 @@
   navigation and camera model (continuous line/sample); the reference chip of that camera is
   correlated over ``+-search_px`` around it (NCC), and the integer peak refined by least-squares
   matching (:func:`misrgraph.match.lsm.lsm`) (``search_px`` must cover the supplied navigation's
-  3 sigma prediction error: ~5 lines for the D cameras). Rejected when the NCC peak is below ``min_ncc``,
+  3 sigma prediction error: ~5 lines for the D cameras in a pass; by default it is the range the
+  windows were rendered for, :func:`search_range`). Rejected when the NCC peak is below ``min_ncc``,
   ambiguous (peak ratio above ``max_peak_ratio``), LSM does not converge, or its sigma exceeds
   ``max_sigma_px``.
 * **Tie points.** In each An window the strongest Foerstner interest point near the centre
@@ -59,7 +60,8 @@ from misrgraph.model.constants import CAMERAS, N_PIXELS
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.geolocation import ImagePoints, PassGeometry
 
-__all__ = ["MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "match_ties"]
+__all__ = ["DEFAULT_SEARCH_PX", "MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "match_ties",
+           "search_range"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -67,12 +69,26 @@ AN = CAMERAS.index("An")
 _CENTRE = (N_PIXELS - 1) / 2.0
 
 
+#: The search range (px) of imagery that does not record its own.
+DEFAULT_SEARCH_PX = 8
+
+
+def search_range(cfg: "MatchConfig", imagery: PassImagery) -> int:
+    """The search range (px) ``cfg`` means for ``imagery``: its own ``search_px``, or the range the
+    windows were rendered for."""
+    if cfg.search_px is not None:
+        return int(cfg.search_px)
+    return int(imagery.attrs.get("search_px", DEFAULT_SEARCH_PX))
+
+
 @dataclass(frozen=True)
 class MatchConfig(Config):
     """Matching settings (pixels unless named otherwise). Unknown keys are rejected by ``from_dict``."""
 
     template_px: int = 15
-    search_px: int = 8
+    #: search range (px) each side of the prediction; None: the range the windows were rendered
+    #: for (the imagery's ``search_px`` attribute, :data:`DEFAULT_SEARCH_PX` when it has none)
+    search_px: int | None = None
     min_ncc: float = 0.6
     max_peak_ratio: float = 0.95
     max_sigma_px: float = 0.5
@@ -87,8 +103,8 @@ class MatchConfig(Config):
     def __post_init__(self) -> None:
         if not (isinstance(self.template_px, int) and self.template_px >= 7 and self.template_px % 2 == 1):
             raise InputError("template_px", self.template_px, "an odd integer >= 7")
-        if not (isinstance(self.search_px, int) and self.search_px >= 1):
-            raise InputError("search_px", self.search_px, "an integer >= 1")
+        if self.search_px is not None and not (isinstance(self.search_px, int) and self.search_px >= 1):
+            raise InputError("search_px", self.search_px, "an integer >= 1, or None (the windows' own range)")
         for name in ("min_ncc", "max_peak_ratio"):
             if not 0 < getattr(self, name) <= 1:
                 raise InputError(name, getattr(self, name), "a number in (0, 1]")
@@ -158,6 +174,7 @@ def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef:
     database positions; ``landmark_gcp_row(landmark row)`` gives a window's GCP database row."""
     out = MatchedObservations()
     wins = imagery.gcp
+    search = search_range(cfg, imagery)
     chip_of = {int(r): i for i, r in enumerate(imagery.chip_landmark)}
     band = int(imagery.attrs.get("band", 2))
     for k in range(len(wins)):
@@ -176,7 +193,7 @@ def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef:
             out.reasons["not predicted in the image"] += 1
             continue
         got = _match_one(image, np.asarray(chip, float), float(p.line[0] - wins.line0[k]),
-                         float(p.sample[0] - wins.sample0[k]), cfg, cfg.search_px + 2)
+                         float(p.sample[0] - wins.sample0[k]), cfg, search + 2)
         if isinstance(got, str):
             out.reasons[got] += 1
             continue
@@ -247,6 +264,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
     conjugates' prediction; a feature whose An point falls outside the DEM is rejected."""
     wins = imagery.tie
     band = int(imagery.attrs.get("band", 2))
+    search = search_range(cfg, imagery)
     half = cfg.template_px // 2
     full = float(imagery.attrs.get("full_scale_dn", 2 ** 14 - 1))
     features: list[TieFeature] = []
@@ -316,7 +334,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             ref = ndimage.gaussian_filter1d(an_img, blur, axis=0, mode="nearest") if blur > 0.05 else an_img
             tpl_c = ref[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]
             m = _match_one(img, tpl_c, float(pred.line[j] - wins.line0[k]), float(pred.sample[j] - wins.sample0[k]),
-                           cfg, cfg.search_px)
+                           cfg, search)
             if isinstance(m, str):
                 out.reasons[m] += 1
                 continue

@@ -38,7 +38,7 @@ from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.imagery import MatchedSet, has_imagery, read_imagery, write_matched
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
 from misrgraph.io.truth import read_pass_truth
-from misrgraph.match.pipeline import AN, MatchConfig, MatchedObservations, match_gcps, match_ties
+from misrgraph.match.pipeline import AN, MatchConfig, MatchedObservations, match_gcps, match_ties, search_range
 from misrgraph.model.constants import CAMERAS
 from misrgraph.model.dem import Geoid, fit_local_surface
 
@@ -134,6 +134,7 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
     obs = Observations(*(np.concatenate([getattr(o_g, f), getattr(o_t, f)]) for f in Observations.__dataclass_fields__))
     summary: dict[str, Any] = {
         "pass_id": p.pass_id,
+        "search_px": search_range(cfg, im),
         "gcp": {"candidates": g.candidates, "matched": len(g), "seconds": t_gcp, "rejected": dict(g.reasons)},
         "tie": {"candidates": tie_candidates, "matched": int(np.sum(np.array(t.camera) != AN)) if len(t) else 0,
                 "features": n_t, "seconds": t_tie, "rejected": dict(t.reasons),

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from misrgraph.errors import FileFormatError
+from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.imagery import read_imagery, read_matched
 from misrgraph.runs.adjust import run_adjust
 from misrgraph.runs.match import run_match
@@ -180,3 +180,20 @@ def test_calibrate_refuses_matched_observations_without_matching(small_pass_dir)
 
     with pytest.raises(MisrGraphError, match="matched|imagery"):
         run_calibrate(small_pass_dir, observations="matched")
+
+
+def test_the_search_range_defaults_to_the_windows_own(tmp_path):
+    """Windows rendered for a 12 px search are searched over 12 px unless told otherwise; a
+    search range below 1 px is refused."""
+    from misrgraph.match.pipeline import MatchConfig
+
+    out = tmp_path / "wide"
+    run_simulate(ScenarioConfig(scenario="pass", seed=4, n_tie_points=12, n_check_points=2, duration_s=300.0,
+                                start_lat_deg=45.0, imagery=True, search_px=12), out)
+    assert read_imagery(load_scenario(out).pass_files[0]).gcp.pixels.shape[-1] == 64 + 2 * 12
+    wide = run_match(out)["passes"][0]
+    narrow = run_match(out, MatchConfig(search_px=8))["passes"][0]
+    assert wide["search_px"] == 12 and narrow["search_px"] == 8
+    assert wide["gcp"]["matched"] + wide["tie"]["matched"] > 0
+    with pytest.raises(InputError, match="search_px"):
+        MatchConfig(search_px=0)
