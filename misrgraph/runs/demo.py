@@ -76,10 +76,10 @@ def _adjust(out: Path, st: dict[str, Any]) -> str:
 
 
 def _match(out: Path, st: dict[str, Any]) -> str:
+    from misrgraph.errors import InputError
     from misrgraph.runs.adjust import run_adjust
     from misrgraph.runs.match import run_match
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
-    from misrgraph.errors import InputError
     from misrgraph.viz.plots import plot_match
 
     n = 40 if st["small"] else 80
