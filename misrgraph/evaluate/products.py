@@ -112,18 +112,11 @@ def truth_hidden(geo: Any, cam: int, band: int, ground: Array, surface: Callable
     cannot see under the geometry ``geo`` -- the ray from the camera at the moment it images the
     point meets the surface first more than ``min_distance_m`` (half a 275 m pixel) before it.
     Points the camera never images are False."""
-    from misrgraph.model.geolocation import hidden_from_camera
+    from misrgraph.model.geolocation import hidden_in_image
 
-    n = ground.shape[0]
-    ip = geo.ground_to_pixel(np.full(n, cam), np.full(n, band), ground, continuous=True)
-    out = np.zeros(n, bool)
-    ok = np.flatnonzero(ip.visible)
-    if ok.size == 0:
-        return out
-    origin, direction = geo.pixel_rays(np.full(ok.size, cam), np.full(ok.size, band), ip.line[ok], ip.sample[ok],
-                                       np.full(ok.size, np.nan))
-    out[ok] = hidden_from_camera(origin, direction, ground[ok], surface, min_distance_m)
-    return out
+    cams = np.full(ground.shape[0], cam)
+    ip = geo.ground_to_pixel(cams, np.full(cams.size, band), ground, continuous=True)
+    return hidden_in_image(geo, cams, band, ip, ground, surface, min_distance_m)
 
 
 def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]], heights: NDArray[np.float32],

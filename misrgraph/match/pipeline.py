@@ -218,16 +218,10 @@ def _hidden_by_terrain(geo: PassGeometry, cams: NDArray[np.int64], band: int, pr
                        surface: Callable[[Array, Array], Array]) -> NDArray[np.bool_]:
     """``(len(cams),)``: whether the DEM hides ECEF ``ground (3,)`` from each camera at its
     predicted image position ``pred`` (an :class:`ImagePoints`; not visible: False)."""
-    from misrgraph.model.geolocation import hidden_from_camera
+    from misrgraph.model.geolocation import hidden_in_image
 
-    hidden = np.zeros(cams.size, bool)
-    vis = np.flatnonzero(pred.visible)
-    if vis.size == 0:
-        return hidden
-    o, d = geo.pixel_rays(cams[vis], np.full(vis.size, band), pred.line[vis], pred.sample[vis], np.full(vis.size, np.nan))
-    hidden[vis] = hidden_from_camera(o, d, np.repeat(ground[None, :], vis.size, axis=0), _filled(surface),
-                                     HIDDEN_DISTANCE_M, HIDDEN_CLIMB_M)
-    return hidden
+    return hidden_in_image(geo, cams, band, pred, np.repeat(ground[None, :], cams.size, axis=0), _filled(surface),
+                           HIDDEN_DISTANCE_M, HIDDEN_CLIMB_M)
 
 
 @dataclass

@@ -29,7 +29,7 @@ from misrgraph.model.frames import WGS84_A, WGS84_B, EarthOrientation, ecef_to_g
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris
 
 __all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid", "cast_from", "cast_first", "cast_seen",
-           "hidden_from_camera"]
+           "hidden_from_camera", "hidden_in_image"]
 
 Array = NDArray[np.float64]
 Correction = Callable[[Array], Array]
@@ -451,6 +451,22 @@ def hidden_from_camera(origin: Array, direction: Array, ground: Array, surface: 
     first = cast_first(origin, direction, surface, lam + 1.0, climb_m=climb_m)
     dist = np.linalg.norm(first - ground, axis=1)
     return np.isfinite(dist) & (dist > min_distance_m)
+
+
+def hidden_in_image(geo: "PassGeometry", cams: NDArray[np.int64], band: int, points: ImagePoints, ground: Array,
+                    surface: Callable[[Array, Array], Array], min_distance_m: float = 137.5,
+                    climb_m: float = 3000.0) -> NDArray[np.bool_]:
+    """``(N,)``: :func:`hidden_from_camera` for ECEF points ``ground (N, 3)`` imaged by cameras
+    ``cams (N,)`` of ``band`` at ``points`` (their :meth:`PassGeometry.ground_to_pixel`), the rays
+    being those of the image positions under ``geo``. Points not visible are False."""
+    hidden = np.zeros(len(cams), bool)
+    vis = np.flatnonzero(points.visible)
+    if vis.size == 0:
+        return hidden
+    origin, direction = geo.pixel_rays(np.asarray(cams)[vis], np.full(vis.size, band), points.line[vis],
+                                       points.sample[vis], np.full(vis.size, np.nan))
+    hidden[vis] = hidden_from_camera(origin, direction, ground[vis], surface, min_distance_m, climb_m)
+    return hidden
 
 
 def _cast_onto(origin: Array, direction: Array, surface: Callable[[Array, Array], Array], tol_m: float) -> Array:

@@ -291,8 +291,7 @@ def _render(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, lines:
     g = _cast_grid(geo, cam, band, ll, ss, surface)
     if rate is None:
         r, q = lines.size // 2, samples.size // 2
-        t = geo.line_time(cam, band, lines[r], np.array(lines[r]))
-        rate = float(geo.line_rate(cam, band, g[r, q][None], np.atleast_1d(t))[0])
+        rate = _line_rate_at(geo, cam, band, lines[r], g[r, q])
     # local ground Jacobian per pixel (m per line, m per sample) from the cast grid
     dl = lines[1] - lines[0] if lines.size > 1 else 1.0
     ds = samples[1] - samples[0] if samples.size > 1 else 1.0
@@ -328,10 +327,16 @@ def render_chip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, li
     return (gain * np.clip(refl, 0, 1) * FULL_SCALE_DN + offset_dn).astype(np.float32)
 
 
-def _rate(geo: PassGeometry, cam: int, band: int, line: float, sample: float, surface: Surface) -> float:
-    g = _cast_grid(geo, cam, band, np.array([line]), np.array([sample]), surface)
+def _line_rate_at(geo: PassGeometry, cam: int, band: int, line: float, ground: Array) -> float:
+    """:meth:`PassGeometry.line_rate` of image line ``line`` at its ground point ``ground (3,)``."""
     t = geo.line_time(cam, band, line, np.array(line))
-    return float(geo.line_rate(cam, band, g, np.atleast_1d(t))[0])
+    return float(geo.line_rate(cam, band, np.reshape(ground, (1, 3)), np.atleast_1d(t))[0])
+
+
+def _rate(geo: PassGeometry, cam: int, band: int, line: float, sample: float, surface: Surface) -> float:
+    """:func:`_line_rate_at` the pixel ``(line, sample)`` cast alone onto ``surface``."""
+    g = _cast_grid(geo, cam, band, np.array([line]), np.array([sample]), surface)
+    return _line_rate_at(geo, cam, band, line, g[0])
 
 
 def _counts(refl: Array, rng: np.random.Generator, snr: float) -> NDArray[np.uint16]:
@@ -375,8 +380,7 @@ def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, l
         g_l = 0.5 * (g[2:] - g[:-2])
         g_s = np.gradient(g[1:-1], axis=1)
         c = (b - a) // 2
-        t = geo.line_time(cam, band, lines[1 + c], lines[1 + c])
-        rate = float(geo.line_rate(cam, band, g[1 + c, n_samples // 2][None], np.atleast_1d(t))[0])
+        rate = _line_rate_at(geo, cam, band, lines[1 + c], g[1 + c, n_samples // 2])
         refl = scene.ground_reflectance(g[1:-1], g_l, g_s, rate if np.isfinite(rate) else 1.0)
         if scene.cloud_fraction > 0:
             refl = scene.through_clouds(refl, np.repeat(origin[1:-1], n_samples, axis=0), direction[1:-1].reshape(-1, 3))
