@@ -57,6 +57,13 @@ RED = BANDS.index("red")
 
 
 _GRAPH_DEFAULTS = GraphConfig()
+#: The camera corrections a pass adjustment estimates by default: the three angles, and the
+#: field-angle distortion alpha_2, alpha_3, which a calibration of the angles alone leaves at
+#: their pre-flight values: held by their prior, they carry that knowledge into every covariance
+#: the pass reports (the PP's 1 sigma among them). f is left out: it scales both focal-plane
+#: components alike, so it moves a red-band pixel only through the band's offset k (3-6 pixels):
+#: 0.0004 px for a relative error of 0.05/752, nothing a pass can see or a product would feel.
+CAMERA_PARAMS_ADJUST = ("delta", "beta", "epsilon", "alpha2", "alpha3")
 
 
 @dataclass(frozen=True)
@@ -70,6 +77,10 @@ class AdjustConfig(Config):
     knot_prior: str = _GRAPH_DEFAULTS.knot_prior
     ephemeris_segments: int = _GRAPH_DEFAULTS.ephemeris_segments
     camera_prior_px: float = _GRAPH_DEFAULTS.camera_prior_px
+    #: the camera corrections estimated per camera (:data:`factors.collinearity.CAMERA_PARAMS`);
+    #: f and alpha_i are held by ``camera_focal_prior_px`` (the supplied model's knowledge)
+    camera_params: tuple = CAMERA_PARAMS_ADJUST
+    camera_focal_prior_px: float = _GRAPH_DEFAULTS.camera_focal_prior_px
     use_dem: bool = _GRAPH_DEFAULTS.use_dem
     robust: str = "cauchy"
     robust_k: float = 3.0
@@ -109,11 +120,13 @@ class AdjustConfig(Config):
             raise InputError("attitude_jitter_arcsec", self.attitude_jitter_arcsec, "a number >= 0 (1 sigma, arcsec)")
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
+        self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
         base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=self.threshold1, threshold2=self.threshold2,
                     knot_rule=self.knot_rule, knot_prior=self.knot_prior,
                     ephemeris_segments=self.ephemeris_segments, camera_prior_px=self.camera_prior_px,
+                    camera_params=tuple(self.camera_params), camera_focal_prior_px=self.camera_focal_prior_px,
                     use_dem=self.use_dem)
         base.update(overrides)
         return GraphConfig.from_dict(base)
@@ -156,7 +169,7 @@ def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -
     att = AttitudeErrorModel([t.copy() for t in pg.attitude_model.knot_times],
                              [np.array([values.atVector(k) for k in pg.knot_keys(a)]) for a in range(3)])
     eph = EphemerisErrorModel(pg.ephemeris_model.boundaries.copy(), np.array([values.atVector(k) for k in pg.ephemeris_keys()]))
-    cam = camera.corrected({c: values.atVector(k) for c, k in pg.camera_keys.items()})
+    cam = camera.corrected(pg.camera_corrections(values), pg.camera_params)
     cam.provenance = dict(camera.provenance, adjusted="camera corrections estimated by misrgraph adjust")
     return att, eph, cam
 
@@ -418,6 +431,7 @@ def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_
 
 def supplied_camera_of(res: AdjustResult) -> CameraModel:
     """The camera model before this adjustment's corrections (corrections are stored in values)."""
-    return res.camera.corrected({c: res.values.atVector(k) for c, k in res.pass_graph.camera_keys.items()}, sign=-1.0)
+    pg = res.pass_graph
+    return res.camera.corrected(pg.camera_corrections(res.values), pg.camera_params, sign=-1.0)
 
 

@@ -25,7 +25,7 @@ from factors.dem_height import DemBatch
 from factors.priors import gcp_prior, process_prior_factors, vector_prior
 from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
-from misrgraph.model.constants import ARCSEC, CAMERAS
+from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
 from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, interval_counts, knots_to_remove
 from misrgraph.errors import DegenerateProblemError, InputError
@@ -34,11 +34,12 @@ from misrgraph.model.gcp import GcpDatabase
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.estimate.problem import Problem
 
-__all__ = ["GraphConfig", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
+__all__ = ["GraphConfig", "calibrated_camera_sigma", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
            "CAMERA_PRIOR_SIGMA", "merge_problems", "merge_flat"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
+RED = BANDS.index("red")
 
 
 #: Default a-priori 1 sigma of each camera parameter correction when calibrating (pre-flight
@@ -72,6 +73,10 @@ class GraphConfig(Config):
     camera_params: tuple = ("delta", "beta", "epsilon")
     camera_per_band: bool = False
     camera_prior_px: float = 0.0625
+    #: 1 sigma of a calibrated model's f and alpha_i among ``camera_params``, in pixels moved at
+    #: the swath edge (|s - c_y| = 752) by an alpha_i; f to the same relative amount
+    #: (:func:`calibrated_camera_sigma`)
+    camera_focal_prior_px: float = 0.05
     camera_prior_calibration: bool = False
     estimate_omega: bool = False
     omega_prior_rad: float = 1.745e-3
@@ -97,6 +102,11 @@ class GraphConfig(Config):
             raise InputError("attitude_sigma_arcsec", self.attitude_sigma_arcsec, "three positive sigmas (roll, pitch, yaw) in arcsec")
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
             raise InputError("knot_spacing_s", self.knot_spacing_s, "three positive spacings (roll, pitch, yaw) in s")
+        if len(set(self.camera_params)) != len(self.camera_params):
+            raise InputError("camera_params", self.camera_params, "distinct parameter names")
+        for name in ("camera_prior_px", "camera_focal_prior_px"):
+            if not getattr(self, name) > 0:
+                raise InputError(name, getattr(self, name), "a positive 1 sigma in pixels")
 
 
 @dataclass
@@ -113,6 +123,14 @@ class PassGraph:
     obs_index: NDArray[np.int64]
     collinearity: CollinearityBatch
     camera_keys: dict[int, int] = field(default_factory=dict)
+    #: the camera-correction parameters of every camera variable, in order (:data:`CAMERA_PARAMS`)
+    camera_params: tuple[str, ...] = ("delta", "beta", "epsilon")
+
+    def camera_corrections(self, values: gtsam.Values) -> dict[int, Array]:
+        """Every camera variable's corrections in SI (rad for the angles, m for f, alpha_i as
+        the model stores them), keyed by its camera code, in the order of ``camera_params``."""
+        scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in self.camera_params]]
+        return {c: values.atVector(k) * scale for c, k in self.camera_keys.items()}
 
     def knot_keys(self, angle: int) -> list[int]:
         return [K.knot_key(angle, self.pass_index, i) for i in range(self.attitude_model.knot_times[angle].size)]
@@ -337,10 +355,7 @@ def build_pass_graph(
         if cfg.camera_prior_calibration:
             sig = np.array([CAMERA_PRIOR_SIGMA[p] for p in cfg.camera_params]) / scale
         else:
-            ifov = float(camera.ifov_cross_rad(c, 2, 751.5))
-            # a calibrated model: angles known to camera_prior_px pixels, the rest to 1 % of the pre-flight sigma
-            sig = np.array([cfg.camera_prior_px * ifov if p in ("delta", "beta", "epsilon") else 1e-2 * CAMERA_PRIOR_SIGMA[p]
-                            for p in cfg.camera_params]) / scale
+            sig = calibrated_camera_sigma(camera, c, cfg.camera_params, cfg.camera_prior_px, cfg.camera_focal_prior_px) / scale
         if add(k, np.zeros(len(cfg.camera_params))):
             graph.add(vector_prior(k, np.zeros(len(cfg.camera_params)), sig))
     if cfg.estimate_omega and add(K.omega_key(), np.zeros(3)):
@@ -352,7 +367,28 @@ def build_pass_graph(
     log.info("pass %s: %d observations, %d landmarks, knots kept %s (removed %s)", orbit_pass.pass_id, idx.size,
              lm_rows.size, [t.size for t in att_kept.knot_times], [r.size for r in removed])
     return PassGraph(problem, pass_index, att_kept, removed, eph, lm_rows,
-                     np.array([lm_key_of[r] for r in lm_rows], np.int64), idx, coll, camera_keys)
+                     np.array([lm_key_of[r] for r in lm_rows], np.int64), idx, coll, camera_keys, tuple(cfg.camera_params))
+
+
+def calibrated_camera_sigma(camera: CameraModel, cam: int, params: tuple[str, ...], angle_px: float,
+                            focal_px: float) -> Array:
+    """A-priori 1 sigma (SI, ``(len(params),)``) of a calibrated model's parameters of camera
+    ``cam`` (red band): the angles to ``angle_px`` cross-track pixels at the swath edge; each
+    alpha_i to ``focal_px alpha_1 / 752^i``, which moves the swath edge (|s - c_y| = 752) by
+    ``focal_px`` pixels; f to the same relative amount, ``f focal_px / 752`` (f scales both
+    focal-plane components of eq. 2 alike, so it moves the along-track look angle only, through
+    the band's offset ``k``)."""
+    ifov = float(camera.ifov_cross_rad(cam, RED, 751.5))
+    out = []
+    for p in params:
+        if p in ("delta", "beta", "epsilon"):
+            out.append(angle_px * ifov)
+        elif p == "f":
+            out.append(focal_px * float(camera.focal_length[cam, RED]) / 752.0)
+        else:
+            i = int(p[len("alpha"):])
+            out.append(focal_px * abs(float(camera.alpha[cam, RED, 1])) / 752.0**i)
+    return np.array(out)
 
 
 def merge_problems(problems: list[Problem]) -> Problem:

@@ -16,6 +16,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
 from misrgraph.estimate.adjust import AdjustResult, corrected_geometry, estimated_models, supplied_camera_of
 from misrgraph.estimate.solver import information_norm, linearize
 from misrgraph.io.passes import KIND_CHECK, OrbitPass
@@ -210,11 +211,20 @@ def _true_deltas(truth: PassTruth, res: AdjustResult, supplied_camera: CameraMod
         for s_, k in enumerate(pg.ephemeris_keys()):
             delta[k] = res.values.atVector(k) - truth.ephemeris_error.params[s_]
     tc, sc_ = truth.camera_model, supplied_camera
-    for c, k in pg.camera_keys.items():
-        delta[k] = res.values.atVector(k) - np.array([tc.delta[c] - sc_.delta[c], tc.beta[c] - sc_.beta[c], tc.epsilon[c] - sc_.epsilon[c]])
+    scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in pg.camera_params]]
+    for c, k in pg.camera_keys.items():  # camera-level corrections (the red band's values)
+        true_corr = np.array([_camera_level(tc, p, c) - _camera_level(sc_, p, c) for p in pg.camera_params])
+        delta[k] = res.values.atVector(k) - true_corr / scale
     for key, row in zip(pg.landmark_keys, pg.landmark_rows):
         delta[int(key)] = res.values.atVector(int(key)) - truth.landmark_ecef[row]
     return delta
+
+
+def _camera_level(m: CameraModel, param: str, c: int) -> float:
+    """Camera ``c``'s camera-level value of ``param`` (SI; f and alpha_i: the red band's)."""
+    if param in ("delta", "beta", "epsilon"):
+        return float(getattr(m, param)[c])
+    return float(m.focal_length[c, RED]) if param == "f" else float(m.alpha[c, RED, int(param[len("alpha"):])])
 
 
 def _joint_nees(res: AdjustResult, delta: dict[int, Array], keys: list[int], name: str) -> dict[str, Any]:

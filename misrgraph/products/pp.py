@@ -45,7 +45,9 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.ndimage import distance_transform_edt
 
 from misrgraph.errors import InputError
+from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
 from misrgraph.estimate.adjust import AdjustResult, corrected_geometry
+from misrgraph.estimate.graph import calibrated_camera_sigma
 from misrgraph.io.passes import OrbitPass
 from misrgraph.io.products import PP_COEFFICIENTS, PP_SIGMAS, ProjectionParameters
 from misrgraph.misr.som import N_BLOCKS, SomGrid
@@ -124,7 +126,7 @@ def _perturbed(geo: PassGeometry, d_att: Array | None = None, d_pos: Array | Non
                         t0=geo.t0, attitude_delta=att, position_delta=pos)
 
 
-#: Central-difference steps: 1 arcsec of attitude, 1 m of position, 1 arcsec of camera angle.
+#: Central-difference steps: 1 arcsec of attitude, 1 m of position.
 _D_ANGLE = np.pi / 180 / 3600
 _D_POS = 1.0
 
@@ -157,10 +159,18 @@ def image_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t_s
 
 def _camera_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t_star: Array,
                         params: tuple[str, ...]) -> Array:
-    """``d(line, sample) / d(camera correction)`` (N, 2, P) for camera ``cam``'s ``params``."""
-    return _central_differences(
-        lambda j, s: _perturbed(geo, camera=geo.camera.corrected({cam: _unit(j, s, len(params))}, params)),
-        len(params), _D_ANGLE, cam, band, ground, t_star)
+    """``d(line, sample) / d(camera correction)`` (N, 2, P) for camera ``cam``'s ``params``, per
+    unit of the adjustment's variables (:data:`factors.collinearity.CAMERA_PARAM_SCALE`), by central
+    differences of steps that move an image point by ~0.05 pixel."""
+    step_si = calibrated_camera_sigma(geo.camera, cam, params, 0.05, 0.05)
+    scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in params]]
+    out = np.empty((ground.shape[0], 2, len(params)))
+    for j, p in enumerate(params):
+        d = _central_differences(
+            lambda _, s: _perturbed(geo, camera=geo.camera.corrected({cam: [s]}, (p,))), 1, float(step_si[j]),
+            cam, band, ground, t_star)
+        out[:, :, j] = d[:, :, 0] * scale[j]
+    return out
 
 
 def ground_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, enu: Array, t_guess: Array,
@@ -183,8 +193,9 @@ class _Posterior:
     cov: Array
     knot_slices: list[slice]  # per angle, into the state (value, rate) pairs knot-major
     eph_slice: slice
-    camera_slices: dict[int, slice]  # camera index -> its (delta, beta, epsilon) corrections
+    camera_slices: dict[int, slice]  # camera index -> its corrections (in the order of camera_params)
     jitter_rad: float
+    camera_params: tuple[str, ...] = ("delta", "beta", "epsilon")
 
 
 def _posterior(res: AdjustResult) -> _Posterior:
@@ -201,16 +212,17 @@ def _posterior(res: AdjustResult) -> _Posterior:
     keys.extend(ek)
     n += 6 * len(ek)
     camera_slices: dict[int, slice] = {}
+    dim = len(pg.camera_params)
     for code, key in sorted(pg.camera_keys.items()):
-        dim = res.values.atVector(key).size
-        if code >= 1000 or dim != 3:
-            log.warning("camera variable %d (%d parameters) is not propagated into the PP uncertainty", code, dim)
+        if code >= 1000:
+            log.warning("camera variable %d (a temperature bin's) is not propagated into the PP uncertainty", code)
             continue
-        camera_slices[int(code)] = slice(n, n + 3)
+        camera_slices[int(code)] = slice(n, n + dim)
         keys.append(key)
-        n += 3
+        n += dim
     cov = res.marginals.joint_of(keys)
-    return _Posterior(keys, 0.5 * (cov + cov.T), knot_slices, eph_slice, camera_slices, res.unresolved_attitude_rad)
+    return _Posterior(keys, 0.5 * (cov + cov.T), knot_slices, eph_slice, camera_slices, res.unresolved_attitude_rad,
+                      tuple(pg.camera_params))
 
 
 def navigation_map_at(res: AdjustResult, post: _Posterior, t: Array) -> Array:
@@ -316,7 +328,7 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
             jac = image_derivatives(geo, c, bi, g0, t0)  # (n, 2, 6)
             full_j = -np.einsum("nij,njk->nik", jac, navigation_map_at(res, post, t0))
             if c in post.camera_slices:
-                full_j[:, :, post.camera_slices[c]] += _camera_derivatives(geo, c, bi, g0, t0, ("delta", "beta", "epsilon"))
+                full_j[:, :, post.camera_slices[c]] += _camera_derivatives(geo, c, bi, g0, t0, post.camera_params)
             cov_ls = np.einsum("nij,jk,nlk->nil", full_j, post.cov, full_j) + \
                 post.jitter_rad**2 * np.einsum("nij,nlj->nil", jac[:, :, :3], jac[:, :, :3])
             # ground (east, north) per (line, sample): invert d(line, sample)/d(east, north)

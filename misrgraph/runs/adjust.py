@@ -16,6 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
 from misrgraph import __version__
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, adjust_pass, attitude_sigma_summary
@@ -63,8 +64,14 @@ def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, su
         c = f.create_group("camera_corrections")
         cams = sorted(pg.camera_keys)
         write_dataset(c, "camera", np.array(cams, np.int64))
-        write_dataset(c, "values", np.array([res.values.atVector(pg.camera_keys[k]) for k in cams]).reshape(-1, 3), units="rad", order="delta,beta,epsilon")
-        write_dataset(c, "covariance", np.array([res.marginals[pg.camera_keys[k]] for k in cams]).reshape(-1, 3, 3), units="rad^2")
+        n_par = len(pg.camera_params)
+        scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in pg.camera_params]]
+        si = pg.camera_corrections(res.values)
+        units = "rad (delta, beta, epsilon), m (f), alpha_i as the camera model stores them"
+        write_dataset(c, "values", np.array([si[k] for k in cams]).reshape(-1, n_par), units=units,
+                      order=",".join(pg.camera_params))
+        write_dataset(c, "covariance", np.array([res.marginals[pg.camera_keys[k]] * np.outer(scale, scale)
+                                                 for k in cams]).reshape(-1, n_par, n_par), units="the values' units squared")
         lm = f.create_group("landmarks")
         write_dataset(lm, "row", pg.landmark_rows)
         write_dataset(lm, "kind", orbit_pass.landmarks.kind[pg.landmark_rows], meaning="0 tie, 1 GCP")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -84,6 +85,10 @@ def test_result_file_contents(adjusted):
         assert f["landmarks/covariance"].shape[1:] == (3, 3)
         assert np.all(np.linalg.eigvalsh(f["landmarks/covariance"][()]) > 0)
         assert f["ephemeris_error/covariance"].shape == (1, 6, 6)
+        params = AdjustConfig().camera_params
+        corr = f["camera_corrections/values"]
+        assert corr.attrs["order"] == ",".join(params) and corr.shape == (len(CAMERAS), len(params))
+        assert np.all(np.linalg.eigvalsh(f["camera_corrections/covariance"][()]) > 0)
         assert json.loads(f.attrs["summary_json"])["iterations"] == s["iterations"]
     res = CliRunner().invoke(app, ["info", str(path), "--json"])
     assert res.exit_code == 0 and json.loads(res.stdout)["kind"] == "adjustment_result"
@@ -290,6 +295,8 @@ def test_variance_components_recover_a_wrong_stated_sigma(small_pass):
     ("AdjustConfig", "snooping_rounds", -1), ("AdjustConfig", "variance_component_rounds", 1.5),
     ("AdjustConfig", "covariance", "exact"), ("AdjustConfig", "attitude_jitter_arcsec", -1.0),
     ("GraphConfig", "knot_prior", "markov"), ("GraphConfig", "attitude_sigma_arcsec", (10.0, 0.0, 10.0)),
+    ("AdjustConfig", "camera_params", ("delta", "gamma")), ("AdjustConfig", "camera_params", ("f", "f")),
+    ("AdjustConfig", "camera_focal_prior_px", 0.0), ("GraphConfig", "camera_prior_px", -0.1),
 ])
 def test_bad_settings_name_the_field(cls, field, value):
     from misrgraph.errors import InputError
@@ -297,3 +304,31 @@ def test_bad_settings_name_the_field(cls, field, value):
 
     with pytest.raises(InputError, match=field):
         {"AdjustConfig": AdjustConfig, "GraphConfig": GraphConfig}[cls](**{field: value})
+
+
+def test_camera_corrections_enter_the_model_in_si(small_pass):
+    """The adjustment's camera variables are scaled (f in mm, alpha_i per 752^i pixels): a value
+    put on each must reach the corrected model as that many SI units, and come off again."""
+    import gtsam
+
+    from misrgraph.estimate.adjust import estimated_models, supplied_camera_of
+    from misrgraph.estimate.graph import build_pass_graph
+
+    sc, op = small_pass
+    supplied = sc.camera_model.at_temperature(op.temperature_c)
+    cfg = AdjustConfig(camera_params=("delta", "f", "alpha2"))
+    pg = build_pass_graph(op, supplied, sc.dem, sc.gcps, cfg.graph_config())
+    values = gtsam.Values(pg.problem.initial)
+    c = 3
+    values.update(pg.camera_keys[c], np.array([1e-5, 2.0, 0.5]))
+    _, _, cam = estimated_models(pg, values, supplied)
+    assert cam.delta[c] == pytest.approx(supplied.delta[c] + 1e-5, abs=1e-15)
+    np.testing.assert_allclose(cam.focal_length[c], supplied.focal_length[c] + 2e-3, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(cam.alpha[c, :, 2], supplied.alpha[c, :, 2] + 0.5 / 752.0**2, rtol=1e-12)
+    others = [i for i in range(len(CAMERAS)) if i != c]
+    np.testing.assert_array_equal(cam.focal_length[others], supplied.focal_length[others])
+
+    # supplied_camera_of reads the result's graph, values and corrected model
+    back = supplied_camera_of(SimpleNamespace(pass_graph=pg, values=values, camera=cam))  # type: ignore[arg-type]
+    np.testing.assert_allclose(back.focal_length, supplied.focal_length, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(back.alpha, supplied.alpha, rtol=0, atol=1e-20)
