@@ -47,14 +47,14 @@ def _chips_side_by_side(scenario: Path) -> dict[str, Any]:
     p, tp = sc.load_pass(0), sc.load_truth(0)
     im = read_imagery(sc.pass_files[0])
     geo = tp.geometry(p)
-    chip_of = {int(r): i for i, r in enumerate(im.chip_landmark)}
+    chip_of = im.chip_index()
     jobs = []
     for k in range(len(im.gcp)):
-        row, cam = int(im.gcp.landmark[k]), int(im.gcp.camera[k])
-        chip = im.chips[chip_of[row], cam]
+        row, cam, band = int(im.gcp.landmark[k]), int(im.gcp.camera[k]), int(im.gcp.band[k])
+        chip = im.chips[chip_of[(row, band)], cam]
         if not np.all(np.isfinite(chip)):
             continue
-        ip = geo.ground_to_pixel(cam, 2, tp.landmark_ecef[row][None], continuous=True)
+        ip = geo.ground_to_pixel(cam, band, tp.landmark_ecef[row][None], continuous=True)
         if ip.visible[0]:
             jobs.append((im.gcp.pixels[k].astype(float), chip.astype(float),
                          float(ip.line[0] - im.gcp.line0[k]), float(ip.sample[0] - im.gcp.sample0[k])))

@@ -9,8 +9,9 @@ Layout (HDF5, chunked and gzip-compressed pixels)::
         camera, band (W,)       indices
         line0, sample0 (W,)     image line and sample of pixel (0, 0) (exposure index, sample)
         pixels (W, S, S)        uint16 counts (14 bits)
-      chips/                  reference chips of the GCPs in the pass (G' GCPs):
+      chips/                  reference chips of the GCPs in the pass (G' chip sets: GCP x band):
         landmark (G',)          row into /landmarks
+        band (G',)              band index (absent in files of one band: the attribute band)
         pixels (G', 9, C, C)    float32 counts of another sensor, NaN where a camera does not see it
     /matched                  what misrgraph match measured: landmarks/{id, kind, gcp_index} and
                               observations/{landmark, camera, band, line, sample, exposure, sigma_px}
@@ -137,6 +138,18 @@ class PassImagery:
     chips: NDArray[np.float32]
     attrs: dict[str, Any]
     strips: dict[str, ImageStrip] = dataclasses.field(default_factory=dict)
+    #: band of each chip set (None: all in the tie band, ``attrs["band"]``)
+    chip_band: NDArray[np.int64] | None = None
+
+    @property
+    def band(self) -> int:
+        """The tie points' band (index into :data:`misrgraph.model.constants.BANDS`; red by default)."""
+        return int(self.attrs.get("band", 2))
+
+    def chip_index(self) -> dict[tuple[int, int], int]:
+        """``{(landmark row, band): chip set}``: which of ``chips`` holds a GCP's chips in a band."""
+        bands = np.full(self.chip_landmark.size, self.band) if self.chip_band is None else self.chip_band
+        return {(int(r), int(b)): i for i, (r, b) in enumerate(zip(self.chip_landmark, bands))}
 
 
 def _write_windows(g: Any, w: ImageWindows) -> None:
@@ -164,6 +177,8 @@ def write_imagery(f: Any, imagery: PassImagery) -> None:
     _write_windows(g.create_group("gcp"), imagery.gcp)
     c = g.create_group("chips")
     write_dataset(c, "landmark", imagery.chip_landmark)
+    write_dataset(c, "band", np.full(imagery.chip_landmark.size, imagery.band, np.int64) if imagery.chip_band is None
+                  else np.asarray(imagery.chip_band, np.int64))
     create_dataset(c, "pixels", imagery.chips, compression="gzip", compression_opts=4, shuffle=True)
     if imagery.strips:
         sg = g.create_group("strips")
@@ -258,7 +273,8 @@ def read_imagery(path: str | os.PathLike[str]) -> PassImagery:
         n = c["landmark"].shape[0]
         return PassImagery(_read_windows(g["tie"]), _read_windows(g["gcp"]),
                            read_dataset(c, "landmark", (n,), dtype=np.int64), np.asarray(c["pixels"][...]),
-                           {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in g.attrs.items()})
+                           {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in g.attrs.items()},
+                           chip_band=read_dataset(c, "band", (n,), dtype=np.int64) if "band" in c else None)
 
 
 # ---------------------------------------------------------------------------- matched observations

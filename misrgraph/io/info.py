@@ -12,6 +12,7 @@ from misrgraph.io.camera import load_camera_model
 from misrgraph.io.truth import has_truth
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.dem import read_dem
+from misrgraph.model.constants import BANDS
 
 __all__ = ["run_info"]
 
@@ -38,7 +39,8 @@ def run_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         if has_imagery(path):
             im = read_imagery(path)
             out["imagery"] = {"tie_windows": len(im.tie), "tie_window_px": im.tie.size, "gcp_windows": len(im.gcp),
-                              "gcp_window_px": im.gcp.size, "gcp_chips": int(im.chip_landmark.size), **im.attrs}
+                              "gcp_window_px": im.gcp.size, "gcp_chips": int(np.unique(im.chip_landmark).size),
+                              "gcp_window_bands": [BANDS[int(b)] for b in np.unique(im.gcp.band)], **im.attrs}
             from misrgraph.io.imagery import strip_cameras
 
             if strip_cameras(path):

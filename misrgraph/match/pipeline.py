@@ -1,7 +1,8 @@
 """The matching pipeline (seed sections 3.3 and 3.5): GCP chips and tie points measured in MISR imagery.
 
-* **GCPs.** For each GCP window: the GCP's catalogue position is projected through the supplied
-  navigation and camera model (continuous line/sample); the reference chip of that camera is
+* **GCPs.** For each GCP window (in its own band: imagery may hold GCPs in several bands, the
+  measurements of the band-to-band geometry): the GCP's catalogue position is projected through the supplied
+  navigation and camera model (continuous line/sample); the reference chip of that camera and band is
   correlated over ``+-search_px`` around it (NCC), and the integer peak refined by least-squares
   matching (:func:`misrgraph.match.lsm.lsm`) (``search_px`` must cover the supplied navigation's
   3 sigma prediction error: ~5 lines for the D cameras in a pass; by default it is the range the
@@ -119,21 +120,23 @@ class MatchConfig(Config):
 @dataclass
 class MatchedObservations:
     """Matched measurements, one row each: ``feature`` (landmark row for GCPs; tie feature index
-    for ties), ``camera``, ``line``, ``sample`` (continuous), ``sigma_px``; per-feature failure
-    ``reasons`` and the number of candidate (feature, camera) pairs."""
+    for ties), ``camera``, ``line``, ``sample`` (continuous), ``sigma_px``, ``band``; per-feature
+    failure ``reasons`` and the number of candidate (feature, camera, band) windows."""
 
     feature: list[int] = field(default_factory=list)
     camera: list[int] = field(default_factory=list)
     line: list[float] = field(default_factory=list)
     sample: list[float] = field(default_factory=list)
     sigma_px: list[float] = field(default_factory=list)
+    band: list[int] = field(default_factory=list)
     candidates: int = 0
     reasons: Counter = field(default_factory=Counter)
     precision: PrecisionFit | None = None
     #: rows (into these lists) of the redundancy fit's observations, in its order
     pending_rows: NDArray[np.int64] | None = None
 
-    def add(self, feature: int, camera: int, line: float, sample: float, sigma: float) -> None:
+    def add(self, feature: int, camera: int, line: float, sample: float, sigma: float, band: int) -> None:
+        self.band.append(int(band))
         self.feature.append(int(feature))
         self.camera.append(int(camera))
         self.line.append(float(line))
@@ -175,12 +178,11 @@ def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef:
     out = MatchedObservations()
     wins = imagery.gcp
     search = search_range(cfg, imagery)
-    chip_of = {int(r): i for i, r in enumerate(imagery.chip_landmark)}
-    band = int(imagery.attrs.get("band", 2))
+    chip_of = imagery.chip_index()
     for k in range(len(wins)):
         out.candidates += 1
-        row, cam = int(wins.landmark[k]), int(wins.camera[k])
-        chip = imagery.chips[chip_of[row], cam] if row in chip_of else None
+        row, cam, band = int(wins.landmark[k]), int(wins.camera[k]), int(wins.band[k])
+        chip = imagery.chips[chip_of[(row, band)], cam] if (row, band) in chip_of else None
         image = _pixels(wins.pixels[k])
         if chip is None or not np.all(np.isfinite(chip)):
             out.reasons["no reference chip"] += 1
@@ -198,7 +200,7 @@ def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef:
             out.reasons[got] += 1
             continue
         r, c, s = got
-        out.add(row, cam, wins.line0[k] + r, wins.sample0[k] + c, s)
+        out.add(row, cam, wins.line0[k] + r, wins.sample0[k] + c, s, band)
     return out
 
 
@@ -257,7 +259,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
     ``surface(lat, lon)`` is the DEM's ellipsoidal height (m; NaN outside the DEM), for the
     conjugates' prediction; a feature whose An point falls outside the DEM is rejected."""
     wins = imagery.tie
-    band = int(imagery.attrs.get("band", 2))
+    band = imagery.band
     search = search_range(cfg, imagery)
     half = cfg.template_px // 2
     full = float(imagery.attrs.get("full_scale_dn", 2 ** 14 - 1))
@@ -351,9 +353,9 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             out.reasons[f"seen in fewer than {cfg.min_cameras} cameras"] += 1
             continue
         features.append(TieFeature(int(row), line_an, samp_an))
-        out.add(fi, AN, line_an, samp_an, np.nan)  # An's sigma: set below from its conjugates'
+        out.add(fi, AN, line_an, samp_an, np.nan, band)  # An's sigma: set below from its conjugates'
         for cam, ln, sm, s, pl, ps, tt, epi in got:
-            out.add(fi, cam, ln, sm, s)
+            out.add(fi, cam, ln, sm, s, band)
             pending.append((len(out) - 1, fi, cam, tt, sm, ln - pl, sm - ps, epi[0], epi[1]))
     _rescale(out, pending, cfg)
     return _drop_inconsistent(features, out, cfg)
@@ -383,7 +385,7 @@ def _drop_inconsistent(features: list[TieFeature], out: MatchedObservations,
     new_index = np.cumsum(~few) - 1
     kept = MatchedObservations(candidates=out.candidates, reasons=out.reasons, precision=fit)
     for i in np.flatnonzero(keep):
-        kept.add(int(new_index[feat[i]]), int(cams[i]), out.line[i], out.sample[i], out.sigma_px[i])
+        kept.add(int(new_index[feat[i]]), int(cams[i]), out.line[i], out.sample[i], out.sigma_px[i], out.band[i])
     return [f for f, drop in zip(features, few) if not drop], kept
 
 

@@ -15,8 +15,9 @@ an honest sigma and no wrong match), ``wrong_matches`` the matches more than 1 p
 (flagged as blunders in the truth; the adjustment's blunder test must reject them) and
 ``normalised_error_rms_correct`` the same RMS over the other matches: the sigma's honesty where
 the match is right (one 5-px wrong match among 60 moves ``normalised_error_rms`` from 1.2 to 2.3);
-the tie points' ``per_camera`` the same per camera. An's tie observations define their tie points
-(zero error by construction) and are not scored. ``tie.sigma_scale`` gives each camera's scale of
+the tie points' ``per_camera`` the same per camera, and the GCPs' ``per_band`` per band when they
+were matched in several (``simulate --bands red,nir --imagery``). An's tie observations define
+their tie points (zero error by construction) and are not scored. ``tie.sigma_scale`` gives each camera's scale of
 the matcher's sigma measured from the pass's redundancy (:mod:`misrgraph.match.precision`).
 """
 
@@ -39,7 +40,7 @@ from misrgraph.io.imagery import MatchedSet, has_imagery, read_imagery, write_ma
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
 from misrgraph.io.truth import read_pass_truth
 from misrgraph.match.pipeline import AN, MatchConfig, MatchedObservations, match_gcps, match_ties, search_range
-from misrgraph.model.constants import CAMERAS
+from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.dem import Geoid, fit_local_surface
 
 __all__ = ["run_match", "match_pass", "WRONG_MATCH_PX", "TIE_ID_BASE"]
@@ -82,10 +83,10 @@ def _scenario_surface(directory: Path) -> Callable[[np.ndarray, np.ndarray], np.
 def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Path, pass_index: int,
                cfg: MatchConfig = MatchConfig(), true_surface: Callable | None = None,
                progress: Callable[[str], None] | None = None,
-               scored: dict[str, list[tuple[np.ndarray, np.ndarray]]] | None = None) -> dict[str, Any]:
+               scored: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] | None = None) -> dict[str, Any]:
     """Match one pass file and write its ``/matched`` group; return its summary. With truth,
-    ``scored`` (when given) collects each kind's ``(error (n, 2) px, sigma (n,) px)`` for pooling
-    over passes."""
+    ``scored`` (when given) collects each kind's ``(error (n, 2) px, sigma (n,) px, band (n,))`` for
+    pooling over passes."""
     p = OrbitPass.load(pass_file)
     im = read_imagery(pass_file)
     camera = load_camera_model(camera_path).at_temperature(p.temperature_c)
@@ -93,7 +94,7 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
     dem = read_dem(dem_path)
     geoid = Geoid("zero")
     supplied = p.geometry(camera)
-    band = int(im.attrs.get("band", 2))
+    band = im.band  # the tie points'; GCPs may be in several bands (each observation carries its own)
 
     def dem_height(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
         """Ellipsoidal DEM height (m); NaN outside the DEM (no prediction there)."""
@@ -126,8 +127,8 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
 
     def obs_of(m: MatchedObservations, rows: np.ndarray) -> Observations:
         n = len(m)
-        return Observations(rows, np.array(m.camera, np.int64), np.full(n, band), np.array(m.line), np.array(m.sample),
-                            np.full(n, np.nan), np.array(m.sigma_px))
+        return Observations(rows, np.array(m.camera, np.int64), np.array(m.band, np.int64).reshape(n),
+                            np.array(m.line), np.array(m.sample), np.full(n, np.nan), np.array(m.sigma_px))
 
     o_g = obs_of(g, np.array([new_gcp[r] for r in g.feature], np.int64))
     o_t = obs_of(t, n_g + np.array(t.feature, np.int64))
@@ -149,9 +150,9 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
                      if n_t else np.zeros((0, 3)))
         tl = np.concatenate([truth.landmark_ecef[gcp_rows].reshape(-1, 3), tie_truth, truth.landmark_ecef[chk_rows]])
         err = np.full((len(obs), 2), np.nan)
-        for cam in np.unique(obs.camera):
-            sel = np.flatnonzero(obs.camera == cam)
-            ip = true_geo.ground_to_pixel(int(cam), band, tl[obs.landmark[sel]], continuous=True)
+        for cam, b in np.unique(np.stack([obs.camera, obs.band], 1), axis=0) if len(obs) else []:
+            sel = np.flatnonzero((obs.camera == cam) & (obs.band == b))
+            ip = true_geo.ground_to_pixel(int(cam), int(b), tl[obs.landmark[sel]], continuous=True)
             err[sel, 0] = obs.line[sel] - ip.line
             err[sel, 1] = obs.sample[sel] - ip.sample
         err = np.where(np.isfinite(err), err, 99.0)  # a match where the truth is not visible is wrong
@@ -159,10 +160,14 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
         is_g = np.arange(len(obs)) < len(o_g)
         scored_t = ~is_g & (obs.camera != AN)
         summary["gcp"].update(_stats(err[is_g], obs.sigma_px[is_g]))
+        g_bands = np.unique(obs.band[is_g])
+        if g_bands.size > 1:  # the band-to-band geometry's measurements, band by band
+            summary["gcp"]["per_band"] = {BANDS[int(b)]: {"matched": int(np.sum(sel)), **_stats(err[sel], obs.sigma_px[sel])}
+                                          for b in g_bands if np.any(sel := is_g & (obs.band == b))}
         summary["tie"].update(_stats(err[scored_t], obs.sigma_px[scored_t]))
         if scored is not None:
-            scored.setdefault("gcp", []).append((err[is_g], obs.sigma_px[is_g]))
-            scored.setdefault("tie", []).append((err[scored_t], obs.sigma_px[scored_t]))
+            scored.setdefault("gcp", []).append((err[is_g], obs.sigma_px[is_g], obs.band[is_g]))
+            scored.setdefault("tie", []).append((err[scored_t], obs.sigma_px[scored_t], obs.band[scored_t]))
         summary["tie"]["per_camera"] = {
             CAMERAS[c]: {"matched": int(np.sum(sel)), **_stats(err[sel], obs.sigma_px[sel])}
             for c in range(len(CAMERAS)) if c != AN and np.any(sel := scored_t & (obs.camera == c))}
@@ -187,7 +192,7 @@ def run_match(scenario_dir: str | os.PathLike[str], cfg: MatchConfig = MatchConf
     true_surface = _scenario_surface(d)
     all_files = sorted((d / "passes").glob("*.h5"))
     passes = []
-    scored: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    scored: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     for i, f in enumerate(with_imagery):
         idx = all_files.index(f) if f in all_files else 0
         if progress:
@@ -200,7 +205,11 @@ def run_match(scenario_dir: str | os.PathLike[str], cfg: MatchConfig = MatchConf
                   "matched": sum(s[kind]["matched"] for s in passes),
                   "seconds": sum(s[kind]["seconds"] for s in passes)}
         if scored.get(kind):  # with truth: the statistics over every pass's matches
-            pooled.update(_stats(np.concatenate([e for e, _ in scored[kind]]).reshape(-1, 2),
-                                 np.concatenate([s for _, s in scored[kind]])))
+            err, sig, band = (np.concatenate([item[i] for item in scored[kind]]) for i in range(3))
+            pooled.update(_stats(err.reshape(-1, 2), sig))
+            if np.unique(band).size > 1:
+                pooled["per_band"] = {BANDS[int(b)]: {"matched": int(np.sum(band == b)),
+                                                      **_stats(err.reshape(-1, 2)[band == b], sig[band == b])}
+                                      for b in np.unique(band)}
         out[kind] = pooled
     return out

@@ -58,7 +58,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph.io.imagery import INTEREST_RADIUS_PX
-from misrgraph.model.constants import CAMERAS, VIEW_ANGLE_DEG
+from misrgraph.model.constants import BANDS, CAMERAS, VIEW_ANGLE_DEG
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.geolocation import PassGeometry, ray_ellipsoid
 from misrgraph.sim.terrain import EARTH_R, SyntheticTerrain, land_mask
@@ -73,10 +73,20 @@ __all__ = ["SceneRadiance", "render_window", "render_strip", "render_block_strip
 Array = NDArray[np.float64]
 Surface = Callable[[Array, Array], Array]
 
+RED = BANDS.index("red")
 #: 14-bit counts at reflectance 1.0 (full scale)
 FULL_SCALE_DN = 2 ** 14 - 1
-#: the reflectance at which ``snr`` is stated
+#: the reflectance at which ``snr`` is stated (land's mean in the red band)
 REFERENCE_REFLECTANCE = 0.18
+#: Mean land reflectance per band (blue, green, red, NIR; :data:`BANDS`): land is dark in the
+#: visible and bright in the near infrared, where vegetation reflects most.
+LAND_REFLECTANCE = (0.08, 0.11, REFERENCE_REFLECTANCE, 0.30)
+#: Water reflectance per band: it darkens towards the infrared.
+WATER_REFLECTANCE = (0.07, 0.06, 0.04, 0.02)
+#: Each band's relative response to a vegetation-cover field (unit RMS, 200 m - 3 km) on top of
+#: the texture every band shares: red is the reference (0, its image is the texture alone); the
+#: NIR brightens where vegetation is dense, so its pattern differs most from the others'.
+VEGETATION_RESPONSE = (0.05, -0.05, 0.0, 0.25)
 
 
 def _waves(rng: np.random.Generator, n: int, lam_lo: float, lam_hi: float, rms: float) -> tuple[Array, Array, Array]:
@@ -136,6 +146,7 @@ class SceneRadiance:
         object.__setattr__(self, "_brdf", (_waves(rng, 48, 100.0, 3000.0, 1.0), _waves(rng, 48, 100.0, 3000.0, 1.0)))
         object.__setattr__(self, "_change", _waves(np.random.default_rng([self.seed, 18, self.epoch]), 64, 60.0, 3000.0,
                                                    1.0))
+        object.__setattr__(self, "_vegetation", _waves(np.random.default_rng([self.seed, 23]), 48, 200.0, 3000.0, 1.0))
 
     def for_view(self, view_angle_deg: float) -> "SceneRadiance":
         """The same scene seen from a camera ``view_angle_deg`` along track (fore > 0)."""
@@ -149,8 +160,10 @@ class SceneRadiance:
 
     # ------------------------------------------------------------------ ground
     def ground_reflectance(self, ecef: Array, d_line: Array | None = None, d_sample: Array | None = None,
-                           rate: float = 1.0) -> Array:
-        """Shaded reflectance (dimensionless) of ground points ``(..., 3)`` ECEF m, averaged over a
+                           rate: float = 1.0, band: int = RED) -> Array:
+        """Shaded reflectance (dimensionless) in ``band`` (index into :data:`BANDS`; the mean level
+        :data:`LAND_REFLECTANCE`, :data:`WATER_REFLECTANCE` and the vegetation response
+        :data:`VEGETATION_RESPONSE` differ per band) of ground points ``(..., 3)`` ECEF m, averaged over a
         pixel footprint when ``d_line``, ``d_sample`` (``(..., 3)`` m of ground per image line and
         per sample) are given: the texture is linear in its plane waves, so its footprint mean is
         exact, each wave's amplitude times ``sinc(k.d_line) sinc(k.d_line / rate) sinc(k.d_sample)``
@@ -180,7 +193,9 @@ class SceneRadiance:
             base = base * np.maximum(1.0 + self.brdf_strength * (b1 * mu + b2 * mu * mu), 0.1)
         if self.change_rms > 0:
             base = base * np.maximum(1.0 + self.change_rms * _field(xyz, self._change), 0.1)
-        refl = np.where(land, REFERENCE_REFLECTANCE * base, 0.04)
+        if VEGETATION_RESPONSE[band] != 0:
+            base = base * np.maximum(1.0 + VEGETATION_RESPONSE[band] * _field(xyz, self._vegetation), 0.1)
+        refl = np.where(land, LAND_REFLECTANCE[band] * base, WATER_REFLECTANCE[band])
         return (refl * self._shading(lat, lon)).reshape(shape)
 
     def _shading(self, lat: Array, lon: Array) -> Array:
@@ -297,7 +312,7 @@ def _render(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, lines:
     ds = samples[1] - samples[0] if samples.size > 1 else 1.0
     g_l = np.gradient(g, dl, axis=0)
     g_s = np.gradient(g, ds, axis=1)
-    refl = scene.ground_reflectance(g, g_l, g_s, rate)
+    refl = scene.ground_reflectance(g, g_l, g_s, rate, band)
     if scene.cloud_fraction > 0:
         origin, direction = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(),
                                            np.full(ll.size, np.nan))
@@ -381,7 +396,7 @@ def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, l
         g_s = np.gradient(g[1:-1], axis=1)
         c = (b - a) // 2
         rate = _line_rate_at(geo, cam, band, lines[1 + c], g[1 + c, n_samples // 2])
-        refl = scene.ground_reflectance(g[1:-1], g_l, g_s, rate if np.isfinite(rate) else 1.0)
+        refl = scene.ground_reflectance(g[1:-1], g_l, g_s, rate if np.isfinite(rate) else 1.0, band)
         if scene.cloud_fraction > 0:
             refl = scene.through_clouds(refl, np.repeat(origin[1:-1], n_samples, axis=0), direction[1:-1].reshape(-1, 3))
         refl_of[a] = refl
@@ -467,41 +482,49 @@ def _window_size(kind: str, search_px: int, template_px: int, chip_px: int) -> i
 def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplied_geo: PassGeometry,
                         landmark_ecef: Array, scene: SceneRadiance, surface: Surface, rng: np.random.Generator,
                         search_px: int = 8, template_px: int = 15, chip_px: int = 64, snr: float = 200.0,
-                        band: int = 2) -> "PassImagery":
-    """Render the windows a matcher reads for one pass (band ``band``, red by default).
+                        band: int = RED, gcp_bands: tuple[int, ...] | None = None) -> "PassImagery":
+    """Render the windows a matcher reads for one pass: tie points in band ``band`` (red by
+    default), GCPs in each of ``gcp_bands`` (default: ``band`` alone) where the pass observes them.
 
     For every tie point or GCP and camera with a simulated observation: a window of ``template_px + 2
     (search_px + 5)`` pixels (tie and check points) or ``chip_px + 2 search_px`` (GCPs), centred on
     where the *supplied* geometry predicts the true ground point (``landmark_ecef (M, 3)``, the
     pass's true landmark positions) -- so the matcher cannot read the truth off the window
-    centre -- and rendered through ``true_geo``. For every GCP, nine reference chips through
-    ``supplied_geo`` (:func:`render_chip`). ``search_px`` must cover the navigation's 3 sigma
-    prediction error (about 5 lines for the D cameras with the pass scenario's attitude errors)."""
+    centre -- and rendered through ``true_geo``. For every GCP and GCP band, nine reference chips
+    through ``supplied_geo`` (:func:`render_chip`; one chip set per (GCP, band), in
+    ``chip_landmark``/``chip_band``). ``search_px`` must cover the navigation's 3 sigma
+    prediction error (about 5 lines for the D cameras with the pass scenario's attitude errors).
+    Band-to-band geometry (each band's own detector line on the focal plane, its own offsets in a
+    calibrated model) is what the GCPs of several bands measure."""
     from misrgraph.io.imagery import ImageWindows, PassImagery
     from misrgraph.io.passes import KIND_CHECK, KIND_GCP
 
+    gcp_bands = (int(band),) if gcp_bands is None else tuple(int(b) for b in gcp_bands)
     o = orbit_pass.observations
     kinds = orbit_pass.landmarks.kind
-    sel = np.flatnonzero(o.band == band)
-    pairs = np.unique(np.stack([o.landmark[sel], o.camera[sel]], 1), axis=0) if sel.size else np.zeros((0, 2), int)
     out: dict[str, list] = {"tie": [], "gcp": []}
     t_lo, t_hi = orbit_pass.span
     views = [scene.for_view(VIEW_ANGLE_DEG[name]) for name in CAMERAS]
     reference = scene.another_date(1)  # the chips' source image: another date, another sun
-    for cam in np.unique(pairs[:, 1]) if len(pairs) else []:
-        rows = pairs[pairs[:, 1] == cam, 0]
-        pred = supplied_geo.ground_to_pixel(int(cam), band, landmark_ecef[rows], continuous=True)
-        for row, ln, sm, ok in zip(rows, pred.line, pred.sample, pred.visible):
-            if not ok or kinds[row] == KIND_CHECK:  # check points are scored from the truth, never matched
-                continue
-            kind = "gcp" if kinds[row] == KIND_GCP else "tie"
-            size = _window_size(kind, search_px, template_px, chip_px)
-            l0, s0 = int(round(ln)) - size // 2, int(round(sm)) - size // 2
-            t_first, t_last = supplied_geo.line_time(int(cam), band, l0, l0), supplied_geo.line_time(int(cam), band, l0, l0 + size)
-            if t_first < t_lo or t_last > t_hi:  # the window would reach past the pass's navigation
-                continue
-            px = render_window(true_geo, views[int(cam)], int(cam), band, l0, s0, size, surface, rng, snr)
-            out[kind].append((int(row), int(cam), band, l0, s0, px))
+    for b in dict.fromkeys((int(band),) + gcp_bands):  # the tie band first, then the other GCP bands
+        sel = np.flatnonzero(o.band == b)
+        pairs = np.unique(np.stack([o.landmark[sel], o.camera[sel]], 1), axis=0) if sel.size else np.zeros((0, 2), int)
+        for cam in np.unique(pairs[:, 1]) if len(pairs) else []:
+            rows = pairs[pairs[:, 1] == cam, 0]
+            pred = supplied_geo.ground_to_pixel(int(cam), b, landmark_ecef[rows], continuous=True)
+            for row, ln, sm, ok in zip(rows, pred.line, pred.sample, pred.visible):
+                if not ok or kinds[row] == KIND_CHECK:  # check points are scored from the truth, never matched
+                    continue
+                kind = "gcp" if kinds[row] == KIND_GCP else "tie"
+                if (kind == "tie" and b != band) or (kind == "gcp" and b not in gcp_bands):
+                    continue
+                size = _window_size(kind, search_px, template_px, chip_px)
+                l0, s0 = int(round(ln)) - size // 2, int(round(sm)) - size // 2
+                t_first, t_last = supplied_geo.line_time(int(cam), b, l0, l0), supplied_geo.line_time(int(cam), b, l0, l0 + size)
+                if t_first < t_lo or t_last > t_hi:  # the window would reach past the pass's navigation
+                    continue
+                px = render_window(true_geo, views[int(cam)], int(cam), b, l0, s0, size, surface, rng, snr)
+                out[kind].append((int(row), int(cam), b, l0, s0, px))
     wins = {}
     for kind, items in out.items():
         size = _window_size(kind, search_px, template_px, chip_px)
@@ -510,15 +533,17 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
             continue
         cols = list(zip(*items))
         wins[kind] = ImageWindows(*(np.array(c) for c in cols[:5]), np.stack(cols[5]))
-    gcp_rows = np.unique(wins["gcp"].landmark)
-    chips = np.full((gcp_rows.size, 9, chip_px, chip_px), np.nan, np.float32)
-    for i, row in enumerate(gcp_rows):
-        for cam in wins["gcp"].camera[wins["gcp"].landmark == row]:
-            p = supplied_geo.ground_to_pixel(int(cam), band, landmark_ecef[row][None], continuous=True)
+    w = wins["gcp"]
+    chip_keys = np.unique(np.stack([w.landmark, w.band], 1), axis=0) if len(w) else np.zeros((0, 2), np.int64)
+    chips = np.full((len(chip_keys), 9, chip_px, chip_px), np.nan, np.float32)
+    for i, (row, b) in enumerate(chip_keys):
+        for cam in w.camera[(w.landmark == row) & (w.band == b)]:
+            p = supplied_geo.ground_to_pixel(int(cam), int(b), landmark_ecef[row][None], continuous=True)
             if p.visible[0]:
-                chips[i, int(cam)] = render_chip(supplied_geo, reference, int(cam), band, float(p.line[0]),
+                chips[i, int(cam)] = render_chip(supplied_geo, reference, int(cam), int(b), float(p.line[0]),
                                                  float(p.sample[0]), chip_px, surface)
     attrs = {"snr": float(snr), "cloud_fraction": float(scene.cloud_fraction), "search_px": int(search_px),
              "template_px": int(template_px), "chip_px": int(chip_px), "band": int(band),
-             "full_scale_dn": int(FULL_SCALE_DN)}
-    return PassImagery(wins["tie"], wins["gcp"], gcp_rows.astype(np.int64), chips, attrs)
+             "gcp_bands": [int(b) for b in gcp_bands], "full_scale_dn": int(FULL_SCALE_DN)}
+    return PassImagery(wins["tie"], wins["gcp"], chip_keys[:, 0].astype(np.int64), chips, attrs,
+                       chip_band=chip_keys[:, 1].astype(np.int64))

@@ -114,9 +114,9 @@ class ScenarioConfig(Config):
       ~28 km (the tie points' spacing) instead of ~5 km (the DEM factor treats errors of
       landmarks 10 km apart as independent);
     * ``camera_f_alpha_px``: 1 sigma (px at the swath edge, |s - c_y| = 752) of errors in f and in
-      the field-angle polynomial's alpha_2 and alpha_3 of the true camera, which no model the
-      estimator is given carries (the adjustment and the default calibration estimate delta,
-      beta, epsilon);
+      the field-angle polynomial's alpha_2 and alpha_3 of the true camera, which the supplied
+      model does not carry (it keeps the pre-flight values; the default calibration estimates
+      delta, beta, epsilon only, the pass adjustment also alpha_2, alpha_3 within their prior);
     * ``noise_tail_dof``: matching noise is Student-t with this many degrees of freedom scaled to
       the stated sigma (0: Gaussian); ``mismatch_rate`` of tie-point and GCP measurements are
       mismatches of ``mismatch_px`` (uniform in the range, random direction);
@@ -124,7 +124,9 @@ class ScenarioConfig(Config):
       GCPs of the same 2 x 2 deg cell (one Landsat scene's registration), the rest Student-t
       (4 degrees of freedom) per GCP, RMS ``gcp_sigma_m`` per axis in total.
 
-    Each is switched off by 0 (``mismatch_rate``: 0.0); :data:`INDEPENDENT_SOURCES` names them.
+    The camera errors above stay out of a pass adjustment's *estimate* of the navigation only as
+    far as its camera variables allow (it estimates delta, beta, epsilon, alpha_2, alpha_3 by
+    default). Each is switched off by 0 (``mismatch_rate``: 0.0); :data:`INDEPENDENT_SOURCES` names them.
 
     ``path`` scenario: ``n_passes`` repeat passes, one every 16 days from ``epoch_date``; or, when
     ``repeat_indices`` is given, only those repeat cycles (cycle k starts 16 k days after
@@ -138,6 +140,13 @@ class ScenarioConfig(Config):
     ``roi_dem_sigma_m`` (1 sigma; :func:`misrgraph.sim.terrain.simulate_som_dem`). Each pass has
     its own clouds.
     ``feature_windows=False`` renders the strips only (no windows or chips for matching).
+
+    ``bands``: the bands observed (simulated observations in each; with ``imagery``, GCP windows
+    and chips in each, so that matched GCPs measure every band's geometry; tie-point windows in
+    red, or the first band when red is not among them). Each band has its own reflectance
+    (:data:`misrgraph.sim.imagery.LAND_REFLECTANCE`, a vegetation response that makes the NIR
+    pattern differ from red's); ``band_misalignment_arcsec`` offsets each band's angles in the
+    true camera.
     Rendering costs ~12 microseconds per pixel: a block is ~560 lines x 1504 samples per camera.
     """
 
@@ -813,8 +822,10 @@ def _render_imagery(cfg: ScenarioConfig, p: OrbitPass, p_truth: PassTruth, suppl
     true_geo = p_truth.geometry(p)
     supplied_geo = p.geometry(supplied.at_temperature(p.temperature_c))
     if cfg.feature_windows:
+        bands = tuple(BANDS.index(b) for b in cfg.bands)  # GCPs in every observed band; ties in red if observed
         imagery = render_pass_imagery(p, true_geo, supplied_geo, p_truth.landmark_ecef, scene, surface,
-                                      np.random.default_rng([cfg.seed, 4242, k]), search_px=cfg.search_px, snr=cfg.image_snr)
+                                      np.random.default_rng([cfg.seed, 4242, k]), search_px=cfg.search_px, snr=cfg.image_snr,
+                                      band=RED if RED in bands else bands[0], gcp_bands=bands)
     else:  # strips only (a scenario for Reference Orbit Imagery, not for matching)
         from misrgraph.io.imagery import ImageWindows, PassImagery
 

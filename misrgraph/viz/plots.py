@@ -204,8 +204,9 @@ def plot_match(pass_file: str | os.PathLike[str], out_dir: str | os.PathLike[str
     m = read_matched(pass_file, with_truth=True)
     p = OrbitPass.load(pass_file)
     truth = read_pass_truth(pass_file)
-    chip_of = {int(r): i for i, r in enumerate(im.chip_landmark)}
-    ks = [k for k in range(len(im.gcp)) if im.gcp.camera[k] == cam and int(im.gcp.landmark[k]) in chip_of]
+    chip_of = im.chip_index()
+    ks = [k for k in range(len(im.gcp)) if im.gcp.camera[k] == cam and im.gcp.band[k] == im.band
+          and (int(im.gcp.landmark[k]), im.band) in chip_of]
     if not ks:
         from misrgraph.errors import InputError
 
@@ -213,7 +214,7 @@ def plot_match(pass_file: str | os.PathLike[str], out_dir: str | os.PathLike[str
     k = ks[0]
     row = int(im.gcp.landmark[k])
     window = im.gcp.pixels[k].astype(float)
-    chip = im.chips[chip_of[row], cam].astype(float)
+    chip = im.chips[chip_of[(row, im.band)], cam].astype(float)
     cc = match_template(window, chip)
     peak = ncc_search(window, chip)
     res = lsm(window, chip, peak.row, peak.col) if peak is not None else None

@@ -6,6 +6,9 @@ import numpy as np
 
 from misrgraph.match.pipeline import AN, MatchConfig, MatchedObservations, TieFeature, _drop_inconsistent
 from misrgraph.match.precision import PrecisionFit
+from misrgraph.model.constants import BANDS
+
+RED = BANDS.index("red")
 
 
 def test_inconsistent_conjugates_are_dropped_and_features_renumbered():
@@ -14,9 +17,9 @@ def test_inconsistent_conjugates_are_dropped_and_features_renumbered():
     out = MatchedObservations(candidates=9)
     rows = []
     for f, cams in enumerate(([0, 1, 2, 3], [0, 1], [5, 6, 7])):
-        out.add(f, AN, 100.0 * f, 50.0, 0.05)
+        out.add(f, AN, 100.0 * f, 50.0, 0.05, RED)
         for c in cams:
-            out.add(f, c, 100.0 * f + c, 50.0 + c, 0.1)
+            out.add(f, c, 100.0 * f + c, 50.0 + c, 0.1, RED)
             rows.append(len(out) - 1)
     out.pending_rows = np.array(rows)
     bad = np.zeros(len(rows), bool)
@@ -31,7 +34,7 @@ def test_inconsistent_conjugates_are_dropped_and_features_renumbered():
     assert pairs == sorted([(0, AN), (0, 0), (0, 2), (0, 3), (1, AN), (1, 5), (1, 6), (1, 7)])
     # positions travel with their observations
     i = [k for k, (f, c) in enumerate(zip(kept.feature, kept.camera)) if (f, c) == (1, 6)][0]
-    assert kept.line[i] == 206.0 and kept.sample[i] == 56.0
+    assert kept.line[i] == 206.0 and kept.sample[i] == 56.0 and kept.band[i] == RED
 
 
 def test_conjugates_hidden_by_a_ridge_are_predicted_from_the_dem(imagery_pass_dir):

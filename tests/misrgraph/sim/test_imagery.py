@@ -35,6 +35,31 @@ def test_footprint_mean_matches_brute_force_sampling():
     np.testing.assert_allclose(analytic, brute, rtol=2e-3)
 
 
+def test_each_band_has_its_own_reflectance():
+    """Water has each band's own level exactly; on land the bands share the texture but NIR follows
+    vegetation the other way: related patterns (correlated, so a band can be matched) that are
+    not scaled copies of red's."""
+    from misrgraph.model.frames import geodetic_to_ecef
+    from misrgraph.sim.imagery import LAND_REFLECTANCE, WATER_REFLECTANCE
+    from misrgraph.sim.terrain import land_mask
+
+    scene = SceneRadiance(5, _flat, brdf_strength=0.0)
+    ocean = geodetic_to_ecef(np.array([0.0]), np.array([-140.0]), np.zeros(1))  # mid-Pacific
+    assert not land_mask(np.array([0.0]), np.array([-140.0]))[0]
+    np.testing.assert_allclose([scene.ground_reflectance(ocean, band=b)[0] for b in range(4)], WATER_REFLECTANCE)
+    lat, lon = np.meshgrid(40.0 + np.arange(60) * 0.002, -100.0 + np.arange(60) * 0.0025, indexing="ij")
+    land = geodetic_to_ecef(lat.ravel(), lon.ravel(), np.zeros(lat.size))  # ~13 x 13 km of Kansas
+    refl = np.array([scene.ground_reflectance(land, band=b) for b in range(4)])
+    level = refl.mean(axis=1) / np.asarray(LAND_REFLECTANCE)
+    # the same texture, each band's own level: NIR's 0.25 vegetation response averages to < 0.05 over 13 km
+    np.testing.assert_allclose(level, level[2], rtol=0.05)
+    rho = np.corrcoef(refl)
+    assert 0.5 < rho[2, 3] < 0.97, rho[2, 3]  # NIR against red
+    assert rho[2, 3] < rho[2, 1], rho  # green stays closer to red than NIR does
+    # red is the texture alone: unchanged by the other bands' vegetation response
+    np.testing.assert_array_equal(refl[2], scene.ground_reflectance(land))
+
+
 def test_window_pixels_sit_at_the_geometry_s_image_coordinates(imagery_pass_dir):
     """A chip rendered through the true geometry centred on a GCP's true continuous position, matched
     by LSM in the GCP's window (rendered independently, with noise), lands at that position
