@@ -5,10 +5,12 @@ GCP and tie-point feature that matching reads, by casting every pixel through th
 onto the true terrain and sampling a ground reflectance field:
 
 * **Reflectance** (:class:`SceneRadiance`): deterministic from the seed, continuous everywhere.
-  Land is ``0.18 (1 + t)`` (floored at 0.018) with ``t`` a sum of 96 random 3-D plane waves of
+  Land in the red band is ``0.18 (1 + t)`` (floored at 0.018) with ``t`` a sum of 96 random 3-D plane waves of
   60 m - 6 km wavelength (a ``1/f`` amplitude spectrum, 0.35 RMS), water 0.04 (real land mask), times
   Lambertian terrain shading at a sun elevation/azimuth of the pass (``cos i / sin e``, the
-  terrain normal from the true height field by central differences over 30 m).
+  terrain normal from the true height field by central differences over 30 m). The other bands
+  have their own land and water levels (:data:`LAND_REFLECTANCE`, :data:`WATER_REFLECTANCE`)
+  and follow a vegetation field by :data:`VEGETATION_RESPONSE` (the NIR most, the other way).
 * **Angular and temporal change**: each camera sees the land through a BRDF,
   ``1 + brdf_strength (b1 mu + b2 mu^2)`` with ``mu = tan(view) / tan(70.5 deg)`` and ``b1, b2``
   unit-variance fields (100 m - 3 km): the nine views of a patch differ as the surface's
@@ -84,9 +86,10 @@ LAND_REFLECTANCE = (0.08, 0.11, REFERENCE_REFLECTANCE, 0.30)
 #: Water reflectance per band: it darkens towards the infrared.
 WATER_REFLECTANCE = (0.07, 0.06, 0.04, 0.02)
 #: Each band's relative response to a vegetation-cover field (unit RMS, 200 m - 3 km) on top of
-#: the texture every band shares: red is the reference (0, its image is the texture alone); the
-#: NIR brightens where vegetation is dense, so its pattern differs most from the others'.
-VEGETATION_RESPONSE = (0.05, -0.05, 0.0, 0.25)
+#: the texture every band shares: red is the reference (0, its image is the texture alone); blue
+#: darkens where vegetation is dense, green brightens a little (chlorophyll's green peak) and the
+#: NIR a lot, so the NIR pattern differs most from the others'.
+VEGETATION_RESPONSE = (-0.05, 0.03, 0.0, 0.25)
 
 
 def _waves(rng: np.random.Generator, n: int, lam_lo: float, lam_hi: float, rms: float) -> tuple[Array, Array, Array]:
