@@ -224,7 +224,8 @@ def _view_calibration(rec, rr, f: h5py.File, counts: dict[str, int]) -> None:
 
 def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5) -> None:
     """The GCP windows of a pass (up to ``max_gcps`` GCPs) per camera, as images in window pixels,
-    with the matched (red) and, for simulated passes, true (green) positions, one time step per GCP."""
+    with the matched (red) and, for simulated passes, true (green) positions, one time step per GCP;
+    in the tie points' band (red) when the imagery holds several."""
     from misrgraph.io.imagery import has_matched, read_imagery, read_matched
     from misrgraph.io.passes import KIND_GCP, OrbitPass
     from misrgraph.io.truth import read_pass_truth
@@ -237,7 +238,7 @@ def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5
     rows = list(dict.fromkeys(int(r) for r in im.gcp.landmark))[:max_gcps]
     for n, row in enumerate(rows):
         rec.set_time("gcp", sequence=n)
-        for k in np.flatnonzero(im.gcp.landmark == row):
+        for k in np.flatnonzero((im.gcp.landmark == row) & (im.gcp.band == im.band)):  # one band: the tie points
             cam = CAMERAS[int(im.gcp.camera[k])]
             base = f"imagery/{cam}"
             rec.log(f"{base}/window", rr.Image(im.gcp.pixels[k].astype(np.float32)))
@@ -246,7 +247,7 @@ def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5
                 mo = matched.observations
                 gi = int(p.landmarks.gcp_index[row])
                 lm_rows = np.flatnonzero((matched.landmarks.gcp_index == gi) & (matched.landmarks.kind == KIND_GCP))
-                sel = np.isin(mo.landmark, lm_rows) & (mo.camera == int(im.gcp.camera[k]))
+                sel = np.isin(mo.landmark, lm_rows) & (mo.camera == int(im.gcp.camera[k])) & (mo.band == im.band)
                 if sel.any():
                     rec.log(f"{base}/matched", rr.Points2D(np.stack([mo.sample[sel] - im.gcp.sample0[k],
                                                                      mo.line[sel] - im.gcp.line0[k]], 1),
