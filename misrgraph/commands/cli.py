@@ -340,6 +340,7 @@ def calibrate(
     max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged) instead of failing with exit 1."),
     observations: str = typer.Option("simulated", "--observations", help="simulated (each pass's observations) or matched (those 'misrgraph match' measured in a month simulated with --imagery)."),
+    variance_components: int = typer.Option(0, "--variance-components", help="Rounds of variance-component estimation: each camera's observation sigmas rescaled by its sigma0 from the redundancy numbers, and the month re-solved; the summary gives every round's sigma0 per camera. 0 (default): keep the stated sigmas."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Camera calibration by space resection over GCP passes (per-pass navigation errors as nuisance)."""
@@ -355,7 +356,8 @@ def calibrate(
         _fail(f"--params: got {bad[0] if bad else params!r}; expected a comma list of {', '.join(CAMERA_PARAMS)}, omega")
     cfg = CalibrateConfig.from_dict(dict(params=tuple(names), per_band=per_band, estimate_omega=omega,
                                          temperature_bins=temperature_bins, max_iterations=max_iterations,
-                                         accept_unconverged=accept_unconverged))
+                                         accept_unconverged=accept_unconverged,
+                                         variance_component_rounds=variance_components))
     with err_console.status("calibrating...") as st:
         s = run_calibrate(scenario_dir, camera_model, gcp_file, out, cfg, max_passes, progress=lambda m: st.update(m),
                           observations=observations)

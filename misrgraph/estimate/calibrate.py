@@ -30,6 +30,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
+import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
@@ -49,7 +50,8 @@ from misrgraph.estimate.problem import Problem, marginal_covariances, variance_f
 
 __all__ = ["CalibrateConfig", "CalibrationResult", "calibrate_passes", "pointing_error_px", "temperature_bins",
            "thermal_slopes", "slope_estimates", "SlopeEstimates", "summarise", "evaluation_grid", "calibrated_models",
-           "supplied_models_at", "calibrated_bands", "camera_keys", "decode_camera_key", "param_value"]
+           "supplied_models_at", "calibrated_bands", "camera_keys", "decode_camera_key", "param_value",
+           "camera_variance_components"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -73,10 +75,24 @@ class CalibrateConfig(Config):
     temperature_bins: int = 1
     #: keep the result of a solve that did not converge (flagged) instead of failing
     accept_unconverged: bool = False
+    #: rounds of variance-component estimation after the least-squares solve: each camera's
+    #: observation sigmas are rescaled by its sigma0 (Foerstner: ``sqrt(sum e^2 / sum r)`` over the
+    #: camera's image coordinates, ``r`` their redundancy numbers) and the month re-solved, until
+    #: every camera is within ``variance_component_tol`` of 1; 0 (default) keeps the stated sigmas.
+    #: The residuals show only what the GCP positions and the navigation cannot absorb: on matched
+    #: GCPs (error / LSM sigma ~2 against the truth in the D cameras) sigma0 came out 0.64-0.98
+    #: and rescaling made the calibration worse (README), so it stays off by default
+    variance_component_rounds: int = 0
+    variance_component_tol: float = 0.05
 
     def __post_init__(self) -> None:
         if int(self.temperature_bins) != self.temperature_bins or self.temperature_bins < 1:
             raise InputError("temperature_bins", self.temperature_bins, "an integer >= 1")
+        v = self.variance_component_rounds
+        if isinstance(v, bool) or int(v) != v or v < 0:
+            raise InputError("variance_component_rounds", v, "an integer >= 0")
+        if not self.variance_component_tol > 0:
+            raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
 
     def graph_config(self, **kw: Any) -> GraphConfig:
         base = dict(knot_spacing_s=self.knot_spacing_s, knot_prior=self.knot_prior, threshold1=0, threshold2=0, use_dem=False,
@@ -115,6 +131,9 @@ class CalibrationResult:
         return len(self.supplied_models) > 1
     #: a-posteriori variance factor and its chi-square test (:func:`misrgraph.estimate.problem.variance_factor`)
     variance_factor: dict = dataclasses.field(default_factory=dict)
+    #: per round of variance-component estimation, each camera's ``{sigma0, redundancy, rows}``,
+    #: and the sigma scale finally applied per camera (empty without ``variance_component_rounds``)
+    variance_components: dict = dataclasses.field(default_factory=dict)
 
 
 def _build(passes: list[OrbitPass], camera: CameraModel, gcps: GcpDatabase, cfg: GraphConfig,
@@ -174,6 +193,35 @@ def _apply(camera: CameraModel, cams: list[int], cfg: CalibrateConfig, x: Array,
     return m
 
 
+def camera_variance_components(passes: list[OrbitPass], graphs: list[PassGraph],
+                               values: gtsam.Values) -> dict[int, dict[str, float]]:
+    """Each camera's variance component at the solution ``values`` of a month's graphs:
+    ``{camera index: {"sigma0", "redundancy", "rows"}}`` over its image coordinates (Foerstner:
+    ``sigma0^2 = sum e^2 / sum r`` with ``e`` the whitened residuals and ``r`` the redundancy
+    numbers, :func:`misrgraph.estimate.reliability.reliability`), from the passes' problems merged
+    into one flat problem. Empty when the problem is outside the flat form."""
+    from misrgraph.estimate.graph import merge_flat
+    from misrgraph.estimate.problem import NotFlat
+    from misrgraph.estimate.reliability import reliability
+
+    try:
+        flat = merge_flat([g.problem for g in graphs]).flat()
+    except NotFlat as exc:
+        log.warning("variance components not estimated: %s", exc)
+        return {}
+    rel = reliability(flat, flat.from_values(values))
+    # the merged batch's image points are the passes' in pass order, each pass's in its batch order
+    cams = np.concatenate([p.observations.camera[g.obs_index[g.collinearity.order]] for p, g in zip(passes, graphs)])
+    rows_cam = np.repeat(cams, 2)  # line and sample rows
+    coll = rel.families["collinearity"]
+    out = {}
+    for c in np.unique(cams):
+        rows = np.zeros(rel.e.size, bool)
+        rows[coll] = rows_cam == c
+        out[int(c)] = rel.variance_component(rows)
+    return out
+
+
 def calibrate_passes(
     passes: list[OrbitPass],
     camera: CameraModel,
@@ -219,6 +267,33 @@ def calibrate_passes(
         progress("least-squares solve")
     res = solve(prob, params)
     check_converged(res, "the least-squares solve", cfg.accept_unconverged)
+    vc: dict[str, Any] = {}
+    if cfg.variance_component_rounds:
+        stated = [p.observations.sigma_px.copy() for p in passes]
+        scale = np.ones(len(CAMERAS))
+        vc["rounds"] = []
+        for rnd in range(cfg.variance_component_rounds):
+            s0 = camera_variance_components(passes, graphs, res.values)
+            vc["rounds"].append({CAMERAS[c]: v for c, v in s0.items()})
+            moved = {c: v["sigma0"] for c, v in s0.items()
+                     if v["redundancy"] >= 10.0 and abs(v["sigma0"] - 1.0) > cfg.variance_component_tol}
+            if not moved:
+                break
+            for c, v in moved.items():
+                scale[c] *= v
+            if progress:
+                progress(f"variance components: round {rnd + 1}, sigma scale " +
+                         ", ".join(f"{CAMERAS[c]} {scale[c]:.2f}" for c in sorted(moved)))
+            passes = [dataclasses.replace(p, observations=dataclasses.replace(
+                p.observations, sigma_px=st * scale[p.observations.camera])) for p, st in zip(passes, stated)]
+            previous = res.values
+            prob, graphs = _build(passes, camera, gcps, cfg.graph_config(), exclude, progress, table, bins)
+            for k in prob.dims:  # warm start from the previous optimum
+                if previous.exists(k) and prob.initial.exists(k):
+                    prob.initial.update(k, previous.atVector(k))
+            res = solve(prob, params)
+            check_converged(res, "the least-squares solve after variance-component estimation", cfg.accept_unconverged)
+        vc["sigma_scale"] = {name: float(scale[c]) for c, name in enumerate(CAMERAS)}
     keys, labels, cams = _camera_keys_labels(graphs, cfg, bin_temps)
     if progress:
         progress("marginal covariance")
@@ -241,7 +316,7 @@ def calibrate_passes(
         models.append(m)
     out = CalibrationResult(models[0], keys, labels, x, cov, prior, rejected, res.iterations, res.final_error,
                             time.perf_counter() - t0, graphs, bin_temps, supplied_models, None, temps, table, res.status,
-                            variance_factor(prob, res.final_error))
+                            variance_factor(prob, res.final_error), vc)
     if len(models) == 1 and table is not None:  # a supplied table: the common correction at every entry
         out.table = TabulatedCameraModel([_apply(m, cams, cfg, x, 0) for m in table.models], table.valid_range_c)
         for m in out.table.models:
@@ -365,6 +440,7 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
                                                    for sm in samples for j in range(grid.size) for b in bands])))
         cams_out[name] = entry
     out: dict[str, Any] = {"cameras": cams_out, "solver_status": res.status, "variance_factor": res.variance_factor,
+                           **({"variance_components": res.variance_components} if res.variance_components else {}),
                            "iterations": res.iterations,
                            "final_cost": res.final_cost,
                            "seconds": res.seconds, "passes": len(res.graphs),

@@ -222,6 +222,35 @@ def test_per_band_truth_recovered_per_band(band_month_dir, tmp_path):
     assert one["nees"] > hi1
 
 
+def test_camera_variance_components_recover_a_wrong_stated_sigma(month):
+    """Df's and Da's observations stated at half the sigma their noise was drawn with: in the first
+    round their variance components are 2 and every other camera's 1, each within three
+    standard errors of a sigma0 from r redundant rows (``sigma0 / sqrt(2 r)``) plus the 5 %
+    tolerance; the rounds then rescale the two by ~2 and leave every camera at ~1."""
+    import dataclasses
+
+    sc, passes = month
+    wrong = [CAMERAS.index("Df"), CAMERAS.index("Da")]
+    halved = [dataclasses.replace(p, observations=dataclasses.replace(
+        p.observations, sigma_px=np.where(np.isin(p.observations.camera, wrong), 0.5, 1.0) * p.observations.sigma_px))
+        for p in passes]
+    res = calibrate_passes(halved, sc.camera_model, sc.gcps, CalibrateConfig(variance_component_rounds=4))
+    rounds, scale = res.variance_components["rounds"], res.variance_components["sigma_scale"]
+    assert len(rounds) >= 2 and set(rounds[0]) == set(CAMERAS)
+    for name, v in rounds[0].items():
+        expect = 2.0 if CAMERAS.index(name) in wrong else 1.0
+        assert abs(v["sigma0"] - expect) < 3 * expect / np.sqrt(2 * v["redundancy"]) + 0.05 * expect, (name, v)
+    for c in wrong:
+        r = rounds[0][CAMERAS[c]]["redundancy"]
+        assert abs(scale[CAMERAS[c]] - 2.0) < 3 * 2.0 / np.sqrt(2 * r) + 0.1, (CAMERAS[c], scale[CAMERAS[c]], r)
+    for name, v in rounds[-1].items():
+        assert abs(v["sigma0"] - 1.0) < 3 / np.sqrt(2 * v["redundancy"]) + 0.05, (name, v)
+    s = summarise(res, CalibrateConfig(variance_component_rounds=4), sc.camera_model, draws=2)
+    assert s["variance_components"]["sigma_scale"] == scale
+    with pytest.raises(InputError, match="variance_component_rounds"):
+        CalibrateConfig(variance_component_rounds=-1)
+
+
 def test_an_unconverged_calibration_fails_unless_accepted(month):
     from misrgraph.errors import ConvergenceError
 
