@@ -223,29 +223,27 @@ def test_per_band_truth_recovered_per_band(band_month_dir, tmp_path):
 
 
 def test_camera_variance_components_recover_a_wrong_stated_sigma(month):
-    """Df's and Da's observations stated at half the sigma their noise was drawn with: in the first
-    round their variance components are 2 and every other camera's 1, each within three
-    standard errors of a sigma0 from r redundant rows (``sigma0 / sqrt(2 r)``) plus the 5 %
-    tolerance; the rounds then rescale the two by ~2 and leave every camera at ~1."""
+    """An's and Bf's observations (the most redundant cameras) stated at half the sigma their
+    noise was drawn with. The first round is biased, as any variance-component estimate from
+    wrong weights is (the misweighted cameras pull the navigation). At the fixed point the two
+    are rescaled by 2 and every other camera by 1, each within three standard errors of a sigma0
+    from r redundant rows (``sigma0 / sqrt(2 r)``) plus 0.1, and every camera's sigma0 is then 1."""
     import dataclasses
 
     sc, passes = month
-    wrong = [CAMERAS.index("Df"), CAMERAS.index("Da")]
+    wrong = [CAMERAS.index("An"), CAMERAS.index("Bf")]
     halved = [dataclasses.replace(p, observations=dataclasses.replace(
         p.observations, sigma_px=np.where(np.isin(p.observations.camera, wrong), 0.5, 1.0) * p.observations.sigma_px))
         for p in passes]
-    res = calibrate_passes(halved, sc.camera_model, sc.gcps, CalibrateConfig(variance_component_rounds=4))
+    res = calibrate_passes(halved, sc.camera_model, sc.gcps, CalibrateConfig(variance_component_rounds=6))
     rounds, scale = res.variance_components["rounds"], res.variance_components["sigma_scale"]
-    assert len(rounds) >= 2 and set(rounds[0]) == set(CAMERAS)
-    for name, v in rounds[0].items():
-        expect = 2.0 if CAMERAS.index(name) in wrong else 1.0
-        assert abs(v["sigma0"] - expect) < 3 * expect / np.sqrt(2 * v["redundancy"]) + 0.05 * expect, (name, v)
-    for c in wrong:
-        r = rounds[0][CAMERAS[c]]["redundancy"]
-        assert abs(scale[CAMERAS[c]] - 2.0) < 3 * 2.0 / np.sqrt(2 * r) + 0.1, (CAMERAS[c], scale[CAMERAS[c]], r)
-    for name, v in rounds[-1].items():
+    last = rounds[-1]
+    assert len(rounds) >= 2 and set(last) == set(CAMERAS)
+    for name, v in last.items():
         assert abs(v["sigma0"] - 1.0) < 3 / np.sqrt(2 * v["redundancy"]) + 0.05, (name, v)
-    s = summarise(res, CalibrateConfig(variance_component_rounds=4), sc.camera_model, draws=2)
+        expect = 2.0 if CAMERAS.index(name) in wrong else 1.0
+        assert abs(scale[name] - expect) < 3 * expect / np.sqrt(2 * v["redundancy"]) + 0.1, (name, scale[name], v)
+    s = summarise(res, CalibrateConfig(variance_component_rounds=6), sc.camera_model, draws=2)
     assert s["variance_components"]["sigma_scale"] == scale
     with pytest.raises(InputError, match="variance_component_rounds"):
         CalibrateConfig(variance_component_rounds=-1)
