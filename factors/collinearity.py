@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from factors.geometry import attitude_matrix, attitude_matrix_derivatives, drot_x, drot_y, drot_z, rot_x, rot_y, rot_z
 from factors.layout import BlockLayout
 
-__all__ = ["CAMERA_PARAMS", "CAMERA_PARAM_SCALE", "CollinearityConstants", "collinearity_residual", "CollinearityBatch",
+__all__ = ["CAMERA_PARAMS", "CAMERA_PARAM_SCALE", "camera_param_scale", "CollinearityConstants", "collinearity_residual", "CollinearityBatch",
            "FactorShapeError", "cached_at"]
 
 Array = NDArray[np.float64]
@@ -48,6 +48,12 @@ CAMERA_PARAMS = ("delta", "beta", "epsilon", "f", "alpha0", "alpha1", "alpha2", 
 #: the field-angle term at the swath edge (|s - c_y| = 752 px), so all columns are well scaled
 #: (alpha_5 in SI is ~1e-18 and made GTSAM's elimination report an indeterminate system).
 CAMERA_PARAM_SCALE = np.array([1.0, 1.0, 1.0, 1e-3] + [752.0 ** -i for i in range(6)])
+
+
+def camera_param_scale(params: "tuple[str, ...] | list[str]") -> Array:
+    """:data:`CAMERA_PARAM_SCALE` of ``params`` (names from :data:`CAMERA_PARAMS`), in their order:
+    a variable's value times this is its correction in SI."""
+    return CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in params]]
 
 
 class FactorShapeError(ValueError):

@@ -212,9 +212,7 @@ def adjust_pass(
     def resolve(op: OrbitPass, excluded: NDArray[np.bool_], previous: gtsam.Values, after: str):
         """Rebuild and re-solve, warm-started from the previous optimum."""
         g = build_pass_graph(op, camera, dem, gcps, cfg.graph_config(), exclude_observations=excluded)
-        for k in g.problem.dims:
-            if previous.exists(k) and g.problem.initial.exists(k):
-                g.problem.initial.update(k, previous.atVector(k))
+        g.problem.warm_start(previous)
         r = solve(g.problem, params.replace(backend=cfg.backend))
         check_converged(r, f"the least-squares solve after {after}", cfg.accept_unconverged)
         return g, r

@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors import keys as K
-from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
+from factors.collinearity import camera_param_scale
 from misrgraph import __version__
 from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.config import Config
@@ -286,11 +286,8 @@ def calibrate_passes(
                          ", ".join(f"{CAMERAS[c]} {scale[c]:.2f}" for c in sorted(moved)))
             passes = [dataclasses.replace(p, observations=dataclasses.replace(
                 p.observations, sigma_px=st * scale[p.observations.camera])) for p, st in zip(passes, stated)]
-            previous = res.values
             prob, graphs = _build(passes, camera, gcps, cfg.graph_config(), exclude, progress, table, bins)
-            for k in prob.dims:  # warm start from the previous optimum
-                if previous.exists(k) and prob.initial.exists(k):
-                    prob.initial.update(k, previous.atVector(k))
+            prob.warm_start(res.values)
             res = solve(prob, params)
             check_converged(res, "the least-squares solve after variance-component estimation", cfg.accept_unconverged)
         vc["sigma_scale"] = {name: float(scale[c]) for c, name in enumerate(CAMERAS)}
@@ -300,7 +297,7 @@ def calibrate_passes(
     cov = marginal_covariances(prob, res.values, joint_keys=keys).joint
     x = np.concatenate([res.values.atVector(k) for k in keys])
     # from variable units (CAMERA_PARAM_SCALE) to SI
-    unit = np.concatenate([CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in cfg.params]]] * (len(keys) - cfg.estimate_omega)
+    unit = np.concatenate([camera_param_scale(cfg.params)] * (len(keys) - cfg.estimate_omega)
                           + ([np.ones(3)] if cfg.estimate_omega else []))
     x = x * unit
     cov = cov * np.outer(unit, unit)

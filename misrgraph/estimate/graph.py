@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors import keys as K
-from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS, CollinearityBatch, CollinearityConstants
+from factors.collinearity import CAMERA_PARAMS, CollinearityBatch, CollinearityConstants, camera_param_scale
 from factors.dem_height import DemBatch
 from factors.priors import gcp_prior, process_prior_factors, vector_prior
 from misrgraph.model.camera import CameraModel
@@ -129,7 +129,7 @@ class PassGraph:
     def camera_corrections(self, values: gtsam.Values) -> dict[int, Array]:
         """Every camera variable's corrections in SI (rad for the angles, m for f, alpha_i as
         the model stores them), keyed by its camera code, in the order of ``camera_params``."""
-        scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in self.camera_params]]
+        scale = camera_param_scale(self.camera_params)
         return {c: values.atVector(k) * scale for c, k in self.camera_keys.items()}
 
     def knot_keys(self, angle: int) -> list[int]:
@@ -351,7 +351,7 @@ def build_pass_graph(
         graph.add(vector_prior(k, np.zeros(6), eph_sig))
     for ck, k in camera_keys.items():
         c = (ck % 1000) // 10 if cfg.camera_per_band else ck % 1000
-        scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in cfg.camera_params]]
+        scale = camera_param_scale(cfg.camera_params)
         if cfg.camera_prior_calibration:
             sig = np.array([CAMERA_PRIOR_SIGMA[p] for p in cfg.camera_params]) / scale
         else:

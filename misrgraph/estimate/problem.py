@@ -69,6 +69,13 @@ class Problem:
         return [k for k in self.dims if k not in first and k not in last] + [k for k in self.eliminate_last if k in self.dims]
 
 
+    def warm_start(self, previous: gtsam.Values) -> None:
+        """Start from ``previous`` (an earlier optimum) wherever it holds one of this problem's
+        variables; the others keep their initial values."""
+        for k in self.dims:
+            if previous.exists(k) and self.initial.exists(k):
+                self.initial.update(k, previous.atVector(k))
+
     def add_batch(self, batch: Any) -> NDArray[np.int64]:
         """Append a factor batch's adapters to the graph and record their positions."""
         start = int(self.graph.size())

@@ -16,8 +16,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
+from factors.collinearity import camera_param_scale
 from misrgraph.estimate.adjust import AdjustResult, corrected_geometry, estimated_models, supplied_camera_of
+from misrgraph.estimate.calibrate import param_value
 from misrgraph.estimate.solver import information_norm, linearize
 from misrgraph.io.passes import KIND_CHECK, OrbitPass
 from misrgraph.io.truth import PassTruth
@@ -211,7 +212,7 @@ def _true_deltas(truth: PassTruth, res: AdjustResult, supplied_camera: CameraMod
         for s_, k in enumerate(pg.ephemeris_keys()):
             delta[k] = res.values.atVector(k) - truth.ephemeris_error.params[s_]
     tc, sc_ = truth.camera_model, supplied_camera
-    scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in pg.camera_params]]
+    scale = camera_param_scale(pg.camera_params)
     for c, k in pg.camera_keys.items():  # camera-level corrections (the red band's values)
         true_corr = np.array([_camera_level(tc, p, c) - _camera_level(sc_, p, c) for p in pg.camera_params])
         delta[k] = res.values.atVector(k) - true_corr / scale
@@ -221,10 +222,9 @@ def _true_deltas(truth: PassTruth, res: AdjustResult, supplied_camera: CameraMod
 
 
 def _camera_level(m: CameraModel, param: str, c: int) -> float:
-    """Camera ``c``'s camera-level value of ``param`` (SI; f and alpha_i: the red band's)."""
-    if param in ("delta", "beta", "epsilon"):
-        return float(getattr(m, param)[c])
-    return float(m.focal_length[c, RED]) if param == "f" else float(m.alpha[c, RED, int(param[len("alpha"):])])
+    """Camera ``c``'s camera-level value of ``param`` (SI): an angle without any band's offset, f
+    and alpha_i the red band's (:func:`misrgraph.estimate.calibrate.param_value`)."""
+    return float(getattr(m, param)[c]) if param in ("delta", "beta", "epsilon") else param_value(m, param, c, RED)
 
 
 def _joint_nees(res: AdjustResult, delta: dict[int, Array], keys: list[int], name: str) -> dict[str, Any]:

@@ -45,7 +45,7 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.ndimage import distance_transform_edt
 
 from misrgraph.errors import InputError
-from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
+from factors.collinearity import camera_param_scale
 from misrgraph.estimate.adjust import AdjustResult, corrected_geometry
 from misrgraph.estimate.graph import calibrated_camera_sigma
 from misrgraph.io.passes import OrbitPass
@@ -163,7 +163,7 @@ def _camera_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t
     unit of the adjustment's variables (:data:`factors.collinearity.CAMERA_PARAM_SCALE`), by central
     differences of steps that move an image point by ~0.05 pixel."""
     step_si = calibrated_camera_sigma(geo.camera, cam, params, 0.05, 0.05)
-    scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in params]]
+    scale = camera_param_scale(params)
     out = np.empty((ground.shape[0], 2, len(params)))
     for j, p in enumerate(params):
         d = _central_differences(

@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from factors.collinearity import CAMERA_PARAM_SCALE, CAMERA_PARAMS
+from factors.collinearity import camera_param_scale
 from misrgraph import __version__
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, adjust_pass, attitude_sigma_summary
@@ -65,7 +65,7 @@ def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, su
         cams = sorted(pg.camera_keys)
         write_dataset(c, "camera", np.array(cams, np.int64))
         n_par = len(pg.camera_params)
-        scale = CAMERA_PARAM_SCALE[[CAMERA_PARAMS.index(p) for p in pg.camera_params]]
+        scale = camera_param_scale(pg.camera_params)
         si = pg.camera_corrections(res.values)
         units = "rad (delta, beta, epsilon), m (f), alpha_i as the camera model stores them"
         write_dataset(c, "values", np.array([si[k] for k in cams]).reshape(-1, n_par), units=units,

@@ -68,6 +68,15 @@ def _stats(err: np.ndarray, sig: np.ndarray) -> dict[str, Any]:
             "normalised_error_rms_correct": float(np.sqrt(np.mean(z[~wrong] ** 2))) if (~wrong).any() else None}
 
 
+def _per_band(err: np.ndarray, sig: np.ndarray, band: np.ndarray) -> dict[str, Any]:
+    """:func:`_stats` per band of ``band (n,)`` (with the band's match count), or ``{}`` when the
+    matches are all in one band."""
+    bands = np.unique(band)
+    if bands.size < 2:
+        return {}
+    return {BANDS[int(b)]: {"matched": int(np.sum(band == b)), **_stats(err[band == b], sig[band == b])} for b in bands}
+
+
 def _scenario_surface(directory: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
     """The simulator's true terrain (ellipsoidal m; zero geoid) from scenario.json, or None."""
     meta = directory / "scenario.json"
@@ -160,10 +169,9 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
         is_g = np.arange(len(obs)) < len(o_g)
         scored_t = ~is_g & (obs.camera != AN)
         summary["gcp"].update(_stats(err[is_g], obs.sigma_px[is_g]))
-        g_bands = np.unique(obs.band[is_g])
-        if g_bands.size > 1:  # the band-to-band geometry's measurements, band by band
-            summary["gcp"]["per_band"] = {BANDS[int(b)]: {"matched": int(np.sum(sel)), **_stats(err[sel], obs.sigma_px[sel])}
-                                          for b in g_bands if np.any(sel := is_g & (obs.band == b))}
+        per_band = _per_band(err[is_g], obs.sigma_px[is_g], obs.band[is_g])
+        if per_band:  # the band-to-band geometry's measurements, band by band
+            summary["gcp"]["per_band"] = per_band
         summary["tie"].update(_stats(err[scored_t], obs.sigma_px[scored_t]))
         if scored is not None:
             scored.setdefault("gcp", []).append((err[is_g], obs.sigma_px[is_g], obs.band[is_g]))
@@ -207,9 +215,8 @@ def run_match(scenario_dir: str | os.PathLike[str], cfg: MatchConfig = MatchConf
         if scored.get(kind):  # with truth: the statistics over every pass's matches
             err, sig, band = (np.concatenate([item[i] for item in scored[kind]]) for i in range(3))
             pooled.update(_stats(err.reshape(-1, 2), sig))
-            if np.unique(band).size > 1:
-                pooled["per_band"] = {BANDS[int(b)]: {"matched": int(np.sum(band == b)),
-                                                      **_stats(err.reshape(-1, 2)[band == b], sig[band == b])}
-                                      for b in np.unique(band)}
+            per_band = _per_band(err.reshape(-1, 2), sig, band)
+            if per_band:
+                pooled["per_band"] = per_band
         out[kind] = pooled
     return out
