@@ -5,6 +5,7 @@ variable     letter  index                                          type
 ===========  ======  =============================================  ==========================
 tie point    ``l``   ``path * 10**6 + feature id`` (shared by repeats) Vector3, ECEF m
 GCP          ``g``   GCP database row (shared by every pass)        Vector3, ECEF m
+GCP scene    ``s``   the GCP database's source scene                Vector3, ECEF m (offset)
 roll knot    ``r``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
 pitch knot   ``p``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
 yaw knot     ``y``   ``pass * 10**5 + knot``                        Vector2 (rad, rad/s)
@@ -23,12 +24,13 @@ from __future__ import annotations
 import gtsam
 
 __all__ = [
-    "LANDMARK", "GCP", "KNOT", "EPHEMERIS", "CAMERA", "OMEGA",
-    "landmark_key", "gcp_key", "knot_key", "ephemeris_key", "camera_key", "omega_key", "describe",
+    "LANDMARK", "GCP", "GCP_SCENE", "KNOT", "EPHEMERIS", "CAMERA", "OMEGA",
+    "landmark_key", "gcp_key", "gcp_scene_key", "knot_key", "ephemeris_key", "camera_key", "omega_key", "describe",
 ]
 
 LANDMARK = "l"
 GCP = "g"
+GCP_SCENE = "s"
 KNOT = ("r", "p", "y")  # roll, pitch, yaw
 EPHEMERIS = "e"
 CAMERA = "c"
@@ -42,6 +44,11 @@ def landmark_key(path: int, feature_id: int) -> int:
 
 def gcp_key(gcp_row: int) -> int:
     return gtsam.symbol(GCP, gcp_row)
+
+
+def gcp_scene_key(scene: int) -> int:
+    """The error a source scene's GCPs share (shared by every pass, like the GCPs)."""
+    return gtsam.symbol(GCP_SCENE, scene)
 
 
 def knot_key(angle: int, pass_index: int, knot: int) -> int:

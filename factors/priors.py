@@ -1,10 +1,16 @@
-"""Prior factors: GCP position (eq. 32), a-priori values of knots, ephemeris and camera, and
+"""Prior factors: GCP position (eq. 32) -- alone, or sharing a source scene's error --, a-priori values of knots, ephemeris and camera, and
 the attitude error process's prior between consecutive knots.
 
 These are GTSAM's own C++ factors (no Python callback): ``PriorFactorVector`` and, for the
 process prior, a ``LinearContainerFactor`` holding a whitened ``JacobianFactor``. The GCP prior's
 noise is 30 m per ENU axis rotated to ECEF as a full covariance: ``C = R diag(s^2) R^T`` with
 ``R`` the ENU basis at the GCP (:func:`factors.geometry.enu_covariance`).
+
+GCPs from one source scene share the scene's registration error ``o`` (ECEF m, a variable per
+scene, prior ``N(0, C_s)`` with ``C_s`` the shared sigma per ENU axis): each GCP's prior is then
+``P - (P_GCP + o) ~ N(0, C_own)``, ``C_own = C - C_s``. Marginalising ``o`` gives back ``C`` for
+each GCP and ``C_s`` between any two GCPs of the scene, the catalogue's joint distribution. It is
+linear in ``(P, o)``, a ``LinearContainerFactor``.
 
 The attitude process prior. Each angle's error ``e(t)`` (rad) is modelled as a stationary
 Matern-3/2 process, covariance ``C(tau) = sigma^2 (1 + lam |tau|) exp(-lam |tau|)``: its value has
@@ -26,13 +32,25 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["gcp_prior", "vector_prior", "matern32_transition", "process_prior_factors", "linear_factor"]
+__all__ = ["gcp_prior", "gcp_scene_prior", "scene_offset_prior", "vector_prior", "matern32_transition", "process_prior_factors", "linear_factor"]
 
 
 def gcp_prior(key: int, position_ecef: ArrayLike, covariance: ArrayLike) -> gtsam.PriorFactorVector:
     """Eq. 32: ``P_GCP - P = 0`` with a full ECEF covariance (m^2)."""
     return gtsam.PriorFactorVector(key, np.asarray(position_ecef, dtype=float),
                                    gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)))
+
+
+def gcp_scene_prior(key: int, scene_key: int, position_ecef: ArrayLike, own_covariance: ArrayLike) -> gtsam.LinearContainerFactor:
+    """A GCP of a source scene (module docstring): ``P - o - P_GCP ~ N(0, C_own)`` on the GCP's
+    position ``P`` and its scene's offset ``o`` (both ECEF m); ``own_covariance`` (3, 3) m^2."""
+    eye = np.eye(3)
+    return linear_factor([key, scene_key], [eye, -eye], np.asarray(position_ecef, dtype=float), own_covariance)
+
+
+def scene_offset_prior(scene_key: int, covariance: ArrayLike) -> gtsam.PriorFactorVector:
+    """A source scene's shared GCP error ``o ~ N(0, C_s)`` (ECEF m; ``covariance`` (3, 3) m^2)."""
+    return gtsam.PriorFactorVector(scene_key, np.zeros(3), gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)))
 
 
 def vector_prior(key: int, mean: ArrayLike, sigmas: ArrayLike) -> gtsam.PriorFactorVector:

@@ -229,6 +229,7 @@ def adjust(
     knot_rule: str = typer.Option("support", "--knot-rule", help="Eqs. 28-29 on each knot's support (default) or, literally, on [t_i, t_i+1) ('interval'); with --knot-prior independent only."),
     knot_prior: str = typer.Option("process", "--knot-prior", help="'process': consecutive knots tied by the attitude error process, every knot kept (default); 'independent': the seed's independent knot priors with eqs. 28-29's knot removal."),
     no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
+    dem_sigma_scale: float = typer.Option(2.0, "--dem-sigma-scale", help="The DEM height factors' sigma is the DEM's stated sigma times this (2: an empirical factor, see docs/design.md)."),
     robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
     max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
     snooping_rounds: int = typer.Option(4, "--snooping-rounds", help="Rounds of iterated data snooping (Baarda, alpha 0.001) after the least-squares solve; 0: off."),
@@ -243,7 +244,8 @@ def adjust(
 
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
-                                      knot_prior=knot_prior, use_dem=not no_dem, robust=robust, max_iterations=max_iterations,
+                                      knot_prior=knot_prior, use_dem=not no_dem, dem_sigma_scale=dem_sigma_scale,
+                                      robust=robust, max_iterations=max_iterations,
                                       snooping_rounds=snooping_rounds, variance_component_rounds=variance_components,
                                       accept_unconverged=accept_unconverged))
     with err_console.status("adjusting...") as st:

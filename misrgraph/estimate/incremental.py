@@ -104,7 +104,7 @@ DEFAULT_LINEARIZATION_TOL = 0.01
 DEFAULT_SETTLE_AFTER = 3
 
 #: Key letters of the variables shared between passes (eliminated last).
-_SHARED_LETTERS = frozenset(ord(c) for c in (K.LANDMARK, K.GCP, K.CAMERA, K.OMEGA))
+_SHARED_LETTERS = frozenset(ord(c) for c in (K.LANDMARK, K.GCP, K.GCP_SCENE, K.CAMERA, K.OMEGA))
 #: Key letters of ground points (tie points and GCPs).
 _POINT_LETTERS = frozenset(ord(c) for c in (K.LANDMARK, K.GCP))
 

@@ -157,8 +157,8 @@ class FlatProblem:
             f = problem.graph.at(i)
             if isinstance(f, (gtsam.PriorFactorVector, gtsam.LinearContainerFactor)):
                 p = _Prior.from_factor(f, problem.dims)
-                if len(p.keys) > 1 and any(self.offset[k] < landmark_cols for k in p.keys):
-                    raise NotFlat("a linear factor coupling a landmark with another variable")
+                if sum(self.offset[k] < landmark_cols for k in p.keys) > 1:
+                    raise NotFlat("a linear factor coupling two landmarks (the landmark block would not be block diagonal)")
                 self.priors.append(p)
             elif isinstance(f, gtsam.CustomFactor):
                 n_custom += 1
@@ -377,12 +377,14 @@ class FlatProblem:
             for k, a in zip(p.keys, p.a):
                 o, d = self.offset[k], a.shape[1]
                 g[o:o + d] += a.T @ rp
-                if o < n_l:  # a landmark's own prior (only single-key factors touch landmarks)
-                    blk[o // 3] += a.T @ a
-                    continue
                 for k2, a2 in zip(p.keys, p.a):
-                    o2 = self.offset[k2] - n_l
-                    hcc[o - n_l:o - n_l + d, o2:o2 + a2.shape[1]] += a.T @ a2
+                    o2 = self.offset[k2]
+                    if o < n_l and o2 < n_l:  # a landmark with itself (at most one landmark per factor)
+                        blk[o // 3] += a.T @ a2
+                    elif o < n_l:  # landmark x other (a GCP and its scene's offset)
+                        hlc[o // 3, :, o2 - n_l:o2 - n_l + a2.shape[1]] += a.T @ a2
+                    elif o2 >= n_l:  # other x other (H_lc holds the landmark rows only)
+                        hcc[o - n_l:o - n_l + d, o2 - n_l:o2 - n_l + a2.shape[1]] += a.T @ a2
         if second_order and self.dem is not None and len(self.dem):
             li, corr = self.dem_curvature(x)
             per_lm = np.zeros_like(blk)

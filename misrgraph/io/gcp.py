@@ -2,7 +2,8 @@
 
 Layout: group ``/gcp`` with datasets ``id (G,)``, ``lat, lon (G,)`` deg WGS84, ``height (G,)`` m
 ellipsoidal, ``sigma_m (G,)`` or ``(G, 3)`` m (1 sigma on every ENU axis, or per axis E, N, U), ``region (G,)`` strings and optional
-``chips (G, 9, 64, 64)`` uint8 (attribute ``cameras``). A simulated database also holds
+``chips (G, 9, 64, 64)`` uint8 (attribute ``cameras``), optional ``scene (G,)`` int (source scene,
+-1 none) with ``scene_sigma_m (G,)`` m (the share of sigma common to a scene's GCPs). A simulated database also holds
 ``/truth/ecef (G, 3)`` m, the true positions, read only by :mod:`misrgraph.io.truth`.
 """
 
@@ -44,6 +45,10 @@ def save_gcp_database(db: GcpDatabase, path: str | os.PathLike[str], truth_ecef:
         if db.chips is not None:
             create_dataset(g, "chips", db.chips, compression="gzip")
             g["chips"].attrs["cameras"] = "Df,Cf,Bf,Af,An,Aa,Ba,Ca,Da"
+        if db.scene is not None and db.scene_sigma_m is not None:
+            write_dataset(g, "scene", db.scene, meaning="source scene of each GCP (-1: none)")
+            write_dataset(g, "scene_sigma_m", db.scene_sigma_m, units="m",
+                          meaning="1 sigma per ENU axis of the error the GCPs of one scene share (part of sigma_m)")
         if truth_ecef is not None:
             write_gcp_truth(f, truth_ecef, len(db))
 
@@ -59,6 +64,8 @@ def read_gcp_database(path: str | os.PathLike[str]) -> GcpDatabase:
         region = read_dataset(g, "region", (n,), dtype=None)
         region = np.array([r.decode() if isinstance(r, bytes) else str(r) for r in region])
         chips = read_dataset(g, "chips", (n, 9, None, None), dtype=np.uint8) if "chips" in g else None
+        scene = read_dataset(g, "scene", (n,), dtype=np.int64) if "scene" in g else None
+        scene_sigma = read_dataset(g, "scene_sigma_m", (n,)) if "scene_sigma_m" in g else None
         return GcpDatabase(
             ids,
             read_dataset(g, "lat", (n,)),
@@ -67,4 +74,6 @@ def read_gcp_database(path: str | os.PathLike[str]) -> GcpDatabase:
             read_dataset(g, "sigma_m", (n, 3) if "sigma_m" in g and g["sigma_m"].ndim == 2 else (n,)),
             region,
             chips,
+            scene,
+            scene_sigma,
         )

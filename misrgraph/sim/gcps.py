@@ -30,7 +30,9 @@ def generate_gcp_database(
     ECEF. The catalogue error per ENU axis is N(0, sigma) (``scene_fraction=None``, what the
     database states), or -- a catalogue built from Landsat scenes -- a share ``scene_fraction``
     of the variance common to the GCPs of one 2 x 2 deg cell (the scene's registration error)
-    plus Student-t (4 degrees of freedom) per GCP, sigma per axis in total."""
+    plus Student-t (4 degrees of freedom) per GCP, sigma per axis in total; the database then
+    names each GCP's scene and the shared sigma (``scene``, ``scene_sigma_m``), as a catalogue
+    that records its source imagery would."""
     if n_total < len(GCP_REGIONS):
         raise InputError("n_gcps", n_total, f"at least {len(GCP_REGIONS)}")
     geoid = geoid or Geoid("zero")
@@ -56,6 +58,7 @@ def generate_gcp_database(
     truth = geodetic_to_ecef(lat, lon, h)
     sig = np.full(lat.size, sigma_m)
     enu = enu_basis(lat, lon)
+    scene_of, scene_sig = None, None
     if scene_fraction is None:
         err = rng.standard_normal((lat.size, 3)) * sigma_m
     else:
@@ -64,6 +67,8 @@ def generate_gcp_database(
         common = rng.standard_normal((scene.max() + 1, 3))[scene.ravel()]
         own = rng.standard_t(4.0, (lat.size, 3)) / np.sqrt(2.0)  # unit variance
         err = sigma_m * (np.sqrt(scene_fraction) * common + np.sqrt(1.0 - scene_fraction) * own)
+        scene_of = scene.ravel().astype(np.int64)
+        scene_sig = np.full(lat.size, sigma_m * np.sqrt(scene_fraction))
     measured = truth + np.einsum("gij,gj->gi", enu, err)
     mlat, mlon, mh = ecef_to_geodetic(measured)
     chips = None
@@ -75,4 +80,5 @@ def generate_gcp_database(
             f = rng.uniform(0.05, 0.3, (9, 2))
             ph = rng.uniform(0, 6.3, (9, 1, 1))
             chips[i] = (127 + 100 * np.sin(f[:, 0, None, None] * xx + f[:, 1, None, None] * yy + ph)).astype(np.uint8)
-    return GcpDatabase(np.arange(lat.size, dtype=np.int64), mlat, mlon, mh, sig, np.array(regions), chips), truth
+    return GcpDatabase(np.arange(lat.size, dtype=np.int64), mlat, mlon, mh, sig, np.array(regions), chips,
+                       scene_of, scene_sig), truth

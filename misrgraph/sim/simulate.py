@@ -240,9 +240,11 @@ class ScenarioConfig(Config):
             if not getattr(self, name) >= 0:
                 raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma of the per-camera slope)")
         for name in ("tie_blunder_rate", "gcp_blunder_rate", "view_probability", "texture_probability", "dted1_fraction",
-                     "dem_correlated_fraction", "mismatch_rate", "gcp_scene_fraction"):
+                     "dem_correlated_fraction", "mismatch_rate"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(name, getattr(self, name), "a fraction in [0, 1]")
+        if not 0.0 <= self.gcp_scene_fraction < 1.0:
+            raise InputError("gcp_scene_fraction", self.gcp_scene_fraction, "a fraction in [0, 1) (each GCP keeps an error of its own)")
         if not 0.0 <= self.cloud_fraction < 1.0:
             raise InputError("cloud_fraction", self.cloud_fraction, "a fraction in [0, 1)")
         if not self.image_snr > 0:

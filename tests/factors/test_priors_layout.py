@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from factors.layout import BlockLayout
-from factors.priors import gcp_prior, vector_prior
+from factors.priors import gcp_prior, gcp_scene_prior, scene_offset_prior, vector_prior
 from factors.geometry import enu_covariance
 from misrgraph.model.frames import enu_basis
 
@@ -24,6 +24,38 @@ def test_gcp_prior_whitens_with_full_covariance():
     v.insert(7, np.array([1.0, 2.0, 3.0]) + np.array([30.0, 0, 0]))
     assert f.error(v) == pytest.approx(0.5 * 1.0, rel=1e-9)  # 30 m along any axis = 1 sigma
     assert vector_prior(8, np.zeros(2), [1.0, 2.0]).keys() == [8]
+
+
+def test_gcp_scene_prior_gives_the_catalogues_joint_distribution():
+    """Three GCPs of one scene (own sigma 20 m, shared 25 m per ENU axis), the scene offset
+    marginalised by GTSAM: each GCP's covariance is own + shared, two GCPs' cross-covariance the
+    shared part -- the closed form of the catalogue's joint distribution."""
+    lat, lon = np.radians(38.0), np.radians(-105.0)
+    c_own, c_s = enu_covariance(lat, lon, [20.0, 20.0, 12.0]), enu_covariance(lat, lon, 25.0)
+    pos = [np.array([-1.2e6, -4.7e6, 3.9e6]) + 1e3 * k for k in range(3)]
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    scene = gtsam.symbol("s", 4)
+    g.add(scene_offset_prior(scene, c_s))
+    v.insert(scene, np.zeros(3))
+    for k, p in enumerate(pos):
+        g.add(gcp_scene_prior(gtsam.symbol("g", k), scene, p, c_own))
+        v.insert(gtsam.symbol("g", k), p + 7.0)
+    opt = gtsam.LevenbergMarquardtOptimizer(g, v).optimize()
+    for k, p in enumerate(pos):
+        np.testing.assert_allclose(opt.atVector(gtsam.symbol("g", k)), p, atol=1e-6)
+    m = gtsam.Marginals(g, opt)
+    keys = gtsam.KeyVector([gtsam.symbol("g", 0), gtsam.symbol("g", 2)])
+    joint = m.jointMarginalCovariance(keys).fullMatrix()
+    np.testing.assert_allclose(joint[:3, :3], c_own + c_s, rtol=1e-8)
+    np.testing.assert_allclose(joint[:3, 3:], c_s, rtol=1e-8, atol=1e-8)
+    # its error: 0.5 |P - o - P_GCP|^2 in the own covariance's metric
+    v2 = gtsam.Values()
+    v2.insert(gtsam.symbol("g", 0), pos[0] + np.array([3.0, -4.0, 5.0]))
+    v2.insert(scene, np.array([1.0, 1.0, 1.0]))
+    d = np.array([2.0, -5.0, 4.0])
+    f = gcp_scene_prior(gtsam.symbol("g", 0), scene, pos[0], c_own)
+    assert f.error(v2) == pytest.approx(0.5 * d @ np.linalg.solve(c_own, d), rel=1e-9)
 
 
 def test_block_layout_matches_naive_assembly(rng):

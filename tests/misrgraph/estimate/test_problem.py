@@ -208,3 +208,87 @@ def test_gauss_newton_step_is_gtsams_linear_solution(solved):
     assert np.max(np.abs(gauss_newton_step(flat, x)) / sig) < 1e-3
     x_loose = flat.from_values(loose.values)
     assert np.max(np.abs(gauss_newton_step(flat, x_loose)) / sig) > np.max(np.abs(gauss_newton_step(flat, x)) / sig)
+
+
+def _gcps_in_scenes(sc, p, per_scene: int, shared_sigma_m: float = 20.0):
+    """The pass's GCP database with its GCPs grouped ``per_scene`` to a source scene."""
+    import dataclasses
+
+    from misrgraph.io.passes import KIND_GCP
+
+    rows = np.unique(p.landmarks.gcp_index[p.landmarks.kind == KIND_GCP])
+    scene = np.full(len(sc.gcps), -1, np.int64)
+    scene[rows] = np.arange(rows.size) // per_scene
+    return dataclasses.replace(sc.gcps, scene=scene, scene_sigma_m=np.full(len(sc.gcps), shared_sigma_m)), rows
+
+
+def test_gcp_scene_offsets_in_every_marginal_path(small_pass):
+    """All the pass's GCPs in one source scene: the flat normal equations (landmark-offset
+    coupling in H_lc) equal J^T J of the sparse Jacobian, the flat marginals equal
+    ``gtsam.Marginals``, and the mean of the GCPs is known less well than with independent priors of
+    the same sigma."""
+    from factors import keys as K
+
+    sc, p = small_pass
+    db, rows = _gcps_in_scenes(sc, p, per_scene=10**6)
+    assert rows.size >= 2
+    pg = build_pass_graph(p, sc.camera_model, sc.dem, db, GraphConfig(), exclude_observations=sc.load_truth(0).blunder)
+    scene = K.gcp_scene_key(0)
+    assert scene in pg.problem.dims and scene in pg.problem.eliminate_last
+    res = solve(pg.problem)
+    flat = pg.problem.flat()
+    x = flat.from_values(res.values)
+    j = flat.jacobian(x)
+    h = (j.T @ j).toarray()
+    blk, hlc, hcc, g, _ = flat.normal_equations(x)
+    n_l = 3 * blk.shape[0]
+    scale = np.abs(h).max()
+    np.testing.assert_allclose(hlc.reshape(n_l, -1), h[:n_l, n_l:], atol=1e-9 * scale)
+    np.testing.assert_allclose(hcc, h[n_l:, n_l:], atol=1e-9 * scale)
+    np.testing.assert_allclose(g, j.T @ flat.residual(x), atol=1e-9 * np.abs(g).max())
+    m = flat_marginals(flat, x)
+    for b in pg.problem.batches:
+        b.evaluate(res.values, True)
+    try:
+        ref = gtsam.Marginals(pg.problem.graph, res.values)
+        for k in [K.gcp_key(int(r)) for r in rows] + [scene]:
+            np.testing.assert_allclose(m[k], ref.marginalCovariance(k), rtol=1e-6)
+    finally:
+        for b in pg.problem.batches:
+            b.clear()
+    # the scene's common error: the mean of its GCPs is known less well than with independent
+    # priors (their differences better: the joint prior is not smaller in every direction)
+    keys = [K.gcp_key(int(r)) for r in rows]
+    pg0 = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(), exclude_observations=sc.load_truth(0).blunder)
+    avg = np.kron(np.full((1, rows.size), 1.0 / rows.size), np.eye(3))
+    var_mean = []
+    for q, r_ in ((pg, res), (pg0, solve(pg0.problem))):
+        for b in q.problem.batches:
+            b.evaluate(r_.values, True)
+        try:
+            joint = gtsam.Marginals(q.problem.graph, r_.values).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+        finally:
+            for b in q.problem.batches:
+                b.clear()
+        var_mean.append(np.trace(avg @ joint @ avg.T))
+    assert var_mean[0] > 1.05 * var_mean[1]
+
+
+def test_a_scene_of_one_gcp_is_its_plain_prior(small_pass):
+    """One GCP per scene: the offset and the own error add up to the catalogue's sigma, so the
+    solution and every landmark's marginal are those of the plain GCP prior."""
+    sc, p = small_pass
+    db, rows = _gcps_in_scenes(sc, p, per_scene=1)
+    ex = sc.load_truth(0).blunder
+    out = []
+    for gcps in (db, sc.gcps):
+        pg = build_pass_graph(p, sc.camera_model, sc.dem, gcps, GraphConfig(), exclude_observations=ex)
+        res = solve(pg.problem)
+        flat = pg.problem.flat()
+        out.append((pg, res, flat_marginals(flat, flat.from_values(res.values))))
+    (pga, ra, ma), (pgb, rb, mb) = out
+    assert len(pga.problem.dims) == len(pgb.problem.dims) + rows.size
+    for k in pgb.problem.eliminate_first:
+        np.testing.assert_allclose(ra.values.atVector(k), rb.values.atVector(k), atol=1e-3)
+        # the two solves stop at the same tolerance, not at the same point: 1e-5 of the block
+        np.testing.assert_allclose(ma[k], mb[k], rtol=1e-5, atol=1e-5 * np.abs(mb[k]).max())
