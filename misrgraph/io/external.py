@@ -10,7 +10,10 @@ grids (any raster GDAL reads, through rasterio).
   the 1-sigma (m) as ``sigma_m`` (every ENU axis), ``sigma_h_m`` + ``sigma_v_m`` (horizontal on
   east and north, vertical) or ``sigma_e_m`` + ``sigma_n_m`` + ``sigma_u_m``; optional ``id``
   (whole numbers, unique; default the row number from 0) and ``region``. Without a sigma column
-  ``default_sigma_m`` applies (m, every axis); without either the import stops.
+  ``default_sigma_m`` applies (m, every axis); without either the import stops. Optional
+  ``scene`` (the source scene a GCP was measured in: a whole number, empty or -1 for none) with
+  ``scene_sigma_m`` (m per ENU axis, the part of the sigma the scene's GCPs share; one value
+  per scene), which the adjustment turns into one shared offset per scene.
 * GeoJSON (RFC 7946): a FeatureCollection of Point features; ``coordinates`` are
   ``[lon, lat]`` or ``[lon, lat, h]`` with ``h`` the height above the WGS84 ellipsoid (RFC 7946
   section 4); ``properties`` may give ``id``, ``region``, the sigma columns above and a height
@@ -71,6 +74,8 @@ _ALIASES: dict[str, tuple[str, ...]] = {
     "sigma_n_m": ("sigma_n_m",),
     "sigma_u_m": ("sigma_u_m",),
     "region": ("region",),
+    "scene": ("scene", "source_scene"),
+    "scene_sigma_m": ("scene_sigma_m",),
 }
 
 
@@ -217,8 +222,22 @@ def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None =
     else:
         ids = np.arange(n, dtype=np.int64)
     region = np.array([str(r.get(cols["region"], "") or "") if cols["region"] else "" for r in records])
+    scene, scene_sigma = None, None
+    if (cols["scene"] is None) != (cols["scene_sigma_m"] is None):
+        have, need = ("scene", "scene_sigma_m") if cols["scene"] else ("scene_sigma_m", "scene")
+        raise InputError(f"{where}: column {need}", f"only {have}", "scene and scene_sigma_m together (or neither)")
+    if cols["scene"] is not None:
+        filled = [dict(r, **{cols["scene"]: -1 if r.get(cols["scene"]) in (None, "") else r[cols["scene"]]}) for r in records]
+        raw = _numbers(filled, cols["scene"], where, "a whole number (the source scene; empty or -1: none)")
+        if not np.all(raw == np.round(raw)):
+            i = int(np.flatnonzero(raw != np.round(raw))[0])
+            raise InputError(f"{where}: row {i} (column {cols['scene']})", float(raw[i]), "a whole number")
+        scene = raw.astype(np.int64)
+        filled = [dict(r, **{cols["scene_sigma_m"]: 0.0 if s_ < 0 and r.get(cols["scene_sigma_m"]) in (None, "")
+                             else r.get(cols["scene_sigma_m"])}) for r, s_ in zip(records, scene)]
+        scene_sigma = _numbers(filled, cols["scene_sigma_m"], where, "metres (the sigma the scene's GCPs share)")
     log.info("%s: %d GCPs", where, n)
-    return GcpDatabase(ids, lat, lon, height, sigma, region)
+    return GcpDatabase(ids, lat, lon, height, sigma, region, scene=scene, scene_sigma_m=scene_sigma)
 
 
 # -------------------------------------------------------------------------------- geoid grids

@@ -63,6 +63,22 @@ def test_csv_gcps_one_sigma_round_trip_through_the_cli(tmp_path):
     np.testing.assert_allclose(db.lon, [20, 21, 22])
 
 
+def test_csv_gcps_with_source_scenes_through_the_cli(tmp_path):
+    """A list that records each GCP's source scene: the shared sigma travels into the database
+    (and the own covariance is what is left of the stated sigma); an empty scene is none."""
+    p = _write_csv(tmp_path / "s.csv", "lat,lon,height,sigma_m,scene,scene_sigma_m",
+                   ["10,20,5,30,3,18", "10.2,20.1,6,30,3,18", "40,-100,900,20,,"])
+    out = tmp_path / "gcp.h5"
+    res = runner.invoke(app, ["import", "gcps", str(p), "--out", str(out), "--json"])
+    assert res.exit_code == 0, res.output
+    db = read_gcp_database(out)
+    assert db.scene.tolist() == [3, 3, -1]
+    np.testing.assert_allclose(db.scene_sigma_m, [18.0, 18.0, 0.0])
+    assert list(db.scenes()) == [3] and db.scenes()[3].tolist() == [0, 1]
+    np.testing.assert_allclose(np.linalg.eigvalsh(db.own_covariance_ecef()[0]), 30.0**2 - 18.0**2, rtol=1e-9)
+    np.testing.assert_allclose(np.linalg.eigvalsh(db.own_covariance_ecef()[2]), 400.0, rtol=1e-9)
+
+
 def test_geojson_gcps_height_from_the_third_coordinate(tmp_path):
     doc = {"type": "FeatureCollection", "features": [
         {"type": "Feature", "geometry": {"type": "Point", "coordinates": [-84.3, 36.6, 412.0]},
@@ -92,6 +108,9 @@ def test_heights_above_the_geoid_need_a_geoid(tmp_path):
     ("lat,lon,sigma_m", "10,10,3", "column height"),
     ("lat,lon,height", "10,10,3", "column sigma_m"),
     ("id,lat,lon,height,sigma_m", "1.5,10,10,3,3", "column id"),
+    ("lat,lon,height,sigma_m,scene", "10,10,3,3,1", "column scene_sigma_m"),
+    ("lat,lon,height,sigma_m,scene,scene_sigma_m", "10,10,3,30,1,40", "scene_sigma_m[0]"),
+    ("lat,lon,height,sigma_m,scene,scene_sigma_m", "10,10,3,30,1.5,10", "column scene"),
 ])
 def test_bad_gcp_list_names_row_and_column(tmp_path, header, row, field):
     p = _write_csv(tmp_path / "g.csv", header, [row])
