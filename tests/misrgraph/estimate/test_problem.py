@@ -292,3 +292,19 @@ def test_a_scene_of_one_gcp_is_its_plain_prior(small_pass):
         np.testing.assert_allclose(ra.values.atVector(k), rb.values.atVector(k), atol=1e-3)
         # the two solves stop at the same tolerance, not at the same point: 1e-5 of the block
         np.testing.assert_allclose(ma[k], mb[k], rtol=1e-5, atol=1e-5 * np.abs(mb[k]).max())
+
+
+def test_dem_sigma_scale_multiplies_the_stated_dem_sigma(small_pass):
+    """``dem_sigma_scale`` scales every DEM factor's sigma (the DEM's stated 1 sigma at the
+    landmark, :func:`fit_local_surface`) and nothing else; a non-positive factor is refused."""
+    from factors.dem_height import DemBatch
+    from misrgraph.errors import InputError
+
+    sc, p = small_pass
+    batches = [next(b for b in build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(dem_sigma_scale=f)).problem.batches
+                    if isinstance(b, DemBatch)) for f in (1.0, 2.0)]
+    np.testing.assert_array_equal(batches[0].keys, batches[1].keys)
+    np.testing.assert_allclose(batches[1].sigma_m, 2.0 * batches[0].sigma_m, rtol=1e-12)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(InputError, match="dem_sigma_scale"):
+            GraphConfig(dem_sigma_scale=bad)
