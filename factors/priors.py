@@ -1,5 +1,5 @@
-"""Prior factors: GCP position (eq. 32) -- alone, or sharing a source scene's error --, a-priori values of knots, ephemeris and camera, and
-the attitude error process's prior between consecutive knots.
+"""Prior factors: GCP position (eq. 32), alone or sharing a source scene's error; a-priori values
+of knots, ephemeris and camera; and the attitude error process's prior between consecutive knots.
 
 These are GTSAM's own C++ factors (no Python callback): ``PriorFactorVector`` and, for the
 process prior, a ``LinearContainerFactor`` holding a whitened ``JacobianFactor``. The GCP prior's
