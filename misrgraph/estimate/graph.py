@@ -327,10 +327,10 @@ def build_pass_graph(
     dem_sig: list[float] = []
     dem_rows: list[int] = []
     gcp_ecef = gcps.ecef() if gcps is not None else None
-    gcp_cov = gcps.covariance_ecef() if gcps is not None else None
     scenes = gcps.scenes() if gcps is not None and cfg.gcp_scenes else {}
     scene_of = {int(g): sc for sc, rows in scenes.items() for g in rows}
-    own_cov = gcps.own_covariance_ecef() if scenes and gcps is not None else None
+    # each GCP's own error: all of it where it has no scene (there the two are the same)
+    gcp_cov = (gcps.own_covariance_ecef() if scenes else gcps.covariance_ecef()) if gcps is not None else None
     scene_keys: list[int] = []
     for row in lm_rows:
         key = lm_key_of[row]
@@ -343,7 +343,7 @@ def build_pass_graph(
                 if add(key, gcp_ecef[gi]):
                     graph.add(gcp_prior(key, gcp_ecef[gi], gcp_cov[gi]))
                 continue
-            assert own_cov is not None and gcps.scene_sigma_m is not None
+            assert gcps.scene_sigma_m is not None
             sk = K.gcp_scene_key(sc)
             if sk not in dims:
                 scene_keys.append(sk)
@@ -353,7 +353,7 @@ def build_pass_graph(
                                          np.full(3, gcps.scene_sigma_m[r[0]]))
                     graph.add(scene_offset_prior(sk, c_s))
             if add(key, gcp_ecef[gi]):
-                graph.add(gcp_scene_prior(key, sk, gcp_ecef[gi], own_cov[gi]))
+                graph.add(gcp_scene_prior(key, sk, gcp_ecef[gi], gcp_cov[gi]))
         elif add(key, init[row]):
             dem_rows.append(row)
     if cfg.use_dem and dem is not None and dem_rows:

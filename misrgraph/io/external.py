@@ -133,10 +133,16 @@ def _column(records: list[dict[str, Any]], name: str) -> str | None:
     return None
 
 
-def _numbers(records: list[dict[str, Any]], alias: str, where: str, what: str) -> Array:
+def _numbers(records: list[dict[str, Any]], alias: str, where: str, what: str,
+             empty: Array | None = None) -> Array:
+    """Column ``alias`` as floats; every bad value is reported with its row. ``empty`` (one per
+    row): the value of an empty cell, where finite (NaN: the cell is required)."""
     out = np.empty(len(records))
     for i, r in enumerate(records):
         v = r.get(alias)
+        if v in (None, "") and empty is not None and math.isfinite(empty[i]):
+            out[i] = empty[i]
+            continue
         try:
             out[i] = float(v)  # type: ignore[arg-type]
         except (TypeError, ValueError):
@@ -145,6 +151,16 @@ def _numbers(records: list[dict[str, Any]], alias: str, where: str, what: str) -
             ident = f"id {r['id']}, " if r.get("id") not in (None, "") else ""
             raise InputError(f"{where}: row {i} ({ident}column {alias})", v, what)
     return out
+
+
+def _whole_numbers(records: list[dict[str, Any]], alias: str, where: str, what: str,
+                   empty: Array | None = None) -> NDArray[np.int64]:
+    """:func:`_numbers` that must be whole numbers."""
+    raw = _numbers(records, alias, where, what, empty)
+    if not np.all(raw == np.round(raw)):
+        i = int(np.flatnonzero(raw != np.round(raw))[0])
+        raise InputError(f"{where}: row {i} (column {alias})", float(raw[i]), "a whole number")
+    return raw.astype(np.int64)
 
 
 def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None = None,
@@ -211,11 +227,7 @@ def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None =
     if bad.size:
         raise InputError(f"{where}: row {bad[0]} (sigma)", np.reshape(sigma, (n, -1))[bad[0]].tolist(), "positive metres")
     if cols["id"] is not None:
-        raw = _numbers(records, cols["id"], where, "a whole number")
-        if not np.all(raw == np.round(raw)):
-            i = int(np.flatnonzero(raw != np.round(raw))[0])
-            raise InputError(f"{where}: row {i} (column {cols['id']})", float(raw[i]), "a whole number")
-        ids = raw.astype(np.int64)
+        ids = _whole_numbers(records, cols["id"], where, "a whole number")
         u, counts = np.unique(ids, return_counts=True)
         if np.any(counts > 1):
             raise InputError(f"{where}: column {cols['id']}", int(u[counts > 1][0]), "unique ids (this one repeats)")
@@ -227,15 +239,10 @@ def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None =
         have, need = ("scene", "scene_sigma_m") if cols["scene"] else ("scene_sigma_m", "scene")
         raise InputError(f"{where}: column {need}", f"only {have}", "scene and scene_sigma_m together (or neither)")
     if cols["scene"] is not None:
-        filled = [dict(r, **{cols["scene"]: -1 if r.get(cols["scene"]) in (None, "") else r[cols["scene"]]}) for r in records]
-        raw = _numbers(filled, cols["scene"], where, "a whole number (the source scene; empty or -1: none)")
-        if not np.all(raw == np.round(raw)):
-            i = int(np.flatnonzero(raw != np.round(raw))[0])
-            raise InputError(f"{where}: row {i} (column {cols['scene']})", float(raw[i]), "a whole number")
-        scene = raw.astype(np.int64)
-        filled = [dict(r, **{cols["scene_sigma_m"]: 0.0 if s_ < 0 and r.get(cols["scene_sigma_m"]) in (None, "")
-                             else r.get(cols["scene_sigma_m"])}) for r, s_ in zip(records, scene)]
-        scene_sigma = _numbers(filled, cols["scene_sigma_m"], where, "metres (the sigma the scene's GCPs share)")
+        scene = _whole_numbers(records, cols["scene"], where, "a whole number (the source scene; empty or -1: none)",
+                               empty=np.full(n, -1.0))
+        scene_sigma = _numbers(records, cols["scene_sigma_m"], where, "metres (the sigma the scene's GCPs share)",
+                               empty=np.where(scene < 0, 0.0, np.nan))  # required where the GCP has a scene
     log.info("%s: %d GCPs", where, n)
     return GcpDatabase(ids, lat, lon, height, sigma, region, scene=scene, scene_sigma_m=scene_sigma)
 

@@ -20,6 +20,18 @@ def solved(small_pass):
     return pg, solve(pg.problem)
 
 
+
+def _gtsam_marginals(problem, values) -> gtsam.Marginals:
+    """``gtsam.Marginals`` of a problem at ``values``: the factor batches' caches filled there
+    while GTSAM linearises and eliminates, cleared after (queries need neither)."""
+    for b in problem.batches:
+        b.evaluate(values, True)
+    try:
+        return gtsam.Marginals(problem.graph, values)
+    finally:
+        for b in problem.batches:
+            b.clear()
+
 def test_each_flat_row_points_at_its_factor(solved):
     pg, _ = solved
     prob = pg.problem
@@ -56,14 +68,7 @@ def test_every_marginal_path_agrees_with_gtsam(solved):
     flat_path = flat_marginals(prob.flat(), prob.flat().from_values(res.values))
     joint_keys = pg.knot_keys(1)[:4] + pg.ephemeris_keys()
     sparse_path = marginal_covariances(prob, res.values, joint_keys=joint_keys)
-    for b in prob.batches:
-        b.evaluate(res.values, True)
-    try:
-        ref = gtsam.Marginals(prob.graph, res.values)
-        ref_joint = ref.jointMarginalCovariance(gtsam.KeyVector(joint_keys)).fullMatrix()
-    finally:
-        for b in prob.batches:
-            b.clear()
+    ref_joint = _gtsam_marginals(prob, res.values).jointMarginalCovariance(gtsam.KeyVector(joint_keys)).fullMatrix()
     np.testing.assert_allclose(sparse_path.joint, ref_joint, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref_joint)))
     np.testing.assert_allclose(lin_path.joint_of(joint_keys), ref_joint, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref_joint)))
     for k in list(prob.dims)[::11]:
@@ -247,15 +252,9 @@ def test_gcp_scene_offsets_in_every_marginal_path(small_pass):
     np.testing.assert_allclose(hcc, h[n_l:, n_l:], atol=1e-9 * scale)
     np.testing.assert_allclose(g, j.T @ flat.residual(x), atol=1e-9 * np.abs(g).max())
     m = flat_marginals(flat, x)
-    for b in pg.problem.batches:
-        b.evaluate(res.values, True)
-    try:
-        ref = gtsam.Marginals(pg.problem.graph, res.values)
-        for k in [K.gcp_key(int(r)) for r in rows] + [scene]:
-            np.testing.assert_allclose(m[k], ref.marginalCovariance(k), rtol=1e-6)
-    finally:
-        for b in pg.problem.batches:
-            b.clear()
+    ref = _gtsam_marginals(pg.problem, res.values)
+    for k in [K.gcp_key(int(r)) for r in rows] + [scene]:
+        np.testing.assert_allclose(m[k], ref.marginalCovariance(k), rtol=1e-6)
     # the scene's common error: the mean of its GCPs is known less well than with independent
     # priors (their differences better: the joint prior is not smaller in every direction)
     keys = [K.gcp_key(int(r)) for r in rows]
@@ -263,13 +262,7 @@ def test_gcp_scene_offsets_in_every_marginal_path(small_pass):
     avg = np.kron(np.full((1, rows.size), 1.0 / rows.size), np.eye(3))
     var_mean = []
     for q, r_ in ((pg, res), (pg0, solve(pg0.problem))):
-        for b in q.problem.batches:
-            b.evaluate(r_.values, True)
-        try:
-            joint = gtsam.Marginals(q.problem.graph, r_.values).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
-        finally:
-            for b in q.problem.batches:
-                b.clear()
+        joint = _gtsam_marginals(q.problem, r_.values).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
         var_mean.append(np.trace(avg @ joint @ avg.T))
     assert var_mean[0] > 1.05 * var_mean[1]
 
