@@ -13,17 +13,22 @@ each GCP and ``C_s`` between any two GCPs of the scene, the catalogue's joint di
 linear in ``(P, o)``, a ``LinearContainerFactor``.
 
 The attitude process prior. Each angle's error ``e(t)`` (rad) is modelled as a stationary
-Matern-3/2 process, covariance ``C(tau) = sigma^2 (1 + lam |tau|) exp(-lam |tau|)``: its value has
-variance ``sigma^2`` and its rate ``(lam sigma)^2``, the two moments the navigation accuracy gives.
-Its state ``x = (value, rate)`` is Markov, ``dx = F x dt + L dw`` with
-``F = [[0, 1], [-lam^2, -2 lam]]``, so over a knot spacing ``T``
+second-order Gauss-Markov process (a damped oscillator driven by white noise): its state
+``x = (value, rate)`` obeys ``dx = F x dt + L dw`` with ``F = [[0, 1], [-lam^2, -2 zeta lam]]``.
+Its value has variance ``sigma^2`` and its rate ``(lam sigma)^2`` whatever the damping ratio
+``zeta`` -- the two moments the navigation accuracy gives; ``zeta`` shapes the spectrum: 1 is the
+critically damped Matern-3/2 process, covariance ``C(tau) = sigma^2 (1 + lam |tau|) exp(-lam |tau|)``;
+below 1 the power concentrates near ``lam`` and the low frequencies carry less (the spectral density
+at zero is proportional to ``zeta``), as for an error that varies on the scale of hundreds of
+seconds with no long-term offset. Over a knot spacing ``T``
 
-    x_{k+1} = Phi(T) x_k + w_k,   Phi(T) = exp(-lam T) [[1 + lam T, T], [-lam^2 T, 1 - lam T]],
+    x_{k+1} = Phi(T) x_k + w_k,   Phi(T) = expm(F T),
     w_k ~ N(0, Q(T)),            Q(T) = P - Phi P Phi^T,   P = diag(sigma^2, lam^2 sigma^2),
 
-exactly. A prior ``N(0, P)`` on the first knot and one factor ``x_{k+1} - Phi x_k ~ N(0, Q)`` per
-pair give the knots their exact joint distribution under the process: every knot's marginal is
-``P`` however long the data gap, and the a-posteriori sigma can never exceed it.
+exactly (P is the stationary covariance). A prior ``N(0, P)`` on the first knot and one factor
+``x_{k+1} - Phi x_k ~ N(0, Q)`` per pair give the knots their exact joint distribution under the
+process: every knot's marginal is ``P`` however long the data gap, and the a-posteriori sigma can
+never exceed it.
 """
 
 from __future__ import annotations
@@ -31,8 +36,9 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import expm
 
-__all__ = ["gcp_prior", "gcp_scene_prior", "scene_offset_prior", "vector_prior", "matern32_transition", "process_prior_factors", "linear_factor"]
+__all__ = ["gcp_prior", "gcp_scene_prior", "scene_offset_prior", "vector_prior", "process_transition", "process_prior_factors", "linear_factor"]
 
 
 def gcp_prior(key: int, position_ecef: ArrayLike, covariance: ArrayLike) -> gtsam.PriorFactorVector:
@@ -59,14 +65,18 @@ def vector_prior(key: int, mean: ArrayLike, sigmas: ArrayLike) -> gtsam.PriorFac
     return gtsam.PriorFactorVector(key, m, gtsam.noiseModel.Diagonal.Sigmas(np.broadcast_to(np.asarray(sigmas, float), m.shape).copy()))
 
 
-def matern32_transition(dt: float, sigma: float, lam: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(Phi, Q)`` (2x2 each) of the Matern-3/2 state ``(value, rate)`` over ``dt`` s (module
+def process_transition(dt: float, sigma: float, lam: float, zeta: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """``(Phi, Q)`` (2x2 each) of the process state ``(value, rate)`` over ``dt`` s (module
     docstring): ``x(t + dt) = Phi x(t) + w``, ``w ~ N(0, Q)``; ``sigma`` in the value's unit,
-    ``lam`` in 1/s (the rate's sigma is ``lam sigma`` per s)."""
-    if not (dt > 0 and sigma > 0 and lam > 0):
-        raise ValueError(f"matern32_transition needs dt, sigma, lam > 0, got {dt}, {sigma}, {lam}")
-    e = np.exp(-lam * dt)
-    phi = e * np.array([[1.0 + lam * dt, dt], [-lam * lam * dt, 1.0 - lam * dt]])
+    ``lam`` in 1/s (the rate's sigma is ``lam sigma`` per s), ``zeta`` the damping ratio (1:
+    Matern-3/2, in closed form; otherwise the matrix exponential)."""
+    if not (dt > 0 and sigma > 0 and lam > 0 and zeta > 0):
+        raise ValueError(f"process_transition needs dt, sigma, lam, zeta > 0, got {dt}, {sigma}, {lam}, {zeta}")
+    if zeta == 1.0:
+        e = np.exp(-lam * dt)
+        phi = e * np.array([[1.0 + lam * dt, dt], [-lam * lam * dt, 1.0 - lam * dt]])
+    else:
+        phi = expm(np.array([[0.0, 1.0], [-lam * lam, -2.0 * zeta * lam]]) * dt)
     p = np.diag([sigma**2, (lam * sigma) ** 2])
     q = p - phi @ p @ phi.T
     return phi, 0.5 * (q + q.T)
@@ -87,15 +97,15 @@ def linear_factor(keys: list[int], blocks: list[np.ndarray], rhs: ArrayLike,
     return gtsam.LinearContainerFactor(jf, zero)
 
 
-def process_prior_factors(keys: list[int], times: ArrayLike, sigma: float, lam: float) -> list:
-    """The Matern-3/2 prior of one angle's knots ``(value, rate)`` at increasing ``times`` (s):
-    ``N(0, diag(sigma^2, (lam sigma)^2))`` on the first knot and ``x_{k+1} - Phi x_k ~ N(0, Q)``
-    between consecutive knots (module docstring)."""
+def process_prior_factors(keys: list[int], times: ArrayLike, sigma: float, lam: float, zeta: float = 1.0) -> list:
+    """The process prior of one angle's knots ``(value, rate)`` at increasing ``times`` (s), damping
+    ratio ``zeta``: ``N(0, diag(sigma^2, (lam sigma)^2))`` on the first knot and
+    ``x_{k+1} - Phi x_k ~ N(0, Q)`` between consecutive knots (module docstring)."""
     t = np.asarray(times, dtype=float)
     if t.size != len(keys) or t.size == 0 or np.any(np.diff(t) <= 0):
         raise ValueError(f"process_prior_factors needs one increasing time per key, got {t.size} times for {len(keys)} keys")
     out: list = [vector_prior(keys[0], np.zeros(2), [sigma, lam * sigma])]
     for k0, k1, dt in zip(keys[:-1], keys[1:], np.diff(t)):
-        phi, q = matern32_transition(float(dt), sigma, lam)
+        phi, q = process_transition(float(dt), sigma, lam, zeta)
         out.append(linear_factor([k0, k1], [-phi, np.eye(2)], np.zeros(2), q))
     return out

@@ -119,7 +119,7 @@ def exact_pass(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("scen") / "exact"
     run_simulate(ScenarioConfig(scenario="pass", seed=21, n_tie_points=40, n_check_points=0, duration_s=900.0,
-                                start_lat_deg=55.0, noise_free=True, camera_residual_px=0.0), out)
+                                start_lat_deg=55.0, noise_free=True, camera_residual_px=0.0, camera_f_alpha_px=0.0), out)
     sc = load_scenario(out)
     return sc, sc.load_pass(0)
 

@@ -18,6 +18,7 @@ from rich.console import Console
 from rich.table import Table
 
 from misrgraph.errors import InputError, MisrGraphError
+from misrgraph.model.errormodels import ATTITUDE_DAMPING
 
 __all__ = ["app", "main"]
 
@@ -228,6 +229,7 @@ def adjust(
     threshold2: int = typer.Option(1, "--threshold2", help="Eq. 29: minimum cameras per knot support (the seed suggests 3)."),
     knot_rule: str = typer.Option("support", "--knot-rule", help="Eqs. 28-29 on each knot's support (default) or, literally, on [t_i, t_i+1) ('interval'); with --knot-prior independent only."),
     knot_prior: str = typer.Option("process", "--knot-prior", help="'process': consecutive knots tied by the attitude error process, every knot kept (default); 'independent': the seed's independent knot priors with eqs. 28-29's knot removal."),
+    knot_damping: float = typer.Option(ATTITUDE_DAMPING, "--knot-damping", help="Damping ratio of the process knot prior (1: Matern-3/2; the default fits an attitude error with periods of 200-2000 s, see docs/conventions.md)."),
     no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
     dem_sigma_scale: float = typer.Option(2.0, "--dem-sigma-scale", help="The DEM height factors' sigma is the DEM's stated sigma times this (2: an empirical factor, see docs/design.md)."),
     robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
@@ -244,8 +246,8 @@ def adjust(
 
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
-                                      knot_prior=knot_prior, use_dem=not no_dem, dem_sigma_scale=dem_sigma_scale,
-                                      robust=robust, max_iterations=max_iterations,
+                                      knot_prior=knot_prior, knot_prior_damping=knot_damping, use_dem=not no_dem,
+                                      dem_sigma_scale=dem_sigma_scale, robust=robust, max_iterations=max_iterations,
                                       snooping_rounds=snooping_rounds, variance_component_rounds=variance_components,
                                       accept_unconverged=accept_unconverged))
     with err_console.status("adjusting...") as st:
@@ -335,6 +337,7 @@ def calibrate(
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database; default SCENARIO_DIR/gcp.h5."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write the recalibrated camera model (HDF5, with covariance)."),
     params: str = typer.Option("delta,beta,epsilon", "--params", help="Comma list from: delta, beta, epsilon, f, alpha0..alpha5, omega."),
+    focal_prior_px: float = typer.Option(0.0, "--focal-prior-px", help="Prior of f and alpha_i (when in --params): the pre-flight focal plane known to this many pixels at the swath edge; 0: the wide post-launch prior."),
     per_band: bool = typer.Option(False, "--per-band", help="Separate corrections per camera and band."),
     temperature_bins: int = typer.Option(1, "--temperature-bins", help="Thermal calibration: split the passes into N bins of equal count by camera temperature, estimate the corrections per bin, write a temperature table and report each parameter's slope per deg C (1: one set for all temperatures)."),
     max_passes: Optional[int] = typer.Option(None, "--max-passes", help="Use only the first N passes."),
@@ -356,7 +359,7 @@ def calibrate(
     bad = [p for p in names if p not in CAMERA_PARAMS]
     if bad or not names:
         _fail(f"--params: got {bad[0] if bad else params!r}; expected a comma list of {', '.join(CAMERA_PARAMS)}, omega")
-    cfg = CalibrateConfig.from_dict(dict(params=tuple(names), per_band=per_band, estimate_omega=omega,
+    cfg = CalibrateConfig.from_dict(dict(params=tuple(names), per_band=per_band, estimate_omega=omega, focal_prior_px=focal_prior_px,
                                          temperature_bins=temperature_bins, max_iterations=max_iterations,
                                          accept_unconverged=accept_unconverged,
                                          variance_component_rounds=variance_components))
@@ -910,11 +913,15 @@ def bench_nees(
     if as_json:
         _print_json(res)
         return
+    if res["adjust_overrides"]:
+        console.print(f"adjustment settings under the {truth} truth: {res['adjust_overrides']}")
     for k, v in res["summary"].items():
         pr = v["per_run"]
         scatter = f"mean of runs {pr['mean']:.3f}, 95 % interval [{pr['ci95'][0]:.3f}, {pr['ci95'][1]:.3f}]"
         if "nees_per_dim" not in v:
-            console.print(f"{study} {k}: {scatter}")
+            rr = v.get("rms_of_runs")
+            rms = f"; RMS of runs {rr['rms']:.3f} [{rr['ci95'][0]:.3f}, {rr['ci95'][1]:.3f}]" if rr else ""
+            console.print(f"{study} {k}: {scatter}{rms}")
             continue
         console.print(f"{study} {k}: NEES/dim {v['nees_per_dim']:.3f}, 95 % band [{v['band'][0]:.3f}, {v['band'][1]:.3f}] "
                       f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}; {scatter}")
@@ -942,13 +949,15 @@ def bench_pp(
         _print_json(res)
         return
     table = Table(title=f"PP honesty over {runs} {size} passes ({truth} truth): mean and 95 % interval of the runs")
-    for col in ("camera", "passes", "RMS / predicted", "NEES", "better than supplied"):
+    for col in ("camera", "passes", "RMS / predicted (mean)", "RMS / predicted (RMS of runs)", "NEES", "better than supplied"):
         table.add_column(col, justify="right")
     fmt = lambda v: f"{v['mean']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]"  # noqa: E731
+    fmr = lambda v: f"{v['rms']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]"  # noqa: E731
     for cam, v in res["summary"]["per_camera"].items():
-        table.add_row(cam, str(v["passes"]), fmt(v["rms_over_predicted"]), fmt(v["nees"]),
-                      f"{v['improvement_over_supplied']['mean']:.1f}x")
-    table.add_row("all", str(runs), fmt(res["summary"]["rms_over_predicted_all_cameras"]), fmt(res["summary"]["nees_all_cameras"]), "")
+        table.add_row(cam, str(v["passes"]), fmt(v["rms_over_predicted"]), fmr(v["rms_over_predicted_rms_of_runs"]),
+                      fmt(v["nees"]), f"{v['improvement_over_supplied']['mean']:.1f}x")
+    table.add_row("all", str(runs), fmt(res["summary"]["rms_over_predicted_all_cameras"]),
+                  fmr(res["summary"]["rms_over_predicted_all_cameras_rms_of_runs"]), fmt(res["summary"]["nees_all_cameras"]), "")
     console.print(table)
 
 
@@ -1001,14 +1010,14 @@ def bench_sources(
         return
     from rich.table import Table
 
-    cols = ("knots", "landmarks", "checkpoint_rms_over_predicted", "checkpoint_rms_m")
-    table = Table(title=f"independent truth, {size} passes, {runs} seeds: mean [95 % interval]")
+    cols = ("knots", "landmarks", "checkpoint_rms_over_predicted", "checkpoint_rms_over_predicted_rms_of_runs", "checkpoint_rms_m")
+    table = Table(title=f"independent truth, {size} passes, {runs} seeds: mean (the ratio also as the RMS of runs) [95 % interval]")
     table.add_column("source")
     for c in cols:
         table.add_column(c)
     for name, row in res["rows"].items():
-        table.add_row(name, *[f"{row[c]['mean']:.2f} [{row[c]['ci95'][0]:.2f}, {row[c]['ci95'][1]:.2f}]" if c in row else "-"
-                              for c in cols])
+        table.add_row(name, *[f"{row[c].get('mean', row[c].get('rms')):.2f} [{row[c]['ci95'][0]:.2f}, {row[c]['ci95'][1]:.2f}]"
+                              if c in row else "-" for c in cols])
     console.print(table)
 
 

@@ -42,7 +42,7 @@ from misrgraph.config import Config
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.gcp import GcpDatabase
-from misrgraph.estimate.graph import CAMERA_PRIOR_SIGMA, GraphConfig, PassGraph, build_pass_graph, merge_problems
+from misrgraph.estimate.graph import GraphConfig, calibration_prior_sigma, PassGraph, build_pass_graph, merge_problems
 from misrgraph.io.results import capped_list
 from misrgraph.io.passes import KIND_GCP, OrbitPass
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
@@ -67,6 +67,11 @@ class CalibrateConfig(Config):
     estimate_omega: bool = False
     knot_spacing_s: tuple = (60.0, 60.0, 60.0)
     knot_prior: str = "process"
+    #: 0: f and alpha_i (when among ``params``) get the wide pre-flight prior of
+    #: :data:`~misrgraph.estimate.graph.CAMERA_PRIOR_SIGMA`; > 0: the prior of a focal plane
+    #: measured before flight to this many pixels at the swath edge
+    #: (:func:`~misrgraph.estimate.graph.calibration_prior_sigma`)
+    focal_prior_px: float = 0.0
     robust: str = "cauchy"
     robust_k: float = 3.0
     reject_sigma: float = 5.0
@@ -93,11 +98,14 @@ class CalibrateConfig(Config):
             raise InputError("variance_component_rounds", v, "an integer >= 0")
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
+        if not (np.isfinite(self.focal_prior_px) and self.focal_prior_px >= 0):
+            raise InputError("focal_prior_px", self.focal_prior_px, "0 (the wide pre-flight prior) or a positive 1 sigma in pixels")
 
     def graph_config(self, **kw: Any) -> GraphConfig:
         base = dict(knot_spacing_s=self.knot_spacing_s, knot_prior=self.knot_prior, threshold1=0, threshold2=0, use_dem=False,
                     estimate_camera=True, camera_params=tuple(self.params), camera_per_band=self.per_band,
-                    camera_prior_calibration=True, estimate_omega=self.estimate_omega)
+                    camera_prior_calibration=True, calibration_focal_prior_px=self.focal_prior_px,
+                    estimate_omega=self.estimate_omega)
         base.update(kw)
         return GraphConfig.from_dict(base)
 
@@ -301,8 +309,9 @@ def calibrate_passes(
                           + ([np.ones(3)] if cfg.estimate_omega else []))
     x = x * unit
     cov = cov * np.outer(unit, unit)
-    prior = np.array([CAMERA_PRIOR_SIGMA[p] for _ in cams for p in cfg.params]
-                     + ([GraphConfig().omega_prior_rad] * 3 if cfg.estimate_omega else []))
+    prior = np.concatenate([calibration_prior_sigma(supplied_models[0], decode_camera_key(ck, cfg)[1], tuple(cfg.params),
+                                                    cfg.focal_prior_px) for ck in cams]
+                           + [np.full(3 if cfg.estimate_omega else 0, GraphConfig().omega_prior_rad)])
     prov = {"source": "misrgraph calibrate", "software": f"misrgraph {__version__}",
             "passes": str(len(passes)), "params": ",".join(cfg.params)}
     models = []

@@ -28,7 +28,7 @@ from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
-from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, interval_counts, knots_to_remove
+from misrgraph.model.errormodels import ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, interval_counts, knots_to_remove
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
@@ -36,7 +36,7 @@ from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.estimate.problem import Problem
 
 __all__ = ["GraphConfig", "calibrated_camera_sigma", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
-           "CAMERA_PRIOR_SIGMA", "merge_problems", "merge_flat"]
+           "CAMERA_PRIOR_SIGMA", "calibration_prior_sigma", "merge_problems", "merge_flat"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -50,8 +50,8 @@ CAMERA_PRIOR_SIGMA = dict(zip(CAMERA_PARAMS, (1.745e-3, 1.745e-3, 1.745e-3, 2e-4
 
 
 #: How the attitude knots are held a priori: ``"process"`` (default) ties consecutive knots by the
-#: attitude error process (:func:`factors.priors.process_prior_factors`, a Matern-3/2 process with
-#: the navigation's value and rate sigmas) and keeps every knot; ``"independent"`` is the seed's
+#: attitude error process (:func:`factors.priors.process_prior_factors`, a damped-oscillator process
+#: with the navigation's value and rate sigmas) and keeps every knot; ``"independent"`` is the seed's
 #: rule: an independent prior per knot and eqs. 28-29's knot removal where data are scarce.
 KNOT_PRIORS = ("process", "independent")
 
@@ -66,6 +66,10 @@ class GraphConfig(Config):
     threshold2: int = 1
     knot_rule: str = "support"
     knot_prior: str = "process"
+    #: damping ratio of the ``"process"`` knot prior (1: Matern-3/2); the default fits the
+    #: correlation of an attitude error with periods of 200-2000 s
+    #: (:data:`~misrgraph.model.errormodels.ATTITUDE_DAMPING`)
+    knot_prior_damping: float = ATTITUDE_DAMPING
     ephemeris_segments: int = 1
     attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
     ephemeris_b_sigma_m: float = 50.0
@@ -79,6 +83,11 @@ class GraphConfig(Config):
     #: (:func:`calibrated_camera_sigma`)
     camera_focal_prior_px: float = 0.05
     camera_prior_calibration: bool = False
+    #: with ``camera_prior_calibration``: 0 gives f and alpha_i the wide pre-flight prior of
+    #: :data:`CAMERA_PRIOR_SIGMA`; a positive value gives them the prior of a measured focal plane
+    #: known to this many pixels at the swath edge (:func:`calibrated_camera_sigma`), the angles
+    #: keeping their wide prior
+    calibration_focal_prior_px: float = 0.0
     estimate_omega: bool = False
     omega_prior_rad: float = 1.745e-3
     use_dem: bool = True
@@ -111,6 +120,8 @@ class GraphConfig(Config):
             raise InputError("knot_prior", self.knot_prior, KNOT_PRIORS)
         if self.knot_rule not in ("interval", "support"):
             raise InputError("knot_rule", self.knot_rule, ("interval", "support"))
+        if not (np.isfinite(self.knot_prior_damping) and self.knot_prior_damping > 0):
+            raise InputError("knot_prior_damping", self.knot_prior_damping, "a positive damping ratio (1: Matern-3/2)")
         if not (np.isfinite(self.dem_sigma_scale) and self.dem_sigma_scale > 0):
             raise InputError("dem_sigma_scale", self.dem_sigma_scale, "a positive factor on the DEM's stated sigma")
         if len(self.attitude_sigma_arcsec) != 3 or not min(self.attitude_sigma_arcsec) > 0:
@@ -122,6 +133,9 @@ class GraphConfig(Config):
         for name in ("camera_prior_px", "camera_focal_prior_px"):
             if not getattr(self, name) > 0:
                 raise InputError(name, getattr(self, name), "a positive 1 sigma in pixels")
+        if not (np.isfinite(self.calibration_focal_prior_px) and self.calibration_focal_prior_px >= 0):
+            raise InputError("calibration_focal_prior_px", self.calibration_focal_prior_px,
+                             "0 (the wide pre-flight prior) or a positive 1 sigma in pixels")
 
 
 @dataclass
@@ -372,7 +386,8 @@ def build_pass_graph(
         for k in ks:
             add(k, np.zeros(2))
         if cfg.knot_prior == "process":
-            for f in process_prior_factors(ks, att_kept.knot_times[a], float(att_sig[a]), ATTITUDE_RATE_FACTOR):
+            for f in process_prior_factors(ks, att_kept.knot_times[a], float(att_sig[a]), ATTITUDE_RATE_FACTOR,
+                                           cfg.knot_prior_damping):
                 graph.add(f)
         else:
             for k in ks:
@@ -386,7 +401,7 @@ def build_pass_graph(
         c = (ck % 1000) // 10 if cfg.camera_per_band else ck % 1000
         scale = camera_param_scale(cfg.camera_params)
         if cfg.camera_prior_calibration:
-            sig = np.array([CAMERA_PRIOR_SIGMA[p] for p in cfg.camera_params]) / scale
+            sig = calibration_prior_sigma(camera, c, cfg.camera_params, cfg.calibration_focal_prior_px) / scale
         else:
             sig = calibrated_camera_sigma(camera, c, cfg.camera_params, cfg.camera_prior_px, cfg.camera_focal_prior_px) / scale
         if add(k, np.zeros(len(cfg.camera_params))):
@@ -401,6 +416,24 @@ def build_pass_graph(
              lm_rows.size, [t.size for t in att_kept.knot_times], [r.size for r in removed])
     return PassGraph(problem, pass_index, att_kept, removed, eph, lm_rows,
                      np.array([lm_key_of[r] for r in lm_rows], np.int64), idx, coll, camera_keys, tuple(cfg.camera_params))
+
+
+def calibration_prior_sigma(camera: CameraModel, cam: int, params: tuple[str, ...], focal_px: float = 0.0) -> Array:
+    """A-priori 1 sigma (SI, ``(len(params),)``) of camera ``cam``'s corrections in a calibration:
+    :data:`CAMERA_PRIOR_SIGMA` (pre-flight knowledge after launch), except that with
+    ``focal_px`` > 0 f and alpha_i get the prior of a focal plane known to ``focal_px`` pixels at
+    the swath edge (:func:`calibrated_camera_sigma`)."""
+    wide = np.array([CAMERA_PRIOR_SIGMA[p] for p in params])
+    if focal_px <= 0:
+        return wide
+    focal = [p for p in params if p == "f" or p.startswith("alpha")]
+    if not focal:
+        return wide
+    narrow = calibrated_camera_sigma(camera, cam, tuple(focal), 1.0, focal_px)
+    out = wide.copy()
+    for p, v in zip(focal, narrow):
+        out[params.index(p)] = v
+    return out
 
 
 def calibrated_camera_sigma(camera: CameraModel, cam: int, params: tuple[str, ...], angle_px: float,

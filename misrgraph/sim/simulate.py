@@ -14,7 +14,7 @@ Two scenarios, following the paper's order of work:
 Injected navigation errors per pass: ephemeris (eq. 19) b ~ N(0, 50 m) per orbital axis (150 m
 3 sigma), drift a ~ N(0, 0.05 m/s) along track and N(0, 0.01 m/s) across/radial; attitude (eqs.
 23-27) with the model truth a cubic Hermite spline through knots every 60 s drawn from the
-estimator's own Matern-3/2 process prior; with the independent truth a smooth random process
+estimator's own process prior (damped oscillator, :mod:`factors.priors`); with the independent truth a smooth random process
 (periods 200-2000 s) plus jitter; 1 sigma 41/3, 44/3, 36/3 arcsec for roll, pitch, yaw (the
 3-sigma knowledge requirement). The supplied navigation is the measured
 one; the truth is ``P = P_meas - T_go e``, ``A = A_meas - E`` (docs/conventions.md). All
@@ -45,8 +45,8 @@ from misrgraph.sim.terrain import SyntheticTerrain, land_mask, simulate_dem_tile
 from misrgraph.io.dem import read_dem, save_dem
 from misrgraph.io.gcp import read_gcp_database, save_gcp_database
 from misrgraph.io.truth import PassTruth, read_gcp_truth, read_pass_truth, save_pass_with_truth
-from factors.priors import matern32_transition
-from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, uniform_knots
+from factors.priors import process_transition
+from misrgraph.model.errormodels import ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, uniform_knots
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
@@ -83,6 +83,9 @@ RED = BANDS.index("red")
 
 #: the truths the simulator can draw (see :class:`ScenarioConfig`)
 TRUTHS = ("model", "independent")
+#: the model truth's supplied alpha_2, alpha_3 errors come from their own random stream, seeded by
+#: (scenario seed, this number)
+MODEL_ALPHA_STREAM = 7
 
 #: DEM postings each side of a landmark the tiles cover when imagery is rendered (8 without): a
 #: matched tie point is An's interest point, up to 3 px (825 m) from the window centre, which is
@@ -116,7 +119,9 @@ class ScenarioConfig(Config):
     * ``camera_f_alpha_px``: 1 sigma (px at the swath edge, |s - c_y| = 752) of errors in f and in
       the field-angle polynomial's alpha_2 and alpha_3 of the true camera, which the supplied
       model does not carry (it keeps the pre-flight values; the default calibration estimates
-      delta, beta, epsilon only, the pass adjustment also alpha_2, alpha_3 within their prior);
+      delta, beta, epsilon only, the pass adjustment also alpha_2, alpha_3 within their prior).
+      Under the model truth it is the 1 sigma of the supplied model's alpha_2, alpha_3 error
+      instead (f exact), as the adjustment's prior ``camera_focal_prior_px`` states it;
     * ``noise_tail_dof``: matching noise is Student-t with this many degrees of freedom scaled to
       the stated sigma (0: Gaussian); ``mismatch_rate`` of tie-point and GCP measurements are
       mismatches of ``mismatch_px`` (uniform in the range, random direction);
@@ -335,12 +340,13 @@ def draw_attitude_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: 
 def sample_process_knots(rng: np.random.Generator, times: Array, sigma: float) -> Array:
     """Knots ``(value, rate)`` ``(N, 2)`` at ``times`` drawn from the estimator's own attitude
     process prior (:func:`factors.priors.process_prior_factors`, rate factor
-    :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR`): the ``truth="model"`` draw."""
+    :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR`, damping
+    :data:`~misrgraph.model.errormodels.ATTITUDE_DAMPING`): the ``truth="model"`` draw."""
     lam = ATTITUDE_RATE_FACTOR
     x = np.empty((times.size, 2))
     x[0] = rng.standard_normal(2) * [sigma, lam * sigma]
     for k, dt in enumerate(np.diff(times)):
-        phi, q = matern32_transition(float(dt), sigma, lam)
+        phi, q = process_transition(float(dt), sigma, lam, ATTITUDE_DAMPING)
         x[k + 1] = phi @ x[k] + np.linalg.cholesky(q) @ rng.standard_normal(2)
     return x
 
@@ -411,8 +417,17 @@ def perturb_focal_plane(rng: np.random.Generator, camera: CameraModel, px: float
     camera (all bands alike) so that each moves a pixel at the swath edge (|s - c_y| = 752) by
     N(0, ``px``) pixels: ``df / f ~ N(0, px / 752)``, ``d alpha_i ~ N(0, px alpha_1 / 752^i)``."""
     m = camera.copy()
+    m.focal_length *= 1.0 + (rng.standard_normal(len(CAMERAS)) * px / 752.0)[:, None]
+    return perturb_field_angles(rng, m, px)
+
+
+def perturb_field_angles(rng: np.random.Generator, camera: CameraModel, px: float) -> CameraModel:
+    """Copy of ``camera`` with the field-angle polynomial's alpha_2, alpha_3 perturbed per camera
+    (all bands alike): ``d alpha_i ~ N(0, px alpha_1 / 752^i)`` moves a pixel at the swath edge
+    (|s - c_y| = 752) by N(0, ``px``) pixels each -- the a-priori 1 sigma the pass adjustment
+    gives them (:func:`misrgraph.estimate.graph.calibrated_camera_sigma`)."""
+    m = camera.copy()
     nc = len(CAMERAS)
-    m.focal_length *= 1.0 + (rng.standard_normal(nc) * px / 752.0)[:, None]
     for i in (2, 3):
         m.alpha[:, :, i] += (rng.standard_normal(nc)[:, None] * px * m.alpha[:, :, 1] / 752.0**i)
     return m
@@ -722,6 +737,12 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         if independent:  # a calibration of delta, beta, epsilon keeps the pre-flight f and alpha
             supplied.focal_length[:] = nominal.focal_length
             supplied.alpha[:] = nominal.alpha
+        elif cfg.camera_f_alpha_px > 0:
+            # the model truth: the supplied alpha_2, alpha_3 off by the adjustment's own prior (f
+            # exact, as the adjustment holds it); drawn from a stream of their own so that every
+            # other draw of the scenario stays as it was
+            supplied = perturb_field_angles(np.random.default_rng([cfg.seed, MODEL_ALPHA_STREAM]), supplied,
+                                            cfg.camera_f_alpha_px)
         supplied.provenance = {"source": "calibrated model (truth + residual error)", "residual_px": str(cfg.camera_residual_px)}
         if isinstance(truth_model, TabulatedCameraModel):
             # a calibrated thermal table: the same residual error at every temperature

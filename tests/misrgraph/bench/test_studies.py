@@ -22,6 +22,29 @@ def test_interval_from_the_run_to_run_scatter():
     assert iv["mean"] == 2.0 and iv["ci95"] == pytest.approx([2.0 - half, 2.0 + half], rel=1e-12)
 
 
+def test_rms_of_runs_is_unbiased_where_the_mean_ratio_is_not():
+    """Closed form on 1, 2, 3 (RMS sqrt(14/3), the t interval of the squares square-rooted); and on
+    4000 honest runs with k = 3 effective degrees of freedom each (ratio sqrt(chi2_3 / 3)), the
+    RMS of the ratios is 1 within 4 standard errors of the mean square (sqrt(2/3) / sqrt(4000))
+    while their mean is E[chi_3] / sqrt(3) = 0.921 (closed form)."""
+    from scipy import stats
+    from scipy.special import gamma
+
+    from misrgraph.bench.studies import _rms_interval
+
+    iv = _rms_interval([1.0, 2.0, 3.0])
+    sq = np.array([1.0, 4.0, 9.0])
+    half = stats.t.ppf(0.975, 2) * sq.std(ddof=1) / np.sqrt(3)
+    assert iv["rms"] == pytest.approx(np.sqrt(14 / 3), rel=1e-12)
+    assert iv["ci95"] == pytest.approx([np.sqrt(max(14 / 3 - half, 0.0)), np.sqrt(14 / 3 + half)], rel=1e-12)
+    r = np.sqrt(np.random.default_rng(8).chisquare(3, 4000) / 3)
+    se = np.sqrt(2 / 3) / np.sqrt(4000)
+    assert abs(_rms_interval(list(r))["rms"] ** 2 - 1.0) < 4 * se
+    mean_ratio = np.sqrt(2 / 3) * gamma(2.0) / gamma(1.5)
+    assert mean_ratio == pytest.approx(0.921, abs=1e-3)
+    assert abs(r.mean() - mean_ratio) < 4 * r.std() / np.sqrt(r.size)
+
+
 def test_bench_nees_per_class_at_reduced_size(tmp_path):
     """Two reduced adjustment runs: every class (knots, ephemeris, camera, landmarks, state) is
     reported with its chi-square band and an interval from the runs; an unknown size is refused."""
@@ -29,6 +52,7 @@ def test_bench_nees_per_class_at_reduced_size(tmp_path):
     from misrgraph.errors import InputError
 
     r = run_bench_nees("adjust", runs=2, seed=1000, workdir=tmp_path)
+    assert r["truth"] == "model" and r["adjust_overrides"] == {"dem_sigma_scale": 1.0, "attitude_jitter_arcsec": 0.0}
     assert set(r["summary"]) >= {"knots", "ephemeris", "landmarks", "state", "checkpoint_rms_over_predicted",
                                  "checkpoint_rms_m"}
     for k, v in r["summary"].items():
@@ -38,6 +62,8 @@ def test_bench_nees_per_class_at_reduced_size(tmp_path):
         if "band" in v:
             assert v["band"][0] < 1 < v["band"][1], k
         assert v["per_run"]["mean"] == pytest.approx(np.mean([p[k] for p in r["per_run"]]))
+    rr = r["summary"]["checkpoint_rms_over_predicted"]["rms_of_runs"]
+    assert rr["rms"] == pytest.approx(np.sqrt(np.mean([p["checkpoint_rms_over_predicted"] ** 2 for p in r["per_run"]])))
     with pytest.raises(InputError, match="size"):
         run_bench_nees("adjust", runs=1, size="huge", workdir=tmp_path)
 

@@ -101,6 +101,30 @@ def test_undeterminable_parameters_are_reported(month):
     assert "An.delta" not in flagged and "An.epsilon" not in flagged
 
 
+def test_a_measured_focal_plane_prior_holds_f_and_alpha(month, nominal_camera):
+    """``focal_prior_px``: f and alpha_i get the prior of a focal plane known to that many pixels
+    at the swath edge -- by hand, d alpha_i = px |alpha_1| / 752^i and df = f px / 752 -- while the
+    angles keep the wide pre-flight 0.1 deg; 0 keeps every parameter's wide prior. The month's
+    result reports those priors, and with 4 passes the alpha_3 corrections stay inside 3 prior
+    sigma (the truth has no alpha error). A negative value is refused by name."""
+    from misrgraph.estimate.graph import CAMERA_PRIOR_SIGMA, calibration_prior_sigma
+
+    params = ("delta", "beta", "epsilon", "f", "alpha2", "alpha3")
+    c = 4
+    a1, f = abs(nominal_camera.alpha[c, 2, 1]), nominal_camera.focal_length[c, 2]
+    np.testing.assert_allclose(calibration_prior_sigma(nominal_camera, c, params, 0.05),
+                               [1.745e-3] * 3 + [f * 0.05 / 752, 0.05 * a1 / 752**2, 0.05 * a1 / 752**3], rtol=1e-12)
+    np.testing.assert_array_equal(calibration_prior_sigma(nominal_camera, c, params, 0.0), [CAMERA_PRIOR_SIGMA[p] for p in params])
+    sc, passes = month
+    narrow = calibrate_passes(passes[:4], sc.camera_model, sc.gcps, CalibrateConfig(params=params, focal_prior_px=0.05))
+    expect = np.concatenate([calibration_prior_sigma(sc.camera_model, k, params, 0.05) for k in range(len(CAMERAS))])
+    np.testing.assert_allclose(narrow.prior_sigma, expect, rtol=1e-12)
+    z = narrow.values.reshape(len(CAMERAS), -1)[:, 5] / expect.reshape(len(CAMERAS), -1)[:, 5]
+    assert np.all(np.abs(z) < 3.0), z
+    with pytest.raises(InputError, match="focal_prior_px"):
+        CalibrateConfig(focal_prior_px=-0.1)
+
+
 def test_cli_json_and_bad_params(small_month_dir):
     r = CliRunner().invoke(app, ["calibrate", str(small_month_dir), "--json", "--max-passes", "12"])
     assert r.exit_code == 0, r.output

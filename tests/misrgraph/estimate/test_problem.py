@@ -301,3 +301,35 @@ def test_dem_sigma_scale_multiplies_the_stated_dem_sigma(small_pass):
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(InputError, match="dem_sigma_scale"):
             GraphConfig(dem_sigma_scale=bad)
+
+
+def test_knot_prior_damping_sets_the_process_prior(small_pass):
+    """``knot_prior_damping`` is the damping of the process prior in the graph: with the knots at
+    zero (no data factor touched), the graph's prior part has the information of the process's
+    joint covariance, built independently from ``process_correlation`` of each knot pair's lag;
+    a non-positive damping is refused by name."""
+    from misrgraph.errors import InputError
+    from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, process_correlation
+
+    sc, p = small_pass
+    for zeta in (0.58, 1.0):
+        pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(knot_prior_damping=zeta))
+        keys = pg.knot_keys(1)
+        prior = gtsam.NonlinearFactorGraph()
+        g = pg.problem.graph
+        for i in range(g.size()):
+            f = g.at(i)
+            if f is not None and set(f.keys()) <= set(keys) and isinstance(f, gtsam.LinearContainerFactor | gtsam.PriorFactorVector):
+                prior.add(f)
+        v = gtsam.Values()
+        for k in keys:
+            v.insert(k, np.zeros(2))
+        m = gtsam.Marginals(prior, v)
+        t = pg.attitude_model.knot_times[1]
+        lag = t[2] - t[0]  # 120 s: correlation 0.48 at damping 1, 0.31 at 0.58
+        joint = m.jointMarginalCovariance(gtsam.KeyVector([keys[0], keys[2]])).fullMatrix()
+        var = joint[0, 0]
+        assert joint[2, 0] / var == pytest.approx(float(process_correlation(lag, ATTITUDE_RATE_FACTOR, zeta)), abs=1e-6)
+    for bad in (0.0, -0.5, float("inf")):
+        with pytest.raises(InputError, match="knot_prior_damping"):
+            GraphConfig(knot_prior_damping=bad)

@@ -320,6 +320,25 @@ def test_focal_plane_perturbation_moves_the_swath_edge_by_its_sigma(nominal_came
     assert abs(rms - 0.05 * np.sqrt(2)) < 0.15 * 0.05 * np.sqrt(2)
 
 
+def test_model_truth_supplies_alpha_off_by_the_adjustments_prior(small_pass):
+    """Under the model truth the supplied camera's alpha_2, alpha_3 differ from the truth's by
+    the pass adjustment's own prior (camera_focal_prior_px at the swath edge), the same for every
+    band, and f is exact: the normalised differences over the 9 cameras are 18 unit normals
+    (chi-square band at 99.9 %)."""
+    from scipy.stats import chi2
+
+    from misrgraph.estimate.graph import GraphConfig
+
+    sc, _ = small_pass
+    sup, tru = sc.camera_model, sc.camera_truth
+    np.testing.assert_array_equal(sup.focal_length, tru.focal_length)
+    d = sup.alpha[:, :, 2:4] - tru.alpha[:, :, 2:4]
+    np.testing.assert_allclose(d, d[:, :1, :].repeat(d.shape[1], axis=1), rtol=1e-9, atol=0)
+    px = GraphConfig().camera_focal_prior_px
+    z = d[:, 0, :] * (752.0 ** np.array([2, 3])) / (px * tru.alpha[:, 0, 1:2])
+    assert chi2.ppf(0.0005, z.size) < np.sum(z**2) < chi2.ppf(0.9995, z.size)
+
+
 def test_measurements_moved_outside_the_pass_are_not_made(tmp_path):
     """Noise, blunders and mismatches can move a point near the pass's ends before its first or
     after its last line; a matcher cannot measure there, so the simulator drops those
