@@ -336,8 +336,8 @@ def calibrate(
     camera_model: Optional[Path] = typer.Option(None, "--camera-model", help="Supplied model: HDF5, or 'preflight' (Table 1) or 'nominal'; default SCENARIO_DIR/camera_model.h5."),
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database; default SCENARIO_DIR/gcp.h5."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write the recalibrated camera model (HDF5, with covariance)."),
-    params: str = typer.Option("delta,beta,epsilon", "--params", help="Comma list from: delta, beta, epsilon, f, alpha0..alpha5, omega."),
-    focal_prior_px: float = typer.Option(0.0, "--focal-prior-px", help="Prior of f and alpha_i (when in --params): the pre-flight focal plane known to this many pixels at the swath edge; 0: the wide post-launch prior."),
+    params: str = typer.Option("delta,beta,epsilon,alpha2,alpha3", "--params", help="Comma list from: delta, beta, epsilon, f, alpha0..alpha5, omega."),
+    focal_prior_px: float = typer.Option(0.05, "--focal-prior-px", help="Prior of f and alpha_i (when in --params): the pre-flight focal plane known to this many pixels at the swath edge; 0: the wide post-launch prior."),
     per_band: bool = typer.Option(False, "--per-band", help="Separate corrections per camera and band."),
     temperature_bins: int = typer.Option(1, "--temperature-bins", help="Thermal calibration: split the passes into N bins of equal count by camera temperature, estimate the corrections per bin, write a temperature table and report each parameter's slope per deg C (1: one set for all temperatures)."),
     max_passes: Optional[int] = typer.Option(None, "--max-passes", help="Use only the first N passes."),
@@ -899,7 +899,7 @@ def bench_nees(
     workdir: Optional[Path] = typer.Option(None, "--workdir"),
     size: str = typer.Option("reduced", "--size", help="reduced (the test suite's size) or standard (45-minute passes with 600 tie points and check points; full months)."),
     truth: str = typer.Option("model", "--truth", help="The simulator's truth: model or independent (see misrgraph simulate --help)."),
-    calibrate_params: Optional[str] = typer.Option(None, "--calibrate-params", help="Calibration study: the parameters to estimate (as calibrate --params; default delta,beta,epsilon)."),
+    calibrate_params: Optional[str] = typer.Option(None, "--calibrate-params", help="Calibration study: the parameters to estimate (as calibrate --params; default delta,beta,epsilon,alpha2,alpha3)."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Covariance honesty: NEES per class over seeded runs, against its 95 % chi-square band and with a 95 % interval from the run-to-run scatter."""

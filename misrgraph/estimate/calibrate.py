@@ -2,7 +2,8 @@
 
 One graph holds every GCP pass: the GCP landmarks (shared by the passes that see them, each with
 its 30 m ENU prior, eq. 32), the camera corrections (shared by all passes: default delta, beta,
-eps per camera; optionally f, alpha_i, per band, and the common omega), and per pass the
+eps per camera and alpha_2, alpha_3 within the focal plane's pre-flight knowledge; optionally
+f and other alpha_i, per band, and the common omega), and per pass the
 navigation errors as nuisance variables with priors from the navigation accuracy: the ephemeris
 error of eq. 19 and the attitude error spline of eqs. 23-27 at the adjustment's knot spacing.
 
@@ -62,16 +63,22 @@ RED = BANDS.index("red")
 class CalibrateConfig(Config):
     """Calibration settings. ``params`` from :data:`factors.collinearity.CAMERA_PARAMS`."""
 
-    params: tuple = ("delta", "beta", "epsilon")
+    #: the three angles, and alpha_2, alpha_3 held by the focal plane's pre-flight knowledge
+    #: (``focal_prior_px``): with the angles alone, 30-day months under the independent truth
+    #: (f and alpha off by 0.05 px) gave NEES 1.92 and pointing errors up to 0.094 px; with the
+    #: field-angle terms, about 1.0 and 0.08 px, and 16-day months lost nothing (docs/design.md,
+    #: "The calibration's parameters"). f stays out, as in the pass adjustment: it moves a
+    #: red-band pixel by 0.0004 px and no month determines it beyond its prior
+    params: tuple = ("delta", "beta", "epsilon", "alpha2", "alpha3")
     per_band: bool = False
     estimate_omega: bool = False
     knot_spacing_s: tuple = (60.0, 60.0, 60.0)
     knot_prior: str = "process"
-    #: 0: f and alpha_i (when among ``params``) get the wide pre-flight prior of
-    #: :data:`~misrgraph.estimate.graph.CAMERA_PRIOR_SIGMA`; > 0: the prior of a focal plane
-    #: measured before flight to this many pixels at the swath edge
-    #: (:func:`~misrgraph.estimate.graph.calibration_prior_sigma`)
-    focal_prior_px: float = 0.0
+    #: f and alpha_i (when among ``params``) get the prior of a focal plane measured before
+    #: flight to this many pixels at the swath edge
+    #: (:func:`~misrgraph.estimate.graph.calibration_prior_sigma`); 0: the wide post-launch prior
+    #: of :data:`~misrgraph.estimate.graph.CAMERA_PRIOR_SIGMA`
+    focal_prior_px: float = 0.05
     robust: str = "cauchy"
     robust_k: float = 3.0
     reject_sigma: float = 5.0

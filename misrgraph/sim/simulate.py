@@ -83,8 +83,8 @@ RED = BANDS.index("red")
 
 #: the truths the simulator can draw (see :class:`ScenarioConfig`)
 TRUTHS = ("model", "independent")
-#: the model truth's supplied alpha_2, alpha_3 errors come from their own random stream, seeded by
-#: (scenario seed, this number)
+#: the model truth's focal-plane errors (a pass's supplied alpha_2, alpha_3; a month's true
+#: alpha_2, alpha_3) come from their own random stream, seeded by (scenario seed, this number)
 MODEL_ALPHA_STREAM = 7
 
 #: DEM postings each side of a landmark the tiles cover when imagery is rendered (8 without): a
@@ -118,10 +118,11 @@ class ScenarioConfig(Config):
       landmarks 10 km apart as independent);
     * ``camera_f_alpha_px``: 1 sigma (px at the swath edge, |s - c_y| = 752) of errors in f and in
       the field-angle polynomial's alpha_2 and alpha_3 of the true camera, which the supplied
-      model does not carry (it keeps the pre-flight values; the default calibration estimates
-      delta, beta, epsilon only, the pass adjustment also alpha_2, alpha_3 within their prior).
+      model does not carry (it keeps the pre-flight values; the calibration and the pass
+      adjustment estimate alpha_2, alpha_3 within their prior besides the angles).
       Under the model truth it is the 1 sigma of the supplied model's alpha_2, alpha_3 error
-      instead (f exact), as the adjustment's prior ``camera_focal_prior_px`` states it;
+      instead (f exact), as the adjustment's prior ``camera_focal_prior_px`` states it, and in a
+      month the true camera's alpha_2, alpha_3 error, as the calibration's ``focal_prior_px`` does;
     * ``noise_tail_dof``: matching noise is Student-t with this many degrees of freedom scaled to
       the stated sigma (0: Gaussian); ``mismatch_rate`` of tie-point and GCP measurements are
       mismatches of ``mismatch_px`` (uniform in the range, random direction);
@@ -713,6 +714,10 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     truth_cam = draw_camera_misalignment(rng, nominal, cfg.camera_misalignment_arcsec * ARCSEC)
     if independent and cfg.camera_f_alpha_px > 0:
         truth_cam = perturb_focal_plane(rng, truth_cam, cfg.camera_f_alpha_px)
+    elif cfg.scenario == "month" and cfg.camera_f_alpha_px > 0:
+        # the model truth of a month: alpha_2, alpha_3 off the pre-flight values by the
+        # calibration's own prior (CalibrateConfig.focal_prior_px), from a stream of their own
+        truth_cam = perturb_field_angles(np.random.default_rng([cfg.seed, MODEL_ALPHA_STREAM]), truth_cam, cfg.camera_f_alpha_px)
     truth_cam.provenance = {"source": "simulator truth", "seed": str(cfg.seed)}
     truth_model: CameraModel | TabulatedCameraModel = truth_cam
     if cfg.thermal_arcsec_per_c > 0 or cfg.thermal_focal_ppm_per_c > 0:
