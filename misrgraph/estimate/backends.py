@@ -77,6 +77,10 @@ def solve_scipy_newton(flat: FlatProblem, gtol: float = 1e-8, max_iterations: in
     state: dict[str, Any] = {}
 
     def fun(y: Array) -> tuple[float, Array]:
+        if not np.all(np.isfinite(y)):
+            # the Krylov subproblem can propose a non-finite step: an infinite cost makes the
+            # trust region reject it and shrink (the residual would fail on it, e.g. in the DEM lookup)
+            return float("inf"), np.zeros_like(y)
         x = y / s
         r = flat.residual(x)
         jac = flat.jacobian(x)
