@@ -20,10 +20,14 @@ demo: $(STAMP)
 	$(BIN)/misrgraph demo --out demo-output
 
 # the suite on TEST_WORKERS processes (pytest-xdist; whole files per process, so that a file's
-# fixtures are built once); TEST_WORKERS=0 runs it in this process
+# fixtures are built once); TEST_WORKERS=0 runs it in this process. Each process runs one BLAS
+# thread (TEST_BLAS_THREADS): two processes of multi-threaded OpenBLAS on two cores contend, and
+# measured here that made the heavy tests 25-35 % slower. The slowest tests are listed at the end.
 TEST_WORKERS ?= 2
+TEST_BLAS_THREADS ?= 1
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+	OPENBLAS_NUM_THREADS=$(TEST_BLAS_THREADS) OMP_NUM_THREADS=$(TEST_BLAS_THREADS) MKL_NUM_THREADS=$(TEST_BLAS_THREADS) \
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15
 
 # every dependency at the floor pyproject.toml declares, in .venv-min, then the suite's fast part
 min-versions:

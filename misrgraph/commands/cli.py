@@ -741,6 +741,36 @@ def bench_solver(
                   + ", ".join(f"{k} {v:.3f}" for k, v in res["linearize_seconds"].items()))
 
 
+@bench_app.command("calibration")
+@handle_errors
+def bench_calibration(
+    size: str = typer.Option("standard", "--size", help="standard (120 GCPs, 30 days) or reduced (24 GCPs, 16 days)."),
+    seed: int = typer.Option(3, "--seed"),
+    repeat: int = typer.Option(3, "--repeat", help="Timings are the best of this many runs."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep/reuse the simulated month here."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """A month calibration's linear algebra: the LM step by the former (landmarks-first) and the
+    current (COLAMD, cameras last) ordering, the cameras' covariance by SuperLU's unsymmetric LU
+    and by its symmetric mode; seconds, ratios and the differences of the results."""
+    from misrgraph.bench.calibration import run_bench_calibration
+
+    with err_console.status(f"simulating (or reusing) the {size} month and linearising it..."):
+        res = run_bench_calibration(size, seed, workdir, repeat)
+    if as_json:
+        _print_json(res)
+        return
+    t = Table(title=f"bench calibration: {res['size']} month, {res['passes']} passes, {res['variables']} variables "
+                    f"({res['landmarks']} GCP landmarks, {res['cameras']} cameras)")
+    for col in ("part", "former", "s", "current", "s", "former / current", "relative difference"):
+        t.add_column(col)
+    for part in ("step", "camera_covariance"):
+        r = res[part]
+        t.add_row(part.replace("_", " "), r["former"], f"{r['former_s']:.3f}", r["current"], f"{r['current_s']:.3f}",
+                  f"{r['ratio']:.1f}x", f"{r['relative_difference']:.1e}")
+    console.print(t)
+
+
 @bench_app.command("sba")
 @handle_errors
 def bench_sba(

@@ -9,7 +9,7 @@ copy. So the core:
    residuals/Jacobians; the ``CustomFactor`` callbacks then only slice the cache;
 2. calls ``graph.linearize(values)`` once per iteration (one C++ call, Python callbacks ~20 us each);
 3. adds the LM damping ``sqrt(lambda) I`` per variable and eliminates with GTSAM
-   (``GaussianFactorGraph.optimize(ordering)``, landmarks first -- the classic Schur order --,
+   (``GaussianFactorGraph.optimize(ordering)``, COLAMD with the shared cameras last,
    the ordering computed once and reused); or, with ``backend="schur"`` (``"auto"``, the
    default, where the problem allows it), accumulates the normal
    equations directly from the per-observation blocks (:meth:`misrgraph.estimate.problem.Problem.flat`) and solves them by a
@@ -115,7 +115,13 @@ class SolveResult:
 
 
 def _ordering(problem: Problem) -> gtsam.Ordering:
-    return gtsam.Ordering([int(k) for k in problem.eliminate_first] + problem.other_keys)
+    """GTSAM's COLAMD ordering of the problem's graph with the shared variables
+    (``eliminate_last``: the cameras) last. Landmarks first (the classic Schur order) is as good
+    for one pass, but where GCP landmarks are shared by many passes (a month of calibration)
+    eliminating them first couples every pass's knots: a month's step took 1.78 s that way and
+    0.12 s with COLAMD (same step to 1e-12)."""
+    return gtsam.Ordering.ColamdConstrainedLastNonlinearFactorGraph(problem.graph,
+                                                                   [int(k) for k in problem.eliminate_last])
 
 
 def _damped(lin: gtsam.GaussianFactorGraph, problem: Problem, lam: float) -> gtsam.GaussianFactorGraph:
@@ -374,7 +380,7 @@ def gauss_newton_step(flat: Any, x: Array) -> Array:
 
 
 def gtsam_lm_params(problem: Problem, params: SolverParams = SolverParams()) -> gtsam.LevenbergMarquardtParams:
-    """``params`` as ``gtsam.LevenbergMarquardtParams``, with the core's landmarks-first ordering."""
+    """``params`` as ``gtsam.LevenbergMarquardtParams``, with the core's ordering."""
     p = gtsam.LevenbergMarquardtParams()
     p.setMaxIterations(params.max_iterations)
     p.setlambdaInitial(params.lambda_initial)

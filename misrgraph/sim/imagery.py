@@ -69,7 +69,7 @@ if TYPE_CHECKING:
     from misrgraph.io.imagery import ImageStrip, PassImagery
     from misrgraph.io.passes import OrbitPass
 
-__all__ = ["SceneRadiance", "render_window", "render_strip", "render_block_strips", "strip_line_range", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
+__all__ = ["SceneRadiance", "render_window", "render_windows", "render_strip", "render_block_strips", "strip_line_range", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
            "REFERENCE_REFLECTANCE"]
 
 Array = NDArray[np.float64]
@@ -333,6 +333,57 @@ def render_window(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, 
     return _counts(refl, rng, snr)
 
 
+#: Windows cast together by :func:`render_windows` (bounds the temporaries: 64 windows of 100 px
+#: are 640 000 rays)
+WINDOW_BATCH = 64
+
+
+def _window_reflectance(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line0: Array, sample0: Array,
+                        size: int, surface: Surface, batch: int = WINDOW_BATCH) -> Array:
+    """``(n, size, size)`` reflectance of the windows of :func:`render_windows` (no noise)."""
+    line0 = np.asarray(line0, dtype=float).ravel()
+    sample0 = np.asarray(sample0, dtype=float).ravel()
+    n, step = line0.size, max(int(batch), 1)
+    off = np.arange(size, dtype=float)
+    refl = np.empty((n, size, size))
+    for a in range(0, n, step):
+        b = min(a + step, n)
+        m = b - a
+        # (size rows, m windows x size samples): window j's pixel (r, q) at [r, j * size + q]
+        ll = np.repeat((line0[a:b, None] + off[None, :]).T, size, axis=1)
+        ss = np.broadcast_to(np.tile(off, m)[None, :] + np.repeat(sample0[a:b], size)[None, :], ll.shape).copy()
+        g = _cast_grid(geo, cam, band, ll, ss, surface).reshape(size, m, size, 3)
+        if scene.cloud_fraction > 0:
+            origin, direction = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(),
+                                               np.full(ll.size, np.nan))
+            origin, direction = origin.reshape(size, m, size, 3), direction.reshape(size, m, size, 3)
+        r = size // 2
+        for j in range(m):  # as _render does for one window
+            gj = np.ascontiguousarray(g[:, j])
+            rate = _line_rate_at(geo, cam, band, line0[a + j] + off[r], gj[r, r])
+            rj = scene.ground_reflectance(gj, np.gradient(gj, 1.0, axis=0), np.gradient(gj, 1.0, axis=1), rate, band)
+            if scene.cloud_fraction > 0:
+                rj = scene.through_clouds(rj, origin[:, j].reshape(-1, 3), direction[:, j].reshape(-1, 3))
+            refl[a + j] = rj
+    return refl
+
+
+def render_windows(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line0: Array, sample0: Array,
+                   size: int, surface: Surface, rng: np.random.Generator, snr: float = 200.0,
+                   batch: int = WINDOW_BATCH) -> NDArray[np.uint16]:
+    """``(n, size, size)``: :func:`render_window` for each of ``n`` windows at ``line0 (n,)``,
+    ``sample0 (n,)`` of one camera and band, with the same result (the noise drawn window after
+    window, in the order given). The rays of ``batch`` windows are cast together, side by side
+    along the row (every operation of the cast is per ray, so a window's ground does not depend on
+    its neighbours): row ``r`` of every window is one secant step per ray, where a window alone
+    spends that step's Python overhead on ``size`` rays only."""
+    refl = _window_reflectance(geo, scene, cam, band, line0, sample0, size, surface, batch)
+    out = np.empty(refl.shape, np.uint16)
+    for i in range(refl.shape[0]):  # the noise window after window, as render_window draws it
+        out[i] = _counts(refl[i], rng, snr)
+    return out
+
+
 def render_chip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line_c: float, sample_c: float,
                 size: int, surface: Surface, gain: float = 0.8, offset_dn: float = 300.0) -> Array:
     """A reference chip ``(size, size)`` float32 counts, centred (between pixels ``size/2 - 1`` and
@@ -515,6 +566,7 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
         for cam in np.unique(pairs[:, 1]) if len(pairs) else []:
             rows = pairs[pairs[:, 1] == cam, 0]
             pred = supplied_geo.ground_to_pixel(int(cam), b, landmark_ecef[rows], continuous=True)
+            jobs = []
             for row, ln, sm, ok in zip(rows, pred.line, pred.sample, pred.visible):
                 if not ok or kinds[row] == KIND_CHECK:  # check points are scored from the truth, never matched
                     continue
@@ -526,8 +578,20 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
                 t_first, t_last = supplied_geo.line_time(int(cam), b, l0, l0), supplied_geo.line_time(int(cam), b, l0, l0 + size)
                 if t_first < t_lo or t_last > t_hi:  # the window would reach past the pass's navigation
                     continue
-                px = render_window(true_geo, views[int(cam)], int(cam), b, l0, s0, size, surface, rng, snr)
-                out[kind].append((int(row), int(cam), b, l0, s0, px))
+                jobs.append((kind, int(row), l0, s0))
+            # the windows of one kind cast together (render_windows), the noise drawn in the order above
+            refl: dict[str, Array] = {}
+            for kind in ("tie", "gcp"):
+                mine = [j for j in jobs if j[0] == kind]
+                if mine:
+                    refl[kind] = _window_reflectance(true_geo, views[int(cam)], int(cam), b,
+                                                     np.array([j[2] for j in mine]), np.array([j[3] for j in mine]),
+                                                     _window_size(kind, search_px, template_px, chip_px), surface)
+            taken = {"tie": 0, "gcp": 0}
+            for kind, row, l0, s0 in jobs:
+                px = _counts(refl[kind][taken[kind]], rng, snr)
+                taken[kind] += 1
+                out[kind].append((row, int(cam), b, l0, s0, px))
     wins = {}
     for kind, items in out.items():
         size = _window_size(kind, search_px, template_px, chip_px)

@@ -75,6 +75,28 @@ def test_every_marginal_path_agrees_with_gtsam(solved):
         np.testing.assert_allclose(flat_path[k], lin_path[k], rtol=1e-8, atol=1e-12 * np.max(np.abs(lin_path[k])))
 
 
+def test_a_month_s_camera_marginals_agree_with_gtsam(small_month_dir):
+    """A calibration problem (GCP landmarks shared by several passes, the cameras by all), solved
+    on GTSAM's elimination with the core's COLAMD ordering: the cameras' joint covariance by the
+    sparse path (the symmetric factorisation of the reduced system) equals ``gtsam.Marginals``."""
+    from misrgraph.estimate.calibrate import CalibrateConfig, _build
+    from misrgraph.estimate.solver import SolverParams
+    from misrgraph.sim.simulate import load_scenario
+
+    sc = load_scenario(small_month_dir)
+    passes = [sc.load_pass(i) for i in range(10)]
+    prob, _ = _build(passes, sc.camera_model, sc.gcps, CalibrateConfig().graph_config(), None, None)
+    shared = {int(k) for k in prob.eliminate_first}
+    assert len(shared) < sum(len(p.landmarks) for p in passes)  # landmarks are shared between passes
+    res = solve(prob, SolverParams(backend="gtsam"))
+    assert res.converged and res.backend == "gtsam"
+    keys = [int(k) for k in prob.eliminate_last]
+    assert len(keys) == 9
+    sparse_path = marginal_covariances(prob, res.values, joint_keys=keys)
+    ref = _gtsam_marginals(prob, res.values).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+    np.testing.assert_allclose(sparse_path.joint, ref, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref)))
+
+
 def test_variance_factor_closed_form():
     """Two unit-sigma priors on one 2-vector at a and b: the optimum is their mean, 2E = |a-b|^2/2
     on 4 rows - 2 unknowns = 2 dof."""
