@@ -25,7 +25,6 @@ from typing import Any, Callable
 
 import gtsam
 import numpy as np
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from misrgraph.bench.work import bench_workdir
@@ -58,7 +57,7 @@ def run_bench_calibration(size: str = "standard", seed: int = 3, workdir: str | 
     Returns the problem's size and, per comparison, the seconds of each method, their ratio
     (former / current) and the relative difference of their results."""
     from misrgraph.estimate.calibrate import CalibrateConfig, _build
-    from misrgraph.estimate.problem import _blocks_from_linear, linearize, schur_reduce
+    from misrgraph.estimate.problem import SPD_SPLU_OPTIONS, _blocks_from_linear, _offsets, linearize, schur_reduce
     from misrgraph.estimate.solver import _damped, _ordering
     from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
@@ -97,11 +96,7 @@ def run_bench_calibration(size: str = "standard", seed: int = 3, workdir: str | 
     }
     h_ll, h_lc, h_cc = _blocks_from_linear(prob, lin)
     _, _, s = schur_reduce(h_ll, h_lc, h_cc)
-    s = sp.csc_matrix(s)
-    off, o = {}, 0
-    for k in prob.other_keys:
-        off[int(k)] = o
-        o += prob.dims[int(k)]
+    off, _ = _offsets(prob.other_keys, prob.dims)
     idx = np.concatenate([np.arange(off[int(k)], off[int(k)] + prob.dims[int(k)]) for k in prob.eliminate_last])
     rhs = np.zeros((s.shape[0], idx.size))
     rhs[idx, np.arange(idx.size)] = 1.0
@@ -110,8 +105,7 @@ def run_bench_calibration(size: str = "standard", seed: int = 3, workdir: str | 
         return spla.splu(s, **kw).solve(rhs)[idx]
 
     t_lu, c_lu = _best(lambda: joint(), repeat)
-    t_sym, c_sym = _best(lambda: joint(permc_spec="COLAMD", diag_pivot_thresh=0.0,
-                                       options={"SymmetricMode": True}), repeat)
+    t_sym, c_sym = _best(lambda: joint(**SPD_SPLU_OPTIONS), repeat)
     res["camera_covariance"] = {
         "former": "SuperLU, unsymmetric LU", "current": "SuperLU, symmetric mode without pivoting",
         "reduced_system": {"size": int(s.shape[0]), "nonzeros": int(s.nnz)},

@@ -32,7 +32,7 @@ from factors.collinearity import CollinearityBatch, collinearity_residual
 from factors.dem_height import DemBatch, dem_residual, dem_residual_hessian
 from misrgraph.errors import DegenerateProblemError, InputError
 
-__all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_reduce", "reduced_cholesky", "schur_marginals", "marginal_covariances", "flat_marginals",
+__all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_reduce", "reduced_cholesky", "schur_marginals", "marginal_covariances", "flat_marginals", "SPD_SPLU_OPTIONS",
            "error", "linearize", "variance_factor"]
 
 Array = NDArray[np.float64]
@@ -553,6 +553,13 @@ def reduced_cholesky(s: sp.spmatrix) -> Array:
         raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)") from exc
 
 
+#: ``scipy.sparse.linalg.splu`` options for the reduced system ``S`` (symmetric positive
+#: definite): the factorisation of its symmetric permutation without pivoting (a standard month's
+#: S: 0.78 s against 6.2 s for SuperLU's default unsymmetric LU, the same covariance to 3e-10;
+#: ``misrgraph bench calibration``)
+SPD_SPLU_OPTIONS: dict = {"permc_spec": "COLAMD", "diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
+
+
 def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_keys: list[int], other_keys: list[int],
                     dims: dict[int, int], joint_keys: list[int] | None = None) -> Marginals:
     """The project's one marginal-covariance routine (eq. 34 at convergence), from ``J^T J`` in
@@ -574,11 +581,7 @@ def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_
             raise InputError("joint_keys", bad[:3], "non-landmark keys of the problem")
         idx = np.concatenate([np.arange(off[int(k)], off[int(k)] + dims[int(k)]) for k in joint_keys])
         try:
-            # S is symmetric positive definite: the factorisation of its symmetric permutation
-            # without pivoting (a standard month's S: 0.78 s against 6.2 s for SuperLU's default
-            # unsymmetric LU, the same covariance to 3e-10; misrgraph bench calibration)
-            lu = spla.splu(sp.csc_matrix(s), permc_spec="COLAMD", diag_pivot_thresh=0.0,
-                           options={"SymmetricMode": True})
+            lu = spla.splu(s, **SPD_SPLU_OPTIONS)
             rhs = np.zeros((n_c, idx.size))
             rhs[idx, np.arange(idx.size)] = 1.0
             joint = lu.solve(rhs)[idx]

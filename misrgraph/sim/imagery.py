@@ -310,16 +310,22 @@ def _render(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, lines:
     if rate is None:
         r, q = lines.size // 2, samples.size // 2
         rate = _line_rate_at(geo, cam, band, lines[r], g[r, q])
-    # local ground Jacobian per pixel (m per line, m per sample) from the cast grid
     dl = lines[1] - lines[0] if lines.size > 1 else 1.0
     ds = samples[1] - samples[0] if samples.size > 1 else 1.0
-    g_l = np.gradient(g, dl, axis=0)
-    g_s = np.gradient(g, ds, axis=1)
-    refl = scene.ground_reflectance(g, g_l, g_s, rate, band)
+    rays = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(),
+                          np.full(ll.size, np.nan)) if scene.cloud_fraction > 0 else None
+    return _footprint_reflectance(scene, band, g, dl, ds, rate, rays)
+
+
+def _footprint_reflectance(scene: SceneRadiance, band: int, g: Array, dl: float, ds: float, rate: float,
+                           rays: tuple[Array, Array] | None) -> Array:
+    """Reflectance ``(H, W)`` of the cast grid ``g (H, W, 3)`` (rows ``dl``, columns ``ds`` pixels
+    apart), averaged over each pixel's footprint (the local ground Jacobian from the grid itself)
+    and seen through the clouds along ``rays = (origin, direction)`` (``(H W, 3)``, row-major;
+    needed only when the scene has clouds)."""
+    refl = scene.ground_reflectance(g, np.gradient(g, dl, axis=0), np.gradient(g, ds, axis=1), rate, band)
     if scene.cloud_fraction > 0:
-        origin, direction = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(),
-                                           np.full(ll.size, np.nan))
-        refl = scene.through_clouds(refl, origin, direction)
+        refl = scene.through_clouds(refl, *rays)
     return refl
 
 
@@ -361,10 +367,8 @@ def _window_reflectance(geo: PassGeometry, scene: SceneRadiance, cam: int, band:
         for j in range(m):  # as _render does for one window
             gj = np.ascontiguousarray(g[:, j])
             rate = _line_rate_at(geo, cam, band, line0[a + j] + off[r], gj[r, r])
-            rj = scene.ground_reflectance(gj, np.gradient(gj, 1.0, axis=0), np.gradient(gj, 1.0, axis=1), rate, band)
-            if scene.cloud_fraction > 0:
-                rj = scene.through_clouds(rj, origin[:, j].reshape(-1, 3), direction[:, j].reshape(-1, 3))
-            refl[a + j] = rj
+            rays = (origin[:, j].reshape(-1, 3), direction[:, j].reshape(-1, 3)) if scene.cloud_fraction > 0 else None
+            refl[a + j] = _footprint_reflectance(scene, band, gj, 1.0, 1.0, rate, rays)
     return refl
 
 
@@ -580,18 +584,16 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
                     continue
                 jobs.append((kind, int(row), l0, s0))
             # the windows of one kind cast together (render_windows), the noise drawn in the order above
-            refl: dict[str, Array] = {}
+            refl: dict[int, Array] = {}
             for kind in ("tie", "gcp"):
-                mine = [j for j in jobs if j[0] == kind]
+                mine = [i for i, job in enumerate(jobs) if job[0] == kind]
                 if mine:
-                    refl[kind] = _window_reflectance(true_geo, views[int(cam)], int(cam), b,
-                                                     np.array([j[2] for j in mine]), np.array([j[3] for j in mine]),
-                                                     _window_size(kind, search_px, template_px, chip_px), surface)
-            taken = {"tie": 0, "gcp": 0}
-            for kind, row, l0, s0 in jobs:
-                px = _counts(refl[kind][taken[kind]], rng, snr)
-                taken[kind] += 1
-                out[kind].append((row, int(cam), b, l0, s0, px))
+                    r = _window_reflectance(true_geo, views[int(cam)], int(cam), b, np.array([jobs[i][2] for i in mine]),
+                                            np.array([jobs[i][3] for i in mine]),
+                                            _window_size(kind, search_px, template_px, chip_px), surface)
+                    refl.update(zip(mine, r))
+            for i, (kind, row, l0, s0) in enumerate(jobs):
+                out[kind].append((row, int(cam), b, l0, s0, _counts(refl[i], rng, snr)))
     wins = {}
     for kind, items in out.items():
         size = _window_size(kind, search_px, template_px, chip_px)
