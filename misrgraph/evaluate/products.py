@@ -36,16 +36,20 @@ Array = NDArray[np.float64]
 def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, step: int = 8,
              supplied_camera: CameraModel | None = None) -> dict[str, Any]:
     """``{"pp_error_m": {camera: {"n", "rms", "predicted_rms", "rms_over_predicted", "nees",
-    "error_px_rms"[, "supplied_rms"]}}}`` (module docstring); with ``supplied_camera`` also the
-    RMS error the same grid points would have with the supplied navigation (no adjustment)."""
+    "error_px_rms"[, "supplied_rms"]}}, "pp_error_by_block": {camera: {block: {"n", "rms",
+    "predicted_rms", "error_px_rms", "predicted_px_rms"}}}}`` (module docstring; ``rms`` m,
+    ``*_px_rms`` the pixel error and the RMS of its predicted 1-sigma ``sqrt(sigma_line^2 +
+    sigma_sample^2)``); with ``supplied_camera`` also the RMS error the same grid points would
+    have with the supplied navigation (no adjustment)."""
     true_geo = truth.geometry(orbit_pass)
     supplied_geo = orbit_pass.geometry(supplied_camera) if supplied_camera is not None else None
     grid = pp.grid
     bi = BANDS.index(pp.band)
     sub = (slice(None, None, step), slice(None, None, step))
     seen = pp.seen()
-    per_cam: dict[str, dict[str, list[Array]]] = {c: {"e_m": [], "s_m": [], "nees": [], "e_px": [], "sup_m": []}
+    per_cam: dict[str, dict[str, list[Array]]] = {c: {"e_m": [], "s_m": [], "nees": [], "e_px": [], "sup_m": [], "s_px": []}
                                                   for c in pp.cameras}
+    blocks_of: dict[str, list[int]] = {c: [] for c in pp.cameras}
     for j, block in enumerate(pp.blocks):
         x, y = grid.block_centres(int(block), step=step)
         lat, lon = grid.somxy_to_latlon(x, y)
@@ -75,6 +79,8 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
             per_cam[name]["s_m"].append(pp.sigma_m[c, j][sub].ravel()[ok][good])
             per_cam[name]["nees"].append(np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0]) / 2.0)
             per_cam[name]["e_px"].append(np.hypot(e[:, 0], e[:, 1]))
+            per_cam[name]["s_px"].append(np.hypot(sl, ss))
+            blocks_of[name].append(int(block))
             if supplied_geo is not None:
                 _, ln_s, sm_s = crossing(supplied_geo, ci, bi, g[ok], t_guess)
                 e_s = np.stack([ln_s - ln_t, sm_s - sm_t], -1)[good]
@@ -92,7 +98,14 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
         if v["sup_m"]:
             sup = np.concatenate(v["sup_m"])
             out[name]["supplied_rms"] = float(np.sqrt(np.nanmean(sup**2)))
-    return {"pp_error_m": out}
+    by_block: dict[str, dict[str, dict[str, float]]] = {}
+    for name, v in per_cam.items():
+        for b, e_m, s_m, e_px, s_px in zip(blocks_of[name], v["e_m"], v["s_m"], v["e_px"], v["s_px"]):
+            if e_m.size:
+                by_block.setdefault(name, {})[str(b)] = {
+                    "n": int(e_m.size), "rms": float(np.sqrt(np.mean(e_m**2))), "predicted_rms": float(np.sqrt(np.nanmean(s_m**2))),
+                    "error_px_rms": float(np.sqrt(np.mean(e_px**2))), "predicted_px_rms": float(np.sqrt(np.nanmean(s_px**2)))}
+    return {"pp_error_m": out, "pp_error_by_block": by_block}
 
 
 def _seen_ground(geo: Any, cam: int, band: int, line: Array, sample: Array,

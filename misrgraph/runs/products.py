@@ -54,8 +54,13 @@ ROI_NOTE = ("ROI not built: give --roi (it needs at least four passes with whole
 DEFAULT_BLOCKS = 10
 
 
-def parse_blocks(text: str) -> np.ndarray:
-    """``"A-B"`` (inclusive) or ``"B"`` -> block numbers; an :class:`InputError` names ``--blocks``."""
+def parse_blocks(text: "str | tuple[int, int]") -> np.ndarray:
+    """``"A-B"`` (inclusive), ``"B"`` or, from Python, a pair ``(A, B)`` -> block numbers; an
+    :class:`InputError` names ``--blocks``."""
+    if isinstance(text, (tuple, list)) and len(text) == 2 and all(isinstance(v, (int, np.integer)) for v in text):
+        text = f"{int(text[0])}-{int(text[1])}"
+    if not isinstance(text, str):
+        raise InputError("--blocks", text, "a block range 'A-B', one block 'B' or a pair (A, B) of block numbers")
     m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", text or "")
     if not m:
         raise InputError("--blocks", text, "a block range A-B or one block B (1..180)")
@@ -81,7 +86,7 @@ def _default_blocks(orbit_pass: OrbitPass, res: AdjustResult, grid: SomGrid, n: 
 def run_products(
     scenario_dir: str | os.PathLike[str],
     out: str | os.PathLike[str],
-    blocks: str | None = None,
+    blocks: str | tuple[int, int] | None = None,
     pass_file: str | os.PathLike[str] | None = None,
     camera_model: str | os.PathLike[str] | None = None,
     band: str = "red",

@@ -146,6 +146,23 @@ def test_accuracy_against_truth(adjusted, pp) -> None:
     assert 0.4 < np.sqrt(np.mean(rms**2) / np.mean(pred**2)) < 1.6
 
 
+def test_scores_per_block(adjusted, pp) -> None:
+    """The per-block figures of a one-block PP are the camera's figures, and the predicted pixel
+    1-sigma is the RMS of the PP's own ``hypot(sigma_line, sigma_sample)`` on the scored sub-grid."""
+    sc, op, cam, _ = adjusted
+    scores = score_pp(pp, op, read_pass_truth(sc.pass_files[0]), step=8)
+    for name, v in scores["pp_error_m"].items():
+        b = scores["pp_error_by_block"][name]
+        assert list(b) == [str(BLOCK)]
+        blk = b[str(BLOCK)]
+        assert blk["n"] == v["n"] and blk["rms"] == pytest.approx(v["rms"]) and blk["error_px_rms"] == pytest.approx(v["error_px_rms"])
+        c = pp.cameras.index(name)
+        sub = (slice(None, None, 8), slice(None, None, 8))
+        ok = pp.seen()[c, 0][sub] & np.isfinite(pp.sigma_line[c, 0][sub])
+        direct = np.sqrt(np.mean(pp.sigma_line[c, 0][sub][ok] ** 2 + pp.sigma_sample[c, 0][sub][ok] ** 2))
+        assert blk["predicted_px_rms"] == pytest.approx(direct, rel=0.02), name
+
+
 def test_file_round_trip(pp, tmp_path) -> None:
     p = tmp_path / "pp.h5"
     save_pp(pp, p)

@@ -12,7 +12,7 @@ from misrgraph.commands.cli import app
 from misrgraph.errors import InputError
 from misrgraph.io.products import read_pp
 from misrgraph.model.constants import CAMERAS
-from misrgraph.runs.products import run_products
+from misrgraph.runs.products import parse_blocks, run_products
 from misrgraph.runs.update import restore_state, run_update
 
 
@@ -52,3 +52,12 @@ def test_pp_of_every_pass_of_a_state_against_truth(state, path_dir, tmp_path):
     with pytest.raises(InputError, match="STATE_DIR"):
         restore_state(tmp_path / "nothing")
     assert not (tmp_path / "nothing").exists()
+
+
+def test_parse_blocks() -> None:
+    assert parse_blocks("62-64").tolist() == [62, 63, 64]
+    assert parse_blocks(" 70 ").tolist() == [70]
+    assert parse_blocks((62, 63)).tolist() == [62, 63]  # the Python API's pair
+    for bad in ("64-62", "0-3", "181", "a-b", (62,), 62.0, None):
+        with pytest.raises(InputError, match="--blocks"):
+            parse_blocks(bad)  # type: ignore[arg-type]
