@@ -293,7 +293,7 @@ def run_bench_sources(runs: int = 10, seed: int = 3000, workdir: str | Path | No
 
 
 def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = None, size: str = "reduced",
-                 truth: str = "model", blocks_per_pass: int = 2) -> dict[str, Any]:
+                 truth: str = "model", blocks_per_pass: int = 2, block_range: str | None = None) -> dict[str, Any]:
     """Honesty of the Projection Parameters' 1-sigma over seeded passes (the passes of
     ``bench nees --study adjust`` at ``size``): per run, each camera's PP geolocation RMS against
     the truth over the RMS its 1-sigma predicts, and the mean NEES (per 2 dof) of its pixel
@@ -301,23 +301,36 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
     them in a pass, e.g. Df in most 10-minute passes, is not scored there: ``passes`` counts where
     it was). The points of one pass share
     its navigation error, so honesty is judged from the mean over runs and its 95 % interval from
-    the run-to-run scatter (expected 1)."""
+    the run-to-run scatter (expected 1).
+
+    ``block_range`` (``"A-B"``): score these blocks in every pass instead, and also per block
+    (``summary["per_block"][camera][block]``: the RMS over the runs of the pixel error and of its
+    predicted 1-sigma, their ratio, and the RMS of the per-run ratios with its interval), to see
+    how honest the PP stay where a pass's data end (path 37's passes: blocks 69-71 for Da)."""
     from misrgraph.errors import InputError
-    from misrgraph.runs.products import run_products
+    from misrgraph.runs.products import parse_blocks, run_products
 
     if size not in ("reduced", "standard"):
         raise InputError("size", size, ("reduced", "standard"))
+    if block_range is not None:
+        parse_blocks(block_range, "--block-range")  # a bad range fails before any pass is simulated
     with bench_workdir(workdir) as workdir:
         per_run = []
         ratio: dict[str, list[float]] = {}
         nees: dict[str, list[float]] = {}
         improvement: dict[str, list[float]] = {}
+        by_block: dict[str, dict[str, list[tuple[float, float]]]] = {}
         seconds = []
         for i in range(runs):
             out = Path(workdir) / f"nees_adjust_{size}_{truth}_{seed + i}"
             if not (out / "scenario.json").exists():
                 run_simulate(ScenarioConfig.from_dict(dict(NEES_SCENARIOS[("adjust", size)], seed=seed + i, truth=truth)), out)
-            s = run_products(out, Path(workdir) / f"pp_{size}_{truth}_{seed + i}", default_blocks=blocks_per_pass)
+            tag = f"_{block_range.replace(' ', '')}" if block_range else ""
+            s = run_products(out, Path(workdir) / f"pp_{size}_{truth}_{seed + i}{tag}", blocks=block_range,
+                             default_blocks=blocks_per_pass)
+            for cam, bb in s.get("pp_error_by_block", {}).items():
+                for b, v in bb.items():
+                    by_block.setdefault(cam, {}).setdefault(b, []).append((v["error_px_rms"], v["predicted_px_rms"]))
             seconds.append(s["seconds"]["pp"])
             err = s["pp_error_m"]
             for cam, v in err.items():
@@ -330,12 +343,26 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
                             "rms_m": {c: v["rms"] for c, v in err.items()}})
         all_nees = [float(np.mean([r["nees"][c] for c in r["nees"]])) for r in per_run]
         all_ratio = [float(np.sqrt(np.mean([r["rms_over_predicted"][c] ** 2 for c in r["rms_over_predicted"]]))) for r in per_run]
-    return {"size": size, "truth": truth, "runs": runs, "blocks_per_pass": blocks_per_pass,
-            "summary": {"nees_all_cameras": _interval(all_nees), "rms_over_predicted_all_cameras": _interval(all_ratio),
-                        "rms_over_predicted_all_cameras_rms_of_runs": _rms_interval(all_ratio),
-                        "per_camera": {c: {"passes": len(ratio[c]), "rms_over_predicted": _interval(ratio[c]),
-                                           "rms_over_predicted_rms_of_runs": _rms_interval(ratio[c]),
-                                           "nees": _interval(nees[c]),
-                                           "improvement_over_supplied": _interval(improvement[c])} for c in ratio},
-                        "pp_seconds_per_pass": _interval(seconds)},
-            "per_run": per_run}
+    result: dict[str, Any] = {
+        "size": size, "truth": truth, "runs": runs, "blocks_per_pass": blocks_per_pass,
+        "summary": {"nees_all_cameras": _interval(all_nees), "rms_over_predicted_all_cameras": _interval(all_ratio),
+                    "rms_over_predicted_all_cameras_rms_of_runs": _rms_interval(all_ratio),
+                    "per_camera": {c: {"passes": len(ratio[c]), "rms_over_predicted": _interval(ratio[c]),
+                                       "rms_over_predicted_rms_of_runs": _rms_interval(ratio[c]),
+                                       "nees": _interval(nees[c]),
+                                       "improvement_over_supplied": _interval(improvement[c])} for c in ratio},
+                    "pp_seconds_per_pass": _interval(seconds)},
+        "per_run": per_run}
+    if block_range:
+        out_blocks: dict[str, dict[str, Any]] = {}
+        for cam, bb in by_block.items():
+            for b, pairs in bb.items():
+                e, p = np.array(pairs).T
+                out_blocks.setdefault(cam, {})[b] = {
+                    "passes": int(e.size), "error_px_rms": float(np.sqrt(np.mean(e**2))),
+                    "predicted_px_rms": float(np.sqrt(np.mean(p**2))),
+                    "rms_over_predicted": float(np.sqrt(np.sum(e**2) / np.sum(p**2))),
+                    "rms_over_predicted_rms_of_runs": _rms_interval((e / p).tolist())}
+        result["summary"]["per_block"] = out_blocks
+        result["block_range"] = block_range
+    return result

@@ -966,6 +966,7 @@ def bench_pp(
     size: str = typer.Option("reduced", "--size", help="reduced or standard (as bench nees --study adjust)."),
     truth: str = typer.Option("model", "--truth", help="model or independent (see misrgraph simulate --help)."),
     blocks: int = typer.Option(2, "--blocks", help="SOM blocks per pass, around its features."),
+    block_range: Optional[str] = typer.Option(None, "--block-range", help="Score these blocks (A-B) in every pass instead of --blocks, and also per block."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Honesty of the Projection Parameters' 1 sigma: PP geolocation RMS against the truth over the predicted RMS, and NEES, per camera, over seeded passes (mean and 95 % interval from the run-to-run scatter)."""
@@ -974,7 +975,7 @@ def bench_pp(
     if runs < 2:
         _fail(f"--runs: got {runs}; expected at least 2 (the interval needs a scatter)")
     with err_console.status(f"{runs} seeded passes..."):
-        res = run_bench_pp(runs, seed, workdir, size, truth, blocks)
+        res = run_bench_pp(runs, seed, workdir, size, truth, blocks, block_range)
     if as_json:
         _print_json(res)
         return
@@ -989,6 +990,16 @@ def bench_pp(
     table.add_row("all", str(runs), fmt(res["summary"]["rms_over_predicted_all_cameras"]),
                   fmr(res["summary"]["rms_over_predicted_all_cameras_rms_of_runs"]), fmt(res["summary"]["nees_all_cameras"]), "")
     console.print(table)
+    per_block = res["summary"].get("per_block")
+    if per_block:
+        names = sorted({b for v in per_block.values() for b in v}, key=int)
+        bt = Table(title="per block: pixel error RMS / predicted 1-sigma RMS over the runs (px)")
+        bt.add_column("camera")
+        for b in names:
+            bt.add_column(f"block {b}", justify="right")
+        for cam, v in per_block.items():
+            bt.add_row(cam, *(f"{v[b]['error_px_rms']:.2f} / {v[b]['predicted_px_rms']:.2f}" if b in v else "-" for b in names))
+        console.print(bt)
 
 
 @bench_app.command("roi")

@@ -54,19 +54,19 @@ ROI_NOTE = ("ROI not built: give --roi (it needs at least four passes with whole
 DEFAULT_BLOCKS = 10
 
 
-def parse_blocks(text: "str | tuple[int, int]") -> np.ndarray:
+def parse_blocks(text: "str | tuple[int, int]", field: str = "--blocks") -> np.ndarray:
     """``"A-B"`` (inclusive), ``"B"`` or, from Python, a pair ``(A, B)`` -> block numbers; an
-    :class:`InputError` names ``--blocks``."""
+    :class:`InputError` names ``field``."""
     if isinstance(text, (tuple, list)) and len(text) == 2 and all(isinstance(v, (int, np.integer)) for v in text):
         text = f"{int(text[0])}-{int(text[1])}"
     if not isinstance(text, str):
-        raise InputError("--blocks", text, "a block range 'A-B', one block 'B' or a pair (A, B) of block numbers")
+        raise InputError(field, text, "a block range 'A-B', one block 'B' or a pair (A, B) of block numbers")
     m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", text or "")
     if not m:
-        raise InputError("--blocks", text, "a block range A-B or one block B (1..180)")
+        raise InputError(field, text, "a block range A-B or one block B (1..180)")
     a, b = int(m.group(1)), int(m.group(2) or m.group(1))
     if not 1 <= a <= b <= N_BLOCKS:
-        raise InputError("--blocks", text, f"1 <= A <= B <= {N_BLOCKS}")
+        raise InputError(field, text, f"1 <= A <= B <= {N_BLOCKS}")
     return np.arange(a, b + 1)
 
 

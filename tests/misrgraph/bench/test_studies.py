@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from misrgraph.errors import InputError
+
 
 @pytest.fixture(scope="module")
 def bench_dir(tmp_path_factory):
@@ -49,7 +51,6 @@ def test_bench_nees_per_class_at_reduced_size(tmp_path):
     """Two reduced adjustment runs: every class (knots, ephemeris, camera, landmarks, state) is
     reported with its chi-square band and an interval from the runs; an unknown size is refused."""
     from misrgraph.bench.studies import run_bench_nees
-    from misrgraph.errors import InputError
 
     r = run_bench_nees("adjust", runs=2, seed=1000, workdir=tmp_path)
     assert r["truth"] == "model" and r["adjust_overrides"] == {"dem_sigma_scale": 1.0, "attitude_jitter_arcsec": 0.0}
@@ -86,3 +87,26 @@ def test_bench_pp_at_reduced_size(bench_dir):
         assert v["improvement_over_supplied"]["mean"] > 2.0, cam
     # two passes cannot pin honesty down, but a sigma off by a factor of three would show
     assert 1 / 3 < res["summary"]["rms_over_predicted_all_cameras"]["mean"] < 3
+
+    # the same passes scored on a chosen block, per block: one block's figures are its cameras'
+    b = int(res["per_run"][0]["blocks"][0])
+    blk = run_bench_pp(runs=2, seed=5000, workdir=bench_dir, block_range=f"{b}-{b}")
+    per_block = blk["summary"]["per_block"]
+    assert blk["block_range"] == f"{b}-{b}" and set(per_block) == set(blk["summary"]["per_camera"])
+    for cam, v in per_block.items():
+        assert list(v) == [str(b)]
+        one = v[str(b)]
+        assert one["passes"] == blk["summary"]["per_camera"][cam]["passes"]
+        assert one["rms_over_predicted"] == pytest.approx(one["error_px_rms"] / one["predicted_px_rms"])
+        assert 1 / 3 < one["rms_over_predicted"] < 3, cam
+        # a camera's PP ratio in metres and in pixels agree for one block (same points, one scale)
+        ratio_m = np.sqrt(np.mean([r["rms_over_predicted"][cam] ** 2 for r in blk["per_run"] if cam in r["rms_over_predicted"]]))
+        assert one["rms_over_predicted_rms_of_runs"]["rms"] == pytest.approx(ratio_m, rel=0.25), cam
+
+
+def test_bench_pp_refuses_a_bad_block_range(tmp_path):
+    from misrgraph.bench.studies import run_bench_pp
+
+    with pytest.raises(InputError, match="--block-range"):
+        run_bench_pp(runs=2, workdir=tmp_path, block_range="71-66")
+    assert list(tmp_path.iterdir()) == []  # refused before any pass was simulated
