@@ -319,7 +319,7 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
         ratio: dict[str, list[float]] = {}
         nees: dict[str, list[float]] = {}
         improvement: dict[str, list[float]] = {}
-        by_block: dict[str, dict[str, list[tuple[float, float]]]] = {}
+        by_block: dict[str, dict[int, list[tuple[float, float]]]] = {}
         seconds = []
         for i in range(runs):
             out = Path(workdir) / f"nees_adjust_{size}_{truth}_{seed + i}"
@@ -354,7 +354,7 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
                     "pp_seconds_per_pass": _interval(seconds)},
         "per_run": per_run}
     if block_range:
-        out_blocks: dict[str, dict[str, Any]] = {}
+        out_blocks: dict[str, dict[int, Any]] = {}
         for cam, bb in by_block.items():
             for b, pairs in bb.items():
                 e, p = np.array(pairs).T

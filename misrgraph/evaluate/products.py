@@ -98,11 +98,11 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
         if v["sup_m"]:
             sup = np.concatenate(v["sup_m"])
             out[name]["supplied_rms"] = float(np.sqrt(np.nanmean(sup**2)))
-    by_block: dict[str, dict[str, dict[str, float]]] = {}
+    by_block: dict[str, dict[int, dict[str, float]]] = {}
     for name, v in per_cam.items():
         for b, e_m, s_m, e_px, s_px in zip(blocks_of[name], v["e_m"], v["s_m"], v["e_px"], v["s_px"]):
             if e_m.size:
-                by_block.setdefault(name, {})[str(b)] = {
+                by_block.setdefault(name, {})[b] = {
                     "n": int(e_m.size), "rms": float(np.sqrt(np.mean(e_m**2))), "predicted_rms": float(np.sqrt(np.nanmean(s_m**2))),
                     "error_px_rms": float(np.sqrt(np.mean(e_px**2))), "predicted_px_rms": float(np.sqrt(np.nanmean(s_px**2)))}
     return {"pp_error_m": out, "pp_error_by_block": by_block}

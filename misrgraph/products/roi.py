@@ -36,6 +36,11 @@ pixel beyond noise where the simulator's truth says 0.12-0.14.) Each camera is c
 pass (between cameras) and with itself in the block's pass (between passes); points on clouds,
 water or without texture are skipped, and matches that do not converge or move more than 1 pixel
 are counted as failures, not offsets.
+
+**What the adjustment allows** (:func:`roi_predicted_coregistration`): per block and camera, the
+misregistration the PP's own 1-sigma (and the SOM DEM's error, as parallax) predicts, so the
+summary says where the seed's 0.2 pixel is within reach of the navigation's knowledge and where
+no resampling can reach it.
 """
 
 from __future__ import annotations
@@ -53,10 +58,10 @@ from misrgraph.io.dem import SomDem
 from misrgraph.io.imagery import ImageStrip
 from misrgraph.io.products import ProjectionParameters
 from misrgraph.misr.som import SomGrid
-from misrgraph.model.constants import CAMERAS
+from misrgraph.model.constants import CAMERAS, VIEW_ANGLE_DEG
 from misrgraph.products.terrain import terrain_obscured
 
-__all__ = ["RoiPass", "RoiBlock", "build_roi", "cloud_mask", "coregistration", "CLOUD_REFLECTANCE",
+__all__ = ["RoiPass", "RoiBlock", "build_roi", "cloud_mask", "coregistration", "roi_predicted_coregistration", "CLOUD_REFLECTANCE",
            "CLOUD_MEAN_REFLECTANCE", "CLOUD_MARGIN_PX", "MIN_ROI_PASSES"]
 
 Array = NDArray[np.float64]
@@ -257,4 +262,40 @@ def coregistration(block: RoiBlock, pass_ids: list[str], points_per_pair: int = 
             if good:
                 res[name] = max(good, key=lambda s: float(s["excess_px"]))
         out[cam] = res
+    return out
+
+
+def roi_predicted_coregistration(pps: list[ProjectionParameters], block: int, chosen: int, cameras: tuple[str, ...],
+                                 dem_sigma_m: float, resolution_m: float) -> dict[str, dict[str, float]]:
+    """The misregistration (px, RMS over the block) the adjustment's own uncertainty predicts for
+    one ROI block, per camera: ``vs_An`` from the chosen pass's PP 1-sigma of the camera and of An
+    (taken as independent: the two see a point minutes apart) and the SOM DEM's error seen as
+    parallax, ``sqrt((s_dem tan|theta|/res)^2 + s_cam^2 + s_An^2)``; ``between_passes`` from the
+    two least precise passes, ``sqrt(s_p^2 + s_q^2)`` (passes adjusted apart are independent).
+    ``s`` is the RMS over the block's points of the PP's radial 1-sigma ``hypot(sigma_line,
+    sigma_sample)`` in image pixels, taken as ROI pixels (the same 275 m scale across track).
+    Where this exceeds the seed's 0.2 pixel, no resampling can co-register the block: the
+    navigation there is not known better (e.g. an oblique camera imaging the pass's last land
+    after its last observation)."""
+    def sigma(pp: ProjectionParameters, cam: str) -> float:
+        j = np.flatnonzero(np.asarray(pp.blocks) == block)
+        if j.size == 0 or cam not in pp.cameras:
+            return float("nan")
+        c = pp.cameras.index(cam)
+        s2 = pp.sigma_line[c, j[0]] ** 2 + pp.sigma_sample[c, j[0]] ** 2
+        return float(np.sqrt(np.nanmean(s2))) if np.any(np.isfinite(s2)) else float("nan")
+
+    out: dict[str, dict[str, float]] = {}
+    for cam in cameras:
+        per_pass = np.array([sigma(pp, cam) for pp in pps])
+        row: dict[str, float] = {}
+        if np.sum(np.isfinite(per_pass)) >= 2:
+            worst = np.sort(per_pass[np.isfinite(per_pass)])[-2:]
+            row["between_passes"] = float(np.hypot(*worst))
+        s_an, s_cam = sigma(pps[chosen], "An"), sigma(pps[chosen], cam)
+        if cam != "An" and np.isfinite(s_an) and np.isfinite(s_cam):
+            parallax = dem_sigma_m * abs(np.tan(np.radians(VIEW_ANGLE_DEG[cam]))) / resolution_m
+            row["vs_An"] = float(np.sqrt(parallax**2 + s_cam**2 + s_an**2))
+        if row:
+            out[cam] = row
     return out

@@ -314,7 +314,7 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
     from misrgraph.evaluate.products import score_roi
     from misrgraph.io.dem import read_som_dem
     from misrgraph.io.roi import export_roi_geotiff, read_roi, roi_writer, write_quicklooks
-    from misrgraph.products.roi import RoiPass, build_roi, coregistration
+    from misrgraph.products.roi import RoiPass, build_roi, coregistration, roi_predicted_coregistration
     from misrgraph.sim.imagery import FULL_SCALE_DN
 
     with_strips = [(p, r, f) for p, r, f in adjusted if readers[str(f)].cameras]
@@ -369,6 +369,7 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
     hidden_counts: dict[str, dict[str, int]] = {}
     truth_by_block: dict[int, dict[str, dict[str, float]]] = {}
     chosen_pass: dict[int, str] = {}
+    predicted: dict[int, dict[str, dict[str, float]]] = {}
     t0 = time.perf_counter()
     t_coreg = 0.0
     with roi_writer(roi_file, path, band, cameras, pass_ids, chosen, FULL_SCALE_DN) as writer:
@@ -376,6 +377,8 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
             writer.write(blk)
             clear[blk.block] = dict(zip(pass_ids, map(float, blk.clear_fraction)))
             chosen_pass[blk.block] = pass_ids[blk.chosen]
+            predicted[blk.block] = roi_predicted_coregistration([rp.pp for rp in roi_passes], blk.block, blk.chosen,
+                                                                cameras, som_dem.sigma_m, som_dem.resolution_m)
             obscured[blk.block] = {cam: float(blk.obscured[j].mean()) for j, cam in enumerate(cameras)}
             t1 = time.perf_counter()
             if opts.coregistration_points:
@@ -409,7 +412,12 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                                "blocks": [int(chosen.min()), int(chosen.max())], "passes": rows, "roi": roi_summary,
                                "roi_coregistration_px": {cam: max(float(st["excess_px"]) for st in kinds.values())
                                                          for cam, kinds in coreg.items() if kinds},
-                               "roi_coregistration": coreg, "notes": []}
+                               "roi_coregistration": coreg,
+                               "roi_predicted_px": {cam: {kind: max(p[cam][kind] for p in predicted.values() if cam in p)
+                                                          for kind in ("vs_An", "between_passes")
+                                                          if any(kind in p.get(cam, {}) for p in predicted.values())}
+                                                    for cam in cameras},
+                               "roi_predicted_px_by_block": predicted, "notes": []}
     if truth_scores:
         summary["roi_truth"] = truth_scores
         summary["roi_truth_obscured"] = hidden_counts

@@ -94,8 +94,8 @@ def test_bench_pp_at_reduced_size(bench_dir):
     per_block = blk["summary"]["per_block"]
     assert blk["block_range"] == f"{b}-{b}" and set(per_block) == set(blk["summary"]["per_camera"])
     for cam, v in per_block.items():
-        assert list(v) == [str(b)]
-        one = v[str(b)]
+        assert list(v) == [b]
+        one = v[b]
         assert one["passes"] == blk["summary"]["per_camera"][cam]["passes"]
         assert one["rms_over_predicted"] == pytest.approx(one["error_px_rms"] / one["predicted_px_rms"])
         assert 1 / 3 < one["rms_over_predicted"] < 3, cam

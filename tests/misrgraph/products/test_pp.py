@@ -153,8 +153,8 @@ def test_scores_per_block(adjusted, pp) -> None:
     scores = score_pp(pp, op, read_pass_truth(sc.pass_files[0]), step=8)
     for name, v in scores["pp_error_m"].items():
         b = scores["pp_error_by_block"][name]
-        assert list(b) == [str(BLOCK)]
-        blk = b[str(BLOCK)]
+        assert list(b) == [BLOCK]
+        blk = b[BLOCK]
         assert blk["n"] == v["n"] and blk["rms"] == pytest.approx(v["rms"]) and blk["error_px_rms"] == pytest.approx(v["error_px_rms"])
         c = pp.cameras.index(name)
         sub = (slice(None, None, 8), slice(None, None, 8))

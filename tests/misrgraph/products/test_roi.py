@@ -69,12 +69,21 @@ def test_misregistration_against_truth(roi_run):
         return max(float(np.nanmedian(np.hypot(pp.sigma_line[pp.cameras.index(cam)], pp.sigma_sample[pp.cameras.index(cam)])))
                    for pp in pps)
 
+    block = int(res["blocks"][0])
+    summary_pred = res["roi_predicted_px_by_block"][block]
     for cam in ("Df", "Da"):
         predicted = np.sqrt(DEM_PARALLAX_PX**2 + pp_sigma(cam)**2 + pp_sigma("An")**2)
         assert tr["between_cameras_px"][cam] < 3 * predicted, (cam, tr["between_cameras_px"][cam], predicted)
+        # the summary's own prediction (RMS over the block, chosen pass) agrees with this one
+        # (median over the block, worst pass) within the spread of the PP's sigma over a block
+        assert summary_pred[cam]["vs_An"] == pytest.approx(predicted, rel=0.3), cam
+        assert tr["between_cameras_px"][cam] < 3 * summary_pred[cam]["vs_An"], cam
     for cam in ("Df", "An", "Da"):
         predicted = np.sqrt(2) * pp_sigma(cam)
         assert tr["between_passes_px"][cam] < 3 * predicted, (cam, tr["between_passes_px"][cam], predicted)
+        assert summary_pred[cam]["between_passes"] == pytest.approx(predicted, rel=0.3), cam
+    assert "vs_An" not in summary_pred["An"]
+    assert res["roi_predicted_px"]["Da"]["vs_An"] == summary_pred["Da"]["vs_An"]  # one block: its worst is its own
 
 
 def test_matched_coregistration_against_truth(roi_run):
