@@ -51,6 +51,7 @@ def run_bench_roi(passes: int = 4, blocks: int = 2, seed: int = 0, workdir: str 
             "pp_predicted_m": {r["pass_id"]: {c: round(v["predicted_rms"], 1) for c, v in r.get("pp_error_m", {}).items()}
                                for r in res["passes"]},
             "roi_coregistration_px": res["roi_coregistration_px"], "roi_truth": res.get("roi_truth", {}),
+            "roi_predicted_px": res.get("roi_predicted_px", {}), "roi_predicted_px_by_block": res.get("roi_predicted_px_by_block", {}),
             "roi_truth_by_block": res.get("roi_truth_by_block", {}), "roi_truth_obscured": res.get("roi_truth_obscured", {}),
             "obscured_fraction": res["roi"].get("obscured_fraction"),
             "roi_coregistration": res["roi_coregistration"],

@@ -595,19 +595,24 @@ def products(
         console.print(table)
     if res.get("roi"):
         _print_coregistration(f"Reference Orbit Imagery -> {res['roi']['file']}: co-registration (px)", res["roi"]["cameras"],
-                              res["roi_coregistration_px"], res.get("roi_truth", {}))
+                              res["roi_coregistration_px"], res.get("roi_truth", {}), res.get("roi_predicted_px"))
     console.print(f"{res['seconds']['total']:.0f} s")
 
 
-def _print_coregistration(title: str, cameras: list[str], matched: dict[str, float], truth: dict[str, dict[str, float]]) -> None:
-    """The ROI's co-registration per camera: matched on the ROI (beyond matching noise) and, when
-    simulated, the truth against An and between passes (pixels)."""
+def _print_coregistration(title: str, cameras: list[str], matched: dict[str, float], truth: dict[str, dict[str, float]],
+                          predicted: dict[str, dict[str, float]] | None = None) -> None:
+    """The ROI's co-registration per camera: matched on the ROI (beyond matching noise), what the
+    adjustment's own uncertainty allows (worst block) and, when simulated, the truth against An
+    and between passes (pixels)."""
     table = Table(title=title)
-    for col in ("camera", "matched, beyond noise", "truth: vs An", "truth: between passes"):
+    for col in ("camera", "matched, beyond noise", "allowed: vs An", "allowed: between passes", "truth: vs An",
+                "truth: between passes"):
         table.add_column(col, justify="right")
     fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    predicted = predicted or {}
     for cam in cameras:
-        table.add_row(cam, fmt(matched.get(cam)), fmt(truth.get("between_cameras_px", {}).get(cam)),
+        table.add_row(cam, fmt(matched.get(cam)), fmt(predicted.get(cam, {}).get("vs_An")),
+                      fmt(predicted.get(cam, {}).get("between_passes")), fmt(truth.get("between_cameras_px", {}).get(cam)),
                       fmt(truth.get("between_passes_px", {}).get(cam)))
     console.print(table)
 
@@ -1026,7 +1031,8 @@ def bench_roi(
         _print_json(res)
         return
     _print_coregistration(f"ROI of {passes} passes x {blocks} blocks x 9 cameras: co-registration (px)",
-                          list(res["roi_coregistration_px"]), res["roi_coregistration_px"], res["roi_truth"])
+                          list(res["roi_coregistration_px"]), res["roi_coregistration_px"], res["roi_truth"],
+                          res.get("roi_predicted_px"))
     console.print("seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in res["seconds"].items() if v is not None))
 
 
