@@ -413,7 +413,7 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                                "roi_coregistration_px": {cam: max(float(st["excess_px"]) for st in kinds.values())
                                                          for cam, kinds in coreg.items() if kinds},
                                "roi_coregistration": coreg,
-                               "roi_predicted_px": {cam: {kind: max(p[cam][kind] for p in predicted.values() if cam in p)
+                               "roi_predicted_px": {cam: {kind: max(p[cam][kind] for p in predicted.values() if kind in p.get(cam, {}))
                                                           for kind in ("vs_An", "between_passes")
                                                           if any(kind in p.get(cam, {}) for p in predicted.values())}
                                                     for cam in cameras},
