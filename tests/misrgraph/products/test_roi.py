@@ -160,3 +160,35 @@ def test_view_roi_and_pp_sigma(roi_run, tmp_path):
     # the pass names apply to the source maps: logged on their common ancestor
     paths = {str(ch.entity_path) for ch in rc.RrdReader(str(tmp_path / "roi.rrd")).store().stream()}
     assert "/roi" in paths and "/roi/An/source" in paths
+
+
+def _flat_pp(blocks: list[int], sigmas: dict[str, tuple[float, float]]) -> "ProjectionParameters":
+    """A PP whose 1-sigma is constant per camera (line, sample) over its blocks (other grids zero)."""
+    from misrgraph.io.products import ProjectionParameters
+
+    cams = tuple(sigmas)
+    shape = (len(cams), len(blocks), 128, 512)
+    z = np.zeros(shape)
+    sl = np.stack([np.full(shape[1:], sigmas[c][0]) for c in cams])
+    ss = np.stack([np.full(shape[1:], sigmas[c][1]) for c in cams])
+    sl[..., :8] = np.nan  # points outside the view hold no sigma
+    return ProjectionParameters(37, np.array(blocks), cams, "red", "P", z, z, z, z, z, z, sl, ss, z, z)
+
+
+def test_predicted_coregistration_closed_form():
+    """roi_predicted_coregistration on PP of constant 1-sigma: the chosen pass's camera and An with
+    the DEM's parallax against An, the two least precise passes between passes; a pass without the
+    block is left out."""
+    from misrgraph.products.roi import roi_predicted_coregistration
+
+    pps = [_flat_pp([70, 71], {"An": (0.06, 0.08), "Da": (0.3, 0.4)}),
+           _flat_pp([70, 71], {"An": (0.12, 0.16), "Da": (0.6, 0.8)}),
+           _flat_pp([70, 71], {"An": (0.09, 0.12), "Da": (0.36, 0.48)}),
+           _flat_pp([62], {"An": (3.0, 4.0), "Da": (3.0, 4.0)})]  # another block: not in 71's figures
+    out = roi_predicted_coregistration(pps, 71, 0, ("An", "Da"), dem_sigma_m=10.0, resolution_m=275.0)
+    parallax = 10.0 * np.tan(np.radians(70.5)) / 275.0
+    assert out["Da"]["vs_An"] == pytest.approx(np.sqrt(parallax**2 + 0.5**2 + 0.1**2))
+    assert out["Da"]["between_passes"] == pytest.approx(np.hypot(1.0, 0.6))
+    assert out["An"] == {"between_passes": pytest.approx(np.hypot(0.2, 0.15))}
+    # with the second pass chosen, against An uses its sigmas
+    assert roi_predicted_coregistration(pps, 71, 1, ("An", "Da"), 0.0, 275.0)["Da"]["vs_An"] == pytest.approx(np.hypot(1.0, 0.2))
