@@ -105,15 +105,15 @@ def test_bench_pp_at_reduced_size(bench_dir):
 
 
 def test_bench_pp_refuses_a_bad_block_range(tmp_path):
+    """From the API and the CLI: the option and the value named, nothing simulated."""
+    from typer.testing import CliRunner
+
     from misrgraph.bench.studies import run_bench_pp
+    from misrgraph.commands.cli import app
 
     with pytest.raises(InputError, match="--block-range"):
         run_bench_pp(runs=2, workdir=tmp_path, block_range="71-66")
     assert list(tmp_path.iterdir()) == []  # refused before any pass was simulated
-    from typer.testing import CliRunner
-
-    from misrgraph.commands.cli import app
-
     out = CliRunner().invoke(app, ["bench", "pp", "--runs", "2", "--workdir", str(tmp_path), "--block-range", "71-66"])
     assert out.exit_code != 0 and "--block-range" in out.output and "71-66" in out.output
     assert list(tmp_path.iterdir()) == []
