@@ -285,14 +285,14 @@ def roi_predicted_coregistration(pps: list[ProjectionParameters], block: int, ch
         s2 = pp.sigma_line[c, j[0]] ** 2 + pp.sigma_sample[c, j[0]] ** 2
         return float(np.sqrt(np.nanmean(s2))) if np.any(np.isfinite(s2)) else float("nan")
 
+    s = {cam: np.array([sigma(pp, cam) for pp in pps]) for cam in set(cameras) | {"An"}}  # (pass,) per camera
     out: dict[str, dict[str, float]] = {}
     for cam in cameras:
-        per_pass = np.array([sigma(pp, cam) for pp in pps])
         row: dict[str, float] = {}
-        if np.sum(np.isfinite(per_pass)) >= 2:
-            worst = np.sort(per_pass[np.isfinite(per_pass)])[-2:]
-            row["between_passes"] = float(np.hypot(*worst))
-        s_an, s_cam = sigma(pps[chosen], "An"), sigma(pps[chosen], cam)
+        known = s[cam][np.isfinite(s[cam])]
+        if known.size >= 2:
+            row["between_passes"] = float(np.hypot(*np.sort(known)[-2:]))
+        s_an, s_cam = s["An"][chosen], s[cam][chosen]
         if cam != "An" and np.isfinite(s_an) and np.isfinite(s_cam):
             parallax = dem_sigma_m * abs(np.tan(np.radians(VIEW_ANGLE_DEG[cam]))) / resolution_m
             row["vs_An"] = float(np.sqrt(parallax**2 + s_cam**2 + s_an**2))

@@ -61,7 +61,7 @@ def parse_blocks(text: "str | tuple[int, int]", field: str = "--blocks") -> np.n
         text = f"{int(text[0])}-{int(text[1])}"
     if not isinstance(text, str):
         raise InputError(field, text, "a block range 'A-B', one block 'B' or a pair (A, B) of block numbers")
-    m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", text or "")
+    m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", text)
     if not m:
         raise InputError(field, text, "a block range A-B or one block B (1..180)")
     a, b = int(m.group(1)), int(m.group(2) or m.group(1))
@@ -413,10 +413,7 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                                "roi_coregistration_px": {cam: max(float(st["excess_px"]) for st in kinds.values())
                                                          for cam, kinds in coreg.items() if kinds},
                                "roi_coregistration": coreg,
-                               "roi_predicted_px": {cam: {kind: max(p[cam][kind] for p in predicted.values() if kind in p.get(cam, {}))
-                                                          for kind in ("vs_An", "between_passes")
-                                                          if any(kind in p.get(cam, {}) for p in predicted.values())}
-                                                    for cam in cameras},
+                               "roi_predicted_px": _worst_block(predicted, cameras),
                                "roi_predicted_px_by_block": predicted, "notes": []}
     if truth_scores:
         summary["roi_truth"] = truth_scores
@@ -427,6 +424,17 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
     return summary
+
+
+def _worst_block(per_block: dict[int, dict[str, dict[str, float]]], cameras: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    """``{camera: {kind: worst over the blocks}}`` of ``{block: {camera: {kind: px}}}`` (every
+    camera of ``cameras``, empty where no block has a figure for it)."""
+    worst: dict[str, dict[str, float]] = {cam: {} for cam in cameras}
+    for per_cam in per_block.values():
+        for cam, kinds in per_cam.items():
+            for kind, v in kinds.items():
+                worst[cam][kind] = max(v, worst[cam].get(kind, v))
+    return worst
 
 
 def _truth_surface(scenario: Path) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
