@@ -85,8 +85,7 @@ def _scenario_surface(directory: Path) -> Callable[[np.ndarray, np.ndarray], np.
     from misrgraph.sim.simulate import scenario_terrain
 
     cfg = json.loads(meta.read_text()).get("config", {})
-    return scenario_terrain(int(cfg.get("seed", 0)), str(cfg.get("truth", "model")),
-                            float(cfg.get("subposting_relief_m", 0.0))).height
+    return scenario_terrain(cfg).height
 
 
 def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Path, pass_index: int,

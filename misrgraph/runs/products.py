@@ -445,5 +445,5 @@ def _truth_surface(scenario: Path) -> Callable[[np.ndarray, np.ndarray], np.ndar
     if not meta.is_file():
         return None
     cfg = json.loads(meta.read_text()).get("config", {})
-    terrain = scenario_terrain(int(cfg.get("seed", 0)), str(cfg.get("truth", "model")), float(cfg.get("subposting_relief_m", 0.0)))
+    terrain = scenario_terrain(cfg)
     return lambda la, lo: terrain.height(la, lo)  # the simulator's geoid is zero

@@ -11,6 +11,8 @@ atomically (temporary file, then rename) and named by the SHA-256 of the source 
 new release of the data builds a new cache.
 
 Lookups index the grid exactly as ``global_land_mask.globe.is_land`` does (tested against it).
+:func:`coast_distance_m` gives each land point's distance to the nearest water cell (the simulator
+tapers its relief towards the coast with it).
 """
 
 from __future__ import annotations
@@ -24,11 +26,12 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import InputError
 
-__all__ = ["is_land", "cache_directory", "mask_cache_path"]
+__all__ = ["is_land", "coast_distance_m", "cache_directory", "mask_cache_path"]
 
 _ROWS_PER_CHUNK = 400
 
@@ -127,3 +130,73 @@ def is_land(lat: ArrayLike, lon: ArrayLike) -> NDArray[np.bool_]:
     byte = bits[i.ravel(), (j >> 3).ravel()]
     ocean = (byte >> (7 - (j.ravel() & 7)).astype(np.uint8)) & 1  # the data are an ocean mask
     return (ocean == 0).reshape(la.shape)
+
+
+#: cells per side of the tiles (1 deg) whose distance fields :func:`coast_distance_m` caches
+_TILE_CELLS = 120
+#: metres per degree of latitude on the 6371 km sphere (the cells' size for distances)
+_M_PER_DEG = 6371e3 * np.pi / 180.0
+
+
+@functools.lru_cache(maxsize=1024)
+def _tile_distance(ti: int, tj: int, cap_m: float) -> tuple[NDArray[np.float32], int, int]:
+    """Distance (m) from every cell centre of the 1-deg tile ``(ti, tj)`` (row/column tile
+    indices of the mask grid), plus a margin wide enough to hold ``cap_m`` each side, to the
+    nearest water cell centre, at most ``cap_m`` plus a cell (so that water beyond the margin
+    never matters). Returns the field (rows, columns) and the margin (rows, columns) in cells."""
+    bits = _mask()[0]
+    n_rows, n_cols = bits.shape[0], bits.shape[1] * 8
+    _, _, lat0, dlat, _, _, _, dlon = _axes()
+    dy = abs(dlat) * _M_PER_DEG
+    # the tile's poleward edge has the narrowest columns
+    edge_lat = max(abs(lat0 + ti * _TILE_CELLS * dlat), abs(lat0 + (ti + 1) * _TILE_CELLS * dlat))
+    dx = abs(dlon) * _M_PER_DEG * max(np.cos(np.radians(min(edge_lat, 90.0))), 0.01)
+    mr, mc = int(np.ceil(cap_m / dy)) + 2, int(np.ceil(cap_m / dx)) + 2
+    r = np.clip(np.arange(ti * _TILE_CELLS - mr, (ti + 1) * _TILE_CELLS + mr), 0, n_rows - 1)
+    c = np.arange(tj * _TILE_CELLS - mc, (tj + 1) * _TILE_CELLS + mc) % n_cols
+    ocean = (bits[r[:, None], (c >> 3)[None, :]] >> (7 - (c & 7)).astype(np.uint8)[None, :]) & 1
+    land = ocean == 0
+    if land.all():
+        return np.full(land.shape, cap_m + dy, np.float32), mr, mc
+    lat_mid = lat0 + (ti + 0.5) * _TILE_CELLS * dlat
+    dx_mid = abs(dlon) * _M_PER_DEG * max(np.cos(np.radians(lat_mid)), 0.01)
+    d = ndimage.distance_transform_edt(land, sampling=(dy, dx_mid))
+    return np.minimum(d, cap_m + dy).astype(np.float32), mr, mc
+
+
+def coast_distance_m(lat: ArrayLike, lon: ArrayLike, cap_m: float) -> NDArray[np.float64]:
+    """Distance (m) from geodetic ``lat, lon`` (deg; longitudes in [-180, 180); any broadcastable
+    shapes) to the coast of the land mask, 0 over water, capped at ``cap_m`` (farther is
+    ``cap_m``). Continuous: the distance of each cell centre to the nearest water cell centre,
+    bilinear between cell centres, less half a cell (the coast is a cell edge, half a cell from
+    the centres either side), so it is ~0 along the mask's coast (within half the difference of
+    the cell's sides, tens of metres) and grows by about a metre per metre inland. Cells are
+    1/120 deg on the 6371 km sphere."""
+    cap = float(cap_m)
+    la, lo = np.broadcast_arrays(np.asarray(lat, dtype=float), np.asarray(lon, dtype=float))
+    out = np.zeros(la.shape)
+    land = is_land(la, lo)
+    if cap <= 0 or not land.any():
+        return out
+    lat_min, lat_max, lat0, dlat, _, _, lon0, dlon = _axes()
+    n_rows, n_cols = _mask()[0].shape[0], _mask()[0].shape[1] * 8
+    u = (np.clip(la[land], lat_min, lat_max) - lat0) / dlat - 0.5  # cell i's centre at u = i
+    v = (lo[land] - lon0) / dlon - 0.5
+    i0, j0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    fu, fv = u - i0, v - j0
+    i0 = np.clip(i0, 0, n_rows - 2)
+    j0 = j0 % n_cols
+    ti, tj = i0 // _TILE_CELLS, j0 // _TILE_CELLS
+    key = ti * (n_cols // _TILE_CELLS + 1) + tj
+    vals = np.empty(key.size)
+    for k in np.unique(key):
+        sel = np.flatnonzero(key == k)
+        a, b = int(ti[sel[0]]), int(tj[sel[0]])
+        d, mr, mc = _tile_distance(a, b, cap)
+        ri, ci = i0[sel] - a * _TILE_CELLS + mr, j0[sel] - b * _TILE_CELLS + mc
+        wu, wv = fu[sel], fv[sel]
+        vals[sel] = ((1 - wu) * ((1 - wv) * d[ri, ci] + wv * d[ri, ci + 1])
+                     + wu * ((1 - wv) * d[ri + 1, ci] + wv * d[ri + 1, ci + 1]))
+    half = 0.5 * abs(dlat) * _M_PER_DEG  # rows are the longer side (cos(lat) <= 1 shortens columns)
+    out[land] = np.clip(vals - half, 0.0, cap)
+    return out

@@ -29,6 +29,7 @@ import logging
 import os
 import shutil
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -134,6 +135,11 @@ class ScenarioConfig(Config):
     far as its camera variables allow (it estimates delta, beta, epsilon, alpha_2, alpha_3 by
     default). Each is switched off by 0 (``mismatch_rate``: 0.0); :data:`INDEPENDENT_SOURCES` names them.
 
+    ``coast_ramp_m`` (both truths): the terrain's relief rises from 0 at the coast to its full
+    height over this distance inland (:class:`~misrgraph.sim.terrain.SyntheticTerrain`); 0 leaves
+    a cliff of the relief's height (~1.2 km on average) at every coast, as scenarios simulated
+    before the ramp existed have (their ``scenario.json`` lacks the key).
+
     ``path`` scenario: ``n_passes`` repeat passes, one every 16 days from ``epoch_date``; or, when
     ``repeat_indices`` is given, only those repeat cycles (cycle k starts 16 k days after
     ``epoch_date``, orbit 233 k) -- the campaign simulates the passes it selects this way.
@@ -161,6 +167,7 @@ class ScenarioConfig(Config):
     jitter_arcsec: float = 1.0
     once_per_rev_m: float = 30.0
     subposting_relief_m: float = 3.0
+    coast_ramp_m: float = 8000.0
     dem_correlated_fraction: float = 0.5
     camera_f_alpha_px: float = 0.05
     noise_tail_dof: float = 5.0
@@ -224,6 +231,8 @@ class ScenarioConfig(Config):
         for name in ("jitter_arcsec", "once_per_rev_m", "subposting_relief_m", "camera_f_alpha_px"):
             if not getattr(self, name) >= 0:
                 raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma)")
+        if not self.coast_ramp_m >= 0:
+            raise InputError("coast_ramp_m", self.coast_ramp_m, "a distance >= 0 (m; 0: no ramp)")
         if not (self.noise_tail_dof == 0 or self.noise_tail_dof > 2):
             raise InputError("noise_tail_dof", self.noise_tail_dof, "0 (Gaussian) or degrees of freedom > 2 (finite variance)")
         if len(self.mismatch_px) != 2 or not 0 < self.mismatch_px[0] <= self.mismatch_px[1]:
@@ -694,9 +703,16 @@ def load_scenario(directory: str | os.PathLike[str]) -> Scenario:
     )
 
 
-def scenario_terrain(seed: int, truth: str, subposting_relief_m: float) -> SyntheticTerrain:
-    """The true terrain of a scenario (its seed; sub-posting relief only under the independent truth)."""
-    return SyntheticTerrain(seed=seed, fine_relief_m=subposting_relief_m if truth == "independent" else 0.0)
+def scenario_terrain(cfg: ScenarioConfig | Mapping[str, Any]) -> SyntheticTerrain:
+    """The true terrain of a scenario: its seed; sub-posting relief only under the independent
+    truth; the coast ramp. ``cfg`` is a :class:`ScenarioConfig` or the ``config`` of a scenario's
+    ``scenario.json``, where a missing ``coast_ramp_m`` (a scenario simulated before it existed)
+    is 0, the world that scenario was simulated in."""
+    get = cfg.get if isinstance(cfg, Mapping) else (lambda k, d: getattr(cfg, k))
+    truth = str(get("truth", "model"))
+    return SyntheticTerrain(seed=int(get("seed", 0)),
+                            fine_relief_m=float(get("subposting_relief_m", 0.0)) if truth == "independent" else 0.0,
+                            coast_ramp_m=float(get("coast_ramp_m", 0.0)))
 
 
 def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Progress | None = None) -> dict[str, Any]:
@@ -706,7 +722,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     _check_replaceable(out_dir)
     rng = np.random.default_rng(cfg.seed)
     independent = cfg.truth == "independent"
-    terrain = scenario_terrain(cfg.seed, cfg.truth, cfg.subposting_relief_m)
+    terrain = scenario_terrain(cfg)
     geoid = Geoid("zero")
     nominal = nominal_camera_model()
     gcps, gcp_truth = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips,

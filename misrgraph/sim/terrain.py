@@ -5,7 +5,9 @@ hands the estimator (heights = terrain + a DEM error the estimator does not know
   of random 3-D plane waves evaluated on the sphere (smooth across the antimeridian and the
   poles) with wavelengths from 1.5 km to 300 km and amplitudes growing with wavelength (a
   fractal-like spectrum, relief of a few km, slopes up to ~20 deg), zero over the ocean (real
-  land mask, :mod:`misrgraph.sim.landmask`).
+  land mask, :mod:`misrgraph.sim.landmask`). The waves sum to ~1.2 km on average, so without a
+  taper every coast is a cliff of that height within one posting; ``coast_ramp_m`` tapers the
+  relief to 0 at the coast over that distance inland (smoothstep of the distance to the coast).
 * :func:`simulate_dem_tiles` makes :class:`~misrgraph.model.dem.DemTiles` around points; the
   heights' error is a smooth field of the quality's sigma plus white noise of a tenth of it, a
   function of position (not of the tile), so the local fit's reported sigma is honest.
@@ -20,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import InputError
-from misrgraph.sim.landmask import is_land
+from misrgraph.sim.landmask import coast_distance_m, is_land
 from misrgraph.model.dem import (FLAG_BOUNDARY, FLAG_LAND, FLAG_WATER, POSTING_DEG, POSTINGS_360, QUALITY_SIGMA_M,
                                  DemTiles, dted_lon_posting_factor, wrap_deg)
 
@@ -49,6 +51,9 @@ class SyntheticTerrain:
     #: RMS (m) of sub-posting relief: 24 plane waves of 30-180 m wavelength that a 3" (~90 m)
     #: DEM cannot hold (0: none, the default; the simulator's independent truth sets it)
     fine_relief_m: float = 0.0
+    #: distance (m) inland over which the relief rises from 0 at the coast to its full height
+    #: (smoothstep; steepest at half-way, 1.5 x relief / ramp). 0: no taper, a cliff at every coast
+    coast_ramp_m: float = 0.0
 
     def _waves(self) -> tuple[Array, Array, Array]:
         cached = self.__dict__.get("_wave_cache")
@@ -88,10 +93,24 @@ class SyntheticTerrain:
         arg = xyz @ k.T + ph
         return np.sum(amp * (1 + np.sin(arg)), axis=-1) * 0.5
 
-    def height(self, lat: ArrayLike, lon: ArrayLike) -> Array:
-        """Height above MSL (m): relief over land, 0 over water."""
+    def coast_taper(self, lat: ArrayLike, lon: ArrayLike) -> Array:
+        """The relief's factor (0..1) near the coast: ``smoothstep(d / coast_ramp_m)`` of the
+        distance ``d`` (m) to the coast (0 over water); 1 everywhere without a ramp."""
+        if self.coast_ramp_m <= 0:
+            return np.ones(np.broadcast(np.asarray(lat), np.asarray(lon)).shape)
+        t = coast_distance_m(lat, wrap_deg(lon), self.coast_ramp_m) / self.coast_ramp_m
+        return t * t * (3.0 - 2.0 * t)
+
+    def land_height(self, lat: ArrayLike, lon: ArrayLike, land: NDArray[np.bool_]) -> Array:
+        """:meth:`height` for a land mask ``land`` the caller already has (same shape)."""
         h = self.relief(lat, lon)
-        return np.where(land_mask(lat, lon), h, 0.0)
+        if self.coast_ramp_m > 0:
+            h = h * self.coast_taper(lat, lon)
+        return np.where(land, h, 0.0)
+
+    def height(self, lat: ArrayLike, lon: ArrayLike) -> Array:
+        """Height above MSL (m): relief over land (times :meth:`coast_taper`), 0 over water."""
+        return self.land_height(lat, lon, land_mask(lat, lon))
 
 
 def _hash_uniform(i: NDArray[np.int64], j: NDArray[np.int64], seed: int) -> Array:
@@ -201,7 +220,7 @@ def simulate_dem_tiles(
         gj = (c1[:, None, None] + 0 * g[None, :, None] + g[None, None, :] * f[:, None, None]) % POSTINGS_360
         glat, glon = gi * p, wrap_deg(gj * p)
         land = land_mask(glat, glon)
-        true_h = np.where(land, terrain.relief(glat, glon), 0.0)
+        true_h = terrain.land_height(glat, glon, land)
         flags = np.where(land, FLAG_LAND, FLAG_WATER).astype(np.uint8)
         # boundary: a land posting next to water or vice versa
         pd = np.pad(land, ((0, 0), (1, 1), (1, 1)), mode="edge")

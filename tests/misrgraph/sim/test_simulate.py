@@ -76,11 +76,19 @@ def test_pass_contents(small_pass):
     assert np.all(counts[p.landmarks.kind == KIND_TIE] >= 3)
     # tie points are on land, on the true terrain
     lat, lon, h = ecef_to_geodetic(tp.landmark_ecef)
+    from misrgraph.sim.simulate import scenario_terrain
     from misrgraph.sim.terrain import SyntheticTerrain, land_mask
 
     assert land_mask(lat, lon).all()
+    # the scenario records its world: seed 11 with the default coast ramp
+    cfg = sc.config["config"]
+    assert cfg["coast_ramp_m"] == 8000.0
     np.testing.assert_allclose(h[p.landmarks.kind == KIND_TIE],
-                               SyntheticTerrain(seed=11).height(lat, lon)[p.landmarks.kind == KIND_TIE], atol=1e-3)
+                               SyntheticTerrain(seed=11, coast_ramp_m=8000.0).height(lat, lon)[p.landmarks.kind == KIND_TIE],
+                               atol=1e-3)
+    assert scenario_terrain(cfg) == SyntheticTerrain(seed=11, coast_ramp_m=8000.0)
+    old = {k: v for k, v in cfg.items() if k != "coast_ramp_m"}  # a scenario from before the ramp
+    assert scenario_terrain(old).coast_ramp_m == 0.0
     # blunders: configured rate 2 % on tie points
     tie_obs = p.landmarks.kind[p.observations.landmark] == KIND_TIE
     rate = tp.blunder[tie_obs].mean()
