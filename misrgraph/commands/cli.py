@@ -156,6 +156,7 @@ def simulate(
     band_misalignment: float = typer.Option(0.0, "--band-misalignment-arcsec", help="Per-band truth: 1 sigma of each band's own delta, beta, epsilon offsets (arcsec)."),
     truth: str = typer.Option("model", "--truth", help="model (navigation errors drawn from the estimator's own parameterisations: checks the algebra) or independent (error sources the estimator does not share: an attitude process with jitter, a once-per-revolution ephemeris term, sub-posting terrain, DEM error correlated over 28 km, f/alpha camera errors, Student-t matching noise with 1-2 px mismatches, scene-correlated GCP errors; see docs/design.md: checks the estimator)."),
     imagery: bool = typer.Option(False, "--imagery", help="Also render the image windows matching reads (ray-cast through the true geometry, 14-bit; tie points in red, GCP windows and chips in every band of --bands) and the GCPs' reference chips, into each pass file (every scenario; a month gets its GCP windows and chips, ~0.3 s per GCP observation and band)."),
+    coast_ramp: float = typer.Option(8000.0, "--coast-ramp-m", help="Distance inland (m) over which the terrain's relief rises from 0 at the coast to its full height (0: a cliff of the relief's height, ~1.2 km on average, at every coast, as in scenarios simulated before 2026-11-25)."),
     cloud_fraction: float = typer.Option(0.0, "--cloud-fraction", help="With --imagery: fraction of the sky covered by clouds on a layer 3 km up (they appear displaced with view angle; each pass has its own)."),
     roi_blocks: Optional[str] = typer.Option(None, "--roi-blocks", help="With --imagery: also render every pass's whole image lines over these SOM blocks A-B (red band, all cameras; ~12 microseconds per pixel: ~80 s a block and pass of 9 cameras on 2 cores) and write dem_som.h5, for 'misrgraph products --roi'."),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of ScenarioConfig fields (overrides the options; strip_cameras, strip_samples and roi_dem_sigma_m are set here)."),
@@ -172,7 +173,7 @@ def simulate(
                   noise_free=noise_free, with_chips=chips, camera_truth=str(camera_truth) if camera_truth else "",
                   thermal_arcsec_per_c=thermal, thermal_focal_ppm_per_c=thermal_ppm,
                   bands=tuple(b.strip() for b in bands.split(",") if b.strip()), band_misalignment_arcsec=band_misalignment,
-                  truth=truth, imagery=imagery, cloud_fraction=cloud_fraction)
+                  truth=truth, imagery=imagery, cloud_fraction=cloud_fraction, coast_ramp_m=coast_ramp)
     if roi_blocks:
         from misrgraph.runs.products import parse_blocks
 

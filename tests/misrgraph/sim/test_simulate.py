@@ -366,3 +366,17 @@ def test_measurements_moved_outside_the_pass_are_not_made(tmp_path):
     clean = tmp_path / "clean"
     run_simulate(dataclasses.replace(cfg, tie_blunder_rate=0.0), clean)
     assert len(load_scenario(clean).load_pass(0).observations) > len(p.observations)
+
+
+def test_cli_refuses_a_negative_coast_ramp(tmp_path):
+    """``simulate --coast-ramp-m -5``: a clear error naming the field and the expected value, and
+    no scenario directory left behind."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "scen"
+    r = subprocess.run([sys.executable, "-m", "misrgraph", "simulate", "--coast-ramp-m", "-5", "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode != 0
+    assert "coast_ramp_m" in r.stderr and "-5.0" in r.stderr and ">= 0" in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists()
