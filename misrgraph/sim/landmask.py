@@ -127,9 +127,12 @@ def is_land(lat: ArrayLike, lon: ArrayLike) -> NDArray[np.bool_]:
     lo = np.clip(lo, lon_min, lon_max)
     i = ((la - lat0) / dlat).astype(np.int64)
     j = ((lo - lon0) / dlon).astype(np.int64)
-    byte = bits[i.ravel(), (j >> 3).ravel()]
-    ocean = (byte >> (7 - (j.ravel() & 7)).astype(np.uint8)) & 1  # the data are an ocean mask
-    return (ocean == 0).reshape(la.shape)
+    return np.asarray(_ocean(bits, i, j) == 0).reshape(la.shape)
+
+
+def _ocean(bits: NDArray[np.uint8], i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.uint8]:
+    """The packed mask's ocean flag (1: water) of cells (row ``i``, column ``j``), broadcast."""
+    return (bits[i, j >> 3] >> (7 - (j & 7)).astype(np.uint8)) & 1
 
 
 #: cells per side of the tiles (1 deg) whose distance fields :func:`coast_distance_m` caches
@@ -154,8 +157,7 @@ def _tile_distance(ti: int, tj: int, cap_m: float) -> tuple[NDArray[np.float32],
     mr, mc = int(np.ceil(cap_m / dy)) + 2, int(np.ceil(cap_m / dx)) + 2
     r = np.clip(np.arange(ti * _TILE_CELLS - mr, (ti + 1) * _TILE_CELLS + mr), 0, n_rows - 1)
     c = np.arange(tj * _TILE_CELLS - mc, (tj + 1) * _TILE_CELLS + mc) % n_cols
-    ocean = (bits[r[:, None], (c >> 3)[None, :]] >> (7 - (c & 7)).astype(np.uint8)[None, :]) & 1
-    land = ocean == 0
+    land = _ocean(bits, r[:, None], c[None, :]) == 0
     if land.all():
         return np.full(land.shape, cap_m + dy, np.float32), mr, mc
     lat_mid = lat0 + (ti + 0.5) * _TILE_CELLS * dlat
@@ -164,7 +166,8 @@ def _tile_distance(ti: int, tj: int, cap_m: float) -> tuple[NDArray[np.float32],
     return np.minimum(d, cap_m + dy).astype(np.float32), mr, mc
 
 
-def coast_distance_m(lat: ArrayLike, lon: ArrayLike, cap_m: float) -> NDArray[np.float64]:
+def coast_distance_m(lat: ArrayLike, lon: ArrayLike, cap_m: float,
+                     land: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """Distance (m) from geodetic ``lat, lon`` (deg; longitudes in [-180, 180); any broadcastable
     shapes) to the coast of the land mask, 0 over water, capped at ``cap_m`` (farther is
     ``cap_m``). Continuous: the distance of each cell centre to the nearest water cell centre,
@@ -172,15 +175,17 @@ def coast_distance_m(lat: ArrayLike, lon: ArrayLike, cap_m: float) -> NDArray[np
     the centres either side), so it is near 0 along the mask's coast (under half a cell on its land
     side: where two rows' coasts differ, their blend can miss the edge) and grows by about a metre
     per metre inland; within 0.71 cell of the distance to the nearest water (tested). Cells are
-    1/120 deg on the 6371 km sphere."""
+    1/120 deg on the 6371 km sphere. ``land``: :func:`is_land` of the points when the caller
+    already has it (the broadcast shape)."""
     cap = float(cap_m)
     la, lo = np.broadcast_arrays(np.asarray(lat, dtype=float), np.asarray(lon, dtype=float))
     out = np.zeros(la.shape)
-    land = is_land(la, lo)
+    land = is_land(la, lo) if land is None else np.broadcast_to(land, la.shape)
     if cap <= 0 or not land.any():
         return out
     lat_min, lat_max, lat0, dlat, _, _, lon0, dlon = _axes()
-    n_rows, n_cols = _mask()[0].shape[0], _mask()[0].shape[1] * 8
+    n_rows, n_bytes = _mask()[0].shape
+    n_cols = 8 * n_bytes
     u = (np.clip(la[land], lat_min, lat_max) - lat0) / dlat - 0.5  # cell i's centre at u = i
     v = (lo[land] - lon0) / dlon - 0.5
     i0, j0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
@@ -190,8 +195,9 @@ def coast_distance_m(lat: ArrayLike, lon: ArrayLike, cap_m: float) -> NDArray[np
     ti, tj = i0 // _TILE_CELLS, j0 // _TILE_CELLS
     key = ti * (n_cols // _TILE_CELLS + 1) + tj
     vals = np.empty(key.size)
-    for k in np.unique(key):
-        sel = np.flatnonzero(key == k)
+    order = np.argsort(key, kind="stable")  # the points grouped by tile
+    _, starts = np.unique(key[order], return_index=True)
+    for sel in np.split(order, starts[1:]):
         a, b = int(ti[sel[0]]), int(tj[sel[0]])
         d, mr, mc = _tile_distance(a, b, cap)
         ri, ci = i0[sel] - a * _TILE_CELLS + mr, j0[sel] - b * _TILE_CELLS + mc

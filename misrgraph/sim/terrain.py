@@ -93,19 +93,20 @@ class SyntheticTerrain:
         arg = xyz @ k.T + ph
         return np.sum(amp * (1 + np.sin(arg)), axis=-1) * 0.5
 
-    def coast_taper(self, lat: ArrayLike, lon: ArrayLike) -> Array:
+    def coast_taper(self, lat: ArrayLike, lon: ArrayLike, land: NDArray[np.bool_] | None = None) -> Array:
         """The relief's factor (0..1) near the coast: ``smoothstep(d / coast_ramp_m)`` of the
-        distance ``d`` (m) to the coast (0 over water); 1 everywhere without a ramp."""
+        distance ``d`` (m) to the coast (0 over water); 1 everywhere without a ramp. ``land``: the
+        points' land mask when the caller already has it."""
         if self.coast_ramp_m <= 0:
             return np.ones(np.broadcast(np.asarray(lat), np.asarray(lon)).shape)
-        t = coast_distance_m(lat, wrap_deg(lon), self.coast_ramp_m) / self.coast_ramp_m
+        t = coast_distance_m(lat, wrap_deg(lon), self.coast_ramp_m, land) / self.coast_ramp_m
         return t * t * (3.0 - 2.0 * t)
 
     def land_height(self, lat: ArrayLike, lon: ArrayLike, land: NDArray[np.bool_]) -> Array:
         """:meth:`height` for a land mask ``land`` the caller already has (same shape)."""
         h = self.relief(lat, lon)
         if self.coast_ramp_m > 0:
-            h = h * self.coast_taper(lat, lon)
+            h = h * self.coast_taper(lat, lon, land)
         return np.where(land, h, 0.0)
 
     def height(self, lat: ArrayLike, lon: ArrayLike) -> Array:
