@@ -602,19 +602,22 @@ def products(
 
 def _print_coregistration(title: str, cameras: list[str], matched: dict[str, float], truth: dict[str, dict[str, float]],
                           predicted: dict[str, dict[str, float]] | None = None) -> None:
-    """The ROI's co-registration per camera: matched on the ROI (beyond matching noise), what the
-    adjustment's own uncertainty allows (worst block) and, when simulated, the truth against An
-    and between passes (pixels)."""
+    """The ROI's co-registration per camera (pixels, worst block): matched on the ROI (beyond
+    matching noise, a block's pairs pooled), what the adjustment's own uncertainty allows and,
+    when simulated, the truth against An and between passes (pooled as the matches are) and of
+    the worst single pair of images."""
     table = Table(title=title)
     for col in ("camera", "matched, beyond noise", "allowed: vs An", "allowed: between passes", "truth: vs An",
-                "truth: between passes"):
+                "truth: between passes", "truth: worst pair"):
         table.add_column(col, justify="right")
     fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
     predicted = predicted or {}
     for cam in cameras:
+        worst = [v for k in ("between_cameras_px", "between_passes_px") if (v := truth.get(k, {}).get(cam)) is not None]
         table.add_row(cam, fmt(matched.get(cam)), fmt(predicted.get(cam, {}).get("vs_An")),
-                      fmt(predicted.get(cam, {}).get("between_passes")), fmt(truth.get("between_cameras_px", {}).get(cam)),
-                      fmt(truth.get("between_passes_px", {}).get(cam)))
+                      fmt(predicted.get(cam, {}).get("between_passes")),
+                      fmt(truth.get("between_cameras_pooled_px", {}).get(cam)),
+                      fmt(truth.get("between_passes_pooled_px", {}).get(cam)), fmt(max(worst) if worst else None))
     console.print(table)
 
 

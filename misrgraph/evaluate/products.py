@@ -28,7 +28,7 @@ from misrgraph.model.frames import enu_basis, geodetic_to_ecef
 from misrgraph.io.products import ProjectionParameters
 from misrgraph.products.pp import crossing, ground_derivatives
 
-__all__ = ["score_pp", "score_roi", "truth_hidden"]
+__all__ = ["score_pp", "score_roi", "score_roi_matches", "truth_hidden"]
 
 Array = NDArray[np.float64]
 
@@ -132,6 +132,73 @@ def truth_hidden(geo: Any, cam: int, band: int, ground: Array, surface: Callable
     return hidden_in_image(geo, cams, band, ip, ground, surface, min_distance_m)
 
 
+def _seen_error(grid: Any, block: int, geo: Any, pp: ProjectionParameters, cam: str, pl: NDArray[np.int64],
+                ps: NDArray[np.int64], heights: NDArray[np.float32],
+                surface: Callable[[Array, Array], Array]) -> tuple[Array, Array, Array]:
+    """The true geolocation error ``(n, 2)`` (SOM line, sample; 275 m px; NaN where the PP do not
+    image the point) of what camera ``cam``'s image, resampled by ``pp`` at the SOM DEM's
+    ``heights``, shows at grid points ``(pl, ps)`` of ``block``: where the true geometry ``geo``'s
+    ray through the PP's image position first meets the true ``surface``, less the grid point.
+    Also the PP's image line and sample ``(n,)``."""
+    from misrgraph.model.frames import ecef_to_geodetic
+
+    ln, sm = pp.image_coords(cam, block, pl.astype(float), ps.astype(float), heights[pl, ps], resolution_m=275)
+    ok = np.isfinite(ln) & np.isfinite(sm)
+    e = np.full((pl.size, 2), np.nan)
+    if ok.any():
+        g = _seen_ground(geo, CAMERAS.index(cam), BANDS.index(pp.band), ln[ok], sm[ok], surface)
+        lat, lon, _ = ecef_to_geodetic(g)
+        b, gl, gs = grid.latlon_to_bls(lat, lon, strict=False)
+        e[ok] = np.stack([gl + (b - block) * grid.nline - pl[ok], gs - ps[ok]], 1)
+    return e, ln, sm
+
+
+def score_roi_matches(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]],
+                      heights: NDArray[np.float32], cameras: tuple[str, ...], surface: Callable[[Array, Array], Array],
+                      matches: list[Any]) -> dict[str, dict[str, dict[str, float | int]]]:
+    """The truth at the very points co-registration matched (simulated passes only): per camera
+    and kind (:class:`misrgraph.products.roi.PairMatches`, pairs of at least 3 matches), the
+    pooled radial RMS of the true misregistration there, ``truth_px`` -- what the matched
+    ``excess_px`` estimates -- and of the matching error (matched offset less the true one),
+    ``error_px``, with the RMS of its components over their LSM 1-sigma, ``error_over_sigma``,
+    and ``matches``. A pair's true offset at a grid point is the reference image's error less
+    the other's (:func:`_seen_error`): the reference shows there the ground the other shows at
+    the point plus the offset. Points either image does not show are left out."""
+    from misrgraph.misr.som import SomGrid
+
+    grid = SomGrid(int(passes[0][2].path), 275)
+    need: dict[tuple[int, int], list[NDArray[np.int64]]] = {}
+    for m in matches:
+        if m.offsets.shape[0] >= 3:
+            need.setdefault(m.ref, []).append(m.points)
+            need.setdefault(m.other, []).append(m.points)
+    err: dict[tuple[int, int], dict[tuple[int, int], Array]] = {}
+    for (k, c), pts in need.items():
+        u = np.unique(np.concatenate(pts), axis=0)
+        orbit_pass, truth, pp = passes[k]
+        e, _, _ = _seen_error(grid, block, truth.geometry(orbit_pass), pp, cameras[c], u[:, 0], u[:, 1], heights,
+                              surface)
+        err[(k, c)] = {(int(r), int(q)): e[i] for i, (r, q) in enumerate(u)}
+    acc: dict[tuple[str, str], list[Array]] = {}
+    for m in matches:
+        if m.offsets.shape[0] < 3:
+            continue
+        t = np.array([err[m.ref][(int(r), int(q))] - err[m.other][(int(r), int(q))] for r, q in m.points])
+        ok = np.isfinite(t).all(1)
+        acc.setdefault((m.camera, m.kind), []).append(np.column_stack([t[ok], m.offsets[ok]]))
+    out: dict[str, dict[str, dict[str, float | int]]] = {}
+    for (cam, kind), rows in acc.items():
+        a = np.concatenate(rows)
+        if a.shape[0] == 0:
+            continue
+        t, d, sd = a[:, :2], a[:, 2:4], a[:, 4:6]
+        out.setdefault(cam, {})[kind] = {
+            "truth_px": float(np.sqrt(np.mean(np.sum(t**2, 1)))),
+            "error_px": float(np.sqrt(np.mean(np.sum((d - t)**2, 1)))),
+            "error_over_sigma": float(np.sqrt(np.mean(((d - t) / sd)**2))), "matches": int(a.shape[0])}
+    return out
+
+
 def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]], heights: NDArray[np.float32],
               cameras: tuple[str, ...], surface: Callable[[Array, Array], Array], n_points: int = 300,
               seed: int = 0, reference: int | None = None,
@@ -146,7 +213,9 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
     ROI flags as obscured by terrain (``obscured (P, C, 512, 2048)``, per pass and camera of
     ``cameras``; :mod:`misrgraph.products.terrain`) are left out. Returns ``{"geolocation_px":
     {camera: worst RMS over passes}, "between_cameras_px": {camera: worst RMS against An over
-    passes}, "between_passes_px": {camera: worst RMS over pairs of passes}, "obscured": {camera:
+    passes}, "between_passes_px": {camera: worst RMS over pairs of passes}, "geolocation_pooled_px",
+    "between_cameras_pooled_px" and "between_passes_pooled_px" (the RMS over every pair's points pooled, as
+    :func:`misrgraph.products.roi.coregistration` pools its matches), "obscured": {camera:
     {"points", "flagged", "hidden", "missed", "false"}}}`` -- what matching on the ROI measures,
     without the matching error; ``obscured`` counts, over passes and points the camera images,
     those the ROI flags, those the truth hides (:func:`truth_hidden`), the hidden ones not flagged
@@ -154,7 +223,6 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
     :func:`misrgraph.products.roi.coregistration` compares) the pairs of passes are each pass
     with that one."""
     from misrgraph.misr.som import SomGrid
-    from misrgraph.model.frames import ecef_to_geodetic
 
     rng = np.random.default_rng(seed)
     grid = SomGrid(int(passes[0][2].path), 275)
@@ -172,15 +240,10 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
         geo = truth.geometry(orbit_pass)
         bi = BANDS.index(pp.band)
         for j, cam in enumerate(cameras):
-            ln, sm = pp.image_coords(cam, block, pl.astype(float), ps.astype(float), heights[pl, ps], resolution_m=275)
+            e, ln, sm = _seen_error(grid, block, geo, pp, cam, pl, ps, heights, surface)
             ok = np.isfinite(ln) & np.isfinite(sm)
-            e = np.full((n_points, 2), np.nan)
             if ok.any():
                 ci = CAMERAS.index(cam)
-                g = _seen_ground(geo, ci, bi, ln[ok], sm[ok], surface)
-                lat, lon, _ = ecef_to_geodetic(g)
-                b, gl, gs = grid.latlon_to_bls(lat, lon, strict=False)
-                e[ok] = np.stack([gl + (b - block) * grid.nline - pl[ok], gs - ps[ok]], 1)
                 flagged = obscured[k, j][pl, ps][ok] if obscured is not None else np.zeros(int(ok.sum()), bool)
                 hidden = truth_hidden(geo, ci, bi, ground_true[ok], surface)
                 c = counts[cam]
@@ -192,17 +255,26 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
                 e[np.flatnonzero(ok)[flagged]] = np.nan  # the ROI leaves these out
             err[(k, cam)] = e
 
-    def worst(pairs: list[tuple[Array, Array | None]]) -> float | None:
-        vals = []
+    def squares(pairs: list[tuple[Array, Array | None]]) -> list[Array]:
+        out = []
         for a, b in pairs:
             d = a if b is None else a - b
             fin = np.isfinite(d).all(1)
             if fin.sum() >= 3:
-                vals.append(float(np.sqrt(np.mean(np.sum(d[fin] ** 2, 1)))))
+                out.append(np.sum(d[fin] ** 2, 1))
+        return out
+
+    def worst(pairs: list[tuple[Array, Array | None]]) -> float | None:
+        vals = [float(np.sqrt(np.mean(q))) for q in squares(pairs)]
         return max(vals) if vals else None
+
+    def pooled(pairs: list[tuple[Array, Array | None]]) -> float | None:
+        sq = squares(pairs)
+        return float(np.sqrt(np.mean(np.concatenate(sq)))) if sq else None
 
     n_p = len(passes)
     out: dict[str, dict[str, Any]] = {"geolocation_px": {}, "between_cameras_px": {}, "between_passes_px": {},
+                                      "geolocation_pooled_px": {}, "between_cameras_pooled_px": {}, "between_passes_pooled_px": {},
                                       "obscured": counts}
     for cam in cameras:
         for kind, pairs in (("geolocation_px", [(err[(k, cam)], None) for k in range(n_p)]),
@@ -211,7 +283,8 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
                             ("between_passes_px", [(err[(k, cam)], err[(q, cam)]) for k in range(n_p) for q in range(k)]
                              if reference is None else [(err[(k, cam)], err[(reference, cam)]) for k in range(n_p)
                                                         if k != reference])):
-            w = worst(pairs)
+            w, p = worst(pairs), pooled(pairs)
             if w is not None:
                 out[kind][cam] = w
+                out[kind.replace("_px", "_pooled_px")][cam] = p
     return out

@@ -110,8 +110,11 @@ def run_products(
     rendered for) from every pass with strips (:func:`_run_products_roi`; from a state, its
     passes with the state's estimate, the SOM DEM by default beside the state's DEM); the summary
     adds ``"roi"`` (files, clearest pass and share obscured by terrain per block),
-    ``"roi_coregistration_px"`` (per camera, the worst misregistration measured by matching on
-    the ROI beyond matching noise) and, for simulated passes, ``"roi_truth"`` (the true
+    ``"roi_coregistration_px"`` (per camera, the worst over the blocks and over the two kinds,
+    against An and across passes, of the block's misregistration measured by matching on the ROI
+    beyond matching noise, all pairs of a kind pooled), ``"roi_coregistration"`` (per camera and
+    kind, that worst block's statistics, with its interval and worst single pair),
+    ``"roi_coregistration_by_block"`` (``{block: {camera: {kind: px}}}``) and, for simulated passes, ``"roi_truth"`` (the true
     misregistration of the points the ROI keeps) and ``"roi_truth_obscured"`` (per camera, the
     points the terrain mask flags against those the truth hides: ``points``, ``flagged``,
     ``hidden``, ``missed``, ``false``) and ``"roi_truth_by_block"`` (the truth per block)."""
@@ -311,10 +314,11 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                progress: Callable[[str, int, int], None] | None, opts: RoiOptions, head: dict[str, Any],
                t_start: float) -> dict[str, Any]:
     """:func:`_roi_stage` with every pass file's strips open in ``readers`` (by file name)."""
-    from misrgraph.evaluate.products import score_roi
+    from misrgraph.evaluate.products import score_roi, score_roi_matches
     from misrgraph.io.dem import read_som_dem
     from misrgraph.io.roi import export_roi_geotiff, read_roi, roi_writer, write_quicklooks
-    from misrgraph.products.roi import RoiPass, build_roi, coregistration, roi_predicted_coregistration
+    from misrgraph.products.roi import (RoiPass, build_roi, coregistration_matches, coregistration_stats,
+                                        roi_predicted_coregistration)
     from misrgraph.sim.imagery import FULL_SCALE_DN
 
     with_strips = [(p, r, f) for p, r, f in adjusted if readers[str(f)].cameras]
@@ -362,6 +366,7 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
     pass_ids = [p.pass_id for p in roi_passes]
     roi_file = out_dir / f"ROI_P{path:03d}.h5"
     coreg: dict[str, dict[str, Any]] = {}
+    coreg_by_block: dict[int, dict[str, dict[str, float]]] = {}
     truth_scores: dict[str, dict[str, float]] = {}
     surface = _truth_surface(scenario) if truths else None
     clear: dict[int, dict[str, float]] = {}
@@ -381,13 +386,20 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                                                                 cameras, som_dem.sigma_m, som_dem.resolution_m)
             obscured[blk.block] = {cam: float(blk.obscured[j].mean()) for j, cam in enumerate(cameras)}
             t1 = time.perf_counter()
+            scored = surface is not None and len(truths) == len(roi_passes)
             if opts.coregistration_points:
-                for cam, kinds in coregistration(blk, pass_ids, opts.coregistration_points).items():
+                matches = coregistration_matches(blk, pass_ids, opts.coregistration_points)
+                at_matches = (score_roi_matches(blk.block, truths, som_dem.block(blk.block), cameras, surface, matches)
+                              if scored else {})
+                for cam, kinds in coregistration_stats(matches).items():
+                    coreg_by_block.setdefault(blk.block, {})[cam] = {k: float(st["excess_px"]) for k, st in kinds.items()}
                     for kind, st in kinds.items():
+                        if kind in at_matches.get(cam, {}):
+                            st["truth_at_matches"] = at_matches[cam][kind]
                         best = coreg.setdefault(cam, {}).get(kind)
                         if best is None or st["excess_px"] > best["excess_px"]:
                             coreg[cam][kind] = {**st, "block": blk.block}
-            if surface is not None and opts.truth_points and len(truths) == len(roi_passes):
+            if scored and opts.truth_points:
                 sc = score_roi(blk.block, truths, som_dem.block(blk.block), cameras, surface, opts.truth_points,
                                reference=blk.chosen, obscured=blk.hidden)
                 for cam, cnt in sc.pop("obscured").items():
@@ -412,7 +424,7 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                                "blocks": [int(chosen.min()), int(chosen.max())], "passes": rows, "roi": roi_summary,
                                "roi_coregistration_px": {cam: max(float(st["excess_px"]) for st in kinds.values())
                                                          for cam, kinds in coreg.items() if kinds},
-                               "roi_coregistration": coreg,
+                               "roi_coregistration": coreg, "roi_coregistration_by_block": coreg_by_block,
                                "roi_predicted_px": _worst_block(predicted, cameras),
                                "roi_predicted_px_by_block": predicted, "notes": []}
     if truth_scores:
