@@ -1015,7 +1015,8 @@ def bench_pp(
 @handle_errors
 def bench_roi(
     passes: int = typer.Option(4, "--passes", help="Standard repeat passes of path 37 (at least 4)."),
-    blocks: int = typer.Option(2, "--blocks", help="Consecutive SOM blocks from block 62 (whole-line imagery of 9 cameras: ~80 s of rendering a block and pass on 2 cores)."),
+    blocks: int = typer.Option(2, "--blocks", help="Consecutive SOM blocks from --first-block (whole-line imagery of 9 cameras: ~80 s of rendering a block and pass on 2 cores)."),
+    first_block: int = typer.Option(62, "--first-block", help="The first block (path 37's passes have their last tie points in block 69)."),
     seed: int = typer.Option(0, "--seed"),
     workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the scenario and products here (a rerun reuses the scenario)."),
     tie_points: int = typer.Option(1000, "--tie-points", help="Tie points per pass (1000: the standard size)."),
@@ -1029,7 +1030,7 @@ def bench_roi(
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err_console,
                   disable=as_json) as bar:
         task = bar.add_task("bench roi", total=None)
-        res = run_bench_roi(passes, blocks, seed, workdir, tie_points=tie_points,
+        res = run_bench_roi(passes, blocks, seed, workdir, tie_points=tie_points, first_block=first_block,
                             progress=lambda d, k, n: bar.update(task, description=d, completed=k, total=max(n, 1)))
     if as_json:
         _print_json(res)
