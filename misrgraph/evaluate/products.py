@@ -156,22 +156,23 @@ def _seen_error(grid: Any, block: int, geo: Any, pp: ProjectionParameters, cam: 
 def score_roi_matches(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]],
                       heights: NDArray[np.float32], cameras: tuple[str, ...], surface: Callable[[Array, Array], Array],
                       matches: list[Any]) -> dict[str, dict[str, dict[str, float | int]]]:
-    """The truth at the very points co-registration matched (simulated passes only): per camera
-    and kind (:class:`misrgraph.products.roi.PairMatches`, pairs of at least 3 matches), the
+    """The truth at the very points co-registration matched and kept (simulated passes only): per
+    camera and kind (:class:`misrgraph.products.roi.PairMatches`, pairs of at least 3), the
     pooled radial RMS of the true misregistration there, ``truth_px`` -- what the matched
     ``excess_px`` estimates -- and of the matching error (matched offset less the true one),
     ``error_px``, with the RMS of its components over their LSM 1-sigma, ``error_over_sigma``,
-    and ``matches``. A pair's true offset at a grid point is the reference image's error less
+    and ``matches``; ``rejected`` (the matches rejected as inconsistent) and, if any, their
+    matching error ``rejected_error_px`` (large if the rejection is right). A pair's true offset at a grid point is the reference image's error less
     the other's (:func:`_seen_error`): the reference shows there the ground the other shows at
     the point plus the offset. Points either image does not show are left out."""
     from misrgraph.misr.som import SomGrid
 
     grid = SomGrid(int(passes[0][2].path), 275)
     need: dict[tuple[int, int], list[NDArray[np.int64]]] = {}
+    matches = [m for m in matches if int(m.kept.sum()) >= 3]
     for m in matches:
-        if m.offsets.shape[0] >= 3:
-            need.setdefault(m.ref, []).append(m.points)
-            need.setdefault(m.other, []).append(m.points)
+        need.setdefault(m.ref, []).append(m.points)
+        need.setdefault(m.other, []).append(m.points)
     err: dict[tuple[int, int], dict[tuple[int, int], Array]] = {}
     for (k, c), pts in need.items():
         u = np.unique(np.concatenate(pts), axis=0)
@@ -181,21 +182,24 @@ def score_roi_matches(block: int, passes: list[tuple[OrbitPass, PassTruth, Proje
         err[(k, c)] = {(int(r), int(q)): e[i] for i, (r, q) in enumerate(u)}
     acc: dict[tuple[str, str], list[Array]] = {}
     for m in matches:
-        if m.offsets.shape[0] < 3:
-            continue
         t = np.array([err[m.ref][(int(r), int(q))] - err[m.other][(int(r), int(q))] for r, q in m.points])
         ok = np.isfinite(t).all(1)
-        acc.setdefault((m.camera, m.kind), []).append(np.column_stack([t[ok], m.offsets[ok]]))
+        acc.setdefault((m.camera, m.kind), []).append(np.column_stack([t[ok], m.offsets[ok], m.kept[ok]]))
     out: dict[str, dict[str, dict[str, float | int]]] = {}
     for (cam, kind), rows in acc.items():
         a = np.concatenate(rows)
-        if a.shape[0] == 0:
+        kept, gone = a[a[:, 6] > 0], a[a[:, 6] == 0]
+        if kept.shape[0] == 0:
             continue
-        t, d, sd = a[:, :2], a[:, 2:4], a[:, 4:6]
-        out.setdefault(cam, {})[kind] = {
+        t, d, sd = kept[:, :2], kept[:, 2:4], kept[:, 4:6]
+        st: dict[str, float | int] = {
             "truth_px": float(np.sqrt(np.mean(np.sum(t**2, 1)))),
             "error_px": float(np.sqrt(np.mean(np.sum((d - t)**2, 1)))),
-            "error_over_sigma": float(np.sqrt(np.mean(((d - t) / sd)**2))), "matches": int(a.shape[0])}
+            "error_over_sigma": float(np.sqrt(np.mean(((d - t) / sd)**2))), "matches": int(kept.shape[0]),
+            "rejected": int(gone.shape[0])}
+        if gone.shape[0]:
+            st["rejected_error_px"] = float(np.sqrt(np.mean(np.sum((gone[:, 2:4] - gone[:, :2])**2, 1))))
+        out.setdefault(cam, {})[kind] = st
     return out
 
 

@@ -35,7 +35,8 @@ blur and BRDF than An: a 21 x 21 template matched them with errors twice its own
 pixel beyond noise where the simulator's truth says 0.12-0.14.) Each camera is compared with An of the same
 pass (between cameras) and with itself in the block's pass (between passes); points on clouds,
 water or without texture are skipped, and matches that do not converge or move more than 1 pixel
-are counted as failures, not offsets. Per block and kind the matches of all its pairs are pooled:
+are counted as failures, not offsets; matches far from their pair's smooth (affine) field are
+rejected as wrong (:func:`consistent_matches`). Per block and kind the matches of all its pairs are pooled:
 the figure is the block's RMS misregistration beyond matching noise, with an interval from the
 number of matches. (The worst single pair, also reported, rests on as few as 10-20 matches where
 clouds and sea leave few templates.) Only the LSM's own sigma is subtracted as noise: between
@@ -68,8 +69,9 @@ from misrgraph.misr.som import SomGrid
 from misrgraph.model.constants import CAMERAS, VIEW_ANGLE_DEG
 from misrgraph.products.terrain import terrain_obscured
 
-__all__ = ["RoiPass", "RoiBlock", "PairMatches", "build_roi", "cloud_mask", "coregistration", "coregistration_matches",
-           "coregistration_stats", "roi_predicted_coregistration", "CLOUD_REFLECTANCE",
+__all__ = ["RoiPass", "RoiBlock", "PairMatches", "build_roi", "cloud_mask", "consistent_matches", "coregistration",
+           "coregistration_matches",
+           "coregistration_stats", "roi_predicted_coregistration", "CLOUD_REFLECTANCE", "COREG_REJECT_SIGMA",
            "CLOUD_MEAN_REFLECTANCE", "CLOUD_MARGIN_PX", "MIN_ROI_PASSES"]
 
 Array = NDArray[np.float64]
@@ -257,13 +259,43 @@ def _offset_stats(d: Array) -> dict[str, float | int]:
             "mean_px": float(np.hypot(*d[:, :2].mean(0))), "matches": n}
 
 
+#: Matches further than this many robust sigmas from their pair's affine field are rejected.
+COREG_REJECT_SIGMA = 4.0
+
+
+def consistent_matches(points: NDArray[np.int64], offsets: Array, k: float = COREG_REJECT_SIGMA) -> NDArray[np.bool_]:
+    """``(n,)`` bool: the matches of one pair consistent with a smooth misregistration. An affine
+    field in (line, sample) is fitted to the offsets ``(n, 4)`` at grid ``points (n, 2)`` by least
+    squares; a match is kept while each residual component is within ``k`` times the larger of
+    the kept residuals' robust sigma (1.4826 MAD) and the match's own LSM sigma; refitted on the
+    kept until nothing changes (at most 5 rounds). The misregistration the adjustment leaves is
+    smooth over a block (navigation) plus the DEM's parallax (0.1 px in the D cameras); what lies
+    far off it is a wrong match (a cloud edge or shadow the brightness screen let through, a
+    coast), which the simulator's truth confirms (``score_roi_matches``)."""
+    n = offsets.shape[0]
+    keep = np.ones(n, dtype=bool)
+    if n < 6:
+        return keep
+    a = np.column_stack([np.ones(n), points[:, 0] / 512.0, points[:, 1] / 2048.0])
+    for _ in range(5):
+        coef, *_ = np.linalg.lstsq(a[keep], offsets[keep, :2], rcond=None)
+        r = offsets[:, :2] - a @ coef
+        mad = 1.4826 * np.median(np.abs(r[keep] - np.median(r[keep], axis=0)), axis=0)
+        new = np.all(np.abs(r) <= k * np.maximum(mad[None, :], offsets[:, 2:]), axis=1)
+        if new.sum() < 6 or np.array_equal(new, keep):
+            break
+        keep = new
+    return keep
+
+
 @dataclass(frozen=True)
 class PairMatches:
     """The matches of one image pair of a block: ``kind`` (``"between_cameras"``: ``camera``
     against An of the same pass; ``"between_passes"``: ``camera`` in another pass against the
     block's pass), ``ref`` and ``other`` as ``(pass index, camera index)`` into the block,
-    ``offsets (n, 4)`` and ``points (n, 2)`` as :func:`_match_offsets` gives them, ``failed`` and
-    the pair's ``name`` (e.g. ``"Da/P037_O0233 vs Da/P037_O0000"``)."""
+    ``offsets (n, 4)`` and ``points (n, 2)`` as :func:`_match_offsets` gives them, ``failed``,
+    the pair's ``name`` (e.g. ``"Da/P037_O0233 vs Da/P037_O0000"``) and ``kept (n,)``, the
+    matches :func:`consistent_matches` keeps (the statistics use only those)."""
 
     kind: str
     camera: str
@@ -273,6 +305,7 @@ class PairMatches:
     points: NDArray[np.int64]
     failed: int
     name: str
+    kept: NDArray[np.bool_]
 
 
 def coregistration_matches(block: RoiBlock, pass_ids: list[str], points_per_pair: int = 64,
@@ -289,29 +322,32 @@ def coregistration_matches(block: RoiBlock, pass_ids: list[str], points_per_pair
             d, at, failed = _match_offsets(imgs[pr, cr], imgs[po, co], clouds[pr, cr] | clouds[po, co],
                                            points_per_pair, min_std_counts)
             out.append(PairMatches(kind, cam, (pr, cr), (po, co), d, at, failed,
-                                   f"{block.cameras[co]}/{pass_ids[po]} vs {block.cameras[cr]}/{pass_ids[pr]}"))
+                                   f"{block.cameras[co]}/{pass_ids[po]} vs {block.cameras[cr]}/{pass_ids[pr]}",
+                                   consistent_matches(at, d)))
     return out
 
 
 def coregistration_stats(matches: list[PairMatches]) -> dict[str, dict[str, dict[str, object]]]:
     """Per camera, ``{"between_cameras": stats, "between_passes": stats}`` of a block's matches.
-    Each pools the matches of every pair of that kind (pairs with fewer than 3 matches are left
+    Each pools the kept matches of every pair of that kind (pairs with fewer than 3 are left
     out), so that it measures the block's RMS misregistration rather than the largest of a few
     small samples: :func:`_offset_stats` of the pooled offsets, plus ``"failed"`` (matches that
-    did not converge, all pairs), ``"pairs"`` (the pairs pooled) and ``"worst_pair"`` (the pair
-    with the largest ``excess_px`` by itself: its :func:`_offset_stats` and ``"pair"``)."""
+    did not converge, all pairs), ``"rejected"`` (matches :func:`consistent_matches` rejected),
+    ``"pairs"`` (the pairs pooled) and ``"worst_pair"`` (the pair with the largest ``excess_px``
+    by itself: its :func:`_offset_stats` and ``"pair"``)."""
     out: dict[str, dict[str, dict[str, object]]] = {}
     for m in matches:
         out.setdefault(m.camera, {})
     for cam in out:
         for kind in ("between_cameras", "between_passes"):
             cand = [m for m in matches if m.camera == cam and m.kind == kind]
-            good = [m for m in cand if m.offsets.shape[0] >= 3]
+            good = [m for m in cand if int(m.kept.sum()) >= 3]
             if not good:
                 continue
-            pairs = [{**_offset_stats(m.offsets), "pair": m.name} for m in good]
-            out[cam][kind] = {**_offset_stats(np.concatenate([m.offsets for m in good])),
-                              "failed": int(sum(m.failed for m in cand)), "pairs": len(good),
+            pairs = [{**_offset_stats(m.offsets[m.kept]), "pair": m.name} for m in good]
+            out[cam][kind] = {**_offset_stats(np.concatenate([m.offsets[m.kept] for m in good])),
+                              "failed": int(sum(m.failed for m in cand)),
+                              "rejected": int(sum(int((~m.kept).sum()) for m in good)), "pairs": len(good),
                               "worst_pair": max(pairs, key=lambda st: float(st["excess_px"]))}  # type: ignore[arg-type]
     return out
 

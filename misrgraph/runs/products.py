@@ -114,7 +114,9 @@ def run_products(
     against An and across passes, of the block's misregistration measured by matching on the ROI
     beyond matching noise, all pairs of a kind pooled), ``"roi_coregistration"`` (per camera and
     kind, that worst block's statistics, with its interval and worst single pair),
-    ``"roi_coregistration_by_block"`` (``{block: {camera: {kind: px}}}``) and, for simulated passes, ``"roi_truth"`` (the true
+    ``"roi_coregistration_by_block"`` (``{block: {camera: {kind: px}}}``),
+    ``"roi_coregistration_unmeasured"`` (``{camera: [blocks]}`` where no pair had 3 matches, also
+    in ``"notes"``) and, for simulated passes, ``"roi_truth"`` (the true
     misregistration of the points the ROI keeps) and ``"roi_truth_obscured"`` (per camera, the
     points the terrain mask flags against those the truth hides: ``points``, ``flagged``,
     ``hidden``, ``missed``, ``false``) and ``"roi_truth_by_block"`` (the truth per block)."""
@@ -427,6 +429,12 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                                "roi_coregistration": coreg, "roi_coregistration_by_block": coreg_by_block,
                                "roi_predicted_px": _worst_block(predicted, cameras),
                                "roi_predicted_px_by_block": predicted, "notes": []}
+    if opts.coregistration_points:
+        unmeasured = {cam: [int(b) for b in chosen if not coreg_by_block.get(int(b), {}).get(cam)] for cam in cameras}
+        summary["roi_coregistration_unmeasured"] = {cam: bl for cam, bl in unmeasured.items() if bl}
+        for cam, bl in summary["roi_coregistration_unmeasured"].items():
+            summary["notes"].append(f"{cam}: co-registration not measured in blocks {bl} (fewer than 3 matches in "
+                                    f"every pair: sea, cloud or no texture); roi_coregistration_px covers the others")
     if truth_scores:
         summary["roi_truth"] = truth_scores
         summary["roi_truth_obscured"] = hidden_counts

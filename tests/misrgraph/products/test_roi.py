@@ -128,9 +128,14 @@ def test_coregistration_pools_the_pairs(roi_run):
             assert lo <= st["excess_px"] <= hi, (cam, kind, st)
             assert st["pairs"] == (3 if kind == "between_passes" else 4), (cam, kind, st["pairs"])
             assert st["excess_px"] <= st["worst_pair"]["excess_px"] + 1e-12, (cam, kind)
+            at = st["truth_at_matches"]  # what was rejected was wrong (where anything was)
+            assert at["rejected"] == st["rejected"] and at["rejected"] <= 0.05 * at["matches"], (cam, kind, at)
+            if at["rejected"]:
+                assert at["rejected_error_px"] > 2 * at["error_px"], (cam, kind, at)
             assert st["worst_pair"]["matches"] < st["matches"]
             assert by_block[st["block"]][cam][kind] == st["excess_px"]
         assert res["roi_coregistration_px"][cam] == max(st["excess_px"] for st in kinds.values())
+    assert res["roi_coregistration_unmeasured"] == {}  # the block has land and texture in every camera
 
 
 def test_offset_stats_interval_covers_the_truth():
@@ -241,3 +246,24 @@ def test_predicted_coregistration_closed_form():
     assert out["An"] == {"between_passes": pytest.approx(np.hypot(0.2, 0.15))}
     # with the second pass chosen, against An uses its sigmas
     assert roi_predicted_coregistration(pps, 71, 1, ("An", "Da"), 0.0, 275.0)["Da"]["vs_An"] == pytest.approx(np.hypot(1.0, 0.2))
+
+
+def test_consistent_matches_rejects_wrong_matches_only():
+    """An affine misregistration (0.1-0.3 px over the block) measured with LSM noise sigma 0.05
+    px, plus 4 wrong matches 0.4-0.9 px off: over 50 seeded pairs of 60 matches every wrong one
+    is rejected, and of the 2800 good ones at most 3 (a 4-sigma test rejects ~1.3e-4 of them per
+    match, ~0.4 expected; the robust sigma's own scatter adds a little)."""
+    from misrgraph.products.roi import consistent_matches
+
+    rng = np.random.default_rng(3)
+    false_rejects = 0
+    for _ in range(50):
+        pts = np.column_stack([rng.integers(30, 480, 60), rng.integers(30, 2000, 60)])
+        field = 0.1 + 0.2 * pts[:, :1] / 512 * np.array([[1.0, -0.5]]) + 0.1 * pts[:, 1:] / 2048
+        d = np.column_stack([field + rng.normal(0, 0.05, (60, 2)), np.full((60, 2), 0.05)])
+        wrong = rng.choice(60, 4, replace=False)
+        d[wrong, :2] += rng.uniform(0.4, 0.9, (4, 1)) * np.array([[np.cos(a), np.sin(a)] for a in rng.uniform(0, 2 * np.pi, 4)])
+        keep = consistent_matches(pts, d)
+        assert not keep[wrong].any()
+        false_rejects += int((~keep).sum()) - 4
+    assert false_rejects <= 3, false_rejects
