@@ -162,9 +162,10 @@ def score_roi_matches(block: int, passes: list[tuple[OrbitPass, PassTruth, Proje
     ``excess_px`` estimates -- and of the matching error (matched offset less the true one),
     ``error_px``, with the RMS of its components over their LSM 1-sigma, ``error_over_sigma``,
     and ``matches``; ``rejected`` (the matches rejected as inconsistent) and, if any, their
-    matching error ``rejected_error_px`` (large if the rejection is right). A pair's true offset at a grid point is the reference image's error less
-    the other's (:func:`_seen_error`): the reference shows there the ground the other shows at
-    the point plus the offset. Points either image does not show are left out."""
+    matching error ``rejected_error_px`` (large if the rejection is right). A pair's true offset
+    at a grid point is the reference image's error less the other's (:func:`_seen_error`): the
+    reference shows there the ground the other shows at the point plus the offset. Points either
+    image does not show are left out."""
     from misrgraph.misr.som import SomGrid
 
     grid = SomGrid(int(passes[0][2].path), 275)
@@ -218,8 +219,8 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
     ``cameras``; :mod:`misrgraph.products.terrain`) are left out. Returns ``{"geolocation_px":
     {camera: worst RMS over passes}, "between_cameras_px": {camera: worst RMS against An over
     passes}, "between_passes_px": {camera: worst RMS over pairs of passes}, "geolocation_pooled_px",
-    "between_cameras_pooled_px" and "between_passes_pooled_px" (the RMS over every pair's points pooled, as
-    :func:`misrgraph.products.roi.coregistration` pools its matches), "obscured": {camera:
+    "between_cameras_pooled_px" and "between_passes_pooled_px" (the RMS over every pair's points
+    pooled, as :func:`misrgraph.products.roi.coregistration` pools its matches), "obscured": {camera:
     {"points", "flagged", "hidden", "missed", "false"}}}`` -- what matching on the ROI measures,
     without the matching error; ``obscured`` counts, over passes and points the camera images,
     those the ROI flags, those the truth hides (:func:`truth_hidden`), the hidden ones not flagged
@@ -278,7 +279,8 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
 
     n_p = len(passes)
     out: dict[str, dict[str, Any]] = {"geolocation_px": {}, "between_cameras_px": {}, "between_passes_px": {},
-                                      "geolocation_pooled_px": {}, "between_cameras_pooled_px": {}, "between_passes_pooled_px": {},
+                                      "geolocation_pooled_px": {}, "between_cameras_pooled_px": {},
+                                      "between_passes_pooled_px": {},
                                       "obscured": counts}
     for cam in cameras:
         for kind, pairs in (("geolocation_px", [(err[(k, cam)], None) for k in range(n_p)]),

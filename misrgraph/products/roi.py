@@ -70,9 +70,8 @@ from misrgraph.model.constants import CAMERAS, VIEW_ANGLE_DEG
 from misrgraph.products.terrain import terrain_obscured
 
 __all__ = ["RoiPass", "RoiBlock", "PairMatches", "build_roi", "cloud_mask", "consistent_matches", "coregistration",
-           "coregistration_matches",
-           "coregistration_stats", "roi_predicted_coregistration", "CLOUD_REFLECTANCE", "COREG_REJECT_SIGMA",
-           "CLOUD_MEAN_REFLECTANCE", "CLOUD_MARGIN_PX", "MIN_ROI_PASSES"]
+           "coregistration_matches", "coregistration_stats", "roi_predicted_coregistration", "CLOUD_REFLECTANCE",
+           "CLOUD_MEAN_REFLECTANCE", "CLOUD_MARGIN_PX", "COREG_REJECT_SIGMA", "MIN_ROI_PASSES"]
 
 Array = NDArray[np.float64]
 log = logging.getLogger(__name__)

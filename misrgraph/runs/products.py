@@ -252,7 +252,8 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
 class RoiOptions:
     """How ``--roi`` runs: the SOM DEM (default ``dem_som.h5`` of the scenario the passes come
     from), GeoTIFF and quick-look exports, the co-registration matches per image pair and
-    block (0: not measured), and the points per block the simulator's truth is scored at."""
+    block (0: not measured), and the points per block the simulator's truth is scored at (0: the
+    truth is not scored, nor at the matched points)."""
 
     som_dem: str | None = None
     geotiff: bool = False
@@ -392,7 +393,7 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
             if opts.coregistration_points:
                 matches = coregistration_matches(blk, pass_ids, opts.coregistration_points)
                 at_matches = (score_roi_matches(blk.block, truths, som_dem.block(blk.block), cameras, surface, matches)
-                              if scored else {})
+                              if scored and opts.truth_points else {})
                 for cam, kinds in coregistration_stats(matches).items():
                     coreg_by_block.setdefault(blk.block, {})[cam] = {k: float(st["excess_px"]) for k, st in kinds.items()}
                     for kind, st in kinds.items():
