@@ -170,7 +170,7 @@ def score_roi_matches(block: int, passes: list[tuple[OrbitPass, PassTruth, Proje
 
     grid = SomGrid(int(passes[0][2].path), 275)
     need: dict[tuple[int, int], list[NDArray[np.int64]]] = {}
-    matches = [m for m in matches if int(m.kept.sum()) >= 3]
+    matches = [m for m in matches if m.usable]
     for m in matches:
         need.setdefault(m.ref, []).append(m.points)
         need.setdefault(m.other, []).append(m.points)

@@ -308,6 +308,11 @@ class PairMatches:
     name: str
     kept: NDArray[np.bool_]
 
+    @property
+    def usable(self) -> bool:
+        """Whether the pair enters the statistics: at least 3 kept matches."""
+        return int(self.kept.sum()) >= 3
+
 
 def coregistration_matches(block: RoiBlock, pass_ids: list[str], points_per_pair: int = 64,
                            min_std_counts: float = 150.0) -> list[PairMatches]:
@@ -342,7 +347,7 @@ def coregistration_stats(matches: list[PairMatches]) -> dict[str, dict[str, dict
     for cam in out:
         for kind in ("between_cameras", "between_passes"):
             cand = [m for m in matches if m.camera == cam and m.kind == kind]
-            good = [m for m in cand if int(m.kept.sum()) >= 3]
+            good = [m for m in cand if m.usable]
             if not good:
                 continue
             pairs = [{**_offset_stats(m.offsets[m.kept]), "pair": m.name} for m in good]
