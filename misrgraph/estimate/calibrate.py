@@ -418,22 +418,21 @@ def calibrated_bands(res: CalibrationResult, cfg: CalibrateConfig, c: int) -> li
     return sorted({decode_camera_key(ck, cfg)[2] for ck in camera_keys(res, cfg) if decode_camera_key(ck, cfg)[1] == c} - {None}) or [RED]
 
 
-def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel, draws: int = 60) -> dict[str, Any]:
+def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel) -> dict[str, Any]:
     """The JSON summary of a calibration from the estimate alone (see ``misrgraph calibrate --help``):
-    corrections with sigma, each camera's posterior pointing spread ``sigma_px`` (the calibrated
-    model's pointing under draws from the posterior, RMS against the estimate, over the swath and
-    the temperature grid of :func:`evaluation_grid`), poorly determined parameters, the correlation
+    corrections with sigma, each camera's posterior pointing spread ``sigma_px`` (RMS over the
+    swath and the temperature grid of :func:`evaluation_grid` of the pointing's 1 sigma, propagated
+    linearly from the posterior ``C = L L^T``: the sum over the columns ``l_i`` of ``L`` of the
+    squared pointing change when the corrections move by ``l_i``; no sampling error), poorly determined parameters, the correlation
     matrix, and with temperature bins the thermal slopes (:func:`thermal_slopes`). Scores against a
     simulated truth are added by :func:`misrgraph.evaluate.calibration.score_calibration`.
     """
     sig = np.sqrt(np.diag(res.covariance))
     corr = res.covariance / np.outer(sig, sig)
-    rng = np.random.default_rng(0)
     chol = np.linalg.cholesky(0.5 * (res.covariance + res.covariance.T))
     grid = evaluation_grid(res, supplied)
     est_at = calibrated_models(res, cfg, supplied, grid)
-    samples = [calibrated_models(res, cfg, supplied, grid, res.values + chol @ rng.standard_normal(res.values.size))
-               for _ in range(draws)]
+    moved = [calibrated_models(res, cfg, supplied, grid, res.values + chol[:, i]) for i in range(res.values.size)]
     cams_out: dict[str, Any] = {}
     poorly = []
     for i, label in enumerate(res.labels):
@@ -449,8 +448,8 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
         if not entry["params"]:
             continue
         bands = calibrated_bands(res, cfg, c)
-        entry["sigma_px"] = float(np.sqrt(np.mean([pointing_error_px(sm[j], est_at[j], c, b) ** 2
-                                                   for sm in samples for j in range(grid.size) for b in bands])))
+        entry["sigma_px"] = float(np.sqrt(np.sum([np.mean([pointing_error_px(m[j], est_at[j], c, b) ** 2
+                                                           for j in range(grid.size) for b in bands]) for m in moved])))
         cams_out[name] = entry
     out: dict[str, Any] = {"cameras": cams_out, "solver_status": res.status, "variance_factor": res.variance_factor,
                            **({"variance_components": res.variance_components} if res.variance_components else {}),

@@ -94,7 +94,7 @@ def test_undeterminable_parameters_are_reported(month):
     sc, passes = month
     cfg = CalibrateConfig(params=("delta", "beta", "epsilon", "alpha2", "alpha3", "alpha4", "alpha5"))
     res = calibrate_passes(passes[:4], sc.camera_model, sc.gcps, cfg)
-    s = summarise(res, cfg, sc.camera_model, draws=5)
+    s = summarise(res, cfg, sc.camera_model)
     flagged = {p["parameter"] for p in s["poorly_determined"]}
     assert any(".alpha5" in f for f in flagged)
     # T_ic = Ry(beta) Rx(delta): at An (beta = 0) delta is a roll about the line axis (a cross-track
@@ -174,7 +174,7 @@ def test_supplied_thermal_table_is_applied_per_pass(thermal_month_dir):
     nees = res.values @ np.linalg.solve(res.covariance, res.values)
     lo, hi = stats.chi2.ppf([0.025, 0.975], res.values.size)
     assert lo <= nees <= hi
-    s = score_calibration(summarise(res, cfg, res.camera, draws=20), res, cfg, res.camera, truth)
+    s = score_calibration(summarise(res, cfg, res.camera), res, cfg, res.camera, truth)
     for v in s["cameras"].values():
         assert v["pointing_error_px"] < 3 * v["sigma_px"]
 
@@ -271,7 +271,7 @@ def test_camera_variance_components_recover_a_wrong_stated_sigma(month):
         assert abs(v["sigma0"] - 1.0) < 3 / np.sqrt(2 * v["redundancy"]) + 0.05, (name, v)
         expect = 2.0 if CAMERAS.index(name) in wrong else 1.0
         assert abs(scale[name] - expect) < 3 * expect / np.sqrt(2 * v["redundancy"]) + 0.1, (name, scale[name], v)
-    s = summarise(res, CalibrateConfig(variance_component_rounds=6), sc.camera_model, draws=2)
+    s = summarise(res, CalibrateConfig(variance_component_rounds=6), sc.camera_model)
     assert s["variance_components"]["sigma_scale"] == scale
     with pytest.raises(InputError, match="variance_component_rounds"):
         CalibrateConfig(variance_component_rounds=-1)
@@ -285,5 +285,30 @@ def test_an_unconverged_calibration_fails_unless_accepted(month):
         calibrate_passes(passes[:6], sc.camera_model, sc.gcps, CalibrateConfig(max_iterations=1))
     res = calibrate_passes(passes[:6], sc.camera_model, sc.gcps, CalibrateConfig(max_iterations=1, accept_unconverged=True))
     assert res.status == "iteration_limit"
-    s = summarise(res, CalibrateConfig(), sc.camera_model, draws=2)
+    s = summarise(res, CalibrateConfig(), sc.camera_model)
     assert s["solver_status"] == "iteration_limit" and s["variance_factor"]["dof"] > 0
+
+
+def test_sigma_px_agrees_with_a_monte_carlo(month):
+    """Each camera's ``sigma_px`` (linear propagation of the posterior) against a 400-draw Monte
+    Carlo of the calibrated model's pointing: the mean squares agree within 4 standard errors of
+    the Monte Carlo's mean (from its own draws) plus 2 % for nonlinearity."""
+    from misrgraph.estimate.calibrate import calibrated_models, evaluation_grid, pointing_error_px
+
+    sc, passes = month
+    cfg = CalibrateConfig()
+    res = calibrate_passes(passes[:6], sc.camera_model, sc.gcps, cfg)
+    s = summarise(res, cfg, sc.camera_model)
+    grid = evaluation_grid(res, sc.camera_model)
+    est = calibrated_models(res, cfg, sc.camera_model, grid)
+    chol = np.linalg.cholesky(res.covariance)
+    rng = np.random.default_rng(7)
+    q = []
+    for _ in range(400):
+        m = calibrated_models(res, cfg, sc.camera_model, grid, res.values + chol @ rng.standard_normal(res.values.size))
+        q.append([np.mean([pointing_error_px(m[j], est[j], c) ** 2 for j in range(grid.size)]) for c in range(len(CAMERAS))])
+    q = np.array(q)
+    mc, se = q.mean(0), q.std(0, ddof=1) / np.sqrt(q.shape[0])
+    for c, name in enumerate(CAMERAS):
+        lin = s["cameras"][name]["sigma_px"] ** 2
+        assert abs(lin - mc[c]) < 4 * se[c] + 0.02 * mc[c], (name, lin, mc[c], se[c])
