@@ -177,7 +177,8 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
     of the 27 camera corrections. ``adjust``: passes (reduced: 10 minutes, 80 tie points, 20 check
     points; standard: 45 minutes, 600 tie points, 20 check points), NEES of the knots (joint),
     the ephemeris (joint), the camera corrections, the landmarks and the whole state, and with
-    check points their actual RMS over the RMS the covariance predicts. Per class: the pooled
+    check points their actual RMS over the RMS the covariance predicts (over all cameras, and per
+    camera in ``by_camera``: the RMS of the runs' ratios with its interval). Per class: the pooled
     NEES/dim with its chi-square band (which assumes independent runs and, for landmarks,
     independent landmarks) and the mean of the per-run values with a 95 % interval from the
     run-to-run scatter (which assumes neither). ``truth``: the simulator's truth (``"model"`` or
@@ -234,6 +235,9 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
             if "checkpoint_rms_over_predicted" in s:
                 per_class.setdefault("checkpoint_rms_over_predicted", []).append(s["checkpoint_rms_over_predicted"])
                 per_run[-1]["checkpoint_rms_over_predicted"] = s["checkpoint_rms_over_predicted"]
+                per_run[-1]["checkpoint_by_camera"] = {
+                    c: {"rms_m": v["after"]["rms"], "predicted_rms_m": v["after"]["predicted_rms"]}
+                    for c, v in s.get("checkpoint_geolocation_m", {}).items() if "predicted_rms" in v["after"]}
             cp = _checkpoint_rms_after(s)
             if cp is not None:
                 per_class.setdefault("checkpoint_rms_m", []).append(cp)
@@ -253,6 +257,13 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
             summary[k] = {"per_run": _interval(per_class[k])}
     if "checkpoint_rms_over_predicted" in per_class:
         summary["checkpoint_rms_over_predicted"]["rms_of_runs"] = _rms_interval(per_class["checkpoint_rms_over_predicted"])
+        by_cam: dict[str, list[float]] = {}
+        for r in per_run:
+            for c, v in r.get("checkpoint_by_camera", {}).items():
+                by_cam.setdefault(c, []).append(v["rms_m"] / v["predicted_rms_m"])
+        summary["checkpoint_rms_over_predicted"]["by_camera"] = {
+            c: {"runs": len(v), **(_rms_interval(v) if len(v) > 1 else {"rms": float(abs(v[0])), "ci95": [float("nan")] * 2})}
+            for c, v in by_cam.items()}
     if tmp is not None:
         tmp.cleanup()
     return {"study": study, "size": size, "truth": truth, "overrides": dict(overrides or {}),

@@ -961,6 +961,8 @@ def bench_nees(
             rr = v.get("rms_of_runs")
             rms = f"; RMS of runs {rr['rms']:.3f} [{rr['ci95'][0]:.3f}, {rr['ci95'][1]:.3f}]" if rr else ""
             console.print(f"{study} {k}: {scatter}{rms}")
+            for c, bc in v.get("by_camera", {}).items():
+                console.print(f"    {c}: RMS of {bc['runs']} runs {bc['rms']:.3f} [{bc['ci95'][0]:.3f}, {bc['ci95'][1]:.3f}]")
             continue
         console.print(f"{study} {k}: NEES/dim {v['nees_per_dim']:.3f}, 95 % band [{v['band'][0]:.3f}, {v['band'][1]:.3f}] "
                       f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}; {scatter}")

@@ -65,6 +65,22 @@ def test_bench_nees_per_class_at_reduced_size(tmp_path):
         assert v["per_run"]["mean"] == pytest.approx(np.mean([p[k] for p in r["per_run"]]))
     rr = r["summary"]["checkpoint_rms_over_predicted"]["rms_of_runs"]
     assert rr["rms"] == pytest.approx(np.sqrt(np.mean([p["checkpoint_rms_over_predicted"] ** 2 for p in r["per_run"]])))
+    # per camera: the RMS over the runs of each run's actual / predicted, from the runs' own figures
+    by_cam = r["summary"]["checkpoint_rms_over_predicted"]["by_camera"]
+    assert set(by_cam) == set(r["per_run"][0]["checkpoint_by_camera"])
+    for c, v in by_cam.items():
+        ratios = [p["checkpoint_by_camera"][c]["rms_m"] / p["checkpoint_by_camera"][c]["predicted_rms_m"]
+                  for p in r["per_run"] if c in p["checkpoint_by_camera"]]
+        assert v["runs"] == len(ratios) and v["rms"] == pytest.approx(np.sqrt(np.mean(np.square(ratios))))
+    # the CLI prints them (the same passes, reused from the workdir)
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+
+    out = CliRunner().invoke(app, ["bench", "nees", "--study", "adjust", "--runs", "2", "--seed", "1000", "--workdir", str(tmp_path)])
+    assert out.exit_code == 0, out.output
+    for c, v in by_cam.items():
+        assert f"{c}: RMS of {v['runs']} runs {v['rms']:.3f}" in out.output
     with pytest.raises(InputError, match="size"):
         run_bench_nees("adjust", runs=1, size="huge", workdir=tmp_path)
 
