@@ -246,9 +246,11 @@ def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array,
     predicted mean square is ``sum_i |e(x + rel_step l_i) - e(x)|^2 / rel_step^2`` over the
     columns ``l_i`` of ``L`` (exact to first order: ``tr(G S G^T)`` with ``G = de/dx``), plus
     ``sigma_u^2 sum_a |de/d(angle a)|^2`` with each angle offset by ``sigma_u`` over the whole
-    pass (a view's displacement depends on the angle at its own time only). One geolocation per
-    column: no sampling error. (A Monte Carlo of 40 draws with a fixed seed, used until
-    2026-11-25, carried a bias of up to +12 % in the predicted variance common to every pass.)"""
+    pass (a view's displacement depends on the angle at its own time only). ``rel_step``: the step
+    in units of 1 sigma (the geolocation is linear over it: 1 and 0.3 agree to 0.1 m on a
+    standard pass). One geolocation per column: no sampling error. (A Monte Carlo of 40 draws
+    with a fixed seed, used until 2026-11-25, put the same sampling error into every pass: 6-14 %
+    too much predicted variance on each standard pass measured.)"""
     pg = res.pass_graph
     keys = [k for a in range(3) for k in pg.knot_keys(a)] + pg.ephemeris_keys() + list(pg.camera_keys.values())
     cov = res.marginals.joint_of(keys)
@@ -259,6 +261,8 @@ def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array,
     # every camera's views of the check points, stacked: one geolocation call per state column
     views = [(c, p, np.flatnonzero(p.visible)) for c, p in ((c, true_geo.ground_to_pixel(c, RED, g)) for c in range(len(CAMERAS)))
              if p.visible.any()]
+    if not views:
+        return {}
     cam_of = np.concatenate([np.full(i.size, c) for c, _, i in views])
     line, sample, expo = (np.concatenate([getattr(p, a)[i] for _, p, i in views]) for a in ("line", "sample", "exposure"))
     height = np.concatenate([h[i] for _, _, i in views])
