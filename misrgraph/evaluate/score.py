@@ -249,7 +249,7 @@ def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array,
     pass (a view's displacement depends on the angle at its own time only). ``rel_step``: the step
     in units of 1 sigma (the geolocation is linear over it: 1 and 0.3 agree to 0.1 m on a
     standard pass). One geolocation per column: no sampling error. (A Monte Carlo of 40 draws
-    with a fixed seed, used until 2026-11-25, put the same sampling error into every pass: 6-14 %
+    with a fixed seed, used until 2026-11-25, put the same sampling error into every pass: 4-16 %
     too much predicted variance on each standard pass measured.)"""
     pg = res.pass_graph
     keys = [k for a in range(3) for k in pg.knot_keys(a)] + pg.ephemeris_keys() + list(pg.camera_keys.values())
