@@ -262,8 +262,7 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
             for c, v in r.get("checkpoint_by_camera", {}).items():
                 by_cam.setdefault(c, []).append(v["rms_m"] / v["predicted_rms_m"])
         summary["checkpoint_rms_over_predicted"]["by_camera"] = {
-            c: {"runs": len(v), **(_rms_interval(v) if len(v) > 1 else {"rms": float(abs(v[0])), "ci95": [float("nan")] * 2})}
-            for c, v in by_cam.items()}
+            c: {"runs": len(v), **_rms_interval(v)} for c, v in by_cam.items()}
     if tmp is not None:
         tmp.cleanup()
     return {"study": study, "size": size, "truth": truth, "overrides": dict(overrides or {}),
