@@ -236,6 +236,7 @@ def adjust(
     robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
     max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
     snooping_rounds: int = typer.Option(4, "--snooping-rounds", help="Rounds of iterated data snooping (Baarda, alpha 0.001) after the least-squares solve; 0: off."),
+    drop_rejected: bool = typer.Option(False, "--drop-rejected-tie-points", help="Drop a tie point whole when any of its observations is rejected (robust screen or snooping): its other rays were selected by the same test; see docs/design.md."),
     variance_components: int = typer.Option(0, "--variance-components", help="Rounds of variance-component estimation (tie-point and GCP sigmas rescaled by their sigma0); 0: keep the stated sigmas."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
     observations: str = typer.Option("simulated", "--observations", help="simulated (the pass's observations) or matched (those 'misrgraph match' measured in the imagery)."),
@@ -250,7 +251,7 @@ def adjust(
                                       knot_prior=knot_prior, knot_prior_damping=knot_damping, use_dem=not no_dem,
                                       dem_sigma_scale=dem_sigma_scale, robust=robust, max_iterations=max_iterations,
                                       snooping_rounds=snooping_rounds, variance_component_rounds=variance_components,
-                                      accept_unconverged=accept_unconverged))
+                                      drop_rejected_tie_points=drop_rejected, accept_unconverged=accept_unconverged))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
                              progress=lambda s: st.update(s), observations=observations)

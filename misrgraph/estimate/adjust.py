@@ -92,6 +92,11 @@ class AdjustConfig(Config):
     #: landmark, the observation with the largest Baarda statistic above the critical value
     #: (alpha = W_TEST_ALPHA) and re-solves; 0 switches it off
     snooping_rounds: int = 4
+    #: drop a tie point whole when any of its observations is rejected (robust screen or data
+    #: snooping) instead of only that observation: the tie point's other rays were selected by
+    #: the same test, and its estimate from them is biased beyond its covariance (see
+    #: docs/design.md, "Rejections and the landmarks' covariance"); GCPs keep their other rays
+    drop_rejected_tie_points: bool = False
     #: rounds of variance-component estimation after snooping: the tie-point and GCP observation
     #: sigmas are rescaled by their class's sigma0 (Foerstner) and the pass re-solved, until
     #: every class is within ``variance_component_tol`` of 1; 0 (default) keeps the stated sigmas
@@ -205,7 +210,7 @@ def adjust_pass(
         progress("robust solve")
     rejected, norm = find_blunders(orbit_pass, camera, dem, gcps, cfg)
     blunder_mask = rejected
-    rejected, dropped = drop_unsupported_landmarks(orbit_pass, rejected)
+    rejected, dropped = drop_unsupported_landmarks(orbit_pass, rejected, cfg.drop_rejected_tie_points)
     if progress:
         progress("least-squares solve")
     pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
@@ -230,7 +235,7 @@ def adjust_pass(
         if progress:
             progress(f"data snooping: round {rnd + 1}, {worst.size} observations rejected")
         snooped[worst] = True
-        rejected, more = drop_unsupported_landmarks(orbit_pass, rejected | snooped)
+        rejected, more = drop_unsupported_landmarks(orbit_pass, rejected | snooped, cfg.drop_rejected_tie_points)
         dropped = np.union1d(dropped, more)
         pg, res = resolve(orbit_pass, rejected, res.values, "data snooping")
         at = _reliability_at(orbit_pass, pg, res.values)
@@ -406,14 +411,17 @@ def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | No
     return rejected, norm
 
 
-def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_],
+                               any_rejection: bool = False) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
     """Exclude every observation of a tie point that the blunder test left unsupported.
 
     A landmark is dropped when more than half of its observations were rejected, or when fewer
     than two cameras still see it. Then the landmark, not its rays, is what the robust solve got
     wrong: typically a wrong terrain intersection, where the good rays look like blunders. One
     ray plus the DEM would give it a confident position that may be kilometres off. GCPs keep
-    their ground prior and are never dropped; check points are not in the graph. Returns the new exclusion mask and the dropped rows.
+    their ground prior and are never dropped; check points are not in the graph. ``any_rejection``:
+    drop every tie point with a rejected observation (``AdjustConfig.drop_rejected_tie_points``).
+    Returns the new exclusion mask and the dropped rows.
     """
     obs = orbit_pass.observations
     kinds = orbit_pass.landmarks.kind
@@ -423,7 +431,8 @@ def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_
     keep = ~rejected
     pairs = np.unique(np.stack([obs.landmark[keep], obs.camera[keep]], 1), axis=0)
     cams_left = np.bincount(pairs[:, 0], minlength=n_lm) if pairs.size else np.zeros(n_lm, np.int64)
-    drop = (kinds == KIND_TIE) & (total > 0) & ((2 * n_rej > total) | (cams_left < 2))
+    unsupported = (n_rej > 0) if any_rejection else ((2 * n_rej > total) | (cams_left < 2))
+    drop = (kinds == KIND_TIE) & (total > 0) & unsupported
     rows = np.flatnonzero(drop)
     if rows.size:
         log.info("dropped %d landmarks whose rays were mostly rejected (rows %s)", rows.size, rows[:20].tolist())

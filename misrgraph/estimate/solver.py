@@ -40,7 +40,7 @@ from misrgraph.errors import ConvergenceError, DegenerateProblemError, InputErro
 from misrgraph.estimate.problem import Problem, error, linearize
 
 __all__ = ["gauss_newton_step", "SolverParams", "SolveResult", "STATUSES", "solve", "error", "linearize", "solve_gtsam_lm", "gtsam_lm_params",
-           "information_norm", "check_converged"]
+           "information_norm_split", "check_converged"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -405,17 +405,46 @@ def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> S
                        status="converged")
 
 
-def information_norm(problem: Problem, lin: gtsam.GaussianFactorGraph, delta: dict[int, Array]) -> float:
-    """``e^T H e = sum_f ||A_f e_f||^2`` for a state error ``e`` (dict key -> vector): the joint
-    NEES of the whole state when ``e`` is estimate minus truth and ``H`` the information at the
-    solution (whose inverse is the covariance)."""
+def information_norm_split(lin: gtsam.GaussianFactorGraph, delta: dict[int, Array],
+                           local_keys: "list[int] | NDArray[np.int64]") -> tuple[float, float]:
+    """``e^T H e`` split exactly into ``(local part, rest)`` for variables ``local_keys`` that no
+    factor shares (the landmarks: each factor touches at most one), so that ``H_LL`` is block
+    diagonal.
+
+    With ``e = (e_L, e_o)``, ``e^T H e = c^T H_LL c + e_o^T S e_o`` where ``c = e_L + H_LL^-1 H_Lo e_o``
+    and ``S = H_oo - H_oL H_LL^-1 H_Lo = P_oo^-1``: the rest is the joint NEES of the other variables
+    (their marginal covariance ``P_oo``), the local part the NEES of each local variable given the
+    others' errors (e.g. a landmark's triangulation error were the navigation and camera exact).
+    Under the model both are chi-square, with the local and the other dimensions as degrees of
+    freedom. Raises ``ValueError`` if a factor touches two local variables."""
+    local = {int(k) for k in local_keys}
+    h_ll: dict[int, Array] = {}
+    g: dict[int, Array] = {}
     total = 0.0
     for i in range(lin.size()):
         f = lin.at(i)
         a, _ = f.jacobian()
-        e = np.concatenate([np.asarray(delta[int(k)], float) for k in f.keys()])
-        total += float(np.sum((a @ e) ** 2))
-    return total
+        keys = [int(k) for k in f.keys()]
+        blocks = [np.asarray(delta[k], float) for k in keys]
+        total += float(np.sum((a @ np.concatenate(blocks)) ** 2))
+        mine = [j for j, k in enumerate(keys) if k in local]
+        if not mine:
+            continue
+        if len(mine) > 1:
+            raise ValueError(f"information_norm_split: factor {i} touches {len(mine)} local variables "
+                             f"{[keys[j] for j in mine]}; H_LL would not be block diagonal")
+        cols = np.cumsum([0] + [b.size for b in blocks])
+        j = mine[0]
+        a_l = a[:, cols[j]:cols[j + 1]]
+        a_o_e = sum((a[:, cols[m]:cols[m + 1]] @ blocks[m] for m in range(len(keys)) if m != j), np.zeros(a.shape[0]))
+        k = keys[j]
+        h_ll[k] = h_ll.get(k, 0.0) + a_l.T @ a_l
+        g[k] = g.get(k, 0.0) + a_l.T @ a_o_e
+    part = 0.0
+    for k, h in h_ll.items():
+        c = np.asarray(delta[k], float) + np.linalg.solve(h, g[k])
+        part += float(c @ h @ c)
+    return part, total - part
 
 
 def check_converged(result: SolveResult, what: str = "the solve", accept: bool = False) -> None:

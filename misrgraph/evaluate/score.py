@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from factors.collinearity import camera_param_scale
 from misrgraph.estimate.adjust import AdjustResult, corrected_geometry, estimated_models, supplied_camera_of
 from misrgraph.estimate.calibrate import param_value
-from misrgraph.estimate.solver import information_norm, linearize
+from misrgraph.estimate.solver import information_norm_split, linearize
 from misrgraph.io.passes import KIND_CHECK, OrbitPass
 from misrgraph.io.truth import PassTruth
 from misrgraph.model.camera import CameraModel
@@ -115,8 +115,14 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
     out["truth_in_estimator_parameterisation"] = bool(same_eph)
     if whole_state and same_eph:
         state_dim = sum(pg.problem.dims.values())
-        nees_state = information_norm(pg.problem, linearize(pg.problem, res.values), delta) / state_dim
-        out["nees"].update(state=nees_state, state_dim=int(state_dim))
+        lm_keys = [int(k) for k in pg.landmark_keys]
+        lm_dim = sum(pg.problem.dims[k] for k in lm_keys)
+        part, rest = information_norm_split(linearize(pg.problem, res.values), delta, lm_keys)
+        # the whole state's NEES split exactly: the landmarks given the other variables' errors
+        # (triangulation with exact navigation and camera) and the others jointly
+        out["nees"].update(state=(part + rest) / state_dim, state_dim=int(state_dim),
+                           state_landmarks_given_rest=part / max(lm_dim, 1), state_landmarks_given_rest_dim=int(lm_dim),
+                           state_rest=rest / max(state_dim - lm_dim, 1), state_rest_dim=int(state_dim - lm_dim))
     blunders = truth.blunder
     if blunders.any() or res.rejected.size:
         rej = np.zeros(blunders.size, bool)

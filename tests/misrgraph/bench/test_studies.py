@@ -48,14 +48,20 @@ def test_rms_of_runs_is_unbiased_where_the_mean_ratio_is_not():
 
 
 def test_bench_nees_per_class_at_reduced_size(tmp_path):
-    """Two reduced adjustment runs: every class (knots, ephemeris, camera, landmarks, state) is
+    """Two reduced adjustment runs: every class (knots, ephemeris, camera, landmarks, state and its
+    two parts) is
     reported with its chi-square band and an interval from the runs; an unknown size is refused."""
     from misrgraph.bench.studies import run_bench_nees
 
     r = run_bench_nees("adjust", runs=2, seed=1000, workdir=tmp_path)
     assert r["truth"] == "model" and r["adjust_overrides"] == {"dem_sigma_scale": 1.0, "attitude_jitter_arcsec": 0.0}
-    assert set(r["summary"]) >= {"knots", "ephemeris", "landmarks", "state", "checkpoint_rms_over_predicted",
-                                 "checkpoint_rms_m"}
+    assert set(r["summary"]) >= {"knots", "ephemeris", "landmarks", "state", "state_landmarks_given_rest", "state_rest",
+                                 "checkpoint_rms_over_predicted", "checkpoint_rms_m"}
+    # the whole state's chi-square is the sum of its two parts, run by run and pooled
+    sm = r["summary"]
+    assert sm["state_landmarks_given_rest"]["dof"] + sm["state_rest"]["dof"] == sm["state"]["dof"]
+    assert (sm["state_landmarks_given_rest"]["nees_per_dim"] * sm["state_landmarks_given_rest"]["dof"]
+            + sm["state_rest"]["nees_per_dim"] * sm["state_rest"]["dof"]) == pytest.approx(sm["state"]["nees_per_dim"] * sm["state"]["dof"])
     for k, v in r["summary"].items():
         lo, hi = v["per_run"]["ci95"]
         assert lo <= v["per_run"]["mean"] <= hi, k

@@ -223,7 +223,8 @@ def test_all_gcps_blunders_is_diagnosed(small_pass_dir, tmp_path):
 
 def test_tie_point_with_mostly_rejected_rays_is_dropped_whole(small_pass):
     """A tie point whose rays were mostly rejected (or seen by < 2 cameras after rejection) loses
-    all its observations; a GCP keeps its remaining one (its ground prior still determines it)."""
+    all its observations; a GCP keeps its remaining one (its ground prior still determines it).
+    With ``any_rejection`` every tie point with a rejected ray is dropped whole."""
     from misrgraph.estimate.adjust import drop_unsupported_landmarks
 
     _, p = small_pass
@@ -246,6 +247,11 @@ def test_tie_point_with_mostly_rejected_rays_is_dropped_whole(small_pass):
     assert not mask[gcp_obs[0]] and mask[gcp_obs[1:]].all()
     assert mask[other_obs].sum() == 1
     assert np.array_equal(mask & ~rejected, np.isin(np.arange(len(obs)), tie_obs) & ~rejected)
+    # drop_rejected_tie_points: the tie point with one rejected ray goes whole too; the GCP stays
+    mask, rows = drop_unsupported_landmarks(p, rejected, any_rejection=True)
+    assert rows.tolist() == sorted([tie, other])
+    assert mask[tie_obs].all() and mask[other_obs].all()
+    assert not mask[gcp_obs[0]] and mask[gcp_obs[1:]].all()
 
 
 @pytest.fixture(scope="module")

@@ -50,6 +50,41 @@ def test_marginals_equal_gtsam_marginals(noisy_graph):
             b.clear()
 
 
+def test_information_norm_split_is_the_rest_jointly_plus_the_landmarks_given_it(noisy_graph):
+    """``e^T H e`` split into the landmarks given the other variables and those others jointly,
+    for an arbitrary error ``e``: the total against the linear graph's own error
+    (``||A e||^2 = E(e) + E(-e) - 2 E(0)``), the rest against ``e_o^T P_oo^-1 e_o`` with ``P_oo`` the
+    joint marginal of the non-landmark variables from the Schur marginals. A factor that touches
+    two local variables is refused."""
+    from misrgraph.estimate.problem import linearize
+    from misrgraph.estimate.solver import information_norm_split
+
+    prob = noisy_graph.problem
+    res = solve(prob)
+    marg = marginal_covariances(prob, res.values)
+    rng = np.random.default_rng(7)
+    e = {k: np.linalg.cholesky(marg[k]) @ rng.standard_normal(d) for k, d in prob.dims.items()}
+    lin = linearize(prob, res.values)
+    lm = [int(k) for k in noisy_graph.landmark_keys]
+    part, rest = information_norm_split(lin, e, lm)
+
+    def lin_error(sign: float) -> float:
+        vv = gtsam.VectorValues()
+        for k, v in e.items():
+            vv.insert(k, sign * v)
+        return lin.error(vv)
+
+    total = lin_error(1.0) + lin_error(-1.0) - 2.0 * lin_error(0.0)
+    others = [k for k in prob.dims if k not in set(lm)]
+    e_o = np.concatenate([e[k] for k in others])
+    ref_rest = float(e_o @ np.linalg.solve(marg.joint_of(others), e_o))
+    assert part + rest == pytest.approx(total, rel=1e-8)
+    assert rest == pytest.approx(ref_rest, rel=1e-6)
+    assert 0 < part < total
+    with pytest.raises(ValueError, match="two|local variables"):
+        information_norm_split(lin, e, list(prob.dims))
+
+
 def test_error_decreases_monotonically(noisy_graph):
     res = solve(noisy_graph.problem)
     h = np.array(res.history)

@@ -76,3 +76,32 @@ def test_an_unconverged_adjustment_fails_unless_accepted(small_pass_dir, tmp_pat
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 1 and len(lines) == 1 and "did not converge" in lines[0], r.stderr
     assert run_adjust(small_pass_dir)["solver_status"] == "converged"
+
+
+def test_drop_rejected_tie_points_drops_every_tie_point_with_a_rejected_ray(small_pass_dir):
+    """``adjust --drop-rejected-tie-points``: every tie point with a rejected observation (robust
+    screen or data snooping; the pass has 2 % tie-point blunders) leaves the solution whole, and
+    only those; without the flag only the tie points whose rays were mostly rejected go."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+    from misrgraph.estimate.adjust import AdjustConfig, adjust_pass
+    from misrgraph.io.passes import KIND_TIE
+    from misrgraph.sim.simulate import load_scenario
+
+    sc = load_scenario(small_pass_dir)
+    op = sc.load_pass(0)
+    cam = sc.camera_model.at_temperature(op.temperature_c)
+    res = adjust_pass(op, cam, sc.dem, sc.gcps, AdjustConfig(drop_rejected_tie_points=True))
+    lm = op.observations.landmark[res.rejected]
+    with_rejection = set(lm[op.landmarks.kind[lm] == KIND_TIE].tolist())
+    assert len(with_rejection) >= 3
+    assert set(res.dropped_landmarks.tolist()) == with_rejection
+    assert not set(res.pass_graph.landmark_rows.tolist()) & with_rejection
+    out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--drop-rejected-tie-points", "--json"])
+    assert out.exit_code == 0, out.output
+    flagged = json.loads(out.stdout[out.stdout.index("{"):])
+    assert flagged["dropped_tie_points"] == len(with_rejection)
+    assert run_adjust(small_pass_dir)["dropped_tie_points"] < len(with_rejection)
