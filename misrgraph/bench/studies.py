@@ -162,10 +162,10 @@ def _interval(values: list[float]) -> dict[str, float]:
     return {"mean": float(v.mean()), "ci95": [float(v.mean() - half), float(v.mean() + half)]}
 
 
-#: the adjustment settings ``bench nees`` changes under the model truth, which draws the DEM
-#: errors with the DEM's stated sigma and has no attitude error faster than the knots: the DEM
-#: weighted at that sigma, and no fast attitude noise added to the predicted geolocation sigma
-MODEL_TRUTH_ADJUST: dict[str, Any] = {"dem_sigma_scale": 1.0, "attitude_jitter_arcsec": 0.0}
+#: the adjustment settings ``bench nees`` changes under the model truth, which has no attitude
+#: error faster than the knots: no fast attitude noise added to the predicted geolocation sigma
+#: (the DEM is weighted at its stated sigma by default since 2026-11-26, as that truth draws it)
+MODEL_TRUTH_ADJUST: dict[str, Any] = {"attitude_jitter_arcsec": 0.0}
 
 
 #: the NEES classes of an adjustment (:func:`misrgraph.evaluate.score.score_pass`): the whole
@@ -196,10 +196,8 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
     ``calibrate_params``: the camera parameters the calibration estimates (default its own).
 
     The adjustment runs with its defaults, except under the model truth (:data:`MODEL_TRUTH_ADJUST`):
-    that truth draws the DEM errors with the DEM's stated sigma and has no attitude error faster
-    than the knots, so the DEM is weighted at that sigma (the empirical inflation meant for real
-    DEMs would only make it conservative) and the check points' predicted sigma adds no fast
-    attitude noise. The result names the settings it changed (``adjust_overrides``).
+    that truth has no attitude error faster than the knots, so the check points' predicted sigma
+    adds no fast attitude noise. The result names the settings it changed (``adjust_overrides``).
     """
     from scipy import stats
 

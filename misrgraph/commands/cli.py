@@ -232,7 +232,8 @@ def adjust(
     knot_prior: str = typer.Option("process", "--knot-prior", help="'process': consecutive knots tied by the attitude error process, every knot kept (default); 'independent': the seed's independent knot priors with eqs. 28-29's knot removal."),
     knot_damping: float = typer.Option(ATTITUDE_DAMPING, "--knot-damping", help="Damping ratio of the process knot prior (1: Matern-3/2; the default fits an attitude error with periods of 200-2000 s, see docs/conventions.md)."),
     no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
-    dem_sigma_scale: float = typer.Option(2.0, "--dem-sigma-scale", help="The DEM height factors' sigma is the DEM's stated sigma times this (2: an empirical factor, see docs/design.md)."),
+    dem_sigma_scale: float = typer.Option(1.0, "--dem-sigma-scale", help="The DEM height factors' sigma is the DEM's stated sigma times this (1: as stated; it was 2 until 2026-11-26, see docs/design.md)."),
+    dem_smoothing: float = typer.Option(1.0, "--dem-smoothing", help="1 sigma (DEM postings, 0-2) of the Gaussian low-pass of the DEM the height factors read (0: the raw DEM); removes posting-level roughness that makes the DEM term non-quadratic, see docs/design.md."),
     robust: str = typer.Option("cauchy", "--robust", help="Loss of the first (blunder-finding) solve: cauchy, huber or none."),
     max_iterations: int = typer.Option(100, "--max-iterations", help="Levenberg-Marquardt iterations per solve."),
     snooping_rounds: int = typer.Option(4, "--snooping-rounds", help="Rounds of iterated data snooping (Baarda, alpha 0.001) after the least-squares solve; 0: off."),
@@ -249,7 +250,8 @@ def adjust(
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
                                       knot_prior=knot_prior, knot_prior_damping=knot_damping, use_dem=not no_dem,
-                                      dem_sigma_scale=dem_sigma_scale, robust=robust, max_iterations=max_iterations,
+                                      dem_sigma_scale=dem_sigma_scale, dem_smoothing_postings=dem_smoothing,
+                                      robust=robust, max_iterations=max_iterations,
                                       snooping_rounds=snooping_rounds, variance_component_rounds=variance_components,
                                       drop_rejected_tie_points=drop_rejected, accept_unconverged=accept_unconverged))
     with err_console.status("adjusting...") as st:

@@ -84,6 +84,7 @@ class AdjustConfig(Config):
     camera_focal_prior_px: float = _GRAPH_DEFAULTS.camera_focal_prior_px
     use_dem: bool = _GRAPH_DEFAULTS.use_dem
     dem_sigma_scale: float = _GRAPH_DEFAULTS.dem_sigma_scale
+    dem_smoothing_postings: float = _GRAPH_DEFAULTS.dem_smoothing_postings
     gcp_scenes: bool = _GRAPH_DEFAULTS.gcp_scenes
     robust: str = "cauchy"
     robust_k: float = 3.0
@@ -135,7 +136,8 @@ class AdjustConfig(Config):
                     knot_rule=self.knot_rule, knot_prior=self.knot_prior, knot_prior_damping=self.knot_prior_damping,
                     ephemeris_segments=self.ephemeris_segments, camera_prior_px=self.camera_prior_px,
                     camera_params=tuple(self.camera_params), camera_focal_prior_px=self.camera_focal_prior_px,
-                    use_dem=self.use_dem, dem_sigma_scale=self.dem_sigma_scale, gcp_scenes=self.gcp_scenes)
+                    use_dem=self.use_dem, dem_sigma_scale=self.dem_sigma_scale,
+                    dem_smoothing_postings=self.dem_smoothing_postings, gcp_scenes=self.gcp_scenes)
         base.update(overrides)
         return GraphConfig.from_dict(base)
 

@@ -92,13 +92,18 @@ class GraphConfig(Config):
     omega_prior_rad: float = 1.745e-3
     use_dem: bool = True
     #: the DEM height factors' sigma is the DEM's stated 1 sigma (quality class, local fit) times
-    #: this. 2 by default, an empirical factor (docs/design.md, "The DEM weight"): the stated
-    #: sigma is right at the true positions (z RMS 0.98) and its variance component is 1, yet at
-    #: the stated weight the DEM moves a pass's landmarks as a whole by more than their covariance
-    #: allows (landmark NEES 1.23 and 1.29 on 20 + 40 standard passes); with 2, chosen on the 20,
-    #: 1.00 and, on the 40 held out, 1.05, with the check points 10-14 % more accurate. The cause
-    #: is not found (the DEM-error-free and the DEM-free adjustments are honest).
-    dem_sigma_scale: float = 2.0
+    #: this. 1 (the stated sigma) since 2026-11-26; it was 2, an empirical factor, until the
+    #: cause of the DEM's excess pull was found (docs/design.md, "The DEM weight"): the DEM's
+    #: posting-level roughness, which ``dem_smoothing_postings`` now removes
+    dem_sigma_scale: float = 1.0
+    #: 1 sigma (DEM postings) of the Gaussian low-pass applied to the DEM before the height
+    #: factors read it (:meth:`DemTiles.smoothed`; their sigma keeps the raw DEM's local
+    #: roughness). Posting-level roughness (DEM noise, relief the posting aliases) curves the
+    #: surface at the scale of a landmark's horizontal uncertainty, and summed over a pass's
+    #: landmarks it makes the DEM term non-quadratic in the pass's horizontal position: at 0 the
+    #: pass's mean horizontal error is 1.8x its predicted variance even under the model truth.
+    #: 0: the DEM as it is
+    dem_smoothing_postings: float = 1.0
     #: give each source scene of the GCP database (``GcpDatabase.scene``) one offset variable that
     #: its GCPs share (:func:`factors.priors.gcp_scene_prior`); False treats every GCP's error as
     #: its own (what a database without scenes gets anyway)
@@ -124,6 +129,8 @@ class GraphConfig(Config):
             raise InputError("knot_prior_damping", self.knot_prior_damping, "a positive damping ratio (1: Matern-3/2)")
         if not (np.isfinite(self.dem_sigma_scale) and self.dem_sigma_scale > 0):
             raise InputError("dem_sigma_scale", self.dem_sigma_scale, "a positive factor on the DEM's stated sigma")
+        if not (np.isfinite(self.dem_smoothing_postings) and 0 <= self.dem_smoothing_postings <= 2):
+            raise InputError("dem_smoothing_postings", self.dem_smoothing_postings, "a sigma in DEM postings, 0 to 2")
         if len(self.attitude_sigma_arcsec) != 3 or not min(self.attitude_sigma_arcsec) > 0:
             raise InputError("attitude_sigma_arcsec", self.attitude_sigma_arcsec, "three positive sigmas (roll, pitch, yaw) in arcsec")
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
@@ -230,6 +237,11 @@ def build_pass_graph(
     bin); ``camera_keys`` then maps ``bin * 1000 + camera code`` to the key.
     """
     shared = shared if shared is not None else set()
+    # the height factors read a low-passed DEM (dem_smoothing_postings); their sigma keeps the
+    # raw DEM's local roughness (the fit's residual RMS), which covers what the low-pass removed
+    dem_raw = dem
+    if dem is not None and cfg.dem_smoothing_postings > 0:
+        dem = dem.smoothed(cfg.dem_smoothing_postings)
     camera = camera_for_pass or camera
     geoid = geoid or Geoid("zero")
     obs = orbit_pass.observations
@@ -373,7 +385,7 @@ def build_pass_graph(
     if cfg.use_dem and dem is not None and dem_rows:
         # one vectorised surface fit for every tie point this pass owns (sigma of its DEM factor)
         lat, lon, _ = ecef_to_geodetic(np.stack([init[r] for r in dem_rows]))
-        s = fit_local_surface(dem, lat, lon, cfg.dem_method)
+        s = fit_local_surface(dem_raw, lat, lon, cfg.dem_method)
         dem_keys = [lm_key_of[r] for r, ok in zip(dem_rows, s.valid) if ok]
         dem_sig = [float(x) * cfg.dem_sigma_scale for x, ok in zip(s.sigma, s.valid) if ok]
     if dem_keys:

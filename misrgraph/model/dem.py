@@ -311,6 +311,30 @@ class DemTiles:
     def size(self) -> int:
         return int(self.heights.shape[1])
 
+    def smoothed(self, sigma_postings: float) -> "DemTiles":
+        """The same tiles with heights low-passed by a Gaussian of ``sigma_postings`` postings (1
+        sigma, along rows and columns; 0: ``self``), cut at 2 postings so that every posting
+        the local surface can read (2 or more from a tile's edge: :meth:`tile_of`'s margin 3 and
+        the 4 x 4 window) is filtered from real postings only: overlapping tiles keep the same
+        heights there. Cached per sigma on this object.
+
+        Why: posting-level roughness (white DEM noise, relief aliased from below the posting)
+        curves the surface at the scale of a landmark's horizontal uncertainty; the sum of those
+        curvatures over hundreds of landmarks makes the DEM cost non-quadratic along the pass's
+        common horizontal position (docs/design.md, "The DEM weight")."""
+        s = float(sigma_postings)
+        if not (np.isfinite(s) and s >= 0):
+            raise InputError("dem smoothing", sigma_postings, "a sigma >= 0 in DEM postings")
+        if s == 0:
+            return self
+        cache = self.__dict__.setdefault("_smoothed", {})
+        if s not in cache:
+            from scipy.ndimage import gaussian_filter
+
+            h = gaussian_filter(self.heights, sigma=(0.0, s, s), mode="nearest", truncate=2.0 / s)
+            cache[s] = DemTiles(self.lat0, self.lon0, h, self.flags, self.quality, self.posting_deg, self.lon_posting)
+        return cache[s]
+
     def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3,
                 hint: NDArray[np.int64] | None = None) -> NDArray[np.int64]:
         """Index of a tile containing each point at least ``margin`` postings from its edge (-1 if none);

@@ -328,6 +328,35 @@ def test_dem_sigma_scale_multiplies_the_stated_dem_sigma(small_pass):
             GraphConfig(dem_sigma_scale=bad)
 
 
+def test_dem_smoothing_reads_the_low_passed_dem_with_the_raw_sigma(small_pass):
+    """``dem_smoothing_postings``: the height factors read the DEM low-passed by
+    :meth:`DemTiles.smoothed` (heights and slopes at the landmarks equal that DEM's local surface,
+    and differ from the raw DEM's), while their sigma is the raw DEM's stated one; a negative or
+    larger-than-2-postings sigma is refused by name."""
+    from factors.dem_height import DemBatch
+    from misrgraph.errors import InputError
+    from misrgraph.model.dem import fit_local_surface
+    from misrgraph.model.frames import ecef_to_geodetic
+
+    sc, p = small_pass
+    raw, smooth = [next(b for b in build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(dem_smoothing_postings=f)).problem.batches
+                        if isinstance(b, DemBatch)) for f in (0.0, 1.0)]
+    np.testing.assert_array_equal(raw.keys, smooth.keys)
+    cfg = GraphConfig(dem_smoothing_postings=1.0)
+    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, cfg)
+    lat, lon, _ = ecef_to_geodetic(np.stack([pg.problem.initial.atVector(int(k)) for k in smooth.keys]))
+    # sigma: the raw DEM's at the (initial) landmarks, times the scale
+    np.testing.assert_allclose(smooth.sigma_m, fit_local_surface(sc.dem, lat, lon).sigma * cfg.dem_sigma_scale, rtol=1e-12)
+    h, dlat, dlon = smooth.surface(lat, lon)
+    ref = fit_local_surface(sc.dem.smoothed(1.0), lat, lon)
+    np.testing.assert_allclose(h, ref.height, atol=1e-9)
+    np.testing.assert_allclose(dlat, ref.dh_dlat, rtol=1e-9, atol=1e-9)
+    assert np.max(np.abs(h - raw.surface(lat, lon)[0])) > 0.1  # the low-pass changed the heights read
+    for bad in (-0.5, 3.0, float("nan")):
+        with pytest.raises(InputError, match="dem_smoothing_postings"):
+            GraphConfig(dem_smoothing_postings=bad)
+
+
 def test_knot_prior_damping_sets_the_process_prior(small_pass):
     """``knot_prior_damping`` is the damping of the process prior in the graph: with the knots at
     zero (no data factor touched), the graph's prior part has the information of the process's

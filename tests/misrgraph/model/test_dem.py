@@ -270,3 +270,41 @@ def test_dem_file_keeps_the_longitude_spacing(rng, tmp_path):
     back = read_dem(tmp_path / "d.h5")
     np.testing.assert_array_equal(back.lon_posting, dem.lon_posting)
     assert sorted(set(np.round(dem.lon_posting * 3600, 6))) == [3.0, 6.0]
+
+
+def test_smoothed_dem_keeps_planes_damps_noise_and_stays_continuous(rng):
+    """``DemTiles.smoothed``: a plane is unchanged wherever the surface can read (the kernel is
+    symmetric and cut at 2 postings, inside the tiles' margin); white noise at the postings keeps
+    the variance the kernel's weights give it (sum of squared weights, closed form); the smoothed
+    tiles are still one continuous DEM (no jump where the tile changes); 0 returns the DEM itself."""
+    from scipy.stats import norm
+
+    n, s = 32, 1.0
+    r, c = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    plane = 100.0 + 3.0 * r - 2.0 * c
+    noise = rng.standard_normal((200, n, n))
+    dem = DemTiles(np.zeros(201), np.zeros(201), np.concatenate([plane[None], noise]), np.ones((201, n, n), np.uint8),
+                   np.ones(201, np.int64))
+    sm = dem.smoothed(s)
+    assert dem.smoothed(0.0) is dem and dem.smoothed(s) is sm
+    np.testing.assert_allclose(sm.heights[0, 2:-2, 2:-2], plane[2:-2, 2:-2], atol=1e-9)
+    w = norm.pdf(np.arange(-2, 3) / s)
+    w /= w.sum()
+    expected = float(np.sum(w**2) ** 2)  # separable: rows, then columns
+    got = float(np.var(sm.heights[1:, 2:-2, 2:-2]))
+    assert got == pytest.approx(expected, rel=0.05)
+    with pytest.raises(InputError, match="smoothing"):
+        dem.smoothed(-1.0)
+    # continuity across tiles, as test_tiles_are_one_continuous_dem does for the raw DEM
+    p = POSTING_DEG
+    lat = np.array([48024.3, 48034.6]) * p
+    lon = np.array([-125989.6, -125989.6]) * p
+    tiles = simulate_dem_tiles(lat, lon, SyntheticTerrain(seed=3), rng, size=32).smoothed(s)
+    t = np.linspace(0.0, 1.0, 20001)
+    la, lo = lat[0] + t * (lat[1] - lat[0]), lon[0] + t * (lon[1] - lon[0])
+    f = fit_local_surface(tiles, la, lo)
+    which = tiles.tile_of(la, lo)
+    assert f.valid.all() and np.sum(which[:-1] != which[1:]) >= 1
+    step_m = np.hypot(np.diff(la) * 111e3, np.diff(lo) * 111e3 * np.cos(np.radians(40.0)))
+    slope = np.hypot(f.dh_dlat / 111e3, f.dh_dlon / (111e3 * np.cos(np.radians(40.0))))
+    assert np.all(np.abs(np.diff(f.height)) <= 2 * slope[:-1] * step_m + 1e-6)
