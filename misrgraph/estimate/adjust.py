@@ -437,7 +437,8 @@ def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_
     drop = (kinds == KIND_TIE) & (total > 0) & unsupported
     rows = np.flatnonzero(drop)
     if rows.size:
-        log.info("dropped %d landmarks whose rays were mostly rejected (rows %s)", rows.size, rows[:20].tolist())
+        log.info("dropped %d tie points %s (rows %s)", rows.size,
+                 "with a rejected ray" if any_rejection else "whose rays were mostly rejected", rows[:20].tolist())
     return rejected | drop[obs.landmark], rows.astype(np.int64)
 
 

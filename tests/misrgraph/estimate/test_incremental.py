@@ -29,9 +29,20 @@ def test_incremental_over_ten_passes_equals_batch(path_dir):
     assert len(solver.passes) == 10
     prob, res, _ = batch_solution(solver)
     m = marginal_covariances(prob, res.values)
-    worst = max(float(np.max(np.abs(solver.estimate.atVector(k) - res.values.atVector(k)) / np.sqrt(np.diag(m[k]))))
-                for k in prob.dims)
-    assert worst < 0.01  # within 1 % of sigma for every variable
+
+    def worst_of(sol: IncrementalSolver) -> float:
+        return max(float(np.max(np.abs(sol.estimate.atVector(k) - res.values.atVector(k)) / np.sqrt(np.diag(m[k]))))
+                   for k in prob.dims)
+
+    # with every pass live, the tolerance alone: within 1 % of sigma for every variable
+    live = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, linearization_tol=0.005, settle_after=None)
+    for i in range(len(sc.pass_files)):
+        live.add_passes([sc.load_pass(i)])
+    assert worst_of(live) < 0.01
+    # settled passes keep their collinearity's last linearisation (module docstring), which adds to
+    # that: measured 0.0074 -> 0.0103 sigma here (2026-11-26, the DEM low-passed; 0.0097 with the
+    # raw DEM), and up to 0.028 sigma at tolerance 0.01 over the 50-pass benchmark path
+    assert worst_of(solver) < 0.015
     # landmarks are shared between repeat passes
     lm = [k for k in prob.eliminate_first]
     assert len(lm) < sum(len(g.landmark_keys) for g in solver.graphs)
