@@ -256,7 +256,10 @@ def _restore(d: Path, meta: dict[str, Any], linearization_tol: float | None,
             raise InputError(key, meta[key], f"the input this state was created with (SHA-256 "
                                              f"{meta['input_sha256'][key][:12]}...; it is now {now[:12]}...: restore it "
                                              "or start a new state)")
-    cfg = AdjustConfig.from_dict({k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()})
+    conf = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()}
+    # a state written before the DEM's low-pass existed (2026-11-26) read the raw DEM: it goes on so
+    conf.setdefault("dem_smoothing_postings", 0.0)
+    cfg = AdjustConfig.from_dict(conf)
     camera = load_camera_model(meta["camera_model"])
     if not isinstance(camera, CameraModel):
         raise InputError("--camera-model", meta["camera_model"], "a single-temperature camera model (not a temperature table)")

@@ -280,3 +280,20 @@ def test_replay_in_one_update_builds_the_same_graphs(path_dir):
     fresh = build_pass_graph(passes[2], sc.camera_model, sc.dem, sc.gcps, one.cfg.graph_config(), pass_index=2,
                              shared=set(one.graphs[0].problem.dims) | set(one.graphs[1].problem.dims))
     assert not np.array_equal(fresh.collinearity.const.along_scale, one.graphs[2].collinearity.const.along_scale)
+
+
+def test_a_state_from_before_the_dem_low_pass_keeps_the_raw_dem(path_dir, tmp_path):
+    """A state whose stored config has no ``dem_smoothing_postings`` (written before the DEM's
+    low-pass existed) is restored reading the raw DEM, as it was built; a new state stores the
+    default low-pass and is restored with it."""
+    from misrgraph.runs.update import _restore
+
+    sc = load_scenario(path_dir)
+    kw = dict(camera_model=path_dir / "camera_model.h5", gcp_file=path_dir / "gcp.h5", dem_file=path_dir / "dem.h5")
+    state = tmp_path / "state"
+    run_update(state, [str(sc.pass_files[0])], **kw)
+    meta = json.loads((state / "state.json").read_text())
+    assert meta["config"]["dem_smoothing_postings"] == 1.0
+    assert _restore(state, meta, None, None)[0].cfg.dem_smoothing_postings == 1.0
+    del meta["config"]["dem_smoothing_postings"]
+    assert _restore(state, meta, None, None)[0].cfg.dem_smoothing_postings == 0.0
