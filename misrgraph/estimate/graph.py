@@ -240,8 +240,8 @@ def build_pass_graph(
     # the height factors read a low-passed DEM (dem_smoothing_postings); their sigma keeps the
     # raw DEM's local roughness (the fit's residual RMS), which covers what the low-pass removed
     dem_raw = dem
-    if dem is not None and cfg.dem_smoothing_postings > 0:
-        dem = dem.smoothed(cfg.dem_smoothing_postings)
+    if dem is not None:
+        dem = dem.smoothed(cfg.dem_smoothing_postings)  # 0: the DEM itself
     camera = camera_for_pass or camera
     geoid = geoid or Geoid("zero")
     obs = orbit_pass.observations
