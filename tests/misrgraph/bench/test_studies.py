@@ -139,3 +139,30 @@ def test_bench_pp_refuses_a_bad_block_range(tmp_path):
     out = CliRunner().invoke(app, ["bench", "pp", "--runs", "2", "--workdir", str(tmp_path), "--block-range", "71-66"])
     assert out.exit_code != 0 and "--block-range" in out.output and "71-66" in out.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_bench_scaling_times_outside_tracemalloc_and_measures_memory_inside(tmp_path, monkeypatch):
+    """``tracemalloc`` slows the Python parts about twofold: each size is solved once timed, with
+    tracing off, and once traced for the memory peak (the same problem, the same iterations)."""
+    import tracemalloc
+
+    import misrgraph.bench.studies as st
+
+    calls: list[tuple[int, bool]] = []
+    real = st.solve
+
+    def spy(problem, params):
+        res = real(problem, params)
+        calls.append((res.iterations, tracemalloc.is_tracing()))
+        return res
+
+    monkeypatch.setattr(st, "solve", spy)
+    res = st.run_bench_scaling((30, 60), seed=3, workdir=tmp_path, duration_s=300.0)
+    assert [r["tie_points"] for r in res["rows"]] == [30, 60]
+    assert [traced for _, traced in calls] == [False, False, True, False, True]  # warm-up, then timed + traced per size
+    assert calls[1][0] == calls[2][0] and calls[3][0] == calls[4][0]
+    for r in res["rows"]:
+        assert r["seconds"] > 0 and r["peak_python_mb"] > 0 and r["iterations"] >= 1
+        assert r["seconds_per_iteration"] == pytest.approx(r["seconds"] / r["iterations"])
+    assert res["rows"][1]["observations"] > res["rows"][0]["observations"]
+    assert np.isfinite(res["exponent_total_vs_tie_points"])
