@@ -21,7 +21,8 @@ from misrgraph.estimate.graph import GraphConfig, build_pass_graph
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 from misrgraph.estimate.solver import SolverParams, linearize, solve, solve_gtsam_lm
 
-__all__ = ["run_bench_solver", "run_bench_scaling", "run_bench_nees", "run_bench_sources", "standard_pass", "MODEL_TRUTH_ADJUST"]
+__all__ = ["run_bench_solver", "run_bench_scaling", "run_bench_nees", "pool_bench_nees", "run_bench_sources", "standard_pass",
+           "MODEL_TRUTH_ADJUST", "POOL_KEYS"]
 
 log = logging.getLogger(__name__)
 
@@ -213,8 +214,6 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
     that truth has no attitude error faster than the knots, so the check points' predicted sigma
     adds no fast attitude noise. The result names the settings it changed (``adjust_overrides``).
     """
-    from scipy import stats
-
     from misrgraph.errors import InputError
     from misrgraph.runs.adjust import run_adjust
     from misrgraph.runs.calibrate import run_calibrate
@@ -265,6 +264,21 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
             t[0] += v * d
             t[1] += d
             per_class.setdefault(k, []).append(v)
+    if tmp is not None:
+        tmp.cleanup()
+    return {"study": study, "size": size, "truth": truth, "overrides": dict(overrides or {}),
+            "adjust_overrides": adjust_overrides if study == "adjust" else {},
+            "calibrate_params": list(calibrate_params) if calibrate_params else None, "runs": runs,
+            "summary": _nees_summary(totals, per_class, per_run), "per_run": per_run}
+
+
+def _nees_summary(totals: dict[str, list[float]], per_class: dict[str, list[float]],
+                  per_run: list[dict[str, Any]]) -> dict[str, Any]:
+    """``bench nees``'s summary: per class the pooled NEES/dim (``totals[k]`` = [sum of chi-square,
+    sum of dof]) with its chi-square band, and the runs' mean with its interval (``per_class``);
+    the check points' ratio also as the RMS of the runs, over all cameras and per camera."""
+    from scipy import stats
+
     summary: dict[str, Any] = {}
     for k, (chi2, dof) in totals.items():
         lo, hi = stats.chi2.ppf([0.025, 0.975], dof)
@@ -281,12 +295,55 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
                 by_cam.setdefault(c, []).append(v["rms_m"] / v["predicted_rms_m"])
         summary["checkpoint_rms_over_predicted"]["by_camera"] = {
             c: {"runs": len(v), **_rms_interval(v)} for c, v in by_cam.items()}
-    if tmp is not None:
-        tmp.cleanup()
-    return {"study": study, "size": size, "truth": truth, "overrides": dict(overrides or {}),
-            "adjust_overrides": adjust_overrides if study == "adjust" else {},
-            "calibrate_params": list(calibrate_params) if calibrate_params else None, "runs": runs,
-            "summary": summary, "per_run": per_run}
+    return summary
+
+
+#: what must agree between ``bench nees`` results before they are pooled
+POOL_KEYS = ("study", "size", "truth", "overrides", "adjust_overrides", "calibrate_params")
+
+
+def pool_bench_nees(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Pool several ``bench nees`` results (:func:`run_bench_nees`, e.g. held-out seed sets run
+    apart) into one, as if their runs had been one study: the pooled NEES/dim sums each class's
+    chi-square and dof, the intervals come from the scatter of all runs together.
+
+    The results must share :data:`POOL_KEYS` (the same study, size, truth and settings) and no
+    seed may appear twice; otherwise :class:`~misrgraph.errors.InputError` names the field."""
+    from misrgraph.errors import InputError
+
+    if len(results) < 1:
+        raise InputError("results", len(results), "at least one bench nees result")
+    for i, r in enumerate(results):
+        missing = [k for k in (*POOL_KEYS, "summary", "per_run") if k not in r]
+        if missing:
+            raise InputError(f"results[{i}]", missing, "a bench nees result (--json) with these fields")
+    for k in POOL_KEYS:
+        vals = [r[k] for r in results]
+        if any(v != vals[0] for v in vals[1:]):
+            raise InputError(k, vals, "the same value in every result (pool like with like)")
+    seeds = [int(run["seed"]) for r in results for run in r["per_run"]]
+    dup = sorted({s for s in seeds if seeds.count(s) > 1})
+    if dup:
+        raise InputError("seeds", dup, "each seed in one result only (a run pooled twice would count twice)")
+    totals: dict[str, list[float]] = {}
+    for r in results:
+        for k, v in r["summary"].items():
+            if "dof" in v:
+                t = totals.setdefault(k, [0.0, 0])
+                t[0] += v["nees_per_dim"] * v["dof"]
+                t[1] += v["dof"]
+    per_run = [run for r in results for run in r["per_run"]]
+    per_class: dict[str, list[float]] = {}
+    for run in per_run:
+        for k, v in run.items():
+            if k in totals or k in ("checkpoint_rms_over_predicted", "checkpoint_rms_m"):
+                per_class.setdefault(k, []).append(float(v))
+    counts = {k: len(v) for k, v in per_class.items() if k in totals}
+    short = {k: n for k, n in counts.items() if n != len(per_run)}
+    if short:
+        raise InputError("per_run", short, f"every class in every one of the {len(per_run)} runs")
+    return {**{k: results[0][k] for k in POOL_KEYS}, "runs": len(per_run), "pooled_from": len(results),
+            "summary": _nees_summary(totals, per_class, per_run), "per_run": per_run}
 
 
 def _checkpoint_rms_after(summary: dict[str, Any]) -> float | None:

@@ -955,6 +955,12 @@ def bench_nees(
     if as_json:
         _print_json(res)
         return
+    _print_nees(res)
+
+
+def _print_nees(res: dict) -> None:
+    """``bench nees`` / ``bench nees-pool``: one line per class (and per camera for check points)."""
+    study, truth = res["study"], res["truth"]
     if res["adjust_overrides"]:
         console.print(f"adjustment settings under the {truth} truth: {res['adjust_overrides']}")
     for k, v in res["summary"].items():
@@ -969,6 +975,35 @@ def bench_nees(
             continue
         console.print(f"{study} {k}: NEES/dim {v['nees_per_dim']:.3f}, 95 % band [{v['band'][0]:.3f}, {v['band'][1]:.3f}] "
                       f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}; {scatter}")
+
+
+@bench_app.command("nees-pool")
+@handle_errors
+def bench_nees_pool(
+    files: list[Path] = typer.Argument(..., help="bench nees --json outputs of the same study, size, truth and settings."),
+    as_json: bool = typer.Option(False, "--json"),
+) -> None:
+    """Pool several bench nees results (e.g. held-out seed sets run apart) into one study: pooled NEES/dim and its band, and intervals from the scatter of all their runs."""
+    from misrgraph.bench.studies import pool_bench_nees
+
+    results = []
+    for f in files:
+        try:
+            results.append(json.loads(Path(f).read_text()))
+        except OSError as e:
+            _fail(f"FILES: {f} cannot be read ({e.strerror}); expected a bench nees --json output")
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            _fail(f"FILES: {f} is not JSON ({e}); expected a bench nees --json output")
+        if not isinstance(results[-1], dict):
+            _fail(f"FILES: {f} holds a {type(results[-1]).__name__}; expected a bench nees --json output (an object)")
+    res = pool_bench_nees(results)
+    if as_json:
+        _print_json(res)
+        return
+    seeds = sorted(int(r["seed"]) for r in res["per_run"])
+    console.print(f"pooled {res['runs']} runs from {res['pooled_from']} results ({res['study']}, {res['size']}, "
+                  f"{res['truth']} truth; seeds {seeds[0]}-{seeds[-1]})")
+    _print_nees(res)
 
 
 @bench_app.command("pp")

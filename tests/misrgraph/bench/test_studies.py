@@ -47,13 +47,13 @@ def test_rms_of_runs_is_unbiased_where_the_mean_ratio_is_not():
     assert abs(r.mean() - mean_ratio) < 4 * r.std() / np.sqrt(r.size)
 
 
-def test_bench_nees_per_class_at_reduced_size(tmp_path):
+def test_bench_nees_per_class_at_reduced_size(bench_dir):
     """Two reduced adjustment runs: every class (knots, ephemeris, camera, landmarks, state and its
     two parts) is
     reported with its chi-square band and an interval from the runs; an unknown size is refused."""
     from misrgraph.bench.studies import run_bench_nees
 
-    r = run_bench_nees("adjust", runs=2, seed=1000, workdir=tmp_path)
+    r = run_bench_nees("adjust", runs=2, seed=1000, workdir=bench_dir)
     assert r["truth"] == "model" and r["adjust_overrides"] == {"attitude_jitter_arcsec": 0.0}
     assert set(r["summary"]) >= {"knots", "ephemeris", "landmarks", "state", "state_landmarks_given_rest", "state_rest",
                                  "checkpoint_rms_over_predicted", "checkpoint_rms_m"}
@@ -83,12 +83,58 @@ def test_bench_nees_per_class_at_reduced_size(tmp_path):
 
     from misrgraph.commands.cli import app
 
-    out = CliRunner().invoke(app, ["bench", "nees", "--study", "adjust", "--runs", "2", "--seed", "1000", "--workdir", str(tmp_path)])
+    out = CliRunner().invoke(app, ["bench", "nees", "--study", "adjust", "--runs", "2", "--seed", "1000", "--workdir", str(bench_dir)])
     assert out.exit_code == 0, out.output
     for c, v in by_cam.items():
         assert f"{c}: RMS of {v['runs']} runs {v['rms']:.3f}" in out.output
     with pytest.raises(InputError, match="size"):
-        run_bench_nees("adjust", runs=1, size="huge", workdir=tmp_path)
+        run_bench_nees("adjust", runs=1, size="huge", workdir=bench_dir)
+
+
+def test_bench_nees_pool_of_parts_equals_the_whole(bench_dir, tmp_path):
+    """Two one-run studies pooled (``pool_bench_nees``, ``bench nees-pool``) give the two-run
+    study's figures; unlike studies and a seed counted twice are refused by name."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from misrgraph.bench.studies import pool_bench_nees, run_bench_nees
+    from misrgraph.commands.cli import app
+
+    whole = run_bench_nees("adjust", runs=2, seed=1000, workdir=bench_dir)
+    parts = [run_bench_nees("adjust", runs=1, seed=s, workdir=bench_dir) for s in (1001, 1000)]
+    pooled = pool_bench_nees(parts)
+    assert pooled["runs"] == 2 and pooled["pooled_from"] == 2
+    assert set(pooled["summary"]) == set(whole["summary"])
+    for k, v in whole["summary"].items():
+        p = pooled["summary"][k]
+        for f in ("nees_per_dim", "dof"):
+            if f in v:
+                assert p[f] == pytest.approx(v[f], rel=1e-12), (k, f)
+        if "band" in v:
+            assert p["band"] == pytest.approx(v["band"]) and p["inside"] == v["inside"]
+        assert p["per_run"]["mean"] == pytest.approx(v["per_run"]["mean"])
+        assert p["per_run"]["ci95"] == pytest.approx(v["per_run"]["ci95"])
+    cp, cw = pooled["summary"]["checkpoint_rms_over_predicted"], whole["summary"]["checkpoint_rms_over_predicted"]
+    assert cp["rms_of_runs"]["rms"] == pytest.approx(cw["rms_of_runs"]["rms"])
+    assert {c: v["rms"] for c, v in cp["by_camera"].items()} == pytest.approx({c: v["rms"] for c, v in cw["by_camera"].items()})
+    # the CLI reads bench nees --json files
+    files = []
+    for n, r in enumerate(parts):
+        files.append(tmp_path / f"part{n}.json")
+        files[-1].write_text(json.dumps(r))
+    out = CliRunner().invoke(app, ["bench", "nees-pool", *map(str, files)])
+    assert out.exit_code == 0, out.output
+    assert "pooled 2 runs from 2 results" in out.output
+    assert f"NEES/dim {whole['summary']['landmarks']['nees_per_dim']:.3f}" in out.output
+    with pytest.raises(InputError, match="seeds"):
+        pool_bench_nees([parts[0], whole])
+    with pytest.raises(InputError, match="truth"):
+        pool_bench_nees([parts[0], {**parts[1], "truth": "independent"}])
+    bad = tmp_path / "bad.json"
+    bad.write_text("[1, 2]")
+    out = CliRunner().invoke(app, ["bench", "nees-pool", str(bad)])
+    assert out.exit_code == 2 and "expected a bench nees --json output" in out.output
 
 
 def test_bench_pp_at_reduced_size(bench_dir):
