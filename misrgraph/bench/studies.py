@@ -317,6 +317,9 @@ def pool_bench_nees(results: list[dict[str, Any]]) -> dict[str, Any]:
         missing = [k for k in (*POOL_KEYS, "summary", "per_run") if k not in r]
         if missing:
             raise InputError(f"results[{i}]", missing, "a bench nees result (--json) with these fields")
+        bad = [j for j, run in enumerate(r["per_run"]) if not (isinstance(run, dict) and "seed" in run)]
+        if bad:
+            raise InputError(f"results[{i}].per_run", bad, "runs that each name their seed (a bench nees --json output)")
     for k in POOL_KEYS:
         vals = [r[k] for r in results]
         if any(v != vals[0] for v in vals[1:]):

@@ -131,6 +131,8 @@ def test_bench_nees_pool_of_parts_equals_the_whole(bench_dir, tmp_path):
         pool_bench_nees([parts[0], whole])
     with pytest.raises(InputError, match="truth"):
         pool_bench_nees([parts[0], {**parts[1], "truth": "independent"}])
+    with pytest.raises(InputError, match=r"results\[1\]\.per_run"):
+        pool_bench_nees([parts[0], {**parts[1], "per_run": [{"landmarks": 1.0}]}])
     bad = tmp_path / "bad.json"
     bad.write_text("[1, 2]")
     out = CliRunner().invoke(app, ["bench", "nees-pool", str(bad)])
