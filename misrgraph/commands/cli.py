@@ -239,6 +239,8 @@ def adjust(
     snooping_rounds: int = typer.Option(4, "--snooping-rounds", help="Rounds of iterated data snooping (Baarda, alpha 0.001) after the least-squares solve; 0: off."),
     drop_rejected: bool = typer.Option(False, "--drop-rejected-tie-points", help="Drop a tie point whole when any of its observations is rejected (robust screen or snooping): its other rays were selected by the same test; see docs/design.md."),
     variance_components: int = typer.Option(0, "--variance-components", help="Rounds of variance-component estimation (tie-point and GCP sigmas rescaled by their sigma0); 0: keep the stated sigmas."),
+    jitter_arcsec: float = typer.Option(1.0, "--jitter-arcsec", help="1 sigma (arcsec, per angle) of the GN&C's attitude jitter; the part the knots cannot follow (0.86 of it with 60 s knots) is added to every geolocation sigma derived from the adjustment. 0: none."),
+    jitter_periods: str = typer.Option("8,120", "--jitter-periods-s", help="The jitter's periods (s), MIN,MAX, equal power per log-period."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
     observations: str = typer.Option("simulated", "--observations", help="simulated (the pass's observations) or matched (those 'misrgraph match' measured in the imagery)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
@@ -247,13 +249,18 @@ def adjust(
     from misrgraph.estimate.adjust import AdjustConfig
     from misrgraph.runs.adjust import run_adjust
 
+    try:
+        periods = tuple(float(x) for x in jitter_periods.split(","))
+    except ValueError:
+        _fail(f"--jitter-periods-s: got {jitter_periods!r}; expected two periods in s, MIN,MAX (e.g. 8,120)")
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
                                       knot_prior=knot_prior, knot_prior_damping=knot_damping, use_dem=not no_dem,
                                       dem_sigma_scale=dem_sigma_scale, dem_smoothing_postings=dem_smoothing,
                                       robust=robust, max_iterations=max_iterations,
                                       snooping_rounds=snooping_rounds, variance_component_rounds=variance_components,
-                                      drop_rejected_tie_points=drop_rejected, accept_unconverged=accept_unconverged))
+                                      drop_rejected_tie_points=drop_rejected, accept_unconverged=accept_unconverged,
+                                      attitude_jitter_arcsec=jitter_arcsec, attitude_jitter_periods_s=periods))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
                              progress=lambda s: st.update(s), observations=observations)

@@ -39,7 +39,7 @@ from misrgraph.config import Config
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles
-from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel
+from misrgraph.model.errormodels import JITTER_PERIODS_S, AttitudeErrorModel, EphemerisErrorModel, unresolved_band_sigma
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph
@@ -49,7 +49,8 @@ from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, margi
 from misrgraph.estimate.reliability import Reliability, critical_T, reliability
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
-           "supplied_camera_of", "drop_unsupported_landmarks", "snoop", "attitude_sigma_summary", "adjustment_marginals"]
+           "supplied_camera_of", "drop_unsupported_landmarks", "snoop", "attitude_sigma_summary", "adjustment_marginals",
+           "unresolved_attitude"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -103,11 +104,15 @@ class AdjustConfig(Config):
     #: every class is within ``variance_component_tol`` of 1; 0 (default) keeps the stated sigmas
     variance_component_rounds: int = 0
     variance_component_tol: float = 0.05
-    #: 1 sigma (arcsec, per angle) of the attitude error faster than the knots can follow (the
-    #: GN&C's high-frequency noise: 10 s Kalman updates, gyro noise). It does not enter the
-    #: graph (at 0.01-0.03 px per observation it would change the weights by < 1 %), but every
-    #: geolocation sigma derived from the adjustment adds it (``AdjustResult.unresolved_attitude_rad``)
+    #: 1 sigma (arcsec, per angle) of the attitude jitter: the GN&C's error faster than the slow
+    #: 200-2000 s process (10 s Kalman updates, gyro noise), periods log-uniform in
+    #: ``attitude_jitter_periods_s``. The part the knots cannot follow (:func:`unresolved_attitude`:
+    #: 0.86 of it with knots every 60 s) is added to every geolocation sigma derived from the
+    #: adjustment (``AdjustResult.unresolved_attitude_rad``); the part they take up is the knots'.
+    #: It does not enter the graph (at 0.01-0.03 px per observation it would change the weights
+    #: by < 1 %)
     attitude_jitter_arcsec: float = 1.0
+    attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
     #: the marginals' information matrix: "hessian" (default: J^T J plus the DEM heights' exact
     #: curvature, the Laplace approximation at the optimum) or "gauss_newton" (J^T J, what
     #: gtsam.Marginals returns); problems outside the flat form always use J^T J
@@ -127,6 +132,10 @@ class AdjustConfig(Config):
             raise InputError("covariance", self.covariance, ("hessian", "gauss_newton"))
         if not self.attitude_jitter_arcsec >= 0:
             raise InputError("attitude_jitter_arcsec", self.attitude_jitter_arcsec, "a number >= 0 (1 sigma, arcsec)")
+        jp = self.attitude_jitter_periods_s
+        if not (isinstance(jp, (tuple, list)) and len(jp) == 2 and all(isinstance(x, (int, float)) for x in jp)
+                and 0 < jp[0] < jp[1] < np.inf):
+            raise InputError("attitude_jitter_periods_s", jp, "two periods 0 < min < max in s")
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
         self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run
@@ -271,8 +280,27 @@ def adjust_pass(
     rel["covariance"] = cov_used
     return AdjustResult(pg, res.values, marg, att, eph, cam, rej, norm[rej], resid, res.iterations, res.final_error,
                         res.history, time.perf_counter() - t0, dropped, res.status,
-                        variance_factor(pg.problem, res.final_error), rel, cfg.attitude_jitter_arcsec * ARCSEC,
+                        variance_factor(pg.problem, res.final_error), rel,
+                        unresolved_attitude(pg.attitude_model.knot_times, cfg.attitude_jitter_arcsec, cfg.attitude_jitter_periods_s),
                         np.flatnonzero(snooped))
+
+
+def unresolved_attitude(knot_times: list[Array], jitter_arcsec: float,
+                        periods_s: tuple[float, float] = JITTER_PERIODS_S) -> float:
+    """1 sigma (rad) of the attitude jitter the knots cannot follow: per angle
+    :func:`~misrgraph.model.errormodels.unresolved_band_sigma` of a jitter of ``jitter_arcsec``
+    (1 sigma, arcsec) with periods log-uniform in ``periods_s`` (s) on that angle's knots, then the
+    RMS over the three angles (one figure: equal knot grids, the default, give equal values)."""
+    if jitter_arcsec == 0:
+        return 0.0
+    out: dict[bytes, float] = {}
+    var = []
+    for kt in knot_times:
+        grid = np.round(np.diff(kt), 6).tobytes()
+        if grid not in out:  # the same for every angle on the same knot grid
+            out[grid] = unresolved_band_sigma(kt, jitter_arcsec * ARCSEC, tuple(periods_s))
+        var.append(out[grid] ** 2)
+    return float(np.sqrt(np.mean(var)))
 
 
 def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = "hessian") -> tuple[Marginals, str]:

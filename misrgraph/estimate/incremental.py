@@ -70,8 +70,7 @@ import scipy.sparse as sp
 from scipy.linalg import cho_factor, cho_solve
 from numpy.typing import NDArray
 
-from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, estimated_models
-from misrgraph.model.constants import ARCSEC
+from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, estimated_models, unresolved_attitude
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.dem import DemTiles
 from misrgraph.errors import InputError
@@ -560,7 +559,8 @@ class IncrementalSolver:
         rej = np.flatnonzero(self.exclusions[index])
         return AdjustResult(pg, v, marg, att, eph, cam, rej, np.zeros(rej.size), resid, self.last_rounds,
                             float(self.isam.getFactorsUnsafe().error(v)), [], seconds,
-                            unresolved_attitude_rad=AdjustConfig().attitude_jitter_arcsec * ARCSEC)
+                            unresolved_attitude_rad=unresolved_attitude(pg.attitude_model.knot_times, self.cfg.attitude_jitter_arcsec,
+                                                                        self.cfg.attitude_jitter_periods_s))
 
 
 def _information_sum(keys: list[NDArray[np.int64]], blocks: list[Array]) -> tuple[NDArray[np.int64], Array]:

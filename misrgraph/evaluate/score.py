@@ -24,7 +24,7 @@ from misrgraph.io.passes import KIND_CHECK, OrbitPass
 from misrgraph.io.truth import PassTruth
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, ARCSEC, BANDS, CAMERAS
-from misrgraph.model.errormodels import AttitudeErrorModel
+from misrgraph.model.errormodels import AttitudeErrorModel, spline_design
 from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import PassGeometry
 
@@ -194,14 +194,9 @@ def true_knots(truth: PassTruth, knot_times: Array, angle: int, step_s: float = 
     tt = truth.attitude_error.knot_times[angle]
     if tt.shape == knot_times.shape and np.allclose(tt, knot_times):
         return truth.attitude_error.knots[angle]
-    model = AttitudeErrorModel([knot_times] * 3, [np.zeros((knot_times.size, 2))] * 3)
     # sampled where the truth is defined (the estimator's end knots may lie beyond the pass)
     t = np.arange(max(knot_times[0], tt[0]), min(knot_times[-1], tt[-1]) + 0.5 * step_s, step_s)
-    i, w = model.bracket(angle, t)
-    cols = np.stack([2 * i, 2 * i + 1, 2 * i + 2, 2 * i + 3], -1)
-    design = np.zeros((t.size, 2 * knot_times.size))
-    np.put_along_axis(design, cols, w, axis=1)
-    sol, *_ = np.linalg.lstsq(design, truth.attitude_error.evaluate(t)[:, angle], rcond=None)
+    sol, *_ = np.linalg.lstsq(spline_design(knot_times, t), truth.attitude_error.evaluate(t)[:, angle], rcond=None)
     return sol.reshape(-1, 2)
 
 

@@ -306,6 +306,7 @@ def test_variance_components_recover_a_wrong_stated_sigma(small_pass):
     ("GraphConfig", "knot_prior", "markov"), ("GraphConfig", "attitude_sigma_arcsec", (10.0, 0.0, 10.0)),
     ("AdjustConfig", "camera_params", ("delta", "gamma")), ("AdjustConfig", "camera_params", ("f", "f")),
     ("AdjustConfig", "camera_focal_prior_px", 0.0), ("GraphConfig", "camera_prior_px", -0.1),
+    ("AdjustConfig", "attitude_jitter_periods_s", (120.0, 8.0)), ("AdjustConfig", "attitude_jitter_periods_s", 8.0),
 ])
 def test_bad_settings_name_the_field(cls, field, value):
     from misrgraph.errors import InputError
@@ -341,3 +342,32 @@ def test_camera_corrections_enter_the_model_in_si(small_pass):
     back = supplied_camera_of(SimpleNamespace(pass_graph=pg, values=values, camera=cam))  # type: ignore[arg-type]
     np.testing.assert_allclose(back.focal_length, supplied.focal_length, rtol=0, atol=1e-15)
     np.testing.assert_allclose(back.alpha, supplied.alpha, rtol=0, atol=1e-20)
+
+
+def test_unresolved_attitude_is_the_jitter_the_knots_cannot_follow(small_pass):
+    """The result's unresolved attitude is the stated jitter's share the pass's knots cannot take
+    up (independently: the residual of the least-squares spline fit of the simulator's own jitter
+    draws, over the same knots), not the whole jitter; none without jitter."""
+    from misrgraph.model.constants import ARCSEC
+    from misrgraph.model.errormodels import JITTER_PERIODS_S, spline_design
+    from misrgraph.sim.simulate import smooth_process
+
+    sc, p = small_pass
+    res = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none"))
+    kt = res.pass_graph.attitude_model.knot_times[0]
+    assert all(np.array_equal(kt, k) for k in res.pass_graph.attitude_model.knot_times)
+    t = np.arange(kt[0], kt[-1] + 0.5, 1.0)
+    b = spline_design(kt, t)
+    hat = b @ np.linalg.solve(b.T @ b, b.T)
+    rng = np.random.default_rng(7)
+    sig = AdjustConfig().attitude_jitter_arcsec * ARCSEC
+    resid = []
+    for _ in range(300):
+        e = smooth_process(rng, sig, n_terms=12, periods_s=JITTER_PERIODS_S)(t)[0]
+        resid.append(np.mean((e - hat @ e) ** 2))
+    resid = np.array(resid)
+    se = resid.std(ddof=1) / np.sqrt(resid.size)
+    assert abs(res.unresolved_attitude_rad**2 - resid.mean()) < 4 * se, (res.unresolved_attitude_rad / ARCSEC, np.sqrt(resid.mean()) / ARCSEC)
+    assert res.unresolved_attitude_rad < 0.95 * sig  # the knots take up part of it
+    none = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", attitude_jitter_arcsec=0.0))
+    assert none.unresolved_attitude_rad == 0.0

@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from misrgraph.commands.cli import app
+from misrgraph.estimate.adjust import AdjustConfig, unresolved_attitude
 from misrgraph.estimate.graph import build_pass_graph
 from misrgraph.estimate.incremental import IncrementalSolver, batch_solution
 from misrgraph.runs.update import load_state, run_update
@@ -60,6 +61,12 @@ def test_incremental_over_ten_passes_equals_batch(path_dir):
         for k in res_i.pass_graph.knot_keys(1)[::5] + res_i.pass_graph.ephemeris_keys():
             d = np.sqrt(np.diag(m[k]))
             assert np.max(np.abs(res_i.marginals[k] - m[k]) / np.outer(d, d)) < 1e-2, (i, k)
+        # the jitter its knots cannot follow, from the solver's own settings
+        assert res_i.unresolved_attitude_rad == unresolved_attitude(res_i.pass_graph.attitude_model.knot_times,
+                                                                    solver.cfg.attitude_jitter_arcsec)
+    quiet = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, AdjustConfig(attitude_jitter_arcsec=0.0))
+    quiet.add_passes([sc.load_pass(0)])
+    assert quiet.pass_result(0).unresolved_attitude_rad == 0.0 < solver.pass_result(0).unresolved_attitude_rad
 
 
 def test_linear_model_mirror_matches_isam2(path_dir):

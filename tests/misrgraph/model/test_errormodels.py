@@ -4,11 +4,15 @@ import numpy as np
 import pytest
 
 from misrgraph.model.errormodels import (
+    JITTER_PERIODS_S,
     AttitudeErrorModel,
     EphemerisErrorModel,
     interval_counts,
     knots_to_remove,
+    projected_band_covariance,
+    spline_design,
     uniform_knots,
+    unresolved_band_sigma,
 )
 from misrgraph.errors import InputError
 
@@ -124,3 +128,60 @@ def test_spline_spans_neighbours_after_removal(spline):
     assert 180.0 not in kt and 240.0 not in kt
     i, w = m.bracket(1, np.array([200.0]))
     assert kt[i[0]] == 120.0 and kt[i[0] + 1] == 300.0
+
+
+def test_spline_design_is_the_spline(spline, rng):
+    """``B @ knots`` is :meth:`AttitudeErrorModel.evaluate`, inside the knots and where the end
+    segments are extended."""
+    for a in range(3):
+        kt = spline.knot_times[a]
+        t = rng.uniform(kt[0] - 50.0, kt[-1] + 50.0, 200)
+        np.testing.assert_allclose(spline_design(kt, t) @ spline.knots[a].ravel(), spline.evaluate(t)[:, a],
+                                   rtol=1e-12, atol=1e-18)
+
+
+def _jitter_draws(kt, n, seed):
+    """The simulator's own jitter (a random sum of 12 sinusoids, ``smooth_process``), 1 sigma 1,
+    sampled every second over the knots, and its least-squares spline fit's knots."""
+    from misrgraph.sim.simulate import smooth_process
+
+    gen = np.random.default_rng(seed)
+    t = np.arange(kt[0], kt[-1] + 0.5, 1.0)
+    b = spline_design(kt, t)
+    e = np.array([smooth_process(gen, 1.0, n_terms=12, periods_s=JITTER_PERIODS_S)(t)[0] for _ in range(n)])
+    k = np.linalg.solve(b.T @ b, b.T @ e.T).T
+    return e, k, b
+
+
+def test_projected_band_covariance_is_the_spread_of_the_simulators_jitter_fits():
+    """The knots' share of a jitter (closed form from its band's correlation) against 800 draws of
+    the simulator's jitter fitted by least squares: per knot value and rate, end knots apart, the
+    mean ratio of the draws' mean square to the predicted variance is 1 within 4 standard errors
+    of the draws' own scatter."""
+    kt = uniform_knots(0.0, 900.0, 60.0)
+    cov = projected_band_covariance(kt, 1.0)
+    _, k, _ = _jitter_draws(kt, 800, 11)
+    var = np.diag(cov).reshape(-1, 2)
+    for part, sl in (("ends", [0, -1]), ("interior", slice(1, -1))):
+        for c, name in enumerate(("value", "rate")):
+            z = (k.reshape(len(k), -1, 2)[:, sl, c] ** 2 / var[sl, c]).mean(axis=1)  # per draw
+            se = z.std(ddof=1) / np.sqrt(z.size)
+            assert abs(z.mean() - 1) < 4 * se, (part, name, z.mean(), se)
+    # the end knots take up more of it than the interior ones (half a support each)
+    assert var[0, 0] > 2 * var[7, 0] and var[0, 1] > 1.5 * var[7, 1]
+
+
+def test_unresolved_band_sigma_is_the_fits_residual_and_has_its_limits():
+    kt = uniform_knots(0.0, 900.0, 60.0)
+    e, k, b = _jitter_draws(kt, 400, 12)
+    resid = np.mean((e - k @ b.T) ** 2, axis=1)
+    se = resid.std(ddof=1) / np.sqrt(resid.size)
+    assert abs(unresolved_band_sigma(kt, 1.0) ** 2 - resid.mean()) < 4 * se
+    assert unresolved_band_sigma(kt, 2.0) == pytest.approx(2 * unresolved_band_sigma(kt, 1.0), rel=1e-12)
+    # periods far above the knot spacing are all the spline's; far below, none of it
+    assert unresolved_band_sigma(kt, 1.0, (2000.0, 20000.0)) < 1e-3
+    assert unresolved_band_sigma(kt, 1.0, (3.0, 6.0)) > 0.999
+    with pytest.raises(InputError, match="jitter band"):
+        projected_band_covariance(kt, 1.0, (120.0, 8.0))
+    with pytest.raises(InputError, match="knot_times"):
+        projected_band_covariance([0.0], 1.0)

@@ -105,3 +105,34 @@ def test_drop_rejected_tie_points_drops_every_tie_point_with_a_rejected_ray(smal
     flagged = json.loads(out.stdout[out.stdout.index("{"):])
     assert flagged["dropped_tie_points"] == len(with_rejection)
     assert run_adjust(small_pass_dir)["dropped_tie_points"] < len(with_rejection)
+
+
+def test_adjust_cli_jitter_options(small_pass_dir):
+    """``--jitter-arcsec``/``--jitter-periods-s`` reach the adjustment: the summary's unresolved
+    attitude is the stated jitter's part the knots cannot follow on that band, none at 0, and a bad
+    band is refused naming the option."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+    from misrgraph.model.errormodels import uniform_knots, unresolved_band_sigma
+
+    def unresolved(*args):
+        out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--json", *args])
+        assert out.exit_code == 0, out.output
+        s = json.loads(out.stdout[out.stdout.index("{"):])
+        return {v["unresolved_sigma_arcsec"] for v in s["attitude_sigma"].values()}
+
+    (default,) = unresolved()
+    (two,) = unresolved("--jitter-arcsec", "2", "--jitter-periods-s", "30,300")
+    assert unresolved("--jitter-arcsec", "0") == {0.0}
+    kt = uniform_knots(0.0, 600.0, 60.0)  # the share depends on the knot spacing, not the pass
+    assert default == pytest.approx(unresolved_band_sigma(kt, 1.0), rel=0.02)
+    assert two == pytest.approx(2 * unresolved_band_sigma(kt, 1.0, (30.0, 300.0)), rel=0.02)
+    assert two < 2 * default  # slower jitter: the knots take up more of it
+    for bad in ("120,8", "8"):
+        out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--jitter-periods-s", bad])
+        assert out.exit_code == 2 and "attitude_jitter_periods_s" in out.output, out.output
+    out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--jitter-periods-s", "a,b"])
+    assert out.exit_code == 2 and "--jitter-periods-s" in out.output, out.output
