@@ -238,7 +238,7 @@ def projected_band_covariance(knot_times: ArrayLike, sigma: float, periods_s: tu
     than the slow process (jitter) enters the knots' truth (``misrgraph.evaluate.score.true_knots``
     projects the same way): for knots every 60 s and the default :data:`JITTER_PERIODS_S`, an
     interior knot takes up 0.44 sigma of value and 0.074 sigma/s of rate, an end knot 1.2 sigma
-    and 0.16 sigma/s. Cost: two Toeplitz products by FFT, ~0.05 s for a 45-minute pass.
+    and 0.16 sigma/s. Cost: one Toeplitz product by FFT, ~0.05 s for a 45-minute pass.
     """
     from scipy.linalg import matmul_toeplitz
 
@@ -246,7 +246,7 @@ def projected_band_covariance(knot_times: ArrayLike, sigma: float, periods_s: tu
     if kt.ndim != 1 or kt.size < 2 or np.any(np.diff(kt) <= 0):
         raise InputError("knot_times", kt, "at least 2 increasing times (s)")
     if not (sigma >= 0 and step_s > 0 and 0 < periods_s[0] < periods_s[1]):
-        raise InputError("jitter band", (sigma, periods_s, step_s), "sigma >= 0, 0 < period_min < period_max, step > 0")
+        raise InputError("(sigma, periods_s, step_s)", (sigma, periods_s, step_s), "sigma >= 0, 0 < period_min < period_max, step > 0")
     t = np.arange(kt[0], kt[-1] + 0.5 * step_s, step_s)
     design = spline_design(kt, t)
     m = np.linalg.solve(design.T @ design, design.T)
@@ -268,6 +268,8 @@ def unresolved_band_sigma(knot_times: ArrayLike, sigma: float, periods_s: tuple[
     is the error's minus the projection's). For knots every 60 s and the default
     :data:`JITTER_PERIODS_S` it is 0.86 ``sigma`` (26 % of the variance is the knots'), 0.99 ``sigma`` for
     knots every 120 s."""
+    if not sigma >= 0:
+        raise InputError("sigma", sigma, "a 1 sigma >= 0 (rad)")
     kt = np.asarray(knot_times, dtype=float)
     cov = projected_band_covariance(kt, 1.0, periods_s, step_s)
     design = spline_design(kt, np.arange(kt[0], kt[-1] + 0.5 * step_s, step_s))

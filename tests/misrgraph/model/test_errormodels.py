@@ -181,7 +181,9 @@ def test_unresolved_band_sigma_is_the_fits_residual_and_has_its_limits():
     # periods far above the knot spacing are all the spline's; far below, none of it
     assert unresolved_band_sigma(kt, 1.0, (2000.0, 20000.0)) < 1e-3
     assert unresolved_band_sigma(kt, 1.0, (3.0, 6.0)) > 0.999
-    with pytest.raises(InputError, match="jitter band"):
+    with pytest.raises(InputError, match="periods_s"):
         projected_band_covariance(kt, 1.0, (120.0, 8.0))
+    with pytest.raises(InputError, match="sigma"):
+        unresolved_band_sigma(kt, -1.0)
     with pytest.raises(InputError, match="knot_times"):
         projected_band_covariance([0.0], 1.0)
