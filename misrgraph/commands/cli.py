@@ -241,6 +241,7 @@ def adjust(
     variance_components: int = typer.Option(0, "--variance-components", help="Rounds of variance-component estimation (tie-point and GCP sigmas rescaled by their sigma0); 0: keep the stated sigmas."),
     jitter_arcsec: float = typer.Option(1.0, "--jitter-arcsec", help="1 sigma (arcsec, per angle) of the GN&C's attitude jitter; the part the knots cannot follow (0.86 of it with 60 s knots) is added to every geolocation sigma derived from the adjustment. 0: none."),
     jitter_periods: str = typer.Option("8,120", "--jitter-periods-s", help="The jitter's periods (s), MIN,MAX, equal power per log-period."),
+    once_per_rev: float = typer.Option(0.0, "--ephemeris-once-per-rev-m", help="1 sigma amplitude (m, per orbital axis) of a once-per-revolution ephemeris error; widens the ephemeris offset and drift priors by its instantaneous value and rate (see docs/conventions.md). 0: none."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
     observations: str = typer.Option("simulated", "--observations", help="simulated (the pass's observations) or matched (those 'misrgraph match' measured in the imagery)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
@@ -260,7 +261,8 @@ def adjust(
                                       robust=robust, max_iterations=max_iterations,
                                       snooping_rounds=snooping_rounds, variance_component_rounds=variance_components,
                                       drop_rejected_tie_points=drop_rejected, accept_unconverged=accept_unconverged,
-                                      attitude_jitter_arcsec=jitter_arcsec, attitude_jitter_periods_s=periods))
+                                      attitude_jitter_arcsec=jitter_arcsec, attitude_jitter_periods_s=periods,
+                                      ephemeris_once_per_rev_m=once_per_rev))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
                              progress=lambda s: st.update(s), observations=observations)

@@ -78,6 +78,8 @@ class AdjustConfig(Config):
     knot_prior: str = _GRAPH_DEFAULTS.knot_prior
     knot_prior_damping: float = _GRAPH_DEFAULTS.knot_prior_damping
     ephemeris_segments: int = _GRAPH_DEFAULTS.ephemeris_segments
+    #: see ``GraphConfig.ephemeris_once_per_rev_m`` (0: the navigation's offset and drift alone)
+    ephemeris_once_per_rev_m: float = _GRAPH_DEFAULTS.ephemeris_once_per_rev_m
     camera_prior_px: float = _GRAPH_DEFAULTS.camera_prior_px
     #: the camera corrections estimated per camera (:data:`factors.collinearity.CAMERA_PARAMS`);
     #: f and alpha_i are held by ``camera_focal_prior_px`` (the supplied model's knowledge)
@@ -143,7 +145,8 @@ class AdjustConfig(Config):
     def graph_config(self, **overrides: Any) -> GraphConfig:
         base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=self.threshold1, threshold2=self.threshold2,
                     knot_rule=self.knot_rule, knot_prior=self.knot_prior, knot_prior_damping=self.knot_prior_damping,
-                    ephemeris_segments=self.ephemeris_segments, camera_prior_px=self.camera_prior_px,
+                    ephemeris_segments=self.ephemeris_segments, ephemeris_once_per_rev_m=self.ephemeris_once_per_rev_m,
+                    camera_prior_px=self.camera_prior_px,
                     camera_params=tuple(self.camera_params), camera_focal_prior_px=self.camera_focal_prior_px,
                     use_dem=self.use_dem, dem_sigma_scale=self.dem_sigma_scale,
                     dem_smoothing_postings=self.dem_smoothing_postings, gcp_scenes=self.gcp_scenes)

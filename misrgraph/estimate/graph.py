@@ -28,7 +28,8 @@ from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
-from misrgraph.model.errormodels import ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, interval_counts, knots_to_remove
+from misrgraph.model.errormodels import (ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, interval_counts,
+                                         knots_to_remove, once_per_rev_widened)
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
@@ -74,6 +75,10 @@ class GraphConfig(Config):
     attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
     ephemeris_b_sigma_m: float = 50.0
     ephemeris_a_sigma_mps: tuple = (0.05, 0.01, 0.01)
+    #: 1 sigma amplitude (m, per orbital axis) of a once-per-revolution ephemeris error (orbit
+    #: determination's periodic term), which widens the offset and drift priors above
+    #: (:func:`~misrgraph.model.errormodels.once_per_rev_widened`); 0: none
+    ephemeris_once_per_rev_m: float = 0.0
     estimate_camera: bool = True
     camera_params: tuple = ("delta", "beta", "epsilon")
     camera_per_band: bool = False
@@ -127,6 +132,8 @@ class GraphConfig(Config):
             raise InputError("knot_rule", self.knot_rule, ("interval", "support"))
         if not (np.isfinite(self.knot_prior_damping) and self.knot_prior_damping > 0):
             raise InputError("knot_prior_damping", self.knot_prior_damping, "a positive damping ratio (1: Matern-3/2)")
+        if not (np.isfinite(self.ephemeris_once_per_rev_m) and self.ephemeris_once_per_rev_m >= 0):
+            raise InputError("ephemeris_once_per_rev_m", self.ephemeris_once_per_rev_m, "a 1 sigma amplitude >= 0 (m)")
         if not (np.isfinite(self.dem_sigma_scale) and self.dem_sigma_scale > 0):
             raise InputError("dem_sigma_scale", self.dem_sigma_scale, "a positive factor on the DEM's stated sigma")
         if not (np.isfinite(self.dem_smoothing_postings) and 0 <= self.dem_smoothing_postings <= 2):
@@ -404,7 +411,8 @@ def build_pass_graph(
         else:
             for k in ks:
                 graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * ATTITUDE_RATE_FACTOR]))
-    eph_sig = np.r_[np.asarray(cfg.ephemeris_a_sigma_mps, float), np.full(3, cfg.ephemeris_b_sigma_m)]
+    eph_a, eph_b = once_per_rev_widened(cfg.ephemeris_a_sigma_mps, cfg.ephemeris_b_sigma_m, cfg.ephemeris_once_per_rev_m)
+    eph_sig = np.r_[eph_a, np.full(3, eph_b)]
     for s in range(eph.n_segments):
         k = K.ephemeris_key(pass_index, s)
         add(k, np.zeros(6))

@@ -25,7 +25,7 @@ from misrgraph.model.constants import ANGLES, CAMERAS
 from misrgraph.errors import InputError
 
 __all__ = ["ATTITUDE_RATE_FACTOR", "ATTITUDE_DAMPING", "JITTER_PERIODS_S", "band_correlation", "spline_design",
-           "projected_band_covariance", "unresolved_band_sigma", "process_correlation", "fit_damping", "EphemerisErrorModel", "AttitudeErrorModel", "knots_to_remove", "interval_counts", "uniform_knots"]
+           "projected_band_covariance", "unresolved_band_sigma", "once_per_rev_widened", "process_correlation", "fit_damping", "EphemerisErrorModel", "AttitudeErrorModel", "knots_to_remove", "interval_counts", "uniform_knots"]
 
 Array = NDArray[np.float64]
 
@@ -275,6 +275,24 @@ def unresolved_band_sigma(knot_times: ArrayLike, sigma: float, periods_s: tuple[
     design = spline_design(kt, np.arange(kt[0], kt[-1] + 0.5 * step_s, step_s))
     share = float(np.einsum("ni,ij,nj->", design, cov, design)) / design.shape[0]
     return float(sigma * np.sqrt(max(1.0 - share, 0.0)))
+
+
+def once_per_rev_widened(a_sigma_mps: ArrayLike, b_sigma_m: float, amplitude_m: float,
+                         period_s: float | None = None) -> tuple[Array, float]:
+    """The eq. 19 ephemeris prior's drift ``a`` (m/s, per orbital axis ``(3,)``) and offset ``b``
+    (m) 1 sigma widened by a once-per-revolution error ``A_k sin(w t + phi_k)`` per axis, with
+    ``A_k ~ N(0, amplitude_m^2)``, ``phi_k`` uniform and ``w = 2 pi / period_s`` (default the
+    nodal period): at any instant its value has variance ``amplitude^2 / 2`` and its rate
+    ``(amplitude w)^2 / 2``, added in quadrature::
+
+        a' = sqrt(a^2 + (A w)^2 / 2),   b' = sqrt(b^2 + A^2 / 2)."""
+    from misrgraph.model.constants import NODAL_PERIOD_S
+
+    if not (np.isfinite(amplitude_m) and amplitude_m >= 0):
+        raise InputError("ephemeris_once_per_rev_m", amplitude_m, "a 1 sigma amplitude >= 0 (m)")
+    w = 2 * np.pi / (NODAL_PERIOD_S if period_s is None else period_s)
+    a = np.asarray(a_sigma_mps, dtype=float)
+    return np.sqrt(a**2 + (amplitude_m * w) ** 2 / 2), float(np.sqrt(b_sigma_m**2 + amplitude_m**2 / 2))
 
 
 def interval_counts(knot_times: ArrayLike, obs_times: ArrayLike, obs_camera: ArrayLike) -> NDArray[np.int64]:

@@ -307,6 +307,7 @@ def test_variance_components_recover_a_wrong_stated_sigma(small_pass):
     ("AdjustConfig", "camera_params", ("delta", "gamma")), ("AdjustConfig", "camera_params", ("f", "f")),
     ("AdjustConfig", "camera_focal_prior_px", 0.0), ("GraphConfig", "camera_prior_px", -0.1),
     ("AdjustConfig", "attitude_jitter_periods_s", (120.0, 8.0)), ("AdjustConfig", "attitude_jitter_periods_s", 8.0),
+    ("AdjustConfig", "ephemeris_once_per_rev_m", -1.0), ("GraphConfig", "ephemeris_once_per_rev_m", float("nan")),
 ])
 def test_bad_settings_name_the_field(cls, field, value):
     from misrgraph.errors import InputError
@@ -371,3 +372,27 @@ def test_unresolved_attitude_is_the_jitter_the_knots_cannot_follow(small_pass):
     assert res.unresolved_attitude_rad < 0.95 * sig  # the knots take up part of it
     none = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", attitude_jitter_arcsec=0.0))
     assert none.unresolved_attitude_rad == 0.0
+
+
+def test_once_per_rev_setting_widens_the_ephemeris_prior_in_the_graph(small_pass):
+    """``ephemeris_once_per_rev_m`` reaches the pass graph: its ephemeris prior factor holds the
+    widened sigmas (drift, then offset), the navigation's own without it; and the adjusted
+    ephemeris is then less certain, never more."""
+    import gtsam
+
+    from misrgraph.estimate.graph import build_pass_graph
+    from misrgraph.model.errormodels import once_per_rev_widened
+
+    sc, p = small_pass
+    sig = {}
+    for amp in (0.0, 30.0):
+        gc = AdjustConfig(ephemeris_once_per_rev_m=amp).graph_config()
+        pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, gc)
+        k = pg.ephemeris_keys()[0]
+        f = next(pg.problem.graph.at(i) for i in range(pg.problem.graph.size())
+                 if isinstance(pg.problem.graph.at(i), gtsam.PriorFactorVector) and pg.problem.graph.at(i).keys()[0] == k)
+        a, b = once_per_rev_widened(gc.ephemeris_a_sigma_mps, gc.ephemeris_b_sigma_m, amp)
+        np.testing.assert_allclose(f.noiseModel().sigmas(), np.r_[a, [b] * 3], rtol=1e-12)
+        res = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", ephemeris_once_per_rev_m=amp))
+        sig[amp] = np.sqrt(np.diag(res.marginals[res.pass_graph.ephemeris_keys()[0]]))
+    assert np.all(sig[30.0] >= sig[0.0] * (1 - 1e-9)) and np.any(sig[30.0] > 1.05 * sig[0.0]), (sig[0.0], sig[30.0])

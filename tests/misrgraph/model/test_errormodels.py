@@ -9,6 +9,7 @@ from misrgraph.model.errormodels import (
     EphemerisErrorModel,
     interval_counts,
     knots_to_remove,
+    once_per_rev_widened,
     projected_band_covariance,
     spline_design,
     uniform_knots,
@@ -187,3 +188,30 @@ def test_unresolved_band_sigma_is_the_fits_residual_and_has_its_limits():
         unresolved_band_sigma(kt, -1.0)
     with pytest.raises(InputError, match="knot_times"):
         projected_band_covariance([0.0], 1.0)
+
+
+def test_once_per_rev_widening_is_the_simulators_once_per_rev_term():
+    """The widened ephemeris prior adds the instantaneous variance of the simulator's own
+    once-per-revolution term (``draw_ephemeris_error`` under the independent truth, its offset and
+    drift all but switched off): over 3000 draws the value's and the 60 s segments' slope's mean
+    squares, at two instants a quarter orbit apart, match ``b'^2 - b^2`` and ``a'^2 - a^2`` within
+    4 standard errors of the draws' own scatter."""
+    from misrgraph.model.constants import NODAL_PERIOD_S
+    from misrgraph.sim.simulate import ScenarioConfig, draw_ephemeris_error
+
+    amp = 30.0
+    cfg = ScenarioConfig(truth="independent", once_per_rev_m=amp, nav_sigma_m=1e-9, along_drift_sigma_mps=0.0,
+                         drift_sigma_mps=0.0)
+    gen = np.random.default_rng(5)
+    seg = [0, int(NODAL_PERIOD_S / 4 // 60)]
+    draws = np.array([draw_ephemeris_error(gen, cfg, 1000.0, 1000.0 + NODAL_PERIOD_S / 2).params[seg] for _ in range(3000)])
+    a, b = once_per_rev_widened([0.05, 0.01, 0.01], 50.0, amp)
+    for col, want in ((slice(0, 3), a**2 - np.array([0.05, 0.01, 0.01]) ** 2), (slice(3, 6), np.full(3, b**2 - 50.0**2))):
+        sq = draws[:, :, col] ** 2  # (draws, instants, axes)
+        se = sq.std(axis=0, ddof=1) / np.sqrt(len(sq))
+        assert np.all(np.abs(sq.mean(axis=0) - want) < 4 * se), (sq.mean(axis=0), want, se)
+    a0, b0 = once_per_rev_widened([0.05, 0.01, 0.01], 50.0, 0.0)
+    np.testing.assert_allclose(a0, [0.05, 0.01, 0.01])
+    assert b0 == 50.0
+    with pytest.raises(InputError, match="ephemeris_once_per_rev_m"):
+        once_per_rev_widened([0.05, 0.01, 0.01], 50.0, -1.0)

@@ -136,3 +136,23 @@ def test_adjust_cli_jitter_options(small_pass_dir):
         assert out.exit_code == 2 and "attitude_jitter_periods_s" in out.output, out.output
     out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--jitter-periods-s", "a,b"])
     assert out.exit_code == 2 and "--jitter-periods-s" in out.output, out.output
+
+
+def test_adjust_cli_once_per_rev_option(small_pass_dir):
+    """``--ephemeris-once-per-rev-m`` reaches the adjustment (the summary's ephemeris sigma grows)
+    and a negative amplitude is refused naming the setting."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+
+    def eph_sigma(*args):
+        out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--json", *args])
+        assert out.exit_code == 0, out.output
+        return np.array(json.loads(out.stdout[out.stdout.index("{"):])["ephemeris"]["sigma"])
+
+    base, wide = eph_sigma(), eph_sigma("--ephemeris-once-per-rev-m", "30")
+    assert np.all(wide >= base * (1 - 1e-9)) and np.any(wide > 1.05 * base)
+    out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--ephemeris-once-per-rev-m", "-1"])
+    assert out.exit_code == 2 and "ephemeris_once_per_rev_m" in out.output, out.output
