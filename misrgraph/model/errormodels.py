@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.geometry import hermite_weights
-from misrgraph.model.constants import ANGLES, CAMERAS
+from misrgraph.model.constants import ANGLES, CAMERAS, NODAL_PERIOD_S
 from misrgraph.errors import InputError
 
 __all__ = ["ATTITUDE_RATE_FACTOR", "ATTITUDE_DAMPING", "JITTER_PERIODS_S", "band_correlation", "spline_design",
@@ -286,8 +286,6 @@ def once_per_rev_widened(a_sigma_mps: ArrayLike, b_sigma_m: float, amplitude_m: 
     ``(amplitude w)^2 / 2``, added in quadrature::
 
         a' = sqrt(a^2 + (A w)^2 / 2),   b' = sqrt(b^2 + A^2 / 2)."""
-    from misrgraph.model.constants import NODAL_PERIOD_S
-
     if not (np.isfinite(amplitude_m) and amplitude_m >= 0):
         raise InputError("ephemeris_once_per_rev_m", amplitude_m, "a 1 sigma amplitude >= 0 (m)")
     w = 2 * np.pi / (NODAL_PERIOD_S if period_s is None else period_s)
