@@ -296,13 +296,7 @@ def unresolved_attitude(knot_times: list[Array], jitter_arcsec: float,
     RMS over the three angles (one figure: equal knot grids, the default, give equal values)."""
     if jitter_arcsec == 0:
         return 0.0
-    out: dict[bytes, float] = {}
-    var = []
-    for kt in knot_times:
-        grid = np.round(np.diff(kt), 6).tobytes()
-        if grid not in out:  # the same for every angle on the same knot grid
-            out[grid] = unresolved_band_sigma(kt, jitter_arcsec * ARCSEC, tuple(periods_s))
-        var.append(out[grid] ** 2)
+    var = [unresolved_band_sigma(kt, jitter_arcsec * ARCSEC, tuple(periods_s)) ** 2 for kt in knot_times]
     return float(np.sqrt(np.mean(var)))
 
 

@@ -16,6 +16,7 @@ factors need: :meth:`EphemerisErrorModel.design` and :meth:`AttitudeErrorModel.b
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -224,6 +225,14 @@ def spline_design(knot_times: ArrayLike, t: ArrayLike) -> Array:
     return design
 
 
+def _increasing_times(knot_times: ArrayLike) -> Array:
+    """``knot_times`` as a float array, refused unless at least 2 increasing times (s)."""
+    kt = np.asarray(knot_times, dtype=float)
+    if kt.ndim != 1 or kt.size < 2 or np.any(np.diff(kt) <= 0):
+        raise InputError("knot_times", kt, "at least 2 increasing times (s)")
+    return kt
+
+
 def projected_band_covariance(knot_times: ArrayLike, sigma: float, periods_s: tuple[float, float] = JITTER_PERIODS_S,
                               step_s: float = 1.0) -> Array:
     """Covariance ``(2K, 2K)`` of the spline's share of a stationary error: the least-squares
@@ -242,9 +251,7 @@ def projected_band_covariance(knot_times: ArrayLike, sigma: float, periods_s: tu
     """
     from scipy.linalg import matmul_toeplitz
 
-    kt = np.asarray(knot_times, dtype=float)
-    if kt.ndim != 1 or kt.size < 2 or np.any(np.diff(kt) <= 0):
-        raise InputError("knot_times", kt, "at least 2 increasing times (s)")
+    kt = _increasing_times(knot_times)
     if not (sigma >= 0 and step_s > 0 and 0 < periods_s[0] < periods_s[1]):
         raise InputError("(sigma, periods_s, step_s)", (sigma, periods_s, step_s), "sigma >= 0, 0 < period_min < period_max, step > 0")
     t = np.arange(kt[0], kt[-1] + 0.5 * step_s, step_s)
@@ -270,11 +277,22 @@ def unresolved_band_sigma(knot_times: ArrayLike, sigma: float, periods_s: tuple[
     knots every 120 s."""
     if not sigma >= 0:
         raise InputError("sigma", sigma, "a 1 sigma >= 0 (rad)")
-    kt = np.asarray(knot_times, dtype=float)
+    kt = _increasing_times(knot_times)
+    # the share depends on the knots' spacings only (the samples start at the first knot); to the
+    # microsecond they repeat from pass to pass, so it is computed once per grid
+    spacings = tuple(float(x) for x in np.round(np.diff(kt), 6))
+    share = _projected_share(spacings, tuple(float(x) for x in periods_s), float(step_s))
+    return float(sigma * np.sqrt(max(1.0 - share, 0.0)))
+
+
+@lru_cache(maxsize=64)
+def _projected_share(spacings: tuple[float, ...], periods_s: tuple[float, float], step_s: float) -> float:
+    """``tr(B Cov(k) B^T) / N`` of :func:`unresolved_band_sigma` for unit sigma, knots at
+    ``cumsum((0,) + spacings)``."""
+    kt = np.concatenate([[0.0], np.cumsum(spacings)])
     cov = projected_band_covariance(kt, 1.0, periods_s, step_s)
     design = spline_design(kt, np.arange(kt[0], kt[-1] + 0.5 * step_s, step_s))
-    share = float(np.einsum("ni,ij,nj->", design, cov, design)) / design.shape[0]
-    return float(sigma * np.sqrt(max(1.0 - share, 0.0)))
+    return float(np.einsum("ni,ij,nj->", design, cov, design)) / design.shape[0]
 
 
 def once_per_rev_widened(a_sigma_mps: ArrayLike, b_sigma_m: float, amplitude_m: float,
