@@ -22,7 +22,7 @@ from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 from misrgraph.estimate.solver import SolverParams, linearize, solve, solve_gtsam_lm
 
 __all__ = ["run_bench_solver", "run_bench_scaling", "run_bench_nees", "pool_bench_nees", "run_bench_sources", "standard_pass",
-           "MODEL_TRUTH_ADJUST", "POOL_KEYS"]
+           "MODEL_TRUTH_ADJUST", "POOL_KEYS", "SOURCE_CLASSES"]
 
 log = logging.getLogger(__name__)
 
@@ -357,27 +357,71 @@ def _checkpoint_rms_after(summary: dict[str, Any]) -> float | None:
     return float(np.sqrt(np.sum(n * rms**2) / np.sum(n))) if n.size else None
 
 
-def run_bench_sources(runs: int = 10, seed: int = 3000, workdir: str | Path | None = None,
-                      size: str = "reduced", progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """The error-source table: the adjustment under the independent truth with every source of
-    :data:`~misrgraph.sim.simulate.INDEPENDENT_SOURCES` off ("none": the attitude and ephemeris
-    processes only), each source alone, and all of them; per row the NEES of knots and landmarks,
-    the check points' actual/predicted RMS and their RMS error (m), each the mean of ``runs``
-    seeded passes with its 95 % interval. The same seeds in every row."""
-    from misrgraph.sim.simulate import INDEPENDENT_SOURCES
+#: the classes ``bench sources`` reports per row (and compares, seed by seed, with its base row)
+SOURCE_CLASSES = ("knots", "landmarks", "camera", "checkpoint_rms_over_predicted", "checkpoint_rms_m")
 
+
+def run_bench_sources(runs: int = 10, seed: int = 3000, workdir: str | Path | None = None,
+                      size: str = "reduced", progress: Callable[[str], None] | None = None,
+                      mode: str = "alone") -> dict[str, Any]:
+    """The error-source table: the adjustment under the independent truth, per row the NEES of
+    knots, landmarks and camera, the check points' actual/predicted RMS and their RMS error (m),
+    each the mean of ``runs`` seeded passes with its 95 % interval. The same seeds in every row.
+
+    ``mode="alone"``: every source of :data:`~misrgraph.sim.simulate.INDEPENDENT_SOURCES` off
+    ("none": the attitude and ephemeris processes only), each source alone, and all of them; the
+    base row is "none". ``mode="without"``: all of them, and each source switched off from all
+    (``"without <source>"``); the base row is "all".
+
+    Each row also carries ``difference``: per class the mean of the per-seed differences from the
+    base row with its 95 % interval (the check points' ratio as its square, whose expectation is 1
+    when the prediction is honest), and ``paired``: whether the row differs from the base by its
+    source alone, draw for draw (:data:`~misrgraph.sim.simulate.PAIRED_SOURCES`). Only then is the
+    difference's interval much narrower than the rows' own; for the other sources the other draws
+    change too, and the difference carries the scatter of two independent sets of passes."""
+    from misrgraph.errors import InputError
+    from misrgraph.sim.simulate import INDEPENDENT_SOURCES, PAIRED_SOURCES
+
+    if mode not in ("alone", "without"):
+        raise InputError("mode", mode, ("alone", "without"))
     off = dict(INDEPENDENT_SOURCES)
+    if mode == "alone":
+        base = "none"
+        plan = [("none", off, True)] + [(k, {**off, k: getattr(ScenarioConfig(), k)}, k in PAIRED_SOURCES) for k in off]
+        plan.append(("all", {}, False))
+    else:
+        base = "all"
+        plan = [("all", {}, True)] + [(f"without {k}", {k: v}, k in PAIRED_SOURCES) for k, v in off.items()]
     rows: dict[str, dict[str, Any]] = {}
-    plan = [("none", off)] + [(k, {**off, k: getattr(ScenarioConfig(), k)}) for k in off] + [("all", {})]
-    for name, ov in plan:
+    runs_of: dict[str, dict[int, dict[str, Any]]] = {}
+    for name, ov, paired in plan:
         if progress:
             progress(f"sources: {name} ({len(rows) + 1}/{len(plan)})")
         r = run_bench_nees("adjust", runs, seed, workdir, size, "independent", ov)
-        rows[name] = {k: v["per_run"] for k, v in r["summary"].items()
-                      if k in ("knots", "landmarks", "camera", "checkpoint_rms_over_predicted", "checkpoint_rms_m")}
+        rows[name] = {k: v["per_run"] for k, v in r["summary"].items() if k in SOURCE_CLASSES}
         if "checkpoint_rms_over_predicted" in r["summary"]:
             rows[name]["checkpoint_rms_over_predicted_rms_of_runs"] = r["summary"]["checkpoint_rms_over_predicted"]["rms_of_runs"]
-    return {"size": size, "runs": runs, "seed": seed, "rows": rows}
+        rows[name]["paired"] = paired
+        runs_of[name] = {int(run["seed"]): run for run in r["per_run"]}
+    for name in rows:
+        if name != base:
+            rows[name]["difference"] = _paired_difference(runs_of[name], runs_of[base])
+    return {"size": size, "runs": runs, "seed": seed, "mode": mode, "base": base, "rows": rows}
+
+
+def _paired_difference(row: dict[int, dict[str, Any]], base: dict[int, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per class of :data:`SOURCE_CLASSES`, the mean and 95 % interval of ``row - base`` over the
+    seeds both hold (the check points' ratio squared)."""
+    out: dict[str, dict[str, Any]] = {}
+    seeds = sorted(set(row) & set(base))
+    for k in SOURCE_CLASSES:
+        both = [s for s in seeds if k in row[s] and k in base[s]]
+        if len(both) < 2:
+            continue
+        p = 2 if k == "checkpoint_rms_over_predicted" else 1
+        out[k if p == 1 else f"{k}_squared"] = {"runs": len(both), **_interval(
+            [float(row[s][k]) ** p - float(base[s][k]) ** p for s in both])}
+    return out
 
 
 def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = None, size: str = "reduced",

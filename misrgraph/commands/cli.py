@@ -1097,28 +1097,43 @@ def bench_sources(
     seed: int = typer.Option(3000, "--seed", help="First seed."),
     workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated passes here (reused by a rerun)."),
     size: str = typer.Option("reduced", "--size", help="reduced or standard (as bench nees)."),
+    mode: str = typer.Option("alone", "--mode", help="alone: each source switched on alone (base row: none); "
+                             "without: each source switched off from all of them (base row: all)."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
-    """The error-source table: each source of the independent truth switched on alone, its effect on accuracy and NEES."""
+    """The error-source table: each source of the independent truth switched on alone (or off alone), its effect on
+    accuracy and NEES, with the per-seed difference from the base row (paired draw for draw where the source allows)."""
     from misrgraph.bench.studies import run_bench_sources
 
     if runs < 2:
         _fail(f"--runs: got {runs}; expected at least 2 (the intervals come from the run-to-run scatter)")
+    if mode not in ("alone", "without"):
+        _fail(f"--mode: got {mode!r}; expected alone or without")
     with err_console.status("error sources...") as st:
-        res = run_bench_sources(runs, seed, workdir, size, progress=lambda m: st.update(m))
+        res = run_bench_sources(runs, seed, workdir, size, progress=lambda m: st.update(m), mode=mode)
     if as_json:
         _print_json(res)
         return
     from rich.table import Table
 
+    def fmt(v: dict) -> str:
+        return f"{v.get('mean', v.get('rms')):.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]"
+
+    def fmt_diff(v: dict) -> str:
+        return f"{v['mean']:+.3f} [{v['ci95'][0]:+.3f}, {v['ci95'][1]:+.3f}]"
+
     cols = ("knots", "landmarks", "checkpoint_rms_over_predicted", "checkpoint_rms_over_predicted_rms_of_runs", "checkpoint_rms_m")
-    table = Table(title=f"independent truth, {size} passes, {runs} seeds: mean (the ratio also as the RMS of runs) [95 % interval]")
+    table = Table(title=f"independent truth, {size} passes, {runs} seeds: mean (the ratio also as the RMS of runs) [95 % interval]; "
+                        f"landmarks' per-seed difference from {res['base']!r} (paired: the row differs by its source alone)")
     table.add_column("source")
     for c in cols:
         table.add_column(c)
+    table.add_column(f"landmarks - {res['base']}")
+    table.add_column("paired")
     for name, row in res["rows"].items():
-        table.add_row(name, *[f"{row[c].get('mean', row[c].get('rms')):.2f} [{row[c]['ci95'][0]:.2f}, {row[c]['ci95'][1]:.2f}]"
-                              if c in row else "-" for c in cols])
+        d = row.get("difference", {}).get("landmarks")
+        table.add_row(name, *[fmt(row[c]) if c in row else "-" for c in cols], fmt_diff(d) if d else "-",
+                      "base" if name == res["base"] else "yes" if row["paired"] else "no")
     console.print(table)
 
 

@@ -64,6 +64,7 @@ __all__ = [
     "ScenarioConfig",
     "TRUTHS",
     "INDEPENDENT_SOURCES",
+    "PAIRED_SOURCES",
     "draw_thermal_truth",
     "run_simulate",
     "scenario_terrain",
@@ -100,6 +101,15 @@ INDEPENDENT_SOURCES = {
     "jitter_arcsec": 0.0, "once_per_rev_m": 0.0, "subposting_relief_m": 0.0, "dem_correlated_fraction": 0.0,
     "camera_f_alpha_px": 0.0, "noise_tail_dof": 0.0, "mismatch_rate": 0.0, "gcp_scene_fraction": 0.0,
 }
+
+#: The sources of :data:`INDEPENDENT_SOURCES` whose random draws do not depend on their value: a
+#: scenario with one of them switched off draws every random number the scenario with it on
+#: draws, in the same order, so the two differ by that source alone ("paired" draw for draw;
+#: ``misrgraph bench sources --mode without``). The others draw only when they are on
+#: (``camera_f_alpha_px``, ``mismatch_rate``) or draw differently (``noise_tail_dof``: Student-t
+#: instead of Gaussian), which shifts every later draw.
+PAIRED_SOURCES = frozenset({"jitter_arcsec", "once_per_rev_m", "subposting_relief_m", "dem_correlated_fraction",
+                            "gcp_scene_fraction"})
 
 
 @dataclass(frozen=True)
@@ -715,12 +725,18 @@ def scenario_terrain(cfg: ScenarioConfig | Mapping[str, Any]) -> SyntheticTerrai
                             coast_ramp_m=float(get("coast_ramp_m", 0.0)))
 
 
+def _scenario_rng(seed: int) -> np.random.Generator:
+    """The scenario's main generator: every draw of :func:`run_simulate` not given a stream of its
+    own comes from it, in order (:data:`PAIRED_SOURCES` is checked against its final state)."""
+    return np.random.default_rng(seed)
+
+
 def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Progress | None = None) -> dict[str, Any]:
     """Simulate a scenario into directory ``out`` (written atomically: a temporary sibling
     directory renamed into place). Returns a summary dict (also saved as scenario.json)."""
     out_dir = Path(out)
     _check_replaceable(out_dir)
-    rng = np.random.default_rng(cfg.seed)
+    rng = _scenario_rng(cfg.seed)
     independent = cfg.truth == "independent"
     terrain = scenario_terrain(cfg)
     geoid = Geoid("zero")

@@ -214,3 +214,69 @@ def test_bench_scaling_times_outside_tracemalloc_and_measures_memory_inside(tmp_
         assert r["seconds_per_iteration"] == pytest.approx(r["seconds"] / r["iterations"])
     assert res["rows"][1]["observations"] > res["rows"][0]["observations"]
     assert np.isfinite(res["exponent_total_vs_tie_points"])
+
+
+def _fake_bench_nees(effects):
+    """A stand-in for run_bench_nees: per seed a shared scatter plus, per source switched off, its
+    effect (so a row's per-seed difference from the base is known exactly)."""
+    from misrgraph.sim.simulate import INDEPENDENT_SOURCES
+
+    def fake(study, runs, seed, workdir, size, truth, overrides):
+        per_run = []
+        for s in range(seed, seed + runs):
+            scatter = np.sin(s)  # the same on every row: cancels in a paired difference
+            shift = sum(effects[k] for k, v in overrides.items() if v == INDEPENDENT_SOURCES[k])
+            per_run.append({"seed": s, "knots": 1.0 + scatter, "landmarks": 1.0 + scatter + shift, "camera": 1.0,
+                            "checkpoint_rms_over_predicted": 1.0 + 0.1 * scatter + shift, "checkpoint_rms_m": 30.0})
+        summary = {k: {"per_run": {"mean": float(np.mean([r[k] for r in per_run])), "ci95": [0.0, 2.0]}}
+                   for k in ("knots", "landmarks", "camera", "checkpoint_rms_over_predicted", "checkpoint_rms_m")}
+        summary["checkpoint_rms_over_predicted"]["rms_of_runs"] = {"rms": 1.0, "ci95": [0.9, 1.1]}
+        return {"summary": summary, "per_run": per_run}
+
+    return fake
+
+
+def test_bench_sources_compares_each_row_with_its_base_seed_by_seed(monkeypatch):
+    """Both modes' rows, their paired flags (PAIRED_SOURCES) and the per-seed differences from
+    the base row: with a shared per-seed scatter the difference is exactly the source's effect,
+    with an interval of zero width; the check points' ratio is compared as its square."""
+    import misrgraph.bench.studies as studies
+    from misrgraph.sim.simulate import INDEPENDENT_SOURCES, PAIRED_SOURCES
+
+    effects = {k: 0.01 * (i + 1) for i, k in enumerate(INDEPENDENT_SOURCES)}
+    monkeypatch.setattr(studies, "run_bench_nees", _fake_bench_nees(effects))
+    res = studies.run_bench_sources(runs=5, seed=100, mode="without")
+    assert res["base"] == "all" and list(res["rows"]) == ["all"] + [f"without {k}" for k in INDEPENDENT_SOURCES]
+    assert "difference" not in res["rows"]["all"]
+    for k, eff in effects.items():
+        row = res["rows"][f"without {k}"]
+        assert row["paired"] == (k in PAIRED_SOURCES)
+        d = row["difference"]["landmarks"]
+        assert d["runs"] == 5 and d["mean"] == pytest.approx(eff, abs=1e-12)
+        assert d["ci95"] == pytest.approx([eff, eff], abs=1e-9)
+        assert row["difference"]["knots"]["mean"] == pytest.approx(0.0, abs=1e-12)
+        seeds = np.arange(100, 105)
+        sq = np.mean((1 + 0.1 * np.sin(seeds) + eff) ** 2 - (1 + 0.1 * np.sin(seeds)) ** 2)
+        assert row["difference"]["checkpoint_rms_over_predicted_squared"]["mean"] == pytest.approx(sq, rel=1e-12)
+    res = studies.run_bench_sources(runs=5, seed=100, mode="alone")
+    assert res["base"] == "none" and list(res["rows"]) == ["none", *INDEPENDENT_SOURCES, "all"]
+    total = sum(effects.values())
+    for k, eff in effects.items():  # "none" has every effect; switching k on removes its own
+        assert res["rows"][k]["difference"]["landmarks"]["mean"] == pytest.approx(-eff, abs=1e-12)
+    assert res["rows"]["all"]["difference"]["landmarks"]["mean"] == pytest.approx(-total, abs=1e-12)
+    assert not res["rows"]["all"]["paired"]
+    with pytest.raises(InputError, match="mode"):
+        studies.run_bench_sources(runs=5, mode="both")
+    # the CLI: the table with the paired differences, and a refusal that names the option
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+
+    out = CliRunner().invoke(app, ["bench", "sources", "--runs", "3", "--mode", "without"], env={"COLUMNS": "300"})
+    assert out.exit_code == 0, out.output
+    line = next(ln for ln in out.output.splitlines() if "without once_per_rev_m" in ln)
+    assert f"{effects['once_per_rev_m']:+.3f}" in line and "yes" in line
+    line = next(ln for ln in out.output.splitlines() if "without mismatch_rate" in ln)
+    assert f"{effects['mismatch_rate']:+.3f}" in line and " no " in line
+    out = CliRunner().invoke(app, ["bench", "sources", "--mode", "both"])
+    assert out.exit_code == 2 and "--mode" in out.output and "'both'" in out.output
