@@ -219,7 +219,8 @@ class CollinearityBatch:
         (if any) holds *corrections* to the entries ``camera_select``, in the units of
         :data:`CAMERA_PARAM_SCALE`.
     omega_supplied: ``(3,)`` supplied instrument angles; the omega variable holds corrections.
-    sigma_px: ``(N,)`` 1-sigma per coordinate.
+    sigma_px: ``(N,)`` 1-sigma of both coordinates, or ``(N, 2)`` of (line, sample) apart
+        (pixels); held as ``(N, 2)``.
     group: ``(N,)`` factor index of each observation (one factor per landmark, or per observation).
     keys: ``landmark (N,)``, ``ephemeris (N,)``, ``knots (N,3,2)``, optional ``camera (N,)``
         and ``omega (N,)`` (-1 where not estimated).
@@ -242,7 +243,12 @@ class CollinearityBatch:
         self.const = const.take(order)
         self.camera_supplied = np.asarray(camera_supplied, float)[order]
         self.omega_supplied = np.asarray(omega_supplied, float)
-        self.sigma_px = np.asarray(sigma_px, float)[order]
+        sig = np.asarray(sigma_px, float)
+        if sig.ndim == 1:
+            sig = np.stack([sig, sig], axis=1)
+        if sig.shape != (len(const), 2):
+            raise FactorShapeError(f"sigma_px: shape {sig.shape}, expected ({len(const)},) or ({len(const)}, 2)")
+        self.sigma_px = sig[order]
         g = np.asarray(group)[order]
         _, self.group = np.unique(g, return_inverse=True)
         n = self.group.size
@@ -360,7 +366,7 @@ class CollinearityBatch:
         out = []
         for f in range(self.layout.n_factors):
             a, b = int(self.layout.obs_start[f]), int(self.layout.obs_stop[f])
-            sig = np.repeat(self.sigma_px[a:b], 2)
+            sig = self.sigma_px[a:b].ravel()
             noise = _robust(gtsam.noiseModel.Diagonal.Sigmas(sig), self.robust)
             out.append(gtsam.CustomFactor(noise, [int(k) for k in self.layout.factor_keys[f]], self._callback(f)))
         return out

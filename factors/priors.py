@@ -86,7 +86,9 @@ def linear_factor(keys: list[int], blocks: list[np.ndarray], rhs: ArrayLike,
                   covariance: ArrayLike) -> gtsam.LinearContainerFactor:
     """The linear Gaussian factor ``sum_k A_k x_k - b ~ N(0, C)`` on vector variables, as GTSAM's
     C++ ``LinearContainerFactor`` (linearisation point zero, so its error is exactly this)."""
-    r = np.linalg.cholesky(np.linalg.inv(np.asarray(covariance, dtype=float))).T  # R^T R = C^-1
+    c = np.asarray(covariance, dtype=float)
+    d = np.sqrt(np.diag(c))  # in correlation form first: the blocks may mix units (m, m/s)
+    r = np.linalg.cholesky(np.linalg.inv(c / np.outer(d, d))).T / d  # R^T R = C^-1
     args: list = []
     zero = gtsam.Values()
     for k, a in zip(keys, blocks):

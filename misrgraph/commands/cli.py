@@ -239,9 +239,11 @@ def adjust(
     snooping_rounds: int = typer.Option(4, "--snooping-rounds", help="Rounds of iterated data snooping (Baarda, alpha 0.001) after the least-squares solve; 0: off."),
     drop_rejected: bool = typer.Option(False, "--drop-rejected-tie-points", help="Drop a tie point whole when any of its observations is rejected (robust screen or snooping): its other rays were selected by the same test; see docs/design.md."),
     variance_components: int = typer.Option(0, "--variance-components", help="Rounds of variance-component estimation (tie-point and GCP sigmas rescaled by their sigma0); 0: keep the stated sigmas."),
-    jitter_arcsec: float = typer.Option(1.0, "--jitter-arcsec", help="1 sigma (arcsec, per angle) of the GN&C's attitude jitter; the part the knots cannot follow (0.86 of it with 60 s knots) is added to every geolocation sigma derived from the adjustment. 0: none."),
+    jitter_arcsec: float = typer.Option(1.0, "--jitter-arcsec", help="1 sigma (arcsec, per angle) of the GN&C's attitude jitter; the part the knots cannot follow (0.86 of it with 60 s knots) is noise in every image observation (added to its line and sample sigma through its pointing sensitivity) and in every geolocation sigma derived from the adjustment. 0: none."),
+    no_jitter_weights: bool = typer.Option(False, "--no-jitter-in-weights", help="Weight the image observations by the matcher's sigma alone (the unresolved jitter still enters the geolocation sigmas)."),
     jitter_periods: str = typer.Option("8,120", "--jitter-periods-s", help="The jitter's periods (s), MIN,MAX, equal power per log-period."),
-    once_per_rev: float = typer.Option(0.0, "--ephemeris-once-per-rev-m", help="1 sigma amplitude (m, per orbital axis) of a once-per-revolution ephemeris error; widens the ephemeris offset and drift priors by its instantaneous value and rate (see docs/conventions.md). 0: none."),
+    once_per_rev: float = typer.Option(0.0, "--ephemeris-once-per-rev-m", help="1 sigma amplitude (m, per orbital axis) of a once-per-revolution ephemeris error; the ephemeris segments then get one joint prior, the covariance of their fit to an offset, a drift and the term (see docs/conventions.md). 0: none."),
+    eph_segments: int = typer.Option(1, "--ephemeris-segments", help="Eq. 19 segments over the pass (1 or 2 with --ephemeris-once-per-rev-m; 2 follow the term's curvature over a long pass)."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
     observations: str = typer.Option("simulated", "--observations", help="simulated (the pass's observations) or matched (those 'misrgraph match' measured in the imagery)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
@@ -262,7 +264,8 @@ def adjust(
                                       snooping_rounds=snooping_rounds, variance_component_rounds=variance_components,
                                       drop_rejected_tie_points=drop_rejected, accept_unconverged=accept_unconverged,
                                       attitude_jitter_arcsec=jitter_arcsec, attitude_jitter_periods_s=periods,
-                                      ephemeris_once_per_rev_m=once_per_rev))
+                                      jitter_in_weights=not no_jitter_weights,
+                                      ephemeris_once_per_rev_m=once_per_rev, ephemeris_segments=eph_segments))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
                              progress=lambda s: st.update(s), observations=observations)

@@ -39,7 +39,7 @@ from misrgraph.config import Config
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles
-from misrgraph.model.errormodels import JITTER_PERIODS_S, AttitudeErrorModel, EphemerisErrorModel, unresolved_band_sigma
+from misrgraph.model.errormodels import JITTER_PERIODS_S, AttitudeErrorModel, EphemerisErrorModel, unresolved_attitude
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph
@@ -111,10 +111,12 @@ class AdjustConfig(Config):
     #: ``attitude_jitter_periods_s``. The part the knots cannot follow (:func:`unresolved_attitude`:
     #: 0.86 of it with knots every 60 s) is added to every geolocation sigma derived from the
     #: adjustment (``AdjustResult.unresolved_attitude_rad``); the part they take up is the knots'.
-    #: It does not enter the graph (at 0.01-0.03 px per observation it would change the weights
-    #: by < 1 %)
     attitude_jitter_arcsec: float = 1.0
     attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
+    #: the unresolved jitter is also noise in every image observation (``GraphConfig.attitude_jitter_arcsec``:
+    #: through each observation's pointing sensitivity, ~0.075 px of a D camera's line sigma,
+    #: 0.01-0.04 px elsewhere); False weights the observations by the matcher's sigma alone
+    jitter_in_weights: bool = True
     #: the marginals' information matrix: "hessian" (default: J^T J plus the DEM heights' exact
     #: curvature, the Laplace approximation at the optimum) or "gauss_newton" (J^T J, what
     #: gtsam.Marginals returns); problems outside the flat form always use J^T J
@@ -149,7 +151,9 @@ class AdjustConfig(Config):
                     camera_prior_px=self.camera_prior_px,
                     camera_params=tuple(self.camera_params), camera_focal_prior_px=self.camera_focal_prior_px,
                     use_dem=self.use_dem, dem_sigma_scale=self.dem_sigma_scale,
-                    dem_smoothing_postings=self.dem_smoothing_postings, gcp_scenes=self.gcp_scenes)
+                    dem_smoothing_postings=self.dem_smoothing_postings, gcp_scenes=self.gcp_scenes,
+                    attitude_jitter_arcsec=self.attitude_jitter_arcsec if self.jitter_in_weights else 0.0,
+                    attitude_jitter_periods_s=tuple(self.attitude_jitter_periods_s))
         base.update(overrides)
         return GraphConfig.from_dict(base)
 
@@ -288,18 +292,6 @@ def adjust_pass(
                         np.flatnonzero(snooped))
 
 
-def unresolved_attitude(knot_times: list[Array], jitter_arcsec: float,
-                        periods_s: tuple[float, float] = JITTER_PERIODS_S) -> float:
-    """1 sigma (rad) of the attitude jitter the knots cannot follow: per angle
-    :func:`~misrgraph.model.errormodels.unresolved_band_sigma` of a jitter of ``jitter_arcsec``
-    (1 sigma, arcsec) with periods log-uniform in ``periods_s`` (s) on that angle's knots, then the
-    RMS over the three angles (one figure: equal knot grids, the default, give equal values)."""
-    if jitter_arcsec == 0:
-        return 0.0
-    var = [unresolved_band_sigma(kt, jitter_arcsec * ARCSEC, tuple(periods_s)) ** 2 for kt in knot_times]
-    return float(np.sqrt(np.mean(var)))
-
-
 def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = "hessian") -> tuple[Marginals, str]:
     """Marginal covariances of an adjusted pass (see ``AdjustConfig.covariance``) and which
     information matrix gave them: ``"hessian"``, or ``"gauss_newton"`` (asked for, outside the flat
@@ -429,7 +421,7 @@ def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | No
     res_r = solve(pg_r.problem, SolverParams(max_iterations=cfg.max_iterations))
     check_converged(res_r, "the robust solve (blunder screening)", cfg.accept_unconverged)
     r, _ = pg_r.collinearity.residuals(res_r.values)
-    whit = np.linalg.norm(r / pg_r.collinearity.sigma_px[:, None], axis=1)
+    whit = np.linalg.norm(r / pg_r.collinearity.sigma_px, axis=1)
     idx = pg_r.obs_index[pg_r.collinearity.order]
     norm[idx] = whit
     rejected[idx] = whit > cfg.reject_sigma

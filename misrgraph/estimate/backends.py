@@ -135,7 +135,7 @@ class _CostRows:
             self.cols.append(np.where(start[:, None] >= 0, start[:, None] + np.arange(d), -1))
         self.const = b.const.take(sl)
         self.cam0 = b.camera_supplied[sl]
-        self.w = 1.0 / np.repeat(b.sigma_px[sl], 2)
+        self.w = 1.0 / b.sigma_px[sl].ravel()
         self.batch = b
         lms = [int(k) for k in dict.fromkeys(b.slot_keys[0][sl].tolist()) if int(k) in dem_of]
         self.dem_index = np.array([dem_of[k] for k in lms], np.int64)

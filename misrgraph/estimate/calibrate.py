@@ -272,7 +272,7 @@ def calibrate_passes(
         check_converged(res, "the robust solve (blunder screening)", cfg.accept_unconverged)
         for i, g in enumerate(graphs):
             r, _ = g.collinearity.residuals(res.values)
-            w = np.linalg.norm(r / g.collinearity.sigma_px[:, None], axis=1)
+            w = np.linalg.norm(r / g.collinearity.sigma_px, axis=1)
             idx = g.obs_index[g.collinearity.order]
             bad = w > cfg.reject_sigma
             exclude[i][idx[bad]] = True

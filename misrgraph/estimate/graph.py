@@ -10,6 +10,7 @@ Check points (kind 2) are never put in the graph.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -20,23 +21,24 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors import keys as K
-from factors.collinearity import CAMERA_PARAMS, CollinearityBatch, CollinearityConstants, camera_param_scale
+from factors.collinearity import CAMERA_PARAMS, CollinearityBatch, CollinearityConstants, camera_param_scale, collinearity_residual
 from factors.dem_height import DemBatch
 from factors.geometry import enu_covariance
-from factors.priors import gcp_prior, gcp_scene_prior, process_prior_factors, scene_offset_prior, vector_prior
+from factors.priors import gcp_prior, gcp_scene_prior, linear_factor, process_prior_factors, scene_offset_prior, vector_prior
 from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
-from misrgraph.model.errormodels import (ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, interval_counts,
-                                         knots_to_remove, once_per_rev_widened)
+from misrgraph.model.errormodels import (ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, JITTER_PERIODS_S, AttitudeErrorModel,
+                                         EphemerisErrorModel, ephemeris_prior_covariance, interval_counts, knots_to_remove,
+                                         unresolved_attitude)
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.estimate.problem import Problem
 
-__all__ = ["GraphConfig", "calibrated_camera_sigma", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
+__all__ = ["GraphConfig", "calibrated_camera_sigma", "observation_sigma", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
            "CAMERA_PRIOR_SIGMA", "calibration_prior_sigma", "merge_problems", "merge_flat"]
 
 log = logging.getLogger(__name__)
@@ -76,9 +78,20 @@ class GraphConfig(Config):
     ephemeris_b_sigma_m: float = 50.0
     ephemeris_a_sigma_mps: tuple = (0.05, 0.01, 0.01)
     #: 1 sigma amplitude (m, per orbital axis) of a once-per-revolution ephemeris error (orbit
-    #: determination's periodic term), which widens the offset and drift priors above
-    #: (:func:`~misrgraph.model.errormodels.once_per_rev_widened`); 0: none
+    #: determination's periodic term). With it the segments get one joint prior: the covariance
+    #: of their least-squares fit to the offset, the drift and the term
+    #: (:func:`~misrgraph.model.errormodels.ephemeris_prior_covariance`; 1 or 2 segments, 2
+    #: follow the term's curvature over a long pass); 0: independent offset and drift priors
     ephemeris_once_per_rev_m: float = 0.0
+    #: 1 sigma (arcsec, per angle) of attitude jitter with periods log-uniform in
+    #: ``attitude_jitter_periods_s`` (s). The part the knots cannot follow
+    #: (:func:`~misrgraph.model.errormodels.unresolved_attitude`, on this pass's knots) is noise in
+    #: every image observation: its pointing sensitivity (``d(line, sample) / d(roll, pitch,
+    #: yaw)`` at the start values) carries it into the observation's line and sample sigma,
+    #: ``sigma_line^2 = sigma_px^2 + sigma_u^2 |d line / d angles|^2`` (likewise the sample).
+    #: 0: the matcher's sigma alone
+    attitude_jitter_arcsec: float = 0.0
+    attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
     estimate_camera: bool = True
     camera_params: tuple = ("delta", "beta", "epsilon")
     camera_per_band: bool = False
@@ -134,6 +147,18 @@ class GraphConfig(Config):
             raise InputError("knot_prior_damping", self.knot_prior_damping, "a positive damping ratio (1: Matern-3/2)")
         if not (np.isfinite(self.ephemeris_once_per_rev_m) and self.ephemeris_once_per_rev_m >= 0):
             raise InputError("ephemeris_once_per_rev_m", self.ephemeris_once_per_rev_m, "a 1 sigma amplitude >= 0 (m)")
+        if int(self.ephemeris_segments) != self.ephemeris_segments or self.ephemeris_segments < 1:
+            raise InputError("ephemeris_segments", self.ephemeris_segments, "an integer >= 1")
+        if self.ephemeris_once_per_rev_m > 0 and self.ephemeris_segments > 2:
+            raise InputError("ephemeris_segments", self.ephemeris_segments,
+                             "1 or 2 with ephemeris_once_per_rev_m > 0 (an offset, a drift and the once-per-revolution "
+                             "term are 4 variables per axis)")
+        if not (np.isfinite(self.attitude_jitter_arcsec) and self.attitude_jitter_arcsec >= 0):
+            raise InputError("attitude_jitter_arcsec", self.attitude_jitter_arcsec, "a number >= 0 (1 sigma, arcsec)")
+        jp = self.attitude_jitter_periods_s
+        if not (isinstance(jp, (tuple, list)) and len(jp) == 2 and all(isinstance(x, (int, float)) for x in jp)
+                and 0 < jp[0] < jp[1] < np.inf):
+            raise InputError("attitude_jitter_periods_s", jp, "two periods 0 < min < max in s")
         if not (np.isfinite(self.dem_sigma_scale) and self.dem_sigma_scale > 0):
             raise InputError("dem_sigma_scale", self.dem_sigma_scale, "a positive factor on the DEM's stated sigma")
         if not (np.isfinite(self.dem_smoothing_postings) and 0 <= self.dem_smoothing_postings <= 2):
@@ -315,7 +340,8 @@ def build_pass_graph(
     init = _initial_landmarks(orbit_pass, geo, idx[cast], dem, geoid, cfg.dem_method)
     init.update({int(r): np.asarray(known[lm_key_of[r]], float) for r in lm_rows if lm_key_of[r] in known})
     # --- constants and batch; the along-track residual is in image lines (a matcher's unit)
-    rate = geo.line_rate(cam, band, np.stack([init[int(r)] for r in obs.landmark[idx]]), t_obs)
+    lm_init = np.stack([init[int(r)] for r in obs.landmark[idx]])
+    rate = geo.line_rate(cam, band, lm_init, t_obs)
     const = CollinearityConstants(
         nav.eci_to_ecef, nav.position, nav.t_go, design, nav.angles, hermite,
         camera.k[cam, band], obs.line[idx] - obs.exposure_index[idx], obs.sample[idx] - camera.cy[cam, band],
@@ -339,7 +365,11 @@ def build_pass_graph(
     select = tuple(CAMERA_PARAMS.index(p) for p in cfg.camera_params)
     group = obs.landmark[idx] if cfg.group_by == "landmark" else np.arange(idx.size)
     robust = None if cfg.robust == "none" else (cfg.robust, cfg.robust_k)
-    coll = CollinearityBatch(const, camera_parameter_matrix(camera, cam, band), camera.omega, obs.sigma_px[idx],
+    cam_params = camera_parameter_matrix(camera, cam, band)
+    sigma = observation_sigma(obs.sigma_px[idx], const, lm_init, cam_params, camera.omega,
+                              unresolved_attitude(att_kept.knot_times, cfg.attitude_jitter_arcsec,
+                                                  tuple(cfg.attitude_jitter_periods_s)))
+    coll = CollinearityBatch(const, cam_params, camera.omega, sigma,
                              group, keys, select, robust)
     graph = gtsam.NonlinearFactorGraph()
     problem = Problem(graph, gtsam.Values(), [], [], {})
@@ -411,12 +441,19 @@ def build_pass_graph(
         else:
             for k in ks:
                 graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * ATTITUDE_RATE_FACTOR]))
-    eph_a, eph_b = once_per_rev_widened(cfg.ephemeris_a_sigma_mps, cfg.ephemeris_b_sigma_m, cfg.ephemeris_once_per_rev_m)
-    eph_sig = np.r_[eph_a, np.full(3, eph_b)]
-    for s in range(eph.n_segments):
-        k = K.ephemeris_key(pass_index, s)
+    eph_keys = [K.ephemeris_key(pass_index, s) for s in range(eph.n_segments)]
+    for k in eph_keys:
         add(k, np.zeros(6))
-        graph.add(vector_prior(k, np.zeros(6), eph_sig))
+    if cfg.ephemeris_once_per_rev_m > 0:  # one joint prior: the segments share the pass's process
+        cov = ephemeris_prior_covariance(eph.boundaries, cfg.ephemeris_a_sigma_mps, cfg.ephemeris_b_sigma_m,
+                                         cfg.ephemeris_once_per_rev_m)
+        sel = np.eye(6 * eph.n_segments)
+        graph.add(linear_factor(eph_keys, [sel[:, 6 * s:6 * s + 6] for s in range(eph.n_segments)],
+                                np.zeros(6 * eph.n_segments), cov))
+    else:
+        eph_sig = np.r_[np.asarray(cfg.ephemeris_a_sigma_mps, float), np.full(3, cfg.ephemeris_b_sigma_m)]
+        for k in eph_keys:
+            graph.add(vector_prior(k, np.zeros(6), eph_sig))
     for ck, k in camera_keys.items():
         c = (ck % 1000) // 10 if cfg.camera_per_band else ck % 1000
         scale = camera_param_scale(cfg.camera_params)
@@ -436,6 +473,30 @@ def build_pass_graph(
              lm_rows.size, [t.size for t in att_kept.knot_times], [r.size for r in removed])
     return PassGraph(problem, pass_index, att_kept, removed, eph, lm_rows,
                      np.array([lm_key_of[r] for r in lm_rows], np.int64), idx, coll, camera_keys, tuple(cfg.camera_params))
+
+
+def observation_sigma(sigma_px: Array, const: CollinearityConstants, landmarks: Array, camera_params: Array,
+                      omega: Array, unresolved_rad: float) -> Array:
+    """1 sigma ``(N, 2)`` (image lines, samples) of each observation: the matcher's ``sigma_px
+    (N,)`` and an attitude error of ``unresolved_rad`` (rad, 1 sigma per angle, independent
+    angles) that the knots cannot follow, carried by the observation's pointing sensitivity
+    ``D = d(line, sample) / d(roll, pitch, yaw)`` ``(N, 2, 3)`` at ``landmarks (N, 3)`` (ECEF m)
+    and the supplied navigation and camera (``camera_params (N, 10)``, ``omega (3,)``)::
+
+        sigma_line^2 = sigma_px^2 + unresolved^2 * sum_a D[0, a]^2,   likewise the sample.
+
+    The line-sample correlation of the attitude term is left out (the weights are diagonal). An
+    oblique camera's lines feel pitch most: 0.86" of jitter adds ~0.075 px to a D camera's line
+    sigma, 14 % of the variance of a 0.2 px tie point, and ~0.011 px to An's."""
+    sig = np.stack([np.asarray(sigma_px, float)] * 2, axis=1)
+    if unresolved_rad == 0 or len(const) == 0:
+        return sig
+    one = dataclasses.replace(const, hermite=np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), const.hermite.shape).copy())
+    _, jac = collinearity_residual(np.asarray(landmarks, float), np.zeros((len(const), 6)), np.zeros((len(const), 3, 4)),
+                                   np.asarray(camera_params, float), np.asarray(omega, float), one)
+    assert jac is not None
+    d_angles = -jac["knots"][:, :, :, 0]  # the attitude error enters with a minus sign
+    return np.sqrt(sig**2 + unresolved_rad**2 * np.sum(d_angles**2, axis=2))
 
 
 def calibration_prior_sigma(camera: CameraModel, cam: int, params: tuple[str, ...], focal_px: float = 0.0) -> Array:

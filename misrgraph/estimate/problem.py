@@ -265,11 +265,11 @@ class FlatProblem:
         if family == "collinearity":
             b = self.coll
             r, j = raw if raw is not None else self.raw(x, family, jacobian)
-            r = (r / b.sigma_px[:, None]).ravel()
+            r = (r / b.sigma_px).ravel()
             if j is not None:
                 n = len(b)
                 rr = (2 * np.arange(n))[:, None, None] + np.arange(2)[None, :, None]
-                w = 1.0 / b.sigma_px[:, None, None]
+                w = 1.0 / b.sigma_px[:, :, None]
                 for s, blk in enumerate(b._blocks(j)):
                     c = self._slot_cols[s]
                     used = c[:, 0] >= 0
@@ -332,8 +332,8 @@ class FlatProblem:
         nl3, n_c = n_l // 3, self.n - n_l
         r, j = collinearity_residual(*self._gather(x), b.const, jacobians=True)
         w = 1.0 / b.sigma_px
-        r = r * w[:, None]
-        blocks = [blk * w[:, None, None] for blk in b._blocks(j)]
+        r = r * w
+        blocks = [blk * w[:, :, None] for blk in b._blocks(j)]
         lm = self._slot_cols[0][:, 0] // 3
         bl = blocks[0]
         bc = np.concatenate([blk for s, blk in enumerate(blocks) if s > 0], axis=2)[:, :, self._nav_keep]

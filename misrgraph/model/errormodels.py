@@ -22,11 +22,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.geometry import hermite_weights
-from misrgraph.model.constants import ANGLES, CAMERAS, NODAL_PERIOD_S
+from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS, NODAL_PERIOD_S
 from misrgraph.errors import InputError
 
 __all__ = ["ATTITUDE_RATE_FACTOR", "ATTITUDE_DAMPING", "JITTER_PERIODS_S", "band_correlation", "spline_design",
-           "projected_band_covariance", "unresolved_band_sigma", "once_per_rev_widened", "process_correlation", "fit_damping", "EphemerisErrorModel", "AttitudeErrorModel", "knots_to_remove", "interval_counts", "uniform_knots"]
+           "projected_band_covariance", "unresolved_band_sigma", "unresolved_attitude", "ephemeris_prior_covariance", "process_correlation", "fit_damping", "EphemerisErrorModel", "AttitudeErrorModel", "knots_to_remove", "interval_counts", "uniform_knots"]
 
 Array = NDArray[np.float64]
 
@@ -285,6 +285,18 @@ def unresolved_band_sigma(knot_times: ArrayLike, sigma: float, periods_s: tuple[
     return float(sigma * np.sqrt(max(1.0 - share, 0.0)))
 
 
+def unresolved_attitude(knot_times: list[Array], jitter_arcsec: float,
+                        periods_s: tuple[float, float] = JITTER_PERIODS_S) -> float:
+    """1 sigma (rad) of the attitude jitter the knots cannot follow: per angle
+    :func:`~misrgraph.model.errormodels.unresolved_band_sigma` of a jitter of ``jitter_arcsec``
+    (1 sigma, arcsec) with periods log-uniform in ``periods_s`` (s) on that angle's knots, then the
+    RMS over the three angles (one figure: equal knot grids, the default, give equal values)."""
+    if jitter_arcsec == 0:
+        return 0.0
+    var = [unresolved_band_sigma(kt, jitter_arcsec * ARCSEC, tuple(periods_s)) ** 2 for kt in knot_times]
+    return float(np.sqrt(np.mean(var)))
+
+
 @lru_cache(maxsize=64)
 def _projected_share(spacings: tuple[float, ...], periods_s: tuple[float, float], step_s: float) -> float:
     """``tr(B Cov(k) B^T) / N`` of :func:`unresolved_band_sigma` for unit sigma, knots at
@@ -295,20 +307,51 @@ def _projected_share(spacings: tuple[float, ...], periods_s: tuple[float, float]
     return float(np.einsum("ni,ij,nj->", design, cov, design)) / design.shape[0]
 
 
-def once_per_rev_widened(a_sigma_mps: ArrayLike, b_sigma_m: float, amplitude_m: float,
-                         period_s: float | None = None) -> tuple[Array, float]:
-    """The eq. 19 ephemeris prior's drift ``a`` (m/s, per orbital axis ``(3,)``) and offset ``b``
-    (m) 1 sigma widened by a once-per-revolution error ``A_k sin(w t + phi_k)`` per axis, with
-    ``A_k ~ N(0, amplitude_m^2)``, ``phi_k`` uniform and ``w = 2 pi / period_s`` (default the
-    nodal period): at any instant its value has variance ``amplitude^2 / 2`` and its rate
-    ``(amplitude w)^2 / 2``, added in quadrature::
+def ephemeris_prior_covariance(boundaries: ArrayLike, a_sigma_mps: ArrayLike, b_sigma_m: float, amplitude_m: float,
+                               period_s: float | None = None, step_s: float = 5.0) -> Array:
+    """Covariance ``(6 S, 6 S)`` of the eq. 19 parameters of ``S`` segments (``boundaries (S+1,)``
+    s; per segment ``[a_x, a_y, a_z, b_x, b_y, b_z]`` as :class:`EphemerisErrorModel` orders them,
+    segment after segment) when the ephemeris error of each orbital axis ``k`` is the process
 
-        a' = sqrt(a^2 + (A w)^2 / 2),   b' = sqrt(b^2 + A^2 / 2)."""
+        e_k(t) = b_k + a_k (t - t_0) + c_k sin(w t) + d_k cos(w t),
+        b_k ~ N(0, b_sigma^2), a_k ~ N(0, a_sigma_k^2), c_k, d_k ~ N(0, amplitude^2 / 2),
+
+    (an offset and a drift over the pass, and a once-per-revolution term ``A_k sin(w t + phi)``
+    with ``A_k ~ N(0, amplitude^2)``, ``w = 2 pi / period_s``, default the nodal period) and each
+    segment's parameters are the least-squares line through the process over the segment
+    (samples every ``step_s``). Axes are independent. Per axis the parameters are linear in the
+    four variables ``(b, a, c, d)``, so the covariance is regular for one or two segments and
+    :class:`~misrgraph.errors.InputError` names ``ephemeris_segments`` for more while
+    ``amplitude_m > 0``. Two segments follow the term's curvature over a long pass (over 45
+    minutes one line leaves ~0.19 of its amplitude, RMS, that no offset and drift can take). With ``amplitude_m = 0`` and one
+    segment it is ``diag(a_sigma^2, b_sigma^2)``, the plain eq. 19 prior."""
+    edges = np.asarray(boundaries, dtype=float)
+    if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0):
+        raise InputError("ephemeris boundaries", edges, "increasing segment boundaries (at least 2)")
     if not (np.isfinite(amplitude_m) and amplitude_m >= 0):
         raise InputError("ephemeris_once_per_rev_m", amplitude_m, "a 1 sigma amplitude >= 0 (m)")
+    n_seg = edges.size - 1
+    if amplitude_m > 0 and n_seg > 2:
+        raise InputError("ephemeris_segments", n_seg, "1 or 2 with a once-per-revolution term (an offset, a drift and "
+                                                      "the term are 4 variables per axis: more segments are not determined)")
     w = 2 * np.pi / (NODAL_PERIOD_S if period_s is None else period_s)
-    a = np.asarray(a_sigma_mps, dtype=float)
-    return np.sqrt(a**2 + (amplitude_m * w) ** 2 / 2), float(np.sqrt(b_sigma_m**2 + amplitude_m**2 / 2))
+    a_sig = np.broadcast_to(np.asarray(a_sigma_mps, dtype=float), (3,))
+    # per segment: the least-squares line's (slope, value at the segment start) per unit of each variable
+    fit = np.zeros((n_seg, 2, 4))
+    for s in range(n_seg):
+        t = np.linspace(edges[s], edges[s + 1], max(int(np.ceil((edges[s + 1] - edges[s]) / step_s)), 1) + 1)
+        design = np.stack([t - edges[s], np.ones_like(t)], axis=1)
+        basis = np.stack([np.ones_like(t), t - edges[0], np.sin(w * t), np.cos(w * t)], axis=1)
+        fit[s] = np.linalg.lstsq(design, basis, rcond=None)[0]
+    cov = np.zeros((n_seg, 6, n_seg, 6))
+    for k in range(3):
+        lam = np.diag([b_sigma_m**2, a_sig[k] ** 2, amplitude_m**2 / 2, amplitude_m**2 / 2])
+        m = fit.reshape(2 * n_seg, 4)  # rows: segment 0 slope, value, segment 1 slope, value, ...
+        ck = (m @ lam @ m.T).reshape(n_seg, 2, n_seg, 2)
+        for i, pi in enumerate((k, 3 + k)):
+            for j, pj in enumerate((k, 3 + k)):
+                cov[:, pi, :, pj] = ck[:, i, :, j]
+    return cov.reshape(6 * n_seg, 6 * n_seg)
 
 
 def interval_counts(knot_times: ArrayLike, obs_times: ArrayLike, obs_camera: ArrayLike) -> NDArray[np.int64]:

@@ -131,7 +131,7 @@ def test_h_none_path_gives_the_whitened_error(graph):
     b = graph.collinearity
     b.clear()
     r, _ = b.residuals(prob.initial)
-    expected = 0.5 * np.sum((r / b.sigma_px[:, None]) ** 2)
+    expected = 0.5 * np.sum((r / b.sigma_px) ** 2)
     got = sum(prob.graph.at(i).error(prob.initial) for i in range(b.layout.n_factors))
     assert got == pytest.approx(expected, rel=1e-10)
 

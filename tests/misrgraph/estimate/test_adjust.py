@@ -374,25 +374,42 @@ def test_unresolved_attitude_is_the_jitter_the_knots_cannot_follow(small_pass):
     assert none.unresolved_attitude_rad == 0.0
 
 
-def test_once_per_rev_setting_widens_the_ephemeris_prior_in_the_graph(small_pass):
-    """``ephemeris_once_per_rev_m`` reaches the pass graph: its ephemeris prior factor holds the
-    widened sigmas (drift, then offset), the navigation's own without it; and the adjusted
-    ephemeris is then less certain, never more."""
+def test_once_per_rev_setting_gives_the_ephemeris_segments_one_joint_prior(small_pass):
+    """``ephemeris_once_per_rev_m`` reaches the pass graph: one linear prior on all the ephemeris
+    segments whose information matrix inverts to ``ephemeris_prior_covariance`` on the graph's own
+    segment boundaries (one and two segments), the navigation's plain priors without it; the
+    adjusted ephemeris is then less certain, never more. Three segments are refused at once."""
     import gtsam
 
     from misrgraph.estimate.graph import build_pass_graph
-    from misrgraph.model.errormodels import once_per_rev_widened
+    from misrgraph.model.errormodels import ephemeris_prior_covariance
 
     sc, p = small_pass
     sig = {}
-    for amp in (0.0, 30.0):
-        gc = AdjustConfig(ephemeris_once_per_rev_m=amp).graph_config()
+    for amp, n_seg in ((0.0, 1), (30.0, 1), (30.0, 2)):
+        gc = AdjustConfig(ephemeris_once_per_rev_m=amp, ephemeris_segments=n_seg).graph_config()
         pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, gc)
-        k = pg.ephemeris_keys()[0]
-        f = next(pg.problem.graph.at(i) for i in range(pg.problem.graph.size())
-                 if isinstance(pg.problem.graph.at(i), gtsam.PriorFactorVector) and pg.problem.graph.at(i).keys()[0] == k)
-        a, b = once_per_rev_widened(gc.ephemeris_a_sigma_mps, gc.ephemeris_b_sigma_m, amp)
-        np.testing.assert_allclose(f.noiseModel().sigmas(), np.r_[a, [b] * 3], rtol=1e-12)
-        res = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", ephemeris_once_per_rev_m=amp))
-        sig[amp] = np.sqrt(np.diag(res.marginals[res.pass_graph.ephemeris_keys()[0]]))
-    assert np.all(sig[30.0] >= sig[0.0] * (1 - 1e-9)) and np.any(sig[30.0] > 1.05 * sig[0.0]), (sig[0.0], sig[30.0])
+        keys = pg.ephemeris_keys()
+        assert len(keys) == n_seg
+        graph = pg.problem.graph
+        on_eph = [graph.at(i) for i in range(graph.size()) if set(int(k) for k in graph.at(i).keys()) <= set(keys)]
+        if amp == 0:
+            assert len(on_eph) == n_seg and all(isinstance(f, gtsam.PriorFactorVector) for f in on_eph)
+            np.testing.assert_allclose(on_eph[0].noiseModel().sigmas(), np.r_[gc.ephemeris_a_sigma_mps, [50.0] * 3])
+        else:
+            (f,) = on_eph
+            a, _ = gtsam.JacobianFactor(f.factor()).jacobian()
+            a = np.asarray(a)
+            want = ephemeris_prior_covariance(pg.ephemeris_model.boundaries, gc.ephemeris_a_sigma_mps,
+                                              gc.ephemeris_b_sigma_m, amp)
+            np.testing.assert_allclose(np.linalg.inv(a.T @ a), want, rtol=1e-6, atol=1e-12 * np.max(want))
+        res = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps,
+                          AdjustConfig(robust="none", ephemeris_once_per_rev_m=amp, ephemeris_segments=n_seg))
+        sig[(amp, n_seg)] = np.sqrt(np.diag(res.marginals[res.pass_graph.ephemeris_keys()[0]]))
+    assert np.all(sig[(30.0, 1)] >= sig[(0.0, 1)] * (1 - 1e-9)) and np.any(sig[(30.0, 1)] > 1.05 * sig[(0.0, 1)])
+    from misrgraph.errors import InputError
+
+    with pytest.raises(InputError, match="ephemeris_segments"):
+        AdjustConfig(ephemeris_once_per_rev_m=30.0, ephemeris_segments=3)
+
+

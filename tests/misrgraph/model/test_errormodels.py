@@ -9,7 +9,7 @@ from misrgraph.model.errormodels import (
     EphemerisErrorModel,
     interval_counts,
     knots_to_remove,
-    once_per_rev_widened,
+    ephemeris_prior_covariance,
     projected_band_covariance,
     spline_design,
     uniform_knots,
@@ -190,28 +190,44 @@ def test_unresolved_band_sigma_is_the_fits_residual_and_has_its_limits():
         projected_band_covariance([0.0], 1.0)
 
 
-def test_once_per_rev_widening_is_the_simulators_once_per_rev_term():
-    """The widened ephemeris prior adds the instantaneous variance of the simulator's own
-    once-per-revolution term (``draw_ephemeris_error`` under the independent truth, its offset and
-    drift all but switched off): over 3000 draws the value's and the 60 s segments' slope's mean
-    squares, at two instants a quarter orbit apart, match ``b'^2 - b^2`` and ``a'^2 - a^2`` within
-    4 standard errors of the draws' own scatter."""
-    from misrgraph.model.constants import NODAL_PERIOD_S
+def test_ephemeris_prior_is_the_covariance_of_the_segments_fit_to_the_simulators_draws():
+    """The joint ephemeris prior against 3000 of the simulator's own independent-truth ephemeris
+    errors (``draw_ephemeris_error``: an offset, a drift and a once-per-revolution term, tabulated
+    on 60 s segments) over a 45-minute pass, each fitted by least squares with the estimator's one
+    and two eq. 19 segments: every entry of the covariance (in correlation units) within 4.5
+    standard errors of the draws' own scatter; the offset and drift made small, so that the
+    once-per-revolution term carries it (a factor 2 in its variance fails). Without the term and
+    with one segment it is the plain eq. 19 prior."""
     from misrgraph.sim.simulate import ScenarioConfig, draw_ephemeris_error
 
-    amp = 30.0
-    cfg = ScenarioConfig(truth="independent", once_per_rev_m=amp, nav_sigma_m=1e-9, along_drift_sigma_mps=0.0,
-                         drift_sigma_mps=0.0)
-    gen = np.random.default_rng(5)
-    seg = [0, int(NODAL_PERIOD_S / 4 // 60)]
-    draws = np.array([draw_ephemeris_error(gen, cfg, 1000.0, 1000.0 + NODAL_PERIOD_S / 2).params[seg] for _ in range(3000)])
-    a, b = once_per_rev_widened([0.05, 0.01, 0.01], 50.0, amp)
-    for col, want in ((slice(0, 3), a**2 - np.array([0.05, 0.01, 0.01]) ** 2), (slice(3, 6), np.full(3, b**2 - 50.0**2))):
-        sq = draws[:, :, col] ** 2  # (draws, instants, axes)
-        se = sq.std(axis=0, ddof=1) / np.sqrt(len(sq))
-        assert np.all(np.abs(sq.mean(axis=0) - want) < 4 * se), (sq.mean(axis=0), want, se)
-    a0, b0 = once_per_rev_widened([0.05, 0.01, 0.01], 50.0, 0.0)
-    np.testing.assert_allclose(a0, [0.05, 0.01, 0.01])
-    assert b0 == 50.0
+    t0, t1, amp = 1000.0, 3700.0, 30.0
+    cfg = ScenarioConfig(truth="independent", once_per_rev_m=amp, nav_sigma_m=5.0, along_drift_sigma_mps=0.002,
+                         drift_sigma_mps=0.001)
+    gen = np.random.default_rng(11)
+    t = np.arange(t0, t1 + 1e-9, 5.0)
+    curves = np.array([draw_ephemeris_error(gen, cfg, t0, t1).evaluate(t) for _ in range(3000)])  # (draws, T, 3)
+    for n_seg in (1, 2):
+        edges = np.linspace(t0, t1, n_seg + 1)
+        params = []
+        for s in range(n_seg):
+            m = (t >= edges[s]) & (t <= edges[s + 1])
+            design = np.stack([t[m] - edges[s], np.ones(m.sum())], 1)
+            coef = np.linalg.lstsq(design, curves[:, m].transpose(1, 0, 2).reshape(m.sum(), -1), rcond=None)[0]
+            params.append(coef.reshape(2, len(curves), 3).transpose(1, 0, 2).reshape(len(curves), 6))  # a_xyz, b_xyz
+        x = np.concatenate(params, axis=1)
+        cov = ephemeris_prior_covariance(edges, [0.002, 0.001, 0.001], 5.0, amp)
+        d = np.sqrt(np.diag(cov))
+        prod = (x[:, :, None] * x[:, None, :]) / np.outer(d, d)
+        se = prod.std(axis=0, ddof=1) / np.sqrt(len(x))
+        err = np.abs(prod.mean(axis=0) - cov / np.outer(d, d))
+        assert np.all(err < 4.5 * se + 1e-12), (n_seg, np.max(err / (se + 1e-12)))
+        wrong = ephemeris_prior_covariance(edges, [0.002, 0.001, 0.001], 5.0, amp * np.sqrt(2))
+        assert np.any(np.abs(prod.mean(axis=0) - wrong / np.outer(d, d)) > 4.5 * se)
+    np.testing.assert_allclose(ephemeris_prior_covariance([t0, t1], [0.05, 0.01, 0.01], 50.0, 0.0),
+                               np.diag([0.05**2, 0.01**2, 0.01**2, 2500.0, 2500.0, 2500.0]), atol=1e-9)
+    with pytest.raises(InputError, match="ephemeris_segments"):
+        ephemeris_prior_covariance(np.linspace(t0, t1, 4), [0.05, 0.01, 0.01], 50.0, amp)
     with pytest.raises(InputError, match="ephemeris_once_per_rev_m"):
-        once_per_rev_widened([0.05, 0.01, 0.01], 50.0, -1.0)
+        ephemeris_prior_covariance([t0, t1], [0.05, 0.01, 0.01], 50.0, -1.0)
+
+

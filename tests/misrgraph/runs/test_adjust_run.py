@@ -139,8 +139,9 @@ def test_adjust_cli_jitter_options(small_pass_dir):
 
 
 def test_adjust_cli_once_per_rev_option(small_pass_dir):
-    """``--ephemeris-once-per-rev-m`` reaches the adjustment (the summary's ephemeris sigma grows)
-    and a negative amplitude is refused naming the setting."""
+    """``--ephemeris-once-per-rev-m`` reaches the adjustment (the summary's ephemeris sigma grows),
+    ``--ephemeris-segments 2`` gives two segments, and a negative amplitude or three segments with
+    the term are refused naming the setting."""
     import json
 
     from typer.testing import CliRunner
@@ -154,5 +155,9 @@ def test_adjust_cli_once_per_rev_option(small_pass_dir):
 
     base, wide = eph_sigma(), eph_sigma("--ephemeris-once-per-rev-m", "30")
     assert np.all(wide >= base * (1 - 1e-9)) and np.any(wide > 1.05 * base)
+    two = eph_sigma("--ephemeris-once-per-rev-m", "30", "--ephemeris-segments", "2")
+    assert base.shape == (1, 6) and two.shape == (2, 6)
     out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--ephemeris-once-per-rev-m", "-1"])
     assert out.exit_code == 2 and "ephemeris_once_per_rev_m" in out.output, out.output
+    out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--ephemeris-once-per-rev-m", "30", "--ephemeris-segments", "3"])
+    assert out.exit_code == 2 and "ephemeris_segments" in out.output, out.output
