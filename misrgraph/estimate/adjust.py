@@ -42,7 +42,7 @@ from misrgraph.model.dem import DemTiles
 from misrgraph.model.errormodels import JITTER_PERIODS_S, AttitudeErrorModel, EphemerisErrorModel, unresolved_attitude
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
-from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph
+from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph, check_jitter
 from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
 from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
@@ -134,12 +134,7 @@ class AdjustConfig(Config):
                 raise InputError(name, v, "an integer >= 0")
         if self.covariance not in ("hessian", "gauss_newton"):
             raise InputError("covariance", self.covariance, ("hessian", "gauss_newton"))
-        if not self.attitude_jitter_arcsec >= 0:
-            raise InputError("attitude_jitter_arcsec", self.attitude_jitter_arcsec, "a number >= 0 (1 sigma, arcsec)")
-        jp = self.attitude_jitter_periods_s
-        if not (isinstance(jp, (tuple, list)) and len(jp) == 2 and all(isinstance(x, (int, float)) for x in jp)
-                and 0 < jp[0] < jp[1] < np.inf):
-            raise InputError("attitude_jitter_periods_s", jp, "two periods 0 < min < max in s")
+        check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
         self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run

@@ -38,7 +38,7 @@ from misrgraph.model.gcp import GcpDatabase
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.estimate.problem import Problem
 
-__all__ = ["GraphConfig", "calibrated_camera_sigma", "observation_sigma", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
+__all__ = ["GraphConfig", "calibrated_camera_sigma", "observation_sigma", "check_jitter", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
            "CAMERA_PRIOR_SIGMA", "calibration_prior_sigma", "merge_problems", "merge_flat"]
 
 log = logging.getLogger(__name__)
@@ -57,6 +57,16 @@ CAMERA_PRIOR_SIGMA = dict(zip(CAMERA_PARAMS, (1.745e-3, 1.745e-3, 1.745e-3, 2e-4
 #: with the navigation's value and rate sigmas) and keeps every knot; ``"independent"`` is the seed's
 #: rule: an independent prior per knot and eqs. 28-29's knot removal where data are scarce.
 KNOT_PRIORS = ("process", "independent")
+
+
+def check_jitter(jitter_arcsec: float, periods_s: Any) -> None:
+    """Refuse a jitter 1 sigma (arcsec) that is not a number >= 0, or periods (s) that are not two
+    numbers ``0 < min < max``, naming the setting (``attitude_jitter_arcsec``/``_periods_s``)."""
+    if not (np.isfinite(jitter_arcsec) and jitter_arcsec >= 0):
+        raise InputError("attitude_jitter_arcsec", jitter_arcsec, "a number >= 0 (1 sigma, arcsec)")
+    if not (isinstance(periods_s, (tuple, list)) and len(periods_s) == 2
+            and all(isinstance(x, (int, float)) for x in periods_s) and 0 < periods_s[0] < periods_s[1] < np.inf):
+        raise InputError("attitude_jitter_periods_s", periods_s, "two periods 0 < min < max in s")
 
 
 @dataclass(frozen=True)
@@ -153,12 +163,7 @@ class GraphConfig(Config):
             raise InputError("ephemeris_segments", self.ephemeris_segments,
                              "1 or 2 with ephemeris_once_per_rev_m > 0 (an offset, a drift and the once-per-revolution "
                              "term are 4 variables per axis)")
-        if not (np.isfinite(self.attitude_jitter_arcsec) and self.attitude_jitter_arcsec >= 0):
-            raise InputError("attitude_jitter_arcsec", self.attitude_jitter_arcsec, "a number >= 0 (1 sigma, arcsec)")
-        jp = self.attitude_jitter_periods_s
-        if not (isinstance(jp, (tuple, list)) and len(jp) == 2 and all(isinstance(x, (int, float)) for x in jp)
-                and 0 < jp[0] < jp[1] < np.inf):
-            raise InputError("attitude_jitter_periods_s", jp, "two periods 0 < min < max in s")
+        check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
         if not (np.isfinite(self.dem_sigma_scale) and self.dem_sigma_scale > 0):
             raise InputError("dem_sigma_scale", self.dem_sigma_scale, "a positive factor on the DEM's stated sigma")
         if not (np.isfinite(self.dem_smoothing_postings) and 0 <= self.dem_smoothing_postings <= 2):
