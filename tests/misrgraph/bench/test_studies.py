@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import numpy as np
 import pytest
 
@@ -272,11 +273,19 @@ def test_bench_sources_compares_each_row_with_its_base_seed_by_seed(monkeypatch)
 
     from misrgraph.commands.cli import app
 
-    out = CliRunner().invoke(app, ["bench", "sources", "--runs", "3", "--mode", "without"], env={"COLUMNS": "300"})
+    import misrgraph.commands.cli as cli
+    from rich.console import Console
+
+    monkeypatch.setattr(cli, "console", Console(width=300))  # the table's width, not the CI terminal's
+    out = CliRunner().invoke(app, ["bench", "sources", "--runs", "3", "--mode", "without"])
     assert out.exit_code == 0, out.output
-    line = next(ln for ln in out.output.splitlines() if "without once_per_rev_m" in ln)
-    assert f"{effects['once_per_rev_m']:+.3f}" in line and "yes" in line
-    line = next(ln for ln in out.output.splitlines() if "without mismatch_rate" in ln)
-    assert f"{effects['mismatch_rate']:+.3f}" in line and " no " in line
+    for k, eff in effects.items():
+        line = next(ln for ln in out.output.splitlines() if f"without {k} " in ln)
+        assert f"{eff:+.3f}" in line and (" yes " if k in PAIRED_SOURCES else " no ") in line
+    out = CliRunner().invoke(app, ["bench", "sources", "--runs", "3", "--mode", "without", "--json"])
+    assert out.exit_code == 0, out.output
+    rows = json.loads(out.stdout[out.stdout.index("{"):])["rows"]
+    assert {k: rows[f"without {k}"]["paired"] for k in INDEPENDENT_SOURCES} == {k: k in PAIRED_SOURCES for k in INDEPENDENT_SOURCES}
+    assert rows["without mismatch_rate"]["difference"]["landmarks"]["mean"] == pytest.approx(effects["mismatch_rate"])
     out = CliRunner().invoke(app, ["bench", "sources", "--mode", "both"])
     assert out.exit_code == 2 and "--mode" in out.output and "'both'" in out.output
