@@ -93,6 +93,16 @@ def fit_damping(max_lag_s: float = 600.0, lam: float = ATTITUDE_RATE_FACTOR,
     return round(float(res.x), 2)
 
 
+def _increasing_times(times: ArrayLike, field: str = "knot_times",
+                      expected: str = "at least 2 increasing times (s)") -> Array:
+    """``times`` (s) as a float array, refused (naming ``field``, expecting ``expected``) unless
+    they are at least 2 strictly increasing values."""
+    t = np.asarray(times, dtype=float)
+    if t.ndim != 1 or t.size < 2 or np.any(np.diff(t) <= 0):
+        raise InputError(field, t, expected)
+    return t
+
+
 @dataclass
 class EphemerisErrorModel:
     """Piecewise-linear ephemeris error (eq. 19). ``boundaries (S+1,)`` s; ``params (S, 6)``."""
@@ -101,10 +111,9 @@ class EphemerisErrorModel:
     params: Array
 
     def __post_init__(self) -> None:
-        self.boundaries = np.asarray(self.boundaries, dtype=float)
+        self.boundaries = _increasing_times(self.boundaries, "ephemeris_error.boundaries",
+                                            "increasing segment boundaries (at least 2)")
         self.params = np.asarray(self.params, dtype=float)
-        if self.boundaries.ndim != 1 or self.boundaries.size < 2 or np.any(np.diff(self.boundaries) <= 0):
-            raise InputError("ephemeris_error.boundaries", self.boundaries, "increasing segment boundaries (at least 2)")
         if self.params.shape != (self.boundaries.size - 1, 6):
             raise InputError("ephemeris_error.params", self.params.shape, f"shape ({self.boundaries.size - 1}, 6)")
 
@@ -159,10 +168,8 @@ class AttitudeErrorModel:
         if len(self.knot_times) != 3 or len(self.knots) != 3:
             raise InputError("attitude_error", len(self.knot_times), "three angles (roll, pitch, yaw)")
         for a in range(3):
-            kt = np.asarray(self.knot_times[a], dtype=float)
+            kt = _increasing_times(self.knot_times[a], f"attitude_error.knot_times[{ANGLES[a]}]", "at least 2 increasing times")
             kv = np.asarray(self.knots[a], dtype=float)
-            if kt.ndim != 1 or kt.size < 2 or np.any(np.diff(kt) <= 0):
-                raise InputError(f"attitude_error.knot_times[{ANGLES[a]}]", kt, "at least 2 increasing times")
             if kv.shape != (kt.size, 2):
                 raise InputError(f"attitude_error.knots[{ANGLES[a]}]", kv.shape, f"shape ({kt.size}, 2)")
             self.knot_times[a] = kt
@@ -223,14 +230,6 @@ def spline_design(knot_times: ArrayLike, t: ArrayLike) -> Array:
     design = np.zeros((i.size, 2 * kt.size))
     np.put_along_axis(design, np.stack([2 * i, 2 * i + 1, 2 * i + 2, 2 * i + 3], -1), w, axis=1)
     return design
-
-
-def _increasing_times(knot_times: ArrayLike) -> Array:
-    """``knot_times`` as a float array, refused unless at least 2 increasing times (s)."""
-    kt = np.asarray(knot_times, dtype=float)
-    if kt.ndim != 1 or kt.size < 2 or np.any(np.diff(kt) <= 0):
-        raise InputError("knot_times", kt, "at least 2 increasing times (s)")
-    return kt
 
 
 def projected_band_covariance(knot_times: ArrayLike, sigma: float, periods_s: tuple[float, float] = JITTER_PERIODS_S,
@@ -325,9 +324,7 @@ def ephemeris_prior_covariance(boundaries: ArrayLike, a_sigma_mps: ArrayLike, b_
     ``amplitude_m > 0``. Two segments follow the term's curvature over a long pass (over 45
     minutes one line leaves ~0.19 of its amplitude, RMS, that no offset and drift can take). With ``amplitude_m = 0`` and one
     segment it is ``diag(a_sigma^2, b_sigma^2)``, the plain eq. 19 prior."""
-    edges = np.asarray(boundaries, dtype=float)
-    if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0):
-        raise InputError("ephemeris boundaries", edges, "increasing segment boundaries (at least 2)")
+    edges = _increasing_times(boundaries, "ephemeris boundaries", "increasing segment boundaries (at least 2)")
     if not (np.isfinite(amplitude_m) and amplitude_m >= 0):
         raise InputError("ephemeris_once_per_rev_m", amplitude_m, "a 1 sigma amplitude >= 0 (m)")
     n_seg = edges.size - 1
