@@ -246,6 +246,7 @@ def adjust(
     eph_segments: int = typer.Option(1, "--ephemeris-segments", help="Eq. 19 segments over the pass (1 or 2 with --ephemeris-once-per-rev-m; 2 follow the term's curvature over a long pass)."),
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
     observations: str = typer.Option("simulated", "--observations", help="simulated (the pass's observations) or matched (those 'misrgraph match' measured in the imagery)."),
+    tie_height: str = typer.Option("auto", "--tie-height-sigma-m", help="1 sigma (m) of the height error a matched tie point's rays share (relief under the template), added to each tie point's covariance along An's ray: 'auto' estimates it from the pass's DEM residuals for matched tie points and leaves it out for simulated ones; 'estimate' always estimates it; a number fixes it (0: off). See docs/conventions.md."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
@@ -256,6 +257,12 @@ def adjust(
         periods = tuple(float(x) for x in jitter_periods.split(","))
     except ValueError:
         _fail(f"--jitter-periods-s: got {jitter_periods!r}; expected two periods in s, MIN,MAX (e.g. 8,120)")
+    tie_height_setting: float | str = tie_height
+    if tie_height not in ("auto", "estimate"):
+        try:
+            tie_height_setting = float(tie_height)
+        except ValueError:
+            _fail(f"--tie-height-sigma-m: got {tie_height!r}; expected auto, estimate or a 1 sigma in m (0: off)")
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
                                       knot_prior=knot_prior, knot_prior_damping=knot_damping, use_dem=not no_dem,
@@ -265,7 +272,8 @@ def adjust(
                                       drop_rejected_tie_points=drop_rejected, accept_unconverged=accept_unconverged,
                                       attitude_jitter_arcsec=jitter_arcsec, attitude_jitter_periods_s=periods,
                                       jitter_in_weights=not no_jitter_weights,
-                                      ephemeris_once_per_rev_m=once_per_rev, ephemeris_segments=eph_segments))
+                                      ephemeris_once_per_rev_m=once_per_rev, ephemeris_segments=eph_segments,
+                                      tie_height_sigma_m=tie_height_setting))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
                              progress=lambda s: st.update(s), observations=observations)
@@ -327,6 +335,13 @@ def _print_adjust_summary(s: dict) -> None:
     console.print(f"rejected observations: {rej['count']}" + (f" (all in {rej['full_list']})" if rej["full_list"] else ""))
     for d in s.get("diagnostics", []):
         console.print(f"[yellow]note:[/] {d}")
+    th = s.get("tie_height", {})
+    if th.get("source") == "estimated":
+        console.print(f"tie points' shared height error (template relief, from {th['dem_factors']} DEM residuals): "
+                      f"{th['sigma_m']:.1f} m (variance {th['unclipped_variance_m2']:.0f} +- {th['standard_error_m2']:.0f} m^2), "
+                      "added to their covariance along An's ray")
+    elif th.get("source") == "fixed":
+        console.print(f"tie points' shared height error: {th['sigma_m']:.1f} m (fixed), added to their covariance along An's ray")
     if "checkpoint_geolocation_m" in s:
         t = Table(title="check points: ground error (m) with supplied -> corrected navigation")
         for col in ("camera", "before mean", "before std", "after mean", "after std", "ratio", "co-reg vs An (px)"):

@@ -47,10 +47,11 @@ from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
 from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
 from misrgraph.estimate.reliability import Reliability, critical_T, reliability
+from misrgraph.estimate.tieheight import TIE_HEIGHT_MODES, inflate_along, shared_height_variance
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
            "supplied_camera_of", "drop_unsupported_landmarks", "snoop", "attitude_sigma_summary", "adjustment_marginals",
-           "unresolved_attitude"]
+           "unresolved_attitude", "tie_height_term"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -121,6 +122,13 @@ class AdjustConfig(Config):
     #: curvature, the Laplace approximation at the optimum) or "gauss_newton" (J^T J, what
     #: gtsam.Marginals returns); problems outside the flat form always use J^T J
     covariance: str = "hessian"
+    #: the height error a matched tie point's rays share (template relief, m, 1 sigma;
+    #: :mod:`misrgraph.estimate.tieheight`), added to each tie landmark's covariance along An's
+    #: ray: "auto" (default) estimates it from the pass's DEM residuals when the tie points were
+    #: measured by image matching (``adjust_pass(..., ties_matched=True)``) and leaves it out for
+    #: point measurements (the simulator's own observations); "estimate" always estimates it; a
+    #: number (m) fixes it, 0 switches it off
+    tie_height_sigma_m: float | str = "auto"
     max_iterations: int = 100
     backend: str = "auto"
     #: keep the result of a solve that did not converge (flagged in the summary and the result
@@ -137,6 +145,10 @@ class AdjustConfig(Config):
         check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
+        t = self.tie_height_sigma_m
+        if isinstance(t, str) and t not in TIE_HEIGHT_MODES or (
+                not isinstance(t, str) and (isinstance(t, bool) or not isinstance(t, (int, float)) or not t >= 0)):
+            raise InputError("tie_height_sigma_m", t, f"one of {TIE_HEIGHT_MODES} or a 1 sigma >= 0 (m)")
         self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
@@ -184,6 +196,12 @@ class AdjustResult:
     unresolved_attitude_rad: float = 0.0
     #: the rejected observations (indices) that data snooping found, not the robust screen
     snooped: NDArray[np.int64] = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    #: the height error the tie points' rays share (``AdjustConfig.tie_height_sigma_m``): how it
+    #: was set ("estimated", "fixed", "off") and its figures (:func:`tie_height_term`)
+    tie_height: dict = dataclasses.field(default_factory=lambda: {"source": "off", "sigma_m": 0.0})
+    #: what that term added to each tie landmark's marginal covariance (key -> (3, 3) m^2); the
+    #: marginals already include it, scores of the graph's own information add it back
+    landmark_extra_cov: dict = dataclasses.field(default_factory=dict)
 
 
 def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -> tuple[AttitudeErrorModel, EphemerisErrorModel, CameraModel]:
@@ -214,8 +232,11 @@ def adjust_pass(
     gcps: GcpDatabase | None,
     cfg: AdjustConfig = AdjustConfig(),
     progress: Callable[[str], None] | None = None,
+    ties_matched: bool = False,
 ) -> AdjustResult:
-    """Robust solve, blunder rejection, least-squares re-solve and marginals (module docstring)."""
+    """Robust solve, blunder rejection, least-squares re-solve and marginals (module docstring).
+    ``ties_matched``: the tie points were measured by image matching (``misrgraph match``), so
+    ``tie_height_sigma_m="auto"`` estimates their shared height error."""
     t0 = time.perf_counter()
     params = SolverParams(max_iterations=cfg.max_iterations)
     obs = orbit_pass.observations
@@ -271,6 +292,11 @@ def adjust_pass(
     if progress:
         progress("marginal covariances")
     marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
+    tie_height, extra = tie_height_term(orbit_pass, camera, pg, res.values, at, cfg.tie_height_sigma_m, ties_matched)
+    for k, c in extra.items():
+        marg.cov[k] = marg.cov[k] + c
+    if progress and tie_height["source"] == "estimated":
+        progress(f"tie points' shared height error: {tie_height['sigma_m']:.1f} m")
     r, _ = pg.collinearity.residuals(res.values)
     resid = np.full((len(obs), 2), np.nan)
     resid[pg.obs_index[pg.collinearity.order]] = r
@@ -284,7 +310,54 @@ def adjust_pass(
                         res.history, time.perf_counter() - t0, dropped, res.status,
                         variance_factor(pg.problem, res.final_error), rel,
                         unresolved_attitude(pg.attitude_model.knot_times, cfg.attitude_jitter_arcsec, cfg.attitude_jitter_periods_s),
-                        np.flatnonzero(snooped))
+                        np.flatnonzero(snooped), tie_height, extra)
+
+
+def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, values: gtsam.Values,
+                    at: "_ReliabilityAt | None", setting: float | str, ties_matched: bool) -> tuple[dict[str, Any], dict[int, Array]]:
+    """The shared height error of the tie points (:mod:`misrgraph.estimate.tieheight`): its summary
+    and, per tie landmark key, ``s^2 u u^T`` (m^2) with ``u`` along An's ray (the local vertical
+    for a tie point An does not see). ``setting``: ``AdjustConfig.tie_height_sigma_m``.
+
+    Estimated from the DEM factors' residuals and redundancy numbers at the optimum (``at``); a
+    problem outside the flat form has none, and the term is then left out and says so."""
+    mode = ("estimate" if ties_matched else 0.0) if setting == "auto" else setting
+    if mode == "estimate":
+        if at is None:
+            return {"source": "off", "sigma_m": 0.0, "reason": "no redundancy numbers (problem outside the flat form)"}, {}
+        flat = pg.problem.flat()
+        fam = at[0].families["dem"]
+        if flat.dem is None or fam.stop <= fam.start:
+            return {"source": "off", "sigma_m": 0.0, "reason": "no DEM factors"}, {}
+        e, q = at[0].e[fam], at[0].r[fam]
+        est = shared_height_variance(e * flat.dem.sigma_m, flat.dem.sigma_m, np.clip(q, 1e-9, 1.0))
+        s2 = est.variance_m2
+        info: dict[str, Any] = {"source": "estimated", "sigma_m": est.sigma_m, "variance_m2": s2,
+                                "unclipped_variance_m2": est.unclipped_m2, "standard_error_m2": est.standard_error_m2,
+                                "dem_factors": est.n}
+    else:
+        s2 = float(mode) ** 2
+        info = {"source": "fixed" if s2 > 0 else "off", "sigma_m": float(mode)}
+    if s2 <= 0:
+        return info, {}
+    obs = orbit_pass.observations
+    keys = pg.landmark_keys[orbit_pass.landmarks.kind[pg.landmark_rows] == KIND_TIE]
+    row_of = dict(zip(pg.landmark_keys.tolist(), pg.landmark_rows.tolist()))
+    x = np.array([values.atVector(int(k)) for k in keys]).reshape(-1, 3)
+    u = x / np.linalg.norm(x, axis=1, keepdims=True)  # geocentric up: the fallback, within 0.2 deg of the normal
+    first_an = {}
+    for i in np.flatnonzero(obs.camera == CAMERAS.index("An")):
+        first_an.setdefault(int(obs.landmark[i]), int(i))
+    rows = np.array([row_of[int(k)] for k in keys], np.int64)
+    has = np.array([int(r) in first_an for r in rows], bool)
+    if has.any():
+        idx = np.array([first_an[int(r)] for r in rows[has]], np.int64)
+        _, d = orbit_pass.geometry(camera).pixel_rays(obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx],
+                                                      exposure=obs.exposure_index[idx])
+        u[has] = -d
+    cov = inflate_along(np.zeros((keys.size, 3, 3)), u, s2)
+    info["tie_points"] = int(keys.size)
+    return info, {int(k): c for k, c in zip(keys, cov)}
 
 
 def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = "hessian") -> tuple[Marginals, str]:

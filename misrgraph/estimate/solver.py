@@ -406,7 +406,8 @@ def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> S
 
 
 def information_norm_split(lin: gtsam.GaussianFactorGraph, delta: dict[int, Array],
-                           local_keys: "list[int] | NDArray[np.int64]") -> tuple[float, float]:
+                           local_keys: "list[int] | NDArray[np.int64]",
+                           local_extra: "dict[int, Array] | None" = None) -> tuple[float, float]:
     """``e^T H e`` split exactly into ``(local part, rest)`` for variables ``local_keys`` that no
     factor shares (the landmarks: each factor touches at most one), so that ``H_LL`` is block
     diagonal.
@@ -416,7 +417,10 @@ def information_norm_split(lin: gtsam.GaussianFactorGraph, delta: dict[int, Arra
     (their marginal covariance ``P_oo``), the local part the NEES of each local variable given the
     others' errors (e.g. a landmark's triangulation error were the navigation and camera exact).
     Under the model both are chi-square, with the local and the other dimensions as degrees of
-    freedom. Raises ``ValueError`` if a factor touches two local variables."""
+    freedom. ``local_extra`` (key -> covariance) adds an error of a local variable the graph does
+    not hold, independent of everything else: its local part becomes ``c^T (H_LL^-1 + X)^-1 c``
+    (and the total, which is then no longer ``e^T H e``, that part plus the rest). Raises
+    ``ValueError`` if a factor touches two local variables."""
     local = {int(k) for k in local_keys}
     h_ll: dict[int, Array] = {}
     g: dict[int, Array] = {}
@@ -441,10 +445,14 @@ def information_norm_split(lin: gtsam.GaussianFactorGraph, delta: dict[int, Arra
         h_ll[k] = h_ll.get(k, 0.0) + a_l.T @ a_l
         g[k] = g.get(k, 0.0) + a_l.T @ a_o_e
     part = 0.0
+    plain = 0.0
+    extra = local_extra or {}
     for k, h in h_ll.items():
         c = np.asarray(delta[k], float) + np.linalg.solve(h, g[k])
-        part += float(c @ h @ c)
-    return part, total - part
+        own = float(c @ h @ c)
+        plain += own
+        part += float(c @ np.linalg.solve(np.linalg.inv(h) + extra[k], c)) if k in extra else own
+    return part, total - plain
 
 
 def check_converged(result: SolveResult, what: str = "the solve", accept: bool = False) -> None:

@@ -117,7 +117,7 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
         state_dim = sum(pg.problem.dims.values())
         lm_keys = [int(k) for k in pg.landmark_keys]
         lm_dim = sum(pg.problem.dims[k] for k in lm_keys)
-        part, rest = information_norm_split(linearize(pg.problem, res.values), delta, lm_keys)
+        part, rest = information_norm_split(linearize(pg.problem, res.values), delta, lm_keys, res.landmark_extra_cov)
         # the whole state's NEES split exactly: the landmarks given the other variables' errors
         # (triangulation with exact navigation and camera) and the others jointly
         out["nees"].update(state=(part + rest) / state_dim, state_dim=int(state_dim),

@@ -129,7 +129,7 @@ def run_adjust(
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
     gcps = read_gcp_database(gcp_file or d / "gcp.h5")
     dem = read_dem(dem_file or d / "dem.h5")
-    res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress)
+    res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress, ties_matched=observations == "matched")
     pg = res.pass_graph
     snooped = set(res.snooped.tolist())
     summary: dict[str, Any] = {
@@ -154,6 +154,7 @@ def run_adjust(
               "by": "data snooping" if i in snooped else "robust screen"} for i, n in zip(res.rejected, res.rejected_norm)],
             f"{out}:/observations/rejected" if out is not None else None, group_by=("camera", "landmark_kind")),
         "attitude_sigma": attitude_sigma_summary(res, cfg.graph_config().attitude_sigma_arcsec),
+        "tie_height": res.tie_height,
         "ephemeris": {"params": res.ephemeris.params.tolist(),
                       "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in pg.ephemeris_keys()]},
     }

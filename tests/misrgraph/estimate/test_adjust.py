@@ -108,6 +108,23 @@ def test_cli_json_summary_shape(small_pass_dir):
     assert set(s["nees"]) >= {"knots", "landmarks"}
 
 
+def test_cli_tie_height_option(small_pass_dir):
+    """--tie-height-sigma-m: a number fixes the tie points' shared height error (the summary says
+    so and the landmarks' NEES falls: their heights' variance grew), a bad value exits 2 naming
+    the option; the default leaves the simulated observations without it."""
+    runs = {}
+    for value in ("auto", "25"):
+        res = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--tie-height-sigma-m", value, "--json"])
+        assert res.exit_code == 0, res.output
+        runs[value] = json.loads(res.stdout)
+    assert runs["auto"]["tie_height"] == {"source": "off", "sigma_m": 0.0}
+    fixed = runs["25"]["tie_height"]
+    assert fixed["source"] == "fixed" and fixed["sigma_m"] == 25.0 and fixed["tie_points"] > 100
+    assert runs["25"]["nees"]["landmarks"] < runs["auto"]["nees"]["landmarks"]
+    bad = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--tie-height-sigma-m", "lots"])
+    assert bad.exit_code == 2 and "--tie-height-sigma-m" in bad.output
+
+
 def test_nees_inside_chi2_band_over_seeds(tmp_path):
     """Eight seeded reduced passes: the aggregated NEES of the knots (joint covariance) and of the
     whole state (e^T H e) each lie in the two-sided 95 % chi-square band of their total dimension.

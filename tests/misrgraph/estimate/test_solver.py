@@ -81,6 +81,15 @@ def test_information_norm_split_is_the_rest_jointly_plus_the_landmarks_given_it(
     assert part + rest == pytest.approx(total, rel=1e-8)
     assert rest == pytest.approx(ref_rest, rel=1e-6)
     assert 0 < part < total
+    # an extra error of the landmarks the graph does not hold: zero changes nothing; a variance
+    # along one axis of every landmark lowers their part alone, the more the larger it is, and
+    # never to zero (the other two axes keep theirs)
+    zero = information_norm_split(lin, e, lm, {k: np.zeros((3, 3)) for k in lm})
+    assert zero == pytest.approx((part, rest), rel=1e-12)
+    axis = np.diag([1.0, 0.0, 0.0])
+    some, rest2 = information_norm_split(lin, e, lm, {k: 1e2 * axis for k in lm})
+    huge, rest3 = information_norm_split(lin, e, lm, {k: 1e12 * axis for k in lm})
+    assert rest2 == rest3 == rest and 0 < huge < some < part
     with pytest.raises(ValueError, match="two|local variables"):
         information_norm_split(lin, e, list(prob.dims))
 

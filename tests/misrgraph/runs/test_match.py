@@ -49,10 +49,15 @@ def test_matching_meets_the_seed_accuracies_with_honest_sigma(imagery_pass_dir):
 
 def test_matched_adjustment_is_as_good_as_the_simulated_one(imagery_pass_dir):
     """adjust --observations matched: check points within 1.3x of the simulated-observation run,
-    co-registration below 0.2 px in every camera."""
+    co-registration below 0.2 px in every camera. The matched tie points' shared height error is
+    estimated by default (with its standard error), the simulated observations' is not."""
     sim = run_adjust(imagery_pass_dir)
     mat = run_adjust(imagery_pass_dir, observations="matched")
     assert mat["observation_set"] == "matched" and mat["solver_status"] == "converged"
+    assert sim["tie_height"]["source"] == "off"
+    th = mat["tie_height"]
+    assert th["source"] == "estimated" and th["dem_factors"] > 10 and np.isfinite(th["standard_error_m2"]), th
+    assert th["variance_m2"] == max(th["unclipped_variance_m2"], 0.0) and th["sigma_m"] ** 2 == pytest.approx(th["variance_m2"])
 
     def pooled(s):
         v = s["checkpoint_geolocation_m"].values()
