@@ -120,6 +120,6 @@ def run_bench_match(tie_points: int = 1000, seed: int = 0, duration_s: float = 2
                                      "nees": sim.get("nees")},
                        "matched": {"checkpoint_rms_m": pooled(mat), "coregistration_px_max": max(mat["coregistration_px"].values()),
                                    "nees": mat.get("nees"), "blunders": mat.get("blunders"),
-                                   "observations": mat["observations"]},
+                                   "observations": mat["observations"], "tie_height": mat["tie_height"]},
                        "checkpoint_ratio_matched_over_simulated": pooled(mat) / pooled(sim)},
         }
