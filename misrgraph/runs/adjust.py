@@ -171,6 +171,9 @@ def run_adjust(
     removed = sum(int(r.size) for r in pg.removed_knots)
     if removed:
         diagnostics.append(f"{removed} knots removed by eqs. 28-29 (too few tie points or cameras): the spline spans the gaps")
+    if "reason" in res.tie_height:
+        diagnostics.append(f"the tie points' shared height error was not estimated ({res.tie_height['reason']}): "
+                           "their heights' covariance leaves it out (--tie-height-sigma-m sets it)")
     if res.status != "converged":
         diagnostics.insert(0, f"the least-squares solve ended {res.status.replace('_', ' ')} (accepted with "
                               "--accept-unconverged): the covariances are not those of an optimum")

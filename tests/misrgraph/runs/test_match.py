@@ -12,6 +12,7 @@ import pytest
 
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.imagery import read_imagery, read_matched
+from misrgraph.estimate.adjust import AdjustConfig
 from misrgraph.runs.adjust import run_adjust
 from misrgraph.runs.match import run_match
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
@@ -58,6 +59,10 @@ def test_matched_adjustment_is_as_good_as_the_simulated_one(imagery_pass_dir):
     th = mat["tie_height"]
     assert th["source"] == "estimated" and th["dem_factors"] > 10 and np.isfinite(th["standard_error_m2"]), th
     assert th["variance_m2"] == max(th["unclipped_variance_m2"], 0.0) and th["sigma_m"] ** 2 == pytest.approx(th["variance_m2"])
+    # without DEM factors nothing sees it: left out, and the summary says so
+    no_dem = run_adjust(imagery_pass_dir, observations="matched", cfg=AdjustConfig(use_dem=False))
+    assert no_dem["tie_height"]["source"] == "off" and no_dem["tie_height"]["reason"] == "no DEM factors"
+    assert any("shared height error was not estimated" in d for d in no_dem["diagnostics"])
 
     def pooled(s):
         v = s["checkpoint_geolocation_m"].values()
