@@ -146,9 +146,9 @@ class AdjustConfig(Config):
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
         t = self.tie_height_sigma_m
-        if isinstance(t, str) and t not in TIE_HEIGHT_MODES or (
-                not isinstance(t, str) and (isinstance(t, bool) or not isinstance(t, (int, float)) or not t >= 0)):
-            raise InputError("tie_height_sigma_m", t, f"one of {TIE_HEIGHT_MODES} or a 1 sigma >= 0 (m)")
+        if not (t in TIE_HEIGHT_MODES if isinstance(t, str) else
+                isinstance(t, (int, float)) and not isinstance(t, bool) and np.isfinite(t) and t >= 0):
+            raise InputError("tie_height_sigma_m", t, f"one of {TIE_HEIGHT_MODES} or a finite 1 sigma >= 0 (m)")
         self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
@@ -341,17 +341,15 @@ def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
     if s2 <= 0:
         return info, {}
     obs = orbit_pass.observations
-    keys = pg.landmark_keys[orbit_pass.landmarks.kind[pg.landmark_rows] == KIND_TIE]
-    row_of = dict(zip(pg.landmark_keys.tolist(), pg.landmark_rows.tolist()))
+    tie = orbit_pass.landmarks.kind[pg.landmark_rows] == KIND_TIE
+    keys, rows = pg.landmark_keys[tie], pg.landmark_rows[tie]
     x = np.array([values.atVector(int(k)) for k in keys]).reshape(-1, 3)
     u = x / np.linalg.norm(x, axis=1, keepdims=True)  # geocentric up: the fallback, within 0.2 deg of the normal
-    first_an = {}
-    for i in np.flatnonzero(obs.camera == CAMERAS.index("An")):
-        first_an.setdefault(int(obs.landmark[i]), int(i))
-    rows = np.array([row_of[int(k)] for k in keys], np.int64)
-    has = np.array([int(r) in first_an for r in rows], bool)
+    an = np.flatnonzero(obs.camera == CAMERAS.index("An"))
+    seen, first = np.unique(obs.landmark[an], return_index=True)  # each landmark's first An observation
+    has = np.isin(rows, seen)
     if has.any():
-        idx = np.array([first_an[int(r)] for r in rows[has]], np.int64)
+        idx = an[first[np.searchsorted(seen, rows[has])]]
         _, d = orbit_pass.geometry(camera).pixel_rays(obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx],
                                                       exposure=obs.exposure_index[idx])
         u[has] = -d

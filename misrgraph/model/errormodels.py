@@ -341,9 +341,9 @@ def ephemeris_prior_covariance(boundaries: ArrayLike, a_sigma_mps: ArrayLike, b_
         basis = np.stack([np.ones_like(t), t - edges[0], np.sin(w * t), np.cos(w * t)], axis=1)
         fit[s] = np.linalg.lstsq(design, basis, rcond=None)[0]
     cov = np.zeros((n_seg, 6, n_seg, 6))
+    m = fit.reshape(2 * n_seg, 4)  # rows: segment 0 slope, value, segment 1 slope, value, ...
     for k in range(3):
         lam = np.diag([b_sigma_m**2, a_sig[k] ** 2, amplitude_m**2 / 2, amplitude_m**2 / 2])
-        m = fit.reshape(2 * n_seg, 4)  # rows: segment 0 slope, value, segment 1 slope, value, ...
         ck = (m @ lam @ m.T).reshape(n_seg, 2, n_seg, 2)
         for i, pi in enumerate((k, 3 + k)):
             for j, pj in enumerate((k, 3 + k)):

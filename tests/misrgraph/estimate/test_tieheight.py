@@ -55,7 +55,7 @@ def test_bad_input_names_the_field():
         inflate_along(np.zeros((2, 3, 3)), np.zeros((2, 3)), 1.0)
     with pytest.raises(InputError, match="variance_m2"):
         inflate_along(np.zeros((1, 3, 3)), np.ones((1, 3)), -1.0)
-    for bad in ("maybe", -1.0, True):
+    for bad in ("maybe", -1.0, True, float("inf")):
         with pytest.raises(InputError, match="tie_height_sigma_m"):
             AdjustConfig.from_dict({"tie_height_sigma_m": bad})
 
@@ -72,7 +72,7 @@ def test_the_covariance_term_adds_the_variance_along_the_ray_only():
     np.testing.assert_allclose(np.einsum("ni,nij->nj", perp, out - cov), 0.0, atol=1e-12)
 
 
-def _with_shared_heights(sc, p, truth, sigma_m: float, rng: np.random.Generator):
+def _with_shared_heights(p, truth, sigma_m: float, rng: np.random.Generator):
     """The pass with every tie point's non-An rays moved to where the true geometry sees its true
     point raised by ``dh ~ N(0, sigma_m^2)`` along An's true ray (each ray keeps its own noise);
     returns the pass and ``{landmark row: (dh, unit vector up along An's ray)}``."""
@@ -113,7 +113,7 @@ def test_a_shared_height_error_is_estimated_and_makes_the_heights_honest(small_p
 
     sc, p = small_pass
     truth = sc.load_truth(0)
-    q, moved = _with_shared_heights(sc, p, truth, 40.0, np.random.default_rng(2))
+    q, moved = _with_shared_heights(p, truth, 40.0, np.random.default_rng(2))
     cfg = AdjustConfig(attitude_jitter_arcsec=0.0)  # the model truth has no jitter; blunders: the default screen
     res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, cfg.replace(tie_height_sigma_m="estimate"))
     th = res.tie_height
