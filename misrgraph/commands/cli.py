@@ -289,6 +289,31 @@ def adjust(
     _print_adjust_summary(summary)
 
 
+@app.command("tie-height")
+@handle_errors
+def tie_height(
+    results: list[Path] = typer.Argument(..., help="RESULT.h5 files of 'adjust --observations matched --out', one per pass."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+) -> None:
+    """Pool the matched tie points' shared height error over passes (each result's own estimate).
+
+    On a short pass one estimate is as uncertain as the variance itself; the pooled 1 sigma is the
+    value to fix with 'adjust --tie-height-sigma-m' (docs/conventions.md)."""
+    from misrgraph.runs.adjust import run_tie_height_pool
+
+    res = run_tie_height_pool(results)
+    if as_json:
+        _print_json(res)
+        return
+    console.print(f"tie points' shared height error, pooled over {res['passes']} passes ({res['dem_factors']} DEM factors): "
+                  f"[bold]{res['sigma_m']:.1f} m[/bold] (variance {res['unclipped_variance_m2']:.0f} "
+                  f"± {res['standard_error_m2']:.0f} m², 1 sigma from the passes' scatter)", soft_wrap=True)
+    for path, why in res["skipped"].items():
+        console.print(f"  skipped {path}: {why}", soft_wrap=True, markup=False, highlight=False)
+    console.print(f"fix it with: misrgraph adjust ... --observations matched --tie-height-sigma-m {res['sigma_m']:.1f}",
+                  soft_wrap=True, highlight=False)
+
+
 @app.command()
 @handle_errors
 def match(

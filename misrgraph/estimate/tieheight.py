@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import InputError
 
-__all__ = ["SharedHeight", "shared_height_variance", "inflate_along", "TIE_HEIGHT_MODES"]
+__all__ = ["SharedHeight", "shared_height_variance", "pool_shared_height", "inflate_along", "TIE_HEIGHT_MODES"]
 
 Array = NDArray[np.float64]
 
@@ -99,6 +99,33 @@ def shared_height_variance(residual_m: ArrayLike, sigma_m: ArrayLike, redundancy
         s2 = new
     w = 0.5 / (q * sig ** 2 + a * s2) ** 2
     return SharedHeight(s2, est, float(1.0 / np.sqrt(np.sum(w * a * a))), int(r.size))
+
+
+def pool_shared_height(unclipped_m2: ArrayLike, n: ArrayLike) -> SharedHeight:
+    """``s^2`` (m^2) pooled over passes from each pass's own estimate.
+
+    ``unclipped_m2 (P,)``: each pass's unclipped estimate (:attr:`SharedHeight.unclipped_m2`; the
+    clipped values are biased up, these are not); ``n (P,)``: its number of DEM rows. On a short
+    pass (tens of tie points) one estimate's standard error is as large as the variance itself; a
+    campaign's passes see the same matcher and terrain class, so their mean is the steadier figure.
+    The mean is weighted by ``n`` (weights that do not depend on the estimates' noise, so the mean
+    stays unbiased); its standard error comes from the passes' scatter about it,
+    ``sqrt(P / (P - 1) * sum w_p^2 (u_p - mean)^2)`` with ``w_p = n_p / sum n`` (needs ``P >= 2``).
+    Returns a :class:`SharedHeight` whose ``n`` is the total number of DEM rows."""
+    u = np.asarray(unclipped_m2, float).ravel()
+    m = np.asarray(n, float).ravel()
+    if u.size != m.size:
+        raise InputError("n", m.size, f"{u.size} counts (one per pass estimate)")
+    if u.size < 2:
+        raise InputError("unclipped_m2", u.size, "estimates from at least 2 passes")
+    if not np.all(np.isfinite(u)):
+        raise InputError("unclipped_m2", u[~np.isfinite(u)][0], "finite estimates (m^2)")
+    if not (np.all(np.isfinite(m)) and m.min() > 0):
+        raise InputError("n", float(m.min()), "positive numbers of DEM rows")
+    w = m / m.sum()
+    mean = float(np.sum(w * u))
+    se = float(np.sqrt(u.size / (u.size - 1.0) * np.sum(w ** 2 * (u - mean) ** 2)))
+    return SharedHeight(max(mean, 0.0), mean, se, int(m.sum()))
 
 
 def inflate_along(cov: ArrayLike, direction: ArrayLike, variance_m2: float) -> Array:

@@ -32,7 +32,10 @@
   scaled by its precision measured from the pass's own redundancy
   (:func:`misrgraph.match.precision.camera_sigma_scales`: the scatter of matched minus predicted
   positions about a smooth navigation model on ``sigma_knot_s`` knots and each feature's height
-  along An's ray), unless ``sigma_from_redundancy`` is off. An's defining observation gets the
+  along An's ray; by default, ``sigma_model="shared-attitude"``, the adjustment's own model, one
+  attitude correction for all cameras through each observation's numerical pointing
+  sensitivity; a camera with too little redundancy takes the scale of its twin at the same view
+  angle), unless ``sigma_from_redundancy`` is off. An's defining observation gets the
   median of its conjugates' sigmas. The same fit is a consistency check across the pass: a
   conjugate beyond its 4 sigma clip is rejected ("inconsistent with the pass"), and a feature
   left in fewer than ``min_cameras`` cameras with it.
@@ -43,6 +46,7 @@ flat chip or NaN pixels make that feature's match fail with its reason.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import Counter
 from dataclasses import dataclass, field
@@ -56,12 +60,12 @@ from misrgraph.config import Config
 from misrgraph.errors import InputError
 from misrgraph.io.imagery import INTEREST_RADIUS_PX, PassImagery
 from misrgraph.match.lsm import lsm, ncc_search
-from misrgraph.match.precision import PrecisionFit, camera_sigma_scales
+from misrgraph.match.precision import Pointing, PrecisionFit, camera_sigma_scales
 from misrgraph.model.constants import CAMERAS, N_PIXELS
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.geolocation import ImagePoints, PassGeometry
 
-__all__ = ["DEFAULT_SEARCH_PX", "MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "match_ties",
+__all__ = ["DEFAULT_SEARCH_PX", "SIGMA_MODELS", "MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "match_ties",
            "search_range"]
 
 log = logging.getLogger(__name__)
@@ -72,6 +76,13 @@ _CENTRE = (N_PIXELS - 1) / 2.0
 
 #: The search range (px) of imagery that does not record its own.
 DEFAULT_SEARCH_PX = 8
+
+#: ``MatchConfig.sigma_model``'s values
+SIGMA_MODELS = ("shared-attitude", "per-camera")
+
+#: attitude step (rad, per axis) of the numerical pointing sensitivities (2", ~7 m on the ground
+#: from An: the predictions move by hundredths of a pixel, well inside their linear range)
+_ATTITUDE_STEP_RAD = 1e-5
 
 
 def search_range(cfg: "MatchConfig", imagery: PassImagery) -> int:
@@ -100,6 +111,10 @@ class MatchConfig(Config):
     sigma_floor_px: float = 0.02
     sigma_from_redundancy: bool = True
     sigma_knot_s: float = 60.0
+    #: the precision fit's smooth model (:mod:`misrgraph.match.precision`): "shared-attitude"
+    #: (one attitude correction for all cameras, through each observation's pointing sensitivity)
+    #: or "per-camera" (each camera its own spline; needs ~30 matches a camera on a short pass)
+    sigma_model: str = "shared-attitude"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.template_px, int) and self.template_px >= 7 and self.template_px % 2 == 1):
@@ -113,6 +128,8 @@ class MatchConfig(Config):
                      "sigma_knot_s"):
             if not getattr(self, name) > 0:
                 raise InputError(name, getattr(self, name), "a positive number")
+        if self.sigma_model not in SIGMA_MODELS:
+            raise InputError("sigma_model", self.sigma_model, f"one of {SIGMA_MODELS}")
         if not (isinstance(self.min_cameras, int) and 2 <= self.min_cameras <= 9):
             raise InputError("min_cameras", self.min_cameras, "an integer in 2..9")
 
@@ -252,6 +269,43 @@ def _interest_point(image: Array, margin: int, search: int) -> tuple[int, int] |
     return lo + int(i), lo + int(j)
 
 
+def _tilted(geo: PassGeometry, axis: int) -> PassGeometry:
+    """``geo`` with its attitude turned by :data:`_ATTITUDE_STEP_RAD` about ``axis`` (0 roll,
+    1 pitch, 2 yaw), on top of any correction it already has."""
+    step = np.zeros(3)
+    step[axis] = _ATTITUDE_STEP_RAD
+    base = geo.attitude_delta
+
+    def delta(t: Array) -> Array:
+        t = np.asarray(t, float).ravel()
+        out = np.tile(step, (t.size, 1))
+        return out if base is None else out + np.asarray(base(t), float).reshape(t.size, 3)
+
+    return dataclasses.replace(geo, attitude_delta=delta, _cache={})
+
+
+def _pointing_sensitivity(geo: PassGeometry, cams: NDArray[np.int64], band: int, ground: Array, pred_line: Array,
+                          pred_sample: Array, an_line: Array, an_sample: Array, row_feature: NDArray[np.int64],
+                          surface: Callable[[Array, Array], Array]) -> tuple[Array, Array]:
+    """Numerical ``J_c`` and ``K_c`` (px/rad, each ``(n, 2, 3)``) of ``n`` conjugates' predictions
+    ``pred_line, pred_sample (n,)`` of their features' An ground points ``ground (n, 3)`` ECEF m
+    (:class:`misrgraph.match.precision.Pointing`): the prediction of the fixed ground point by a
+    navigation tilted about each axis, and the untilted prediction of where the tilted navigation
+    casts An's pixel ``an_line, an_sample (F,)`` (per feature; ``row_feature (n,)`` indexes them)
+    onto the DEM. Seven calls for all the conjugates of the pass."""
+    n = cams.size
+    jac = np.empty((n, 2, 3))
+    kan = np.empty((n, 2, 3))
+    for a in range(3):
+        g = _tilted(geo, a)
+        p = g.ground_to_pixel(cams, band, ground, continuous=True)
+        jac[:, 0, a], jac[:, 1, a] = p.line - pred_line, p.sample - pred_sample
+        moved = g.pixel_to_ground(AN, band, an_line, an_sample, surface=_filled(surface), exposure=np.nan)
+        q = geo.ground_to_pixel(cams, band, moved[row_feature], continuous=True)
+        kan[:, 0, a], kan[:, 1, a] = q.line - pred_line, q.sample - pred_sample
+    return jac / _ATTITUDE_STEP_RAD, kan / _ATTITUDE_STEP_RAD
+
+
 def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callable[[Array, Array], Array],
                rows: NDArray[np.int64], cfg: MatchConfig = MatchConfig(),
                progress: Callable[[int, int], None] | None = None) -> tuple[list[TieFeature], MatchedObservations]:
@@ -265,7 +319,9 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
     full = float(imagery.attrs.get("full_scale_dn", 2 ** 14 - 1))
     features: list[TieFeature] = []
     out = MatchedObservations()
-    pending: list[tuple] = []  # (row in out, feature, camera, time, sample, d_line, d_sample, epipolar line, sample)
+    # (row in out, feature, camera, time, sample, d_line, d_sample, epipolar line, sample[, An's time, J (6), K (6)])
+    pending: list[tuple] = []
+    pending_geo: list[tuple] = []  # per pending row: An's ground point (3), the predicted line, sample, An's time
     for n_done, row in enumerate(rows):
         if progress is not None:
             progress(n_done, len(rows))
@@ -357,6 +413,16 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
         for cam, ln, sm, s, pl, ps, tt, epi in got:
             out.add(fi, cam, ln, sm, s, band)
             pending.append((len(out) - 1, fi, cam, tt, sm, ln - pl, sm - ps, epi[0], epi[1]))
+            pending_geo.append((*ground[0], pl, ps, float(times[0])))
+    if pending and cfg.sigma_from_redundancy and cfg.sigma_model == "shared-attitude":
+        a = np.asarray(pending, float)
+        pg = np.asarray(pending_geo, float)
+        feat = a[:, 1].astype(np.int64)
+        jac, kan = _pointing_sensitivity(supplied_geo, a[:, 2].astype(np.int64), band, pg[:, :3], pg[:, 3], pg[:, 4],
+                                         np.array([f.line for f in features]), np.array([f.sample for f in features]),
+                                         feat, surface)
+        pending = [row + tuple(extra) for row, extra in
+                   zip(pending, np.column_stack([pg[:, 5], jac.reshape(-1, 6), kan.reshape(-1, 6)]).tolist())]
     _rescale(out, pending, cfg)
     return _drop_inconsistent(features, out, cfg)
 
@@ -398,11 +464,22 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig) -
         a = np.asarray(pending, float)
         idx = a[:, 0].astype(np.int64)
         cam = a[:, 2].astype(np.int64)
-        fit = camera_sigma_scales(a[:, 1].astype(np.int64), cam, a[:, 3], (a[:, 4] - _CENTRE) / _CENTRE,
-                                  a[:, 5:7], a[:, 7:9], sig[idx], knot_s=cfg.sigma_knot_s)
-        sig[idx] = np.maximum(sig[idx] * np.array([fit.scale[int(c)] for c in cam]), cfg.sigma_floor_px)
+        pointing = None
+        fitted = np.ones(idx.size, bool)
+        if a.shape[1] > 9:  # the shared-attitude model; a prediction the tilt moved off the image stays out of the fit
+            fitted = np.all(np.isfinite(a[:, 9:]), axis=1)
+            if not fitted.all():
+                log.info("%d tie observations without a pointing sensitivity left out of the precision fit",
+                         int(np.sum(~fitted)))
+            a = a[fitted]
+            pointing = Pointing(a[:, 9], a[:, 10:16].reshape(-1, 2, 3), a[:, 16:22].reshape(-1, 2, 3))
+        twin = {c: len(CAMERAS) - 1 - c for c in range(len(CAMERAS))}  # Df-Da, Cf-Ca, ...: the same view angle
+        fit = camera_sigma_scales(a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3],
+                                  (a[:, 4] - _CENTRE) / _CENTRE, a[:, 5:7], a[:, 7:9], sig[idx[fitted]],
+                                  knot_s=cfg.sigma_knot_s, pointing=pointing, twin=twin)
+        sig[idx] = np.maximum(sig[idx] * np.array([fit.scale.get(int(c), 1.0) for c in cam]), cfg.sigma_floor_px)
         out.precision = fit
-        out.pending_rows = idx
+        out.pending_rows = idx[fitted]
     feat = np.asarray(out.feature)
     cams = np.asarray(out.camera)
     for i in np.flatnonzero(cams == AN):

@@ -12,9 +12,8 @@ each at the position the supplied navigation and the DEM predict. The difference
 
     d_ic = s_c(t_i, x_i) + h_i e_ic + m_ic
 
-* ``s_c`` is the navigation and camera-model error. It is smooth: a cubic B-spline in the
-  observation time ``t`` with the adjustment's knot spacing, times ``(1, x)``, plus ``x^2, x^3``
-  terms constant in time (``x`` is the sample's offset from the array centre, normalised).
+* ``s_c`` is the navigation and camera-model error, smooth in the observation time ``t`` and in
+  ``x`` (the sample's offset from the array centre, normalised); its two forms are below.
 * ``h_i e_ic`` is the feature's height error along An's ray. An's observation defines the tie
   point, so the point keeps one degree of freedom: its height. ``e_ic`` is the image displacement
   in camera ``c`` per metre of height (the epipolar direction).
@@ -25,11 +24,33 @@ position). So ``k_c`` is the scale that makes the sigma honest *for the adjustme
 the adjustment cannot absorb. Errors faster than the knots, such as jitter, are counted in the
 scale. For the adjustment they are observation noise.
 
+Two forms of ``s_c``:
+
+* **Shared attitude** (when the caller gives each observation's pointing sensitivity, as the
+  matching pipeline does). The adjustment's own model: one attitude correction ``a(t)`` (roll,
+  pitch, yaw; a cubic B-spline on ``knot_s`` knots) for all cameras, seen twice by each
+  difference -- in camera ``c`` at its time ``t_c`` and through An's defining ray at An's time
+  ``t_An`` (the prediction starts from where An's supplied ray meets the DEM)::
+
+      s_c = J_c a(t_c) + K_c a(t_An) + P_c(x, tau)
+
+  ``J_c`` ``(2, 3)`` px/rad moves camera ``c``'s prediction of a fixed ground point, ``K_c``
+  moves it through An's ground point; ``P_c`` is per camera and static or slow: ``1, x, x^2,
+  x^3, tau, tau^2`` per coordinate (``tau`` the pass time, normalised), for the camera model and
+  the per-camera share of ephemeris errors. The attitude is shared, so a camera with few matches
+  pays 12 parameters, not a spline of its own: the D cameras of a short pass keep a redundancy
+  of tens where the per-camera form left them near 0.
+* **Per camera** (without pointing sensitivities): a cubic B-spline in ``t`` with the
+  adjustment's knot spacing, times ``(1, x)``, plus ``x^2, x^3`` terms constant in time, for each
+  camera on its own. It needs ~30 matches per camera of a 10-minute pass before it leaves any
+  redundancy.
+
 Method:
 
-* One weighted least-squares fit of all cameras' smooth models and all heights together. The
-  heights are eliminated by a Schur complement, so the cost grows linearly with the features.
-* Each camera's redundancy is ``r_c = n_c - tr(N^-1 N_c)``, exact for the linear model.
+* One weighted least-squares fit of the smooth model and all heights together. The heights are
+  eliminated by a Schur complement, so the cost grows linearly with the features.
+* Each camera's redundancy is ``r_c = n_c - tr(N^-1 N_c)`` (the sum of its rows' ``1 - h_ii``,
+  ``h`` the hat matrix's diagonal), exact for the linear model.
 * ``k_c^2 = sum_c z^2 / r_c`` (Foerstner's variance components), iterated with the weights
   ``1 / (k_c sigma)^2`` until the scales settle.
 * Robust: an observation whose radial ``z^2`` exceeds the chi-square (2 dof) quantile of
@@ -41,20 +62,36 @@ Method:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 from scipy.interpolate import BSpline
 
-__all__ = ["PrecisionFit", "camera_sigma_scales"]
+from misrgraph.errors import InputError
+
+__all__ = ["PrecisionFit", "Pointing", "camera_sigma_scales"]
 
 Array = NDArray[np.float64]
 
 
+class Pointing(NamedTuple):
+    """Each observation's pointing sensitivity, for the shared-attitude form (``n`` rows):
+    ``an_time_s (n,)`` the time (s) of its feature's An observation; ``camera_px_per_rad (n, 2, 3)``
+    ``J_c``, d(line, sample) of the camera's prediction of a fixed ground point per rad of roll,
+    pitch, yaw at the observation's time; ``an_px_per_rad (n, 2, 3)`` ``K_c``, d(line, sample) of
+    the prediction per rad of attitude at An's time (through An's ground point on the DEM)."""
+
+    an_time_s: Array
+    camera_px_per_rad: Array
+    an_px_per_rad: Array
+
+
 @dataclass
 class PrecisionFit:
-    """Per-camera sigma scales ``scale[c]`` (1 where not estimated), the redundancy and the kept and
+    """Per-camera sigma scales ``scale[c]`` (where not estimated: the twin camera's, ``borrowed[c]``
+    naming it, when the twin's is estimated, else 1), the redundancy and the kept and
     clipped observation counts behind each (camera index -> value), and the variance-component
     ``iterations``."""
 
@@ -63,22 +100,35 @@ class PrecisionFit:
     kept: dict[int, int] = field(default_factory=dict)
     clipped: dict[int, int] = field(default_factory=dict)
     estimated: dict[int, bool] = field(default_factory=dict)
+    #: camera -> the twin whose scale it took (its own redundancy too small)
+    borrowed: dict[int, int] = field(default_factory=dict)
     iterations: int = 0
     #: per input row: True where the observation was clipped (inconsistent with the pass)
     outlier: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    #: the smooth model: "shared attitude" or "per camera" (module docstring)
+    model: str = "per camera"
 
-    def as_dict(self, names: list[str] | tuple[str, ...]) -> dict[str, dict[str, float | int | bool]]:
-        return {names[c]: {"scale": self.scale[c], "redundancy": self.redundancy[c], "kept": self.kept[c],
-                           "clipped": self.clipped[c], "estimated": self.estimated[c]} for c in sorted(self.scale)}
+    def as_dict(self, names: list[str] | tuple[str, ...]) -> dict[str, dict[str, float | int | bool | str]]:
+        out: dict[str, dict[str, float | int | bool | str]] = {}
+        for c in sorted(self.scale):
+            out[names[c]] = {"scale": self.scale[c], "redundancy": self.redundancy[c], "kept": self.kept[c],
+                             "clipped": self.clipped[c], "estimated": self.estimated[c]}
+            if c in self.borrowed:
+                out[names[c]]["scale_from"] = names[self.borrowed[c]]
+        return out
+
+
+def _bspline(t: Array, lo: float, hi: float, knot_s: float) -> Array:
+    """Cubic B-spline basis ``(n, nb)`` on ``[lo, hi]`` with knots about ``knot_s`` s apart."""
+    n_int = max(int(np.ceil((hi - lo) / knot_s)), 1)
+    inner = np.linspace(lo, hi + 1e-9, n_int + 1)
+    knots = np.r_[[inner[0]] * 3, inner, [inner[-1]] * 3]
+    return BSpline.design_matrix(np.clip(t, inner[0], inner[-1]), knots, 3).toarray()
 
 
 def _design(t: Array, x: Array, knot_s: float) -> Array:
     """Smooth-model design ``(n, p)``: cubic B-splines in ``t`` (s) times ``(1, x)``, plus ``x^2, x^3``."""
-    lo, hi = float(np.min(t)), float(np.max(t))
-    n_int = max(int(np.ceil((hi - lo) / knot_s)), 1)
-    inner = np.linspace(lo, hi + 1e-9, n_int + 1)
-    knots = np.r_[[inner[0]] * 3, inner, [inner[-1]] * 3]
-    b = BSpline.design_matrix(np.clip(t, inner[0], inner[-1]), knots, 3).toarray()
+    b = _bspline(t, float(np.min(t)), float(np.max(t)), knot_s)
     return np.hstack([b, b * x[:, None], (x ** 2)[:, None], (x ** 3)[:, None]])
 
 
@@ -138,10 +188,67 @@ def _solve(X: dict[int, Array], rows: dict[int, NDArray[np.int64]], feat_of: NDA
     return res, red
 
 
+def _shared_design(camera: NDArray[np.int64], cams: list[int], time_s: Array, x: Array, pointing: Pointing,
+                   knot_s: float) -> Array:
+    """Shared-attitude design ``(2n, p)``, rows ``2i`` (line) and ``2i + 1`` (sample) of
+    observation ``i``: the attitude spline's coefficients (3 axes, rad) seen as
+    ``J_c B(t_c) + K_c B(t_An)``, then per camera and coordinate ``1, x, x^2, x^3, tau, tau^2``."""
+    t_an = np.asarray(pointing.an_time_s, float)
+    jc = np.asarray(pointing.camera_px_per_rad, float)
+    ka = np.asarray(pointing.an_px_per_rad, float)
+    n = time_s.size
+    lo = float(min(time_s.min(), t_an.min()))
+    hi = float(max(time_s.max(), t_an.max()))
+    b_c = _bspline(time_s, lo, hi, knot_s)
+    b_a = _bspline(t_an, lo, hi, knot_s)
+    nb = b_c.shape[1]
+    # (n, 2, 3, nb) -> (2n, 3 nb): axis-major columns
+    att = (jc[:, :, :, None] * b_c[:, None, None, :] + ka[:, :, :, None] * b_a[:, None, None, :]).reshape(2 * n, 3 * nb)
+    tau = (time_s - 0.5 * (lo + hi)) / max(0.5 * (hi - lo), 1.0)
+    poly = np.column_stack([np.ones(n), x, x ** 2, x ** 3, tau, tau ** 2])  # (n, 6)
+    static = np.zeros((2 * n, len(cams) * 12))
+    pos = np.searchsorted(cams, camera)
+    for q in range(2):
+        cols = pos[:, None] * 12 + q * 6 + np.arange(6)[None, :]
+        static[2 * np.arange(n)[:, None] + q, cols] = poly
+    return np.hstack([att, static])
+
+
+def _solve_rows(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat: int, w: Array,
+                h_prior_m: float) -> tuple[Array, Array]:
+    """Weighted least squares of ``y (m,) = a (m, p) s + e (m,) h[feat_of]`` with a weak prior
+    ``h ~ N(0, h_prior_m^2)`` on each height, the heights eliminated by a Schur complement; the
+    residuals ``(m,)`` and the hat matrix's diagonal ``(m,)`` (0 where ``w = 0``). The columns are
+    equilibrated first, and the reduced system is solved by a pseudo-inverse (a gauge the rows do
+    not fix -- a constant attitude against the cameras' offsets -- leaves the residuals alone)."""
+    col = np.sqrt(np.einsum("mp,m->p", a * a, w))
+    col[col == 0] = 1.0
+    a = a / col
+    aw = a * w[:, None]
+    a_ss = a.T @ aw
+    b = np.zeros((a.shape[1], n_feat))
+    np.add.at(b.T, feat_of, aw * e[:, None])
+    dd = np.full(n_feat, 1.0 / h_prior_m ** 2)
+    np.add.at(dd, feat_of, w * e * e)
+    rhs_h = np.zeros(n_feat)
+    np.add.at(rhs_h, feat_of, w * e * y)
+    bd = b / dd
+    q_mat = np.linalg.pinv(a_ss - bd @ b.T, hermitian=True, rcond=1e-12)
+    x_s = q_mat @ (aw.T @ y - bd @ rhs_h)
+    h = (rhs_h - b.T @ x_s) / dd
+    res = y - a @ x_s - e * h[feat_of]
+    aq = a @ q_mat
+    qbd = q_mat @ bd
+    h_ff = 1.0 / dd + np.sum(bd * qbd, axis=0)
+    hat = w * (np.sum(aq * a, axis=1) - 2.0 * e * np.sum(aq * bd[:, feat_of].T, axis=1) + e * e * h_ff[feat_of])
+    return res, hat
+
+
 def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], time_s: Array, x: Array, d: Array,
                         epipolar: Array, sigma: Array, knot_s: float = 60.0, clip: float = 4.0,
                         min_redundancy: float = 30.0, max_iter: int = 10, tol: float = 0.01,
-                        height_prior_m: float = 1000.0) -> PrecisionFit:
+                        height_prior_m: float = 1000.0, pointing: Pointing | None = None,
+                        twin: dict[int, int] | None = None) -> PrecisionFit:
     """Per-camera scales of the matching sigmas (see the module docstring).
 
     Arguments, one row per matched (non-defining) observation, ``n`` rows:
@@ -151,7 +258,12 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     ``sigma (n,)`` px the matcher's sigmas; ``knot_s`` the smooth model's knot spacing (s).
     ``height_prior_m`` is a weak prior on each height (it only removes the exact degeneracy
     between a common height change and the smooth models). The scales are iterated as variance
-    components (Foerstner) until they change by less than ``tol`` (relative)."""
+    components (Foerstner) until they change by less than ``tol`` (relative). With ``pointing``
+    (:class:`Pointing`) the smooth model is the shared attitude, else each camera's own spline
+    (module docstring). ``twin`` maps a camera to the one at the same view angle on the other side
+    of nadir (MISR's Df and Da, ...): a camera whose redundancy is below ``min_redundancy`` takes its
+    twin's scale when the twin's is estimated (the pattern's change with view angle, the scale's main
+    cause, is alike), else keeps its stated sigma (scale 1)."""
     feature = np.asarray(feature, np.int64)
     camera = np.asarray(camera, np.int64)
     d = np.asarray(d, float).reshape(-1, 2)
@@ -163,8 +275,28 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
         return out
     chi2_clip = float(stats.chi2.isf(2.0 * stats.norm.sf(clip), 2))
     rows = {int(c): np.flatnonzero(camera == c) for c in np.unique(camera)}
-    X = {c: _design(np.asarray(time_s, float)[r], np.asarray(x, float)[r], knot_s) for c, r in rows.items()}
     feat_ids, feat_of = np.unique(feature, return_inverse=True)
+    time_s = np.asarray(time_s, float)
+    x = np.asarray(x, float)
+    if pointing is not None:
+        for name, v, shape in (("an_time_s", pointing.an_time_s, (n,)), ("camera_px_per_rad", pointing.camera_px_per_rad, (n, 2, 3)),
+                               ("an_px_per_rad", pointing.an_px_per_rad, (n, 2, 3))):
+            if np.shape(v) != shape or not np.all(np.isfinite(v)):
+                raise InputError(f"pointing.{name}", np.shape(v), f"finite values of shape {shape}")
+        a_rows = _shared_design(camera, sorted(rows), time_s, x, pointing, knot_s)
+        y_rows, e_rows, f_rows = d.reshape(-1), e.reshape(-1), np.repeat(feat_of, 2)
+        out.model = "shared attitude"
+
+        def solve(w: Array) -> tuple[Array, dict[int, float]]:
+            res_r, hat = _solve_rows(a_rows, y_rows, e_rows, f_rows, feat_ids.size, np.repeat(w, 2), height_prior_m)
+            used = np.repeat(w > 0, 2)
+            red_row = np.where(used, 1.0 - hat, 0.0).reshape(n, 2).sum(axis=1)
+            return res_r.reshape(n, 2), {c: float(np.sum(red_row[r])) for c, r in rows.items()}
+    else:
+        X = {c: _design(time_s[r], x[r], knot_s) for c, r in rows.items()}
+
+        def solve(w: Array) -> tuple[Array, dict[int, float]]:
+            return _solve(X, rows, feat_of, feat_ids.size, d, e, w, height_prior_m)
     scale = {c: 1.0 for c in rows}
     keep = np.ones(n, bool)
     red: dict[int, float] = {}
@@ -175,9 +307,13 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     def per_row(d: dict[int, float]) -> Array:
         return np.array([d[c] for c in cams])[cam_pos]
 
+    def _borrowed(c: int, scale: dict[int, float], red: dict[int, float]) -> float:
+        t = twin.get(c) if twin is not None else None
+        return scale[t] if t in red and red[t] >= min_redundancy else 1.0
+
     for it in range(1, max_iter + 1):
         w = np.where(keep, 1.0 / (sigma * per_row(scale)) ** 2, 0.0)
-        res, red = _solve(X, rows, feat_of, feat_ids.size, d, e, w, height_prior_m)
+        res, red = solve(w)
         z2 = np.sum(res ** 2, axis=1) / sigma ** 2  # against the stated sigma, both coordinates
         change = 0.0
         for c, r in rows.items():
@@ -186,13 +322,18 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
                 new = float(np.sqrt(np.sum(z2[r][k]) / red[c]))
                 change = max(change, abs(new / scale[c] - 1.0))
                 scale[c] = new
+        for c in rows:
+            if red[c] < min_redundancy:
+                scale[c] = _borrowed(c, scale, red)
         new_keep = z2 <= per_row(scale) ** 2 * chi2_clip
         if change < tol and np.array_equal(new_keep, keep):
             break
         keep = new_keep
     for c, r in rows.items():
         est = red[c] >= min_redundancy
-        out.scale[c] = scale[c] if est else 1.0
+        out.scale[c] = scale[c] if est else _borrowed(c, scale, red)
+        if not est and twin is not None and twin.get(c) in red and red[twin[c]] >= min_redundancy:
+            out.borrowed[c] = twin[c]
         out.redundancy[c] = float(max(red[c], 0.0))
         out.estimated[c] = bool(est)
         out.kept[c] = int(keep[r].sum())

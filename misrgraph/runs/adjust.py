@@ -30,7 +30,7 @@ from misrgraph.io.results import capped_list
 from misrgraph.io.truth import PassTruth, load_pass_observations
 from misrgraph.model.constants import ANGLES, CAMERAS
 
-__all__ = ["run_adjust", "write_adjust_result"]
+__all__ = ["run_adjust", "run_tie_height_pool", "write_adjust_result"]
 
 
 def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, summary: dict[str, Any],
@@ -185,3 +185,38 @@ def run_adjust(
                             {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
                              "config": json.dumps(dataclasses.asdict(cfg)), "software": f"misrgraph {__version__}"}, truth)
     return summary
+
+
+def run_tie_height_pool(results: list[str | os.PathLike[str]]) -> dict[str, Any]:
+    """Pool the matched tie points' shared height variance over passes
+    (:func:`misrgraph.estimate.tieheight.pool_shared_height`), from RESULT.h5 files that
+    ``adjust --observations matched --out`` wrote (each estimates it for its own pass).
+
+    Returns ``sigma_m`` (the 1 sigma to fix with ``adjust --tie-height-sigma-m``), ``variance_m2``,
+    ``unclipped_variance_m2``, ``standard_error_m2``, ``dem_factors`` (total), ``passes`` (used) and
+    ``per_pass`` (file -> its estimate and count); results that did not estimate it (simulated
+    observations, a fixed value, no DEM factors) are listed in ``skipped`` with the reason."""
+    from misrgraph.estimate.tieheight import pool_shared_height
+    from misrgraph.io.h5 import open_h5
+
+    per_pass: dict[str, Any] = {}
+    skipped: dict[str, str] = {}
+    for r in results:
+        path = Path(r)
+        with open_h5(path, "adjustment_result") as f:  # kind, version and checksums checked
+            summary = json.loads(f.attrs["summary_json"])
+        th = summary.get("tie_height", {})
+        if th.get("source") != "estimated" or not np.isfinite(th.get("unclipped_variance_m2", np.nan)):
+            skipped[str(path)] = (f"tie height {th.get('source', 'absent')}"
+                                  + (f" ({th['reason']})" if "reason" in th else ""))
+            continue
+        per_pass[str(path)] = {"unclipped_variance_m2": float(th["unclipped_variance_m2"]),
+                               "standard_error_m2": float(th["standard_error_m2"]), "dem_factors": int(th["dem_factors"])}
+    if len(per_pass) < 2:
+        raise InputError("results", f"{len(per_pass)} with an estimate (skipped: {skipped})",
+                         "at least 2 results of adjust --observations matched that estimated the tie height")
+    pooled = pool_shared_height([v["unclipped_variance_m2"] for v in per_pass.values()],
+                                [v["dem_factors"] for v in per_pass.values()])
+    return {"sigma_m": pooled.sigma_m, "variance_m2": pooled.variance_m2, "unclipped_variance_m2": pooled.unclipped_m2,
+            "standard_error_m2": pooled.standard_error_m2, "dem_factors": pooled.n, "passes": len(per_pass),
+            "per_pass": per_pass, "skipped": skipped}

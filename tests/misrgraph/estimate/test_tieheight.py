@@ -12,7 +12,7 @@ import pytest
 
 from misrgraph.errors import InputError
 from misrgraph.estimate.adjust import AdjustConfig, adjust_pass
-from misrgraph.estimate.tieheight import inflate_along, shared_height_variance
+from misrgraph.estimate.tieheight import inflate_along, pool_shared_height, shared_height_variance
 from misrgraph.io.passes import KIND_TIE
 from misrgraph.model.constants import CAMERAS
 
@@ -38,6 +38,45 @@ def test_the_estimate_is_unbiased_and_its_standard_error_is_its_scatter(s2):
     assert abs(est.mean() - s2) < 3.5 * est.std() / np.sqrt(est.size), (est.mean(), s2)
     assert np.std(est) == pytest.approx(np.median(se), rel=0.15)
     assert clipped.min() >= 0 and np.allclose(clipped[est > 0], est[est > 0])
+
+
+def test_pooling_short_passes_is_unbiased_and_states_its_scatter():
+    """20 short passes (60-90 DEM rows each, s^2 = 300 m^2): each pass's estimate has a standard
+    error near the variance itself (draws from the model, as above). Over 200 repetitions the
+    pooled (row-weighted) mean of the unclipped estimates is unbiased within 3.5 standard errors,
+    its stated standard error (from the passes' scatter) is the repetitions' scatter within 15 %,
+    and it is several times smaller than one pass's."""
+    rng = np.random.default_rng(12)
+    s2, pooled, stated, one_se = 300.0, [], [], []
+    for _ in range(200):
+        ests = []
+        for n in rng.integers(60, 91, 20):
+            sig = rng.choice([30.0, 60.0], n)
+            q = rng.uniform(0.85, 1.0, n)
+            ests.append(shared_height_variance(np.sqrt(q * sig ** 2 + q ** 2 * s2) * rng.standard_normal(n), sig, q))
+        p = pool_shared_height([e.unclipped_m2 for e in ests], [e.n for e in ests])
+        pooled.append(p.unclipped_m2)
+        stated.append(p.standard_error_m2)
+        one_se.append(np.std([e.unclipped_m2 for e in ests]))
+    pooled = np.array(pooled)
+    assert abs(pooled.mean() - s2) < 3.5 * pooled.std() / np.sqrt(pooled.size), pooled.mean()
+    assert np.std(pooled) == pytest.approx(np.sqrt(np.mean(np.square(stated))), rel=0.15)
+    assert np.median(one_se) > 3.0 * np.std(pooled)
+
+
+def test_pooling_equal_counts_is_the_plain_mean():
+    """Equal row counts: the pooled value is the plain mean and its standard error the sample
+    standard deviation over sqrt(P) (closed form); a negative mean is clipped to 0."""
+    u = np.array([100.0, 400.0, -50.0, 250.0])
+    p = pool_shared_height(u, np.full(4, 70))
+    assert p.unclipped_m2 == pytest.approx(u.mean())
+    assert p.standard_error_m2 == pytest.approx(u.std(ddof=1) / 2.0)
+    assert p.n == 280
+    assert pool_shared_height([-10.0, -30.0], [50, 50]).variance_m2 == 0.0
+    for args, field in ((([1.0], [5]), "unclipped_m2"), (([1.0, 2.0], [5]), "n"), (([1.0, np.nan], [5, 5]), "unclipped_m2"),
+                        (([1.0, 2.0], [5, 0]), "n")):
+        with pytest.raises(InputError, match=field):
+            pool_shared_height(*args)
 
 
 def test_bad_input_names_the_field():

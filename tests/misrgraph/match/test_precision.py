@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from misrgraph.match.precision import camera_sigma_scales
 
@@ -112,3 +113,127 @@ def test_schur_solution_and_redundancy_match_the_dense_hat_matrix():
     for k in rows:
         dense_red = float(np.sum(1.0 - hat[:-ids.size][cams == k]))
         assert abs(red[k] - dense_red) < 1e-6 * dense_red, (k, red[k], dense_red)
+
+
+def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features: int = 150, duration_s: float = 600.0):
+    """Differences from the shared-attitude model: one attitude correction a(t) (roll, pitch,
+    yaw; sinusoids of 200-2000 s, 20" each) seen by camera c at its time and through An's ray at
+    An's time, plus per-camera offsets, tilts and drifts, heights along the epipolar direction and
+    noise of ``scales[c]`` times the stated sigma; camera c sees a fraction ``seen[c]`` of the
+    features. Returns the inputs of :func:`camera_sigma_scales` and the :class:`Pointing`."""
+    from misrgraph.match.precision import Pointing
+
+    rng = np.random.default_rng(seed)
+    arcsec = np.pi / 180 / 3600
+    waves = [(rng.uniform(200, 2000), rng.uniform(0, 2 * np.pi), 20 * arcsec) for _ in range(9)]
+
+    def att(t):
+        return np.stack([sum(a * np.sin(2 * np.pi * t / p + f) for p, f, a in waves[3 * k:3 * k + 3]) for k in range(3)], axis=-1)
+
+    t_an = rng.uniform(420.0, 420.0 + duration_s, n_features)
+    h = rng.normal(0.0, 30.0, n_features)
+    rows = []
+    for c in range(scales.size):
+        f = np.flatnonzero(rng.random(n_features) < seen[c])
+        offset_s = 105.0 * (c - 3.5) if c < 4 else 105.0 * (c - 3.5)
+        t = t_an[f] + offset_s
+        x = rng.uniform(-0.8, 0.8, f.size)
+        # pointing sensitivities of the right size (px/rad; An's IFOV is ~3.9e-4 rad a pixel), varying with x
+        base = rng.normal(0.0, 2500.0, (2, 3)) + np.diag([2500.0, 2500.0, 0.0])[:2]
+        jc = base[None] * (1.0 + 0.2 * x)[:, None, None]
+        ka = -np.eye(2, 3)[None] * 2500.0 * (1.0 + 0.1 * rng.normal(size=(1, 2, 3)))
+        ka = np.repeat(ka, f.size, axis=0)
+        smooth = np.einsum("nqa,na->nq", jc, att(t)) + np.einsum("nqa,na->nq", ka, att(t_an[f]))
+        smooth += rng.normal(0, 0.5, 2) + np.outer(x, rng.normal(0, 0.3, 2)) + np.outer((t - 720) / 600, rng.normal(0, 0.2, 2))
+        epi = np.column_stack([np.full(f.size, 0.0035 * (c - 3.5)), np.full(f.size, 0.0004)])
+        sigma = rng.uniform(0.05, 0.2, f.size)
+        d = smooth + h[f][:, None] * epi + rng.standard_normal((f.size, 2)) * (scales[c] * sigma)[:, None]
+        rows.append((f, np.full(f.size, c), t, x, d, epi, sigma, t_an[f], jc, ka))
+    f, c, t, x, d, e, s, ta, jc, ka = (np.concatenate(v) for v in zip(*rows))
+    return (f, c, t, x, d, e, s), Pointing(ta, jc, ka)
+
+
+def test_shared_attitude_estimates_a_camera_with_few_matches():
+    """A short pass (10 min, 150 features) whose camera 7 matched 30 % of them (like Da) and
+    camera 0 12 % (like Df). The shared-attitude form pays 12 parameters a camera, not a spline
+    of its own: camera 7's redundancy is well above 30 and every estimated scale lies within 4
+    standard errors of the truth; camera 0, still below 30, takes its twin's scale. The per-camera
+    form leaves camera 0 (and here camera 7 too) with less redundancy and camera 0 at scale 1."""
+    scales = np.array([2.2, 1.3, 1.0, 0.9, 1.0, 1.1, 1.4, 2.0])
+    seen = np.array([0.12, 0.8, 0.9, 0.95, 0.95, 0.9, 0.8, 0.3])
+    args, pointing = _shared_attitude(6, scales, seen)
+    twin = {c: 7 - c for c in range(8)}
+    shared = camera_sigma_scales(*args, pointing=pointing, twin=twin)
+    assert shared.model == "shared attitude"
+    for cam, k in enumerate(scales[1:], start=1):
+        assert shared.estimated[cam], (cam, shared.redundancy[cam])
+        tol = 4.0 * k / np.sqrt(2.0 * shared.redundancy[cam])
+        assert abs(shared.scale[cam] - k) <= tol, (cam, shared.scale[cam], k, tol)
+    assert not shared.estimated[0] and shared.borrowed == {0: 7} and shared.scale[0] == shared.scale[7]
+    assert shared.as_dict([f"c{i}" for i in range(8)])["c0"]["scale_from"] == "c7"
+    per_camera = camera_sigma_scales(*args, twin=twin)
+    assert per_camera.model == "per camera"
+    assert per_camera.redundancy[7] < shared.redundancy[7] - 20 and per_camera.redundancy[0] < shared.redundancy[0]
+    # without a twin the stated sigma is kept
+    alone = camera_sigma_scales(*args, pointing=pointing)
+    assert alone.scale[0] == 1.0 and not alone.borrowed
+
+
+def test_shared_attitude_without_the_an_term_inflates_the_scales():
+    """K_c matters: dropping the attitude seen through An's ray (K = 0) leaves the part of it the
+    cameras' own terms cannot mimic in the scatter. The pooled scale (all cameras, weighted by
+    redundancy; standard error ``1 / sqrt(2 sum r)``) grows by more than 5 standard errors."""
+    from misrgraph.match.precision import Pointing
+
+    scales = np.ones(8)
+    args, pointing = _shared_attitude(7, scales, np.full(8, 0.8))
+    fit = camera_sigma_scales(*args, pointing=pointing)
+    blind = camera_sigma_scales(*args, pointing=Pointing(pointing.an_time_s, pointing.camera_px_per_rad,
+                                                         np.zeros_like(pointing.an_px_per_rad)))
+    def pooled(f):
+        r = np.array([f.redundancy[c] for c in f.scale])
+        k = np.array([f.scale[c] for c in f.scale])
+        return float(np.sqrt(np.sum(k ** 2 * r) / np.sum(r))), float(1.0 / np.sqrt(2.0 * np.sum(r)))
+
+    k_fit, se = pooled(fit)
+    k_blind, _ = pooled(blind)
+    assert abs(k_fit - 1.0) < 4.0 * se, (k_fit, se)
+    assert k_blind > k_fit + 5.0 * se, (k_blind, k_fit, se)
+
+
+def test_shared_attitude_solution_and_hat_diagonal_match_the_dense_system():
+    """``_solve_rows``'s Schur-complement residuals and hat diagonal equal the dense stacked
+    computation (heights and prior rows included; pseudo-inverse for the gauge)."""
+    from misrgraph.match.precision import _shared_design, _solve_rows
+
+    (f, c, t, x, d, e, s), pointing = _shared_attitude(8, np.array([1.0, 2.0, 1.5]), np.array([0.6, 0.8, 0.7]),
+                                                       n_features=40)
+    ids, feat_of = np.unique(f, return_inverse=True)
+    a = _shared_design(c, [0, 1, 2], t, x, pointing, 120.0)
+    y, ee, ff, w = d.reshape(-1), e.reshape(-1), np.repeat(feat_of, 2), np.repeat(1.0 / s ** 2, 2)
+    res, hat = _solve_rows(a, y, ee, ff, ids.size, w, 1000.0)
+    m = y.size
+    col = np.sqrt(np.einsum("mp,m->p", a * a, w))
+    col[col == 0] = 1.0  # a spline coefficient no row sees
+    A = np.zeros((m + ids.size, a.shape[1] + ids.size))
+    A[:m, :a.shape[1]] = a / col
+    A[np.arange(m), a.shape[1] + ff] = ee
+    A[m + np.arange(ids.size), a.shape[1] + np.arange(ids.size)] = 1.0
+    W = np.concatenate([w, np.full(ids.size, 1e-6)])
+    Y = np.concatenate([y, np.zeros(ids.size)])
+    N = A.T @ (A * W[:, None])
+    Ninv = np.linalg.pinv(N, hermitian=True, rcond=1e-12)
+    r_dense = (Y - A @ (Ninv @ (A.T @ (W * Y))))[:m]
+    hat_dense = (np.einsum("ij,jk,ik->i", A, Ninv, A) * W)[:m]
+    assert np.allclose(res, r_dense, atol=1e-6 * np.abs(y).max())
+    assert np.allclose(hat, hat_dense, atol=1e-6)
+
+
+def test_pointing_of_the_wrong_shape_is_refused_by_name():
+    from misrgraph.errors import InputError
+    from misrgraph.match.precision import Pointing
+
+    args, pointing = _shared_attitude(9, np.ones(2), np.ones(2), n_features=20)
+    bad = Pointing(pointing.an_time_s[:-1], pointing.camera_px_per_rad, pointing.an_px_per_rad)
+    with pytest.raises(InputError, match="pointing.an_time_s"):
+        camera_sigma_scales(*args, pointing=bad)

@@ -161,3 +161,42 @@ def test_adjust_cli_once_per_rev_option(small_pass_dir):
     assert out.exit_code == 2 and "ephemeris_once_per_rev_m" in out.output, out.output
     out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--ephemeris-once-per-rev-m", "30", "--ephemeris-segments", "3"])
     assert out.exit_code == 2 and "ephemeris_segments" in out.output, out.output
+
+
+def test_tie_height_pools_the_matched_passes_estimates(imagery_pass_dir, tmp_path):
+    """``misrgraph tie-height RESULT.h5 ...``: the pooled value is the row-weighted mean of the
+    results' own unclipped estimates, so the same matched pass twice gives that pass's estimate
+    with zero scatter (the statistics are tested in ``test_tieheight.py``); a result of simulated
+    observations is skipped and said to be; fewer than two estimates, or a missing file, is
+    refused with exit 2 naming it; the printed command fixes the value."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+    from misrgraph.runs.adjust import run_tie_height_pool
+
+    matched = tmp_path / "matched.h5"
+    s = run_adjust(imagery_pass_dir, observations="matched", out=matched)
+    th = s["tie_height"]
+    assert th["source"] == "estimated"
+    copy = tmp_path / "matched_copy.h5"
+    shutil.copy(matched, copy)
+    simulated = tmp_path / "simulated.h5"
+    run_adjust(imagery_pass_dir, out=simulated)
+    res = run_tie_height_pool([matched, copy, simulated])
+    assert res["passes"] == 2 and list(res["skipped"]) == [str(simulated)] and "off" in res["skipped"][str(simulated)]
+    assert res["unclipped_variance_m2"] == pytest.approx(th["unclipped_variance_m2"])
+    assert res["standard_error_m2"] == pytest.approx(0.0, abs=1e-9)
+    assert res["dem_factors"] == 2 * th["dem_factors"]
+    assert res["sigma_m"] == pytest.approx(np.sqrt(max(th["unclipped_variance_m2"], 0.0)))
+    runner = CliRunner()
+    out = runner.invoke(app, ["tie-height", str(matched), str(copy), str(simulated)])
+    assert out.exit_code == 0, out.output
+    assert f"--tie-height-sigma-m {res['sigma_m']:.1f}" in out.stdout and "skipped" in out.stdout
+    js = runner.invoke(app, ["tie-height", str(matched), str(copy), "--json"])
+    assert json.loads(js.stdout)["passes"] == 2
+    bad = runner.invoke(app, ["tie-height", str(matched), str(simulated)])
+    assert bad.exit_code == 2 and "results" in bad.output and "Traceback" not in bad.output
+    missing = runner.invoke(app, ["tie-height", str(matched), str(tmp_path / "nope.h5")])
+    assert missing.exit_code == 2 and "nope.h5" in missing.output
