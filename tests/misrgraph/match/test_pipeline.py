@@ -85,3 +85,40 @@ def test_conjugates_hidden_by_a_ridge_are_predicted_from_the_dem(imagery_pass_di
         assert np.all((got == expect) | near_edge), (name, s_pts[(got != expect) & ~near_edge])
         shadows[name] = int(expect.sum())
     assert shadows["Da"] >= 10 and shadows["An"] == 0, shadows
+
+
+def test_pointing_sensitivities_against_the_projection_parameters_derivatives(small_pass):
+    """The precision fit's ``J_c`` (a tilted navigation's prediction of a fixed ground point) equals
+    the attitude derivatives the Projection Parameters take independently, by central differences
+    through their own ground-to-image crossing (``products.pp.image_derivatives``), within 2 % of
+    each camera's largest term; and ``K_c`` for An's own prediction is ``-J_An`` (every point of
+    the tilted ray through An's pixel is seen by the untilted navigation ``J_An`` away, whatever
+    surface the ray is cast onto), to first order."""
+    from misrgraph.match.pipeline import _pointing_sensitivity
+    from misrgraph.model.constants import CAMERAS
+    from misrgraph.model.frames import ecef_to_geodetic
+    from misrgraph.products.pp import image_derivatives
+
+    sc, p = small_pass
+    geo = p.geometry(sc.camera_model)
+    truth = sc.load_truth(0).landmark_ecef[:6]
+    band = 2
+    h = ecef_to_geodetic(truth)[2]
+    for name in ("Df", "Bf", "An", "Ca", "Da"):
+        c = CAMERAS.index(name)
+        cams = np.full(truth.shape[0], c)
+        pred = geo.ground_to_pixel(cams, band, truth, continuous=True)
+        an = geo.ground_to_pixel(np.full(truth.shape[0], AN), band, truth, continuous=True)
+        ok = pred.visible & an.visible
+        assert ok.sum() >= 3, name
+        rows = np.flatnonzero(ok)
+        level = float(h[rows].mean())
+        surface = lambda lat, lon: np.full(np.shape(lat), level)  # noqa: E731 -- K_An = -J_An on any surface
+        jac, kan = _pointing_sensitivity(geo, cams[rows], band, truth[rows], pred.line[rows], pred.sample[rows],
+                                         an.line[rows], an.sample[rows], np.arange(rows.size), surface)
+        t = geo.line_time(cams[rows], band, pred.line[rows], pred.line[rows])
+        want = image_derivatives(geo, c, band, truth[rows], t)[:, :, :3]
+        scale = np.abs(want).max(axis=(1, 2), keepdims=True)
+        np.testing.assert_allclose(jac / scale, want / scale, atol=0.02, err_msg=name)
+        if name == "An":
+            np.testing.assert_allclose(kan / scale, -jac / scale, atol=0.02)
