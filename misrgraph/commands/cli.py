@@ -349,6 +349,13 @@ def match(
                   fmt(v.get("normalised_error_rms")), fmt(v.get("normalised_error_rms_correct")),
                   str(v.get("wrong_matches", "-")), f"{v['seconds']:.1f}")
     console.print(t)
+    for p in res["passes"]:
+        scales = (p.get("tie") or {}).get("sigma_scale")
+        if scales:
+            console.print(f"{p['pass_id']} tie sigma scale (redundancy): " + ", ".join(
+                f"{c} {v['scale']:.2f} ({v['redundancy']:.0f}"
+                + ("" if v["estimated"] else f", {v['scale_from']}'s" if "scale_from" in v else ", LSM sigma kept") + ")"
+                for c, v in scales.items()), soft_wrap=True, highlight=False)
 
 
 def _print_adjust_summary(s: dict) -> None:

@@ -88,6 +88,23 @@ def test_match_cli_json(imagery_pass_dir):
         assert {"candidates", "matched", "error_px", "normalised_error_rms", "seconds"} <= set(out[kind])
 
 
+def test_match_cli_prints_each_cameras_tie_sigma_scale(imagery_pass_dir):
+    """The human summary gives each camera's tie sigma scale with its redundancy, and says where a
+    camera took its twin's scale or kept the LSM sigma, as the pass's matched summary records."""
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+
+    r = CliRunner().invoke(app, ["match", str(imagery_pass_dir)])
+    assert r.exit_code == 0, r.output
+    scales = read_matched(load_scenario(imagery_pass_dir).pass_files[0]).summary["tie"]["sigma_scale"]
+    line = next(ln for ln in r.stdout.splitlines() if "tie sigma scale" in ln)
+    for cam, v in scales.items():
+        tail = "" if v["estimated"] else (f", {v['scale_from']}'s" if "scale_from" in v else ", LSM sigma kept")
+        assert f"{cam} {v['scale']:.2f} ({v['redundancy']:.0f}{tail})" in line, (cam, line)
+    assert any(not v["estimated"] for v in scales.values())  # the short pass has one (Df, from Da)
+
+
 def test_bad_windows_are_reported_per_feature(imagery_pass_dir, tmp_path):
     """NaN pixels in one window, a flat window: that feature's match fails with its reason; the rest
     match; nothing raises."""
