@@ -43,7 +43,8 @@ from misrgraph.config import Config
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.model.gcp import GcpDatabase
-from misrgraph.estimate.graph import GraphConfig, calibration_prior_sigma, PassGraph, build_pass_graph, merge_problems
+from misrgraph.estimate.graph import GraphConfig, calibration_prior_sigma, check_jitter, PassGraph, build_pass_graph, merge_problems
+from misrgraph.model.errormodels import JITTER_PERIODS_S
 from misrgraph.io.results import capped_list
 from misrgraph.io.passes import KIND_GCP, OrbitPass
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
@@ -96,8 +97,15 @@ class CalibrateConfig(Config):
     #: and rescaling made the calibration worse (README), so it stays off by default
     variance_component_rounds: int = 0
     variance_component_tol: float = 0.05
+    #: 1 sigma (arcsec, per angle) of the GN&C's attitude jitter (periods log-uniform in
+    #: ``attitude_jitter_periods_s``, s): the part the knots cannot follow is noise in every GCP
+    #: observation, carried into its line and sample sigma by its pointing sensitivity, as in the
+    #: pass adjustment (``AdjustConfig.attitude_jitter_arcsec``). 0 (default): the matcher's sigma alone
+    attitude_jitter_arcsec: float = 0.0
+    attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
 
     def __post_init__(self) -> None:
+        check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
         if int(self.temperature_bins) != self.temperature_bins or self.temperature_bins < 1:
             raise InputError("temperature_bins", self.temperature_bins, "an integer >= 1")
         v = self.variance_component_rounds
@@ -112,7 +120,8 @@ class CalibrateConfig(Config):
         base = dict(knot_spacing_s=self.knot_spacing_s, knot_prior=self.knot_prior, threshold1=0, threshold2=0, use_dem=False,
                     estimate_camera=True, camera_params=tuple(self.params), camera_per_band=self.per_band,
                     camera_prior_calibration=True, calibration_focal_prior_px=self.focal_prior_px,
-                    estimate_omega=self.estimate_omega)
+                    estimate_omega=self.estimate_omega, attitude_jitter_arcsec=self.attitude_jitter_arcsec,
+                    attitude_jitter_periods_s=tuple(self.attitude_jitter_periods_s))
         base.update(kw)
         return GraphConfig.from_dict(base)
 
