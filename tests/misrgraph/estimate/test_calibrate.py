@@ -312,3 +312,31 @@ def test_sigma_px_agrees_with_a_monte_carlo(month):
     for c, name in enumerate(CAMERAS):
         lin = s["cameras"][name]["sigma_px"] ** 2
         assert abs(lin - mc[c]) < 4 * se[c] + 0.02 * mc[c], (name, lin, mc[c], se[c])
+
+
+def test_jitter_in_the_calibrations_weights(month):
+    """``attitude_jitter_arcsec``: each GCP observation's line and sample sigma carries the jitter
+    the knots cannot follow, through its pointing sensitivity, exactly as the pass adjustment's
+    (``graph.observation_sigma``, tested against independent derivatives in ``test_graph.py``):
+    the added variance is ``unresolved^2 |d(line, sample) / d angles|^2`` (so it quadruples when
+    the jitter doubles; the D cameras' lines feel it most), and 0 leaves the matcher's sigma. A
+    negative value is refused by name."""
+    from misrgraph.estimate.graph import build_pass_graph
+
+    sc, passes = month
+    p = passes[0]
+    with_j = build_pass_graph(p, sc.camera_model, None, sc.gcps, CalibrateConfig(attitude_jitter_arcsec=1.0).graph_config())
+    plain = build_pass_graph(p, sc.camera_model, None, sc.gcps, CalibrateConfig().graph_config())
+    rows = with_j.obs_index[with_j.collinearity.order]
+    stated = p.observations.sigma_px[rows]
+    np.testing.assert_array_equal(plain.collinearity.sigma_px, np.stack([stated] * 2, axis=1))
+    extra = with_j.collinearity.sigma_px ** 2 - stated[:, None] ** 2
+    assert np.all(extra > 0)
+    double = build_pass_graph(p, sc.camera_model, None, sc.gcps, CalibrateConfig(attitude_jitter_arcsec=2.0).graph_config())
+    np.testing.assert_allclose(double.collinearity.sigma_px ** 2 - stated[:, None] ** 2, 4.0 * extra, rtol=1e-9)
+    cams = p.observations.camera[rows]
+    line = {c: float(np.sqrt(extra[cams == CAMERAS.index(c), 0].mean())) for c in ("Df", "An", "Da")
+            if np.any(cams == CAMERAS.index(c))}
+    assert "An" in line and all(line[c] > 4 * line["An"] for c in line if c != "An"), line
+    with pytest.raises(InputError, match="attitude_jitter_arcsec"):
+        CalibrateConfig(attitude_jitter_arcsec=-1.0)
