@@ -137,6 +137,8 @@ def test_cli_json_and_bad_params(small_month_dir):
     assert set(s["cameras"]["Df"]["params"]["beta"]) == {"value", "sigma"}
     r = CliRunner().invoke(app, ["calibrate", str(small_month_dir), "--params", "delta,gamma"])
     assert r.exit_code == 2 and "--params" in r.output
+    r = CliRunner().invoke(app, ["calibrate", str(small_month_dir), "--jitter-arcsec", "-1"])
+    assert r.exit_code == 2 and "attitude_jitter_arcsec" in r.output and "Traceback" not in r.output
 
 
 def test_json_caps_the_rejected_list_and_the_file_holds_it_all(small_month_dir, tmp_path):
