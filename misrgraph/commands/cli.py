@@ -409,7 +409,7 @@ def calibrate(
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged) instead of failing with exit 1."),
     observations: str = typer.Option("simulated", "--observations", help="simulated (each pass's observations) or matched (those 'misrgraph match' measured in a month simulated with --imagery)."),
     variance_components: int = typer.Option(0, "--variance-components", help="Rounds of variance-component estimation: each camera's observation sigmas rescaled by its sigma0 from the redundancy numbers, and the month re-solved; the summary gives every round's sigma0 per camera. 0 (default): keep the stated sigmas."),
-    jitter_arcsec: float = typer.Option(0.0, "--jitter-arcsec", help="1 sigma (arcsec, per angle) of the GN&C's attitude jitter whose unresolved part is added to every GCP observation's line and sample sigma, as adjust does (measured on 10 standard months: NEES 0.97 -> 0.95, pointing unchanged; see docs/conventions.md). 0 (default): the matcher's sigma alone."),
+    jitter_arcsec: float = typer.Option(0.0, "--jitter-arcsec", help="1 sigma (arcsec, per angle) of the GN&C's attitude jitter whose unresolved part is added to every GCP observation's line and sample sigma, as adjust does (measured on 10 standard months: NEES 0.97 -> 0.94, pointing unchanged; see docs/conventions.md). 0 (default): the matcher's sigma alone."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Camera calibration by space resection over GCP passes (per-pass navigation errors as nuisance)."""
