@@ -295,10 +295,7 @@ def tie_height(
     results: list[Path] = typer.Argument(..., help="RESULT.h5 files of 'adjust --observations matched --out', one per pass."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
 ) -> None:
-    """Pool the matched tie points' shared height error over passes (each result's own estimate).
-
-    On a short pass one estimate is as uncertain as the variance itself; the pooled 1 sigma is the
-    value to fix with 'adjust --tie-height-sigma-m' (docs/conventions.md)."""
+    """Pool the matched tie points' shared height error over passes (each result's own estimate): on a short pass one estimate is as uncertain as the variance itself; the pooled 1 sigma is the value to fix with 'adjust --tie-height-sigma-m' (docs/conventions.md)."""
     from misrgraph.runs.adjust import run_tie_height_pool
 
     res = run_tie_height_pool(results)
