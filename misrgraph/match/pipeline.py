@@ -77,6 +77,9 @@ _CENTRE = (N_PIXELS - 1) / 2.0
 #: The search range (px) of imagery that does not record its own.
 DEFAULT_SEARCH_PX = 8
 
+#: each camera's twin at the same view angle on the other side of nadir (Df-Da, Cf-Ca, ...)
+_TWIN = {c: len(CAMERAS) - 1 - c for c in range(len(CAMERAS))}
+
 #: ``MatchConfig.sigma_model``'s values
 SIGMA_MODELS = ("shared-attitude", "per-camera")
 
@@ -319,8 +322,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
     full = float(imagery.attrs.get("full_scale_dn", 2 ** 14 - 1))
     features: list[TieFeature] = []
     out = MatchedObservations()
-    # (row in out, feature, camera, time, sample, d_line, d_sample, epipolar line, sample[, An's time, J (6), K (6)])
-    pending: list[tuple] = []
+    pending: list[tuple] = []  # (row in out, feature, camera, time, sample, d_line, d_sample, epipolar line, sample)
     pending_geo: list[tuple] = []  # per pending row: An's ground point (3), the predicted line, sample, An's time
     for n_done, row in enumerate(rows):
         if progress is not None:
@@ -414,16 +416,15 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             out.add(fi, cam, ln, sm, s, band)
             pending.append((len(out) - 1, fi, cam, tt, sm, ln - pl, sm - ps, epi[0], epi[1]))
             pending_geo.append((*ground[0], pl, ps, float(times[0])))
+    pointing = None
     if pending and cfg.sigma_from_redundancy and cfg.sigma_model == "shared-attitude":
         a = np.asarray(pending, float)
         pg = np.asarray(pending_geo, float)
-        feat = a[:, 1].astype(np.int64)
         jac, kan = _pointing_sensitivity(supplied_geo, a[:, 2].astype(np.int64), band, pg[:, :3], pg[:, 3], pg[:, 4],
                                          np.array([f.line for f in features]), np.array([f.sample for f in features]),
-                                         feat, surface)
-        pending = [row + tuple(extra) for row, extra in
-                   zip(pending, np.column_stack([pg[:, 5], jac.reshape(-1, 6), kan.reshape(-1, 6)]).tolist())]
-    _rescale(out, pending, cfg)
+                                         a[:, 1].astype(np.int64), surface)
+        pointing = Pointing(pg[:, 5], jac, kan)
+    _rescale(out, pending, cfg, pointing)
     return _drop_inconsistent(features, out, cfg)
 
 
@@ -455,28 +456,28 @@ def _drop_inconsistent(features: list[TieFeature], out: MatchedObservations,
     return [f for f, drop in zip(features, few) if not drop], kept
 
 
-def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig) -> None:
+def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, pointing: Pointing | None = None) -> None:
     """Scale each camera's tie sigmas by its precision from the pass's redundancy
-    (:func:`misrgraph.match.precision.camera_sigma_scales`) and give each An observation the
-    median of its conjugates' sigmas; the fit is kept in ``out.precision``."""
+    (:func:`misrgraph.match.precision.camera_sigma_scales`; with ``pointing``, one row per
+    ``pending`` row, the shared-attitude fit) and give each An observation the median of its
+    conjugates' sigmas; the fit is kept in ``out.precision``."""
     sig = np.asarray(out.sigma_px, float)
     if pending and cfg.sigma_from_redundancy:
         a = np.asarray(pending, float)
         idx = a[:, 0].astype(np.int64)
         cam = a[:, 2].astype(np.int64)
-        pointing = None
         fitted = np.ones(idx.size, bool)
-        if a.shape[1] > 9:  # the shared-attitude model; a prediction the tilt moved off the image stays out of the fit
-            fitted = np.all(np.isfinite(a[:, 9:]), axis=1)
+        if pointing is not None:  # a prediction the tilt moved off the image stays out of the fit
+            fitted = np.isfinite(pointing.an_time_s) & np.all(np.isfinite(pointing.camera_px_per_rad), axis=(1, 2)) \
+                & np.all(np.isfinite(pointing.an_px_per_rad), axis=(1, 2))
             if not fitted.all():
                 log.info("%d tie observations without a pointing sensitivity left out of the precision fit",
                          int(np.sum(~fitted)))
             a = a[fitted]
-            pointing = Pointing(a[:, 9], a[:, 10:16].reshape(-1, 2, 3), a[:, 16:22].reshape(-1, 2, 3))
-        twin = {c: len(CAMERAS) - 1 - c for c in range(len(CAMERAS))}  # Df-Da, Cf-Ca, ...: the same view angle
+            pointing = Pointing(*(v[fitted] for v in pointing))
         fit = camera_sigma_scales(a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3],
                                   (a[:, 4] - _CENTRE) / _CENTRE, a[:, 5:7], a[:, 7:9], sig[idx[fitted]],
-                                  knot_s=cfg.sigma_knot_s, pointing=pointing, twin=twin)
+                                  knot_s=cfg.sigma_knot_s, pointing=pointing, twin=_TWIN)
         sig[idx] = np.maximum(sig[idx] * np.array([fit.scale.get(int(c), 1.0) for c in cam]), cfg.sigma_floor_px)
         out.precision = fit
         out.pending_rows = idx[fitted]

@@ -307,9 +307,10 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     def per_row(d: dict[int, float]) -> Array:
         return np.array([d[c] for c in cams])[cam_pos]
 
-    def _borrowed(c: int, scale: dict[int, float], red: dict[int, float]) -> float:
+    def estimated_twin(c: int) -> int | None:
+        """``c``'s twin when the fit estimated the twin's scale (``red`` of the latest solve)."""
         t = twin.get(c) if twin is not None else None
-        return scale[t] if t in red and red[t] >= min_redundancy else 1.0
+        return t if t in red and red[t] >= min_redundancy else None
 
     for it in range(1, max_iter + 1):
         w = np.where(keep, 1.0 / (sigma * per_row(scale)) ** 2, 0.0)
@@ -324,16 +325,17 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
                 scale[c] = new
         for c in rows:
             if red[c] < min_redundancy:
-                scale[c] = _borrowed(c, scale, red)
+                t = estimated_twin(c)
+                scale[c] = 1.0 if t is None else scale[t]
         new_keep = z2 <= per_row(scale) ** 2 * chi2_clip
         if change < tol and np.array_equal(new_keep, keep):
             break
         keep = new_keep
     for c, r in rows.items():
         est = red[c] >= min_redundancy
-        out.scale[c] = scale[c] if est else _borrowed(c, scale, red)
-        if not est and twin is not None and twin.get(c) in red and red[twin[c]] >= min_redundancy:
-            out.borrowed[c] = twin[c]
+        out.scale[c] = scale[c]  # the twin's, or 1, where not estimated (set in the loop)
+        if not est and estimated_twin(c) is not None:
+            out.borrowed[c] = estimated_twin(c)
         out.redundancy[c] = float(max(red[c], 0.0))
         out.estimated[c] = bool(est)
         out.kept[c] = int(keep[r].sum())
