@@ -353,6 +353,10 @@ def match(
                 f"{c} {v['scale']:.2f} ({v['redundancy']:.0f}"
                 + ("" if v["estimated"] else f", {v['scale_from']}'s" if "scale_from" in v else ", LSM sigma kept") + ")"
                 for c, v in scales.items()), soft_wrap=True, highlight=False)
+        g = (p.get("gcp") or {}).get("sigma_scale")
+        if g:
+            console.print(f"{p['pass_id']} GCP sigma scale (redundancy): {g['scale']:.2f} ({g['redundancy']:.0f}"
+                          + ("" if g["estimated"] else ", LSM sigma kept") + ")", soft_wrap=True, highlight=False)
 
 
 def _print_adjust_summary(s: dict) -> None:

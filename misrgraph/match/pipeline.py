@@ -35,7 +35,10 @@
   along An's ray; by default, ``sigma_model="shared-attitude"``, the adjustment's own model, one
   attitude correction for all cameras through each observation's numerical pointing
   sensitivity; a camera with too little redundancy takes the scale of its twin at the same view
-  angle), unless ``sigma_from_redundancy`` is off. An's defining observation gets the
+  angle), unless ``sigma_from_redundancy`` is off. The GCP observations (in the tie points' band) join
+  the shared-attitude fit as a class of their own, with three ground offsets per GCP (catalogue
+  error, the chip's own registration), and all of them take its scale
+  (``gcp_sigma_from_redundancy``). An's defining observation gets the
   median of its conjugates' sigmas. The same fit is a consistency check across the pass: a
   conjugate beyond its 4 sigma clip is rejected ("inconsistent with the pass"), and a feature
   left in fewer than ``min_cameras`` cameras with it.
@@ -60,13 +63,13 @@ from misrgraph.config import Config
 from misrgraph.errors import InputError
 from misrgraph.io.imagery import INTEREST_RADIUS_PX, PassImagery
 from misrgraph.match.lsm import lsm, ncc_search
-from misrgraph.match.precision import Pointing, PrecisionFit, camera_sigma_scales
+from misrgraph.match.precision import GcpRows, Pointing, PrecisionFit, camera_sigma_scales
 from misrgraph.model.constants import CAMERAS, N_PIXELS
-from misrgraph.model.frames import ecef_to_geodetic
+from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import ImagePoints, PassGeometry
 
-__all__ = ["DEFAULT_SEARCH_PX", "SIGMA_MODELS", "MatchConfig", "MatchedObservations", "TieFeature", "match_gcps", "match_ties",
-           "search_range"]
+__all__ = ["DEFAULT_SEARCH_PX", "SIGMA_MODELS", "MatchConfig", "MatchedObservations", "TieFeature", "gcp_fit_rows",
+           "match_gcps", "match_ties", "scale_gcp_sigmas", "search_range"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -113,6 +116,9 @@ class MatchConfig(Config):
     cloud_reflectance: float = 0.4
     sigma_floor_px: float = 0.02
     sigma_from_redundancy: bool = True
+    #: the GCP observations join the shared-attitude fit and take its GCP scale (one for the pass;
+    #: :mod:`misrgraph.match.precision`); False keeps the LSM's sigmas
+    gcp_sigma_from_redundancy: bool = True
     sigma_knot_s: float = 60.0
     #: the precision fit's smooth model (:mod:`misrgraph.match.precision`): "shared-attitude"
     #: (one attitude correction for all cameras, through each observation's pointing sensitivity)
@@ -224,6 +230,43 @@ def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef:
     return out
 
 
+#: ground step (m) of the GCP rows' numerical d(line, sample)/d(east, north, up)
+_GROUND_STEP_M = 10.0
+
+
+def gcp_fit_rows(gcps: MatchedObservations, supplied_geo: PassGeometry, catalogue_ecef: Array,
+                 landmark_gcp_row: Callable[[int], int], band: int) -> GcpRows:
+    """The GCP observations of ``band`` (the tie points') as rows of the precision fit
+    (:class:`misrgraph.match.precision.GcpRows`): matched minus the catalogue position's
+    prediction, the observation time, and numerical ``J_c`` (:func:`_tilt_jacobian`) and ``G``
+    (the ground moved :data:`_GROUND_STEP_M` east, north, up). An observation whose prediction is
+    not finite stays out."""
+    idx = np.flatnonzero(np.asarray(gcps.band, np.int64) == band)
+    cams = np.asarray(gcps.camera, np.int64)[idx]
+    line, sample = np.asarray(gcps.line, float)[idx], np.asarray(gcps.sample, float)[idx]
+    ground = np.asarray(catalogue_ecef, float)[[landmark_gcp_row(int(r)) for r in np.asarray(gcps.feature)[idx]]].reshape(-1, 3)
+    pred = supplied_geo.ground_to_pixel(cams, band, ground, continuous=True)
+    jac = _tilt_jacobian(supplied_geo, cams, band, ground, pred.line, pred.sample)
+    lat, lon, _ = ecef_to_geodetic(ground)
+    basis = enu_basis(lat, lon).reshape(-1, 3, 3)  # columns east, north, up
+    gjac = np.empty((idx.size, 2, 3))
+    for k in range(3):
+        q = supplied_geo.ground_to_pixel(cams, band, ground + _GROUND_STEP_M * basis[:, :, k], continuous=True)
+        gjac[:, 0, k], gjac[:, 1, k] = (q.line - pred.line) / _GROUND_STEP_M, (q.sample - pred.sample) / _GROUND_STEP_M
+    d = np.stack([line - pred.line, sample - pred.sample], axis=1)
+    ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(jac), axis=(1, 2)) & np.all(np.isfinite(gjac), axis=(1, 2))
+    return GcpRows(np.asarray(gcps.feature, np.int64)[idx][ok], cams[ok], supplied_geo.line_time(cams, band, line)[ok],
+                   (sample[ok] - _CENTRE) / _CENTRE, d[ok], np.asarray(gcps.sigma_px, float)[idx][ok], jac[ok], gjac[ok], AN)
+
+
+def scale_gcp_sigmas(gcps: MatchedObservations, fit: PrecisionFit | None, cfg: MatchConfig) -> None:
+    """Multiply every GCP observation's sigma (all bands) by the precision fit's GCP scale
+    (``fit.gcp``, when estimated), at least ``cfg.sigma_floor_px``."""
+    if fit is None or fit.gcp is None or not fit.gcp.estimated:
+        return
+    gcps.sigma_px = [max(float(v) * fit.gcp.scale, cfg.sigma_floor_px) for v in gcps.sigma_px]
+
+
 def _filled(surface: Callable[[Array, Array], Array]) -> Callable[[Array, Array], Array]:
     """``surface`` with height 0 where it has none (NaN), so a ray cast can finish; the caller checks
     that the point it finds is on the DEM."""
@@ -287,6 +330,17 @@ def _tilted(geo: PassGeometry, axis: int) -> PassGeometry:
     return dataclasses.replace(geo, attitude_delta=delta, _cache={})
 
 
+def _tilt_jacobian(geo: PassGeometry, cams: NDArray[np.int64], band: int, ground: Array, pred_line: Array,
+                   pred_sample: Array) -> Array:
+    """``J_c`` ``(n, 2, 3)`` px/rad: how the predictions ``pred_line, pred_sample (n,)`` of the
+    fixed ECEF points ``ground (n, 3)`` move when the navigation turns about each axis (three calls)."""
+    jac = np.empty((cams.size, 2, 3))
+    for a in range(3):
+        p = _tilted(geo, a).ground_to_pixel(cams, band, ground, continuous=True)
+        jac[:, 0, a], jac[:, 1, a] = p.line - pred_line, p.sample - pred_sample
+    return jac / _ATTITUDE_STEP_RAD
+
+
 def _pointing_sensitivity(geo: PassGeometry, cams: NDArray[np.int64], band: int, ground: Array, pred_line: Array,
                           pred_sample: Array, an_line: Array, an_sample: Array, row_feature: NDArray[np.int64],
                           surface: Callable[[Array, Array], Array]) -> tuple[Array, Array]:
@@ -296,25 +350,23 @@ def _pointing_sensitivity(geo: PassGeometry, cams: NDArray[np.int64], band: int,
     navigation tilted about each axis, and the untilted prediction of where the tilted navigation
     casts An's pixel ``an_line, an_sample (F,)`` (per feature; ``row_feature (n,)`` indexes them)
     onto the DEM. Seven calls for all the conjugates of the pass."""
-    n = cams.size
-    jac = np.empty((n, 2, 3))
-    kan = np.empty((n, 2, 3))
+    kan = np.empty((cams.size, 2, 3))
     for a in range(3):
-        g = _tilted(geo, a)
-        p = g.ground_to_pixel(cams, band, ground, continuous=True)
-        jac[:, 0, a], jac[:, 1, a] = p.line - pred_line, p.sample - pred_sample
-        moved = g.pixel_to_ground(AN, band, an_line, an_sample, surface=_filled(surface), exposure=np.nan)
+        moved = _tilted(geo, a).pixel_to_ground(AN, band, an_line, an_sample, surface=_filled(surface), exposure=np.nan)
         q = geo.ground_to_pixel(cams, band, moved[row_feature], continuous=True)
         kan[:, 0, a], kan[:, 1, a] = q.line - pred_line, q.sample - pred_sample
-    return jac / _ATTITUDE_STEP_RAD, kan / _ATTITUDE_STEP_RAD
+    return _tilt_jacobian(geo, cams, band, ground, pred_line, pred_sample), kan / _ATTITUDE_STEP_RAD
 
 
 def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callable[[Array, Array], Array],
                rows: NDArray[np.int64], cfg: MatchConfig = MatchConfig(),
-               progress: Callable[[int, int], None] | None = None) -> tuple[list[TieFeature], MatchedObservations]:
+               progress: Callable[[int, int], None] | None = None,
+               gcp: GcpRows | None = None) -> tuple[list[TieFeature], MatchedObservations]:
     """Detect and match tie points in the windows of landmark ``rows`` (see the module docstring).
     ``surface(lat, lon)`` is the DEM's ellipsoidal height (m; NaN outside the DEM), for the
-    conjugates' prediction; a feature whose An point falls outside the DEM is rejected."""
+    conjugates' prediction; a feature whose An point falls outside the DEM is rejected. ``gcp``
+    (:func:`gcp_fit_rows`) joins the pass's GCP observations to the shared-attitude precision fit,
+    which then also gives their scale (``precision.gcp``; :func:`scale_gcp_sigmas` applies it)."""
     wins = imagery.tie
     band = imagery.band
     search = search_range(cfg, imagery)
@@ -424,7 +476,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
                                          np.array([f.line for f in features]), np.array([f.sample for f in features]),
                                          a[:, 1].astype(np.int64), surface)
         pointing = Pointing(pg[:, 5], jac, kan)
-    _rescale(out, pending, cfg, pointing)
+    _rescale(out, pending, cfg, pointing, gcp if pointing is not None else None)
     return _drop_inconsistent(features, out, cfg)
 
 
@@ -456,11 +508,12 @@ def _drop_inconsistent(features: list[TieFeature], out: MatchedObservations,
     return [f for f, drop in zip(features, few) if not drop], kept
 
 
-def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, pointing: Pointing | None = None) -> None:
+def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, pointing: Pointing | None = None,
+             gcp: GcpRows | None = None) -> None:
     """Scale each camera's tie sigmas by its precision from the pass's redundancy
     (:func:`misrgraph.match.precision.camera_sigma_scales`; with ``pointing``, one row per
-    ``pending`` row, the shared-attitude fit) and give each An observation the median of its
-    conjugates' sigmas; the fit is kept in ``out.precision``."""
+    ``pending`` row, the shared-attitude fit, joined by the ``gcp`` rows when given) and give each
+    An observation the median of its conjugates' sigmas; the fit is kept in ``out.precision``."""
     sig = np.asarray(out.sigma_px, float)
     if pending and cfg.sigma_from_redundancy:
         a = np.asarray(pending, float)
@@ -477,7 +530,8 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
             pointing = Pointing(*(v[fitted] for v in pointing))
         fit = camera_sigma_scales(a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3],
                                   (a[:, 4] - _CENTRE) / _CENTRE, a[:, 5:7], a[:, 7:9], sig[idx[fitted]],
-                                  knot_s=cfg.sigma_knot_s, pointing=pointing, twin=_TWIN)
+                                  knot_s=cfg.sigma_knot_s, pointing=pointing, twin=_TWIN,
+                                  gcp=gcp if gcp is not None and gcp.time_s.size else None)
         sig[idx] = np.maximum(sig[idx] * np.array([fit.scale.get(int(c), 1.0) for c in cam]), cfg.sigma_floor_px)
         out.precision = fit
         out.pending_rows = idx[fitted]

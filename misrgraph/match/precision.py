@@ -57,6 +57,25 @@ Method:
   ``+-clip`` sigma is left out of the next fit.
 * A camera with a redundancy below ``min_redundancy`` keeps ``k_c = 1``. This is reported,
   not hidden.
+
+**The GCPs' precision** (shared-attitude form, with ``gcp``: :class:`GcpRows`). A GCP chip is
+matched with the same least-squares matcher, and its sigma is as optimistic: the chip comes from
+another sensor and another date (other sun, other surface), and the change of pattern does not
+show in the residuals. The pass's GCP observations join the same fit as a class of their own,
+one scale ``k_g`` for all of them::
+
+    d_gc = J_c a(t_c) + P_c(x, tau) + G_gc dg_g + m_gc      (camera c other than An)
+    d_gA = J_A a(t_A) + J_A dA + G_gA dg_g + m_gA           (An)
+
+``d`` is matched minus the catalogue position's prediction; ``G`` ``(2, 3)`` px/m moves the
+prediction per metre of ground east, north and up, and ``dg_g`` (three per GCP) takes up
+everything the GCP's observations share -- the catalogue error, the chip's own misregistration,
+the ephemeris at its time. ``dA`` (three angles) is An's static pointing error: the tie
+differences see it through An's ray (``K_c dA``; in the tie-only fit the cameras' constants
+absorb it), An's GCP observations directly. ``k_g`` is the variance component of the GCP rows,
+estimated when their redundancy reaches ``gcp_min_redundancy`` (its relative standard error is
+about ``1/sqrt(2 r)``: 22 % at 10), else 1. The GCP rows are clipped like the ties' (left out of
+the next fit, never rejected: that is the adjustment's call).
 """
 
 from __future__ import annotations
@@ -71,7 +90,7 @@ from scipy.interpolate import BSpline
 
 from misrgraph.errors import InputError
 
-__all__ = ["PrecisionFit", "Pointing", "camera_sigma_scales"]
+__all__ = ["GcpRows", "PrecisionFit", "Pointing", "camera_sigma_scales"]
 
 Array = NDArray[np.float64]
 
@@ -86,6 +105,44 @@ class Pointing(NamedTuple):
     an_time_s: Array
     camera_px_per_rad: Array
     an_px_per_rad: Array
+
+
+class GcpRows(NamedTuple):
+    """The pass's GCP observations for the fit (``g`` rows, one band, the ties'): ``gcp (g,)`` the
+    GCP (any integer id; its observations share ``dg``), ``camera (g,)``, ``time_s (g,)`` the
+    observation time (s), ``x (g,)`` the normalised sample offset from the array centre, ``d (g, 2)``
+    matched minus predicted (line, sample) px, the prediction being the catalogue position's
+    through the supplied navigation, ``sigma (g,)`` px the matcher's, ``camera_px_per_rad (g, 2, 3)``
+    ``J_c`` as in :class:`Pointing`, ``ground_px_per_m (g, 2, 3)`` d(line, sample) per metre of
+    ground east, north and up, and ``defining_camera``."""
+
+    gcp: NDArray[np.int64]
+    camera: NDArray[np.int64]
+    time_s: Array
+    x: Array
+    d: Array
+    sigma: Array
+    camera_px_per_rad: Array
+    ground_px_per_m: Array
+    #: the camera whose pixels define the tie points (An): no static terms of its own; it sees An's
+    #: static pointing error directly
+    defining_camera: int
+
+
+@dataclass
+class GcpScale:
+    """The GCP observations' sigma scale: ``scale`` (1 where not estimated), the ``redundancy``
+    behind it, the observations ``kept`` and ``clipped`` in the fit, ``estimated``."""
+
+    scale: float = 1.0
+    redundancy: float = 0.0
+    kept: int = 0
+    clipped: int = 0
+    estimated: bool = False
+
+    def as_dict(self) -> dict[str, float | int | bool]:
+        return {"scale": self.scale, "redundancy": self.redundancy, "kept": self.kept, "clipped": self.clipped,
+                "estimated": self.estimated}
 
 
 @dataclass
@@ -107,6 +164,8 @@ class PrecisionFit:
     outlier: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     #: the smooth model: "shared attitude" or "per camera" (module docstring)
     model: str = "per camera"
+    #: the GCP observations' scale, when the fit had them (module docstring)
+    gcp: GcpScale | None = None
 
     def as_dict(self, names: list[str] | tuple[str, ...]) -> dict[str, dict[str, float | int | bool | str]]:
         out: dict[str, dict[str, float | int | bool | str]] = {}
@@ -189,16 +248,16 @@ def _solve(X: dict[int, Array], rows: dict[int, NDArray[np.int64]], feat_of: NDA
 
 
 def _shared_design(camera: NDArray[np.int64], cams: list[int], time_s: Array, x: Array, pointing: Pointing,
-                   knot_s: float) -> Array:
+                   knot_s: float, span: tuple[float, float] | None = None) -> Array:
     """Shared-attitude design ``(2n, p)``, rows ``2i`` (line) and ``2i + 1`` (sample) of
-    observation ``i``: the attitude spline's coefficients (3 axes, rad) seen as
-    ``J_c B(t_c) + K_c B(t_An)``, then per camera and coordinate ``1, x, x^2, x^3, tau, tau^2``."""
+    observation ``i``: the attitude spline's coefficients (3 axes, rad; on ``span`` (s), by default
+    the observations' own) seen as ``J_c B(t_c) + K_c B(t_An)``, then per camera of ``cams`` and
+    coordinate ``1, x, x^2, x^3, tau, tau^2`` (a row whose camera is not in ``cams`` has none)."""
     t_an = np.asarray(pointing.an_time_s, float)
     jc = np.asarray(pointing.camera_px_per_rad, float)
     ka = np.asarray(pointing.an_px_per_rad, float)
     n = time_s.size
-    lo = float(min(time_s.min(), t_an.min()))
-    hi = float(max(time_s.max(), t_an.max()))
+    lo, hi = span if span is not None else (float(min(time_s.min(), t_an.min())), float(max(time_s.max(), t_an.max())))
     b_c = _bspline(time_s, lo, hi, knot_s)
     b_a = _bspline(t_an, lo, hi, knot_s)
     nb = b_c.shape[1]
@@ -207,11 +266,31 @@ def _shared_design(camera: NDArray[np.int64], cams: list[int], time_s: Array, x:
     tau = (time_s - 0.5 * (lo + hi)) / max(0.5 * (hi - lo), 1.0)
     poly = np.column_stack([np.ones(n), x, x ** 2, x ** 3, tau, tau ** 2])  # (n, 6)
     static = np.zeros((2 * n, len(cams) * 12))
-    pos = np.searchsorted(cams, camera)
+    mine = np.flatnonzero(np.isin(camera, cams))
+    pos = np.searchsorted(cams, camera[mine])
     for q in range(2):
         cols = pos[:, None] * 12 + q * 6 + np.arange(6)[None, :]
-        static[2 * np.arange(n)[:, None] + q, cols] = poly
+        static[2 * mine[:, None] + q, cols] = poly[mine]
     return np.hstack([att, static])
+
+
+def _joint_design(a_tie: Array, pointing: Pointing, gcp: GcpRows, cams: list[int], span: tuple[float, float],
+                  knot_s: float) -> Array:
+    """The shared design with the GCP rows below the tie rows (module docstring): the tie rows'
+    ``a_tie (2n, p)`` and An's static pointing ``dA`` through ``K_c``; the GCP rows' attitude and
+    static terms, ``dA`` through ``J_A`` on An's rows, and three ground columns per GCP."""
+    g = gcp.time_s.size
+    a_gcp = _shared_design(gcp.camera, cams, gcp.time_s, gcp.x,
+                           Pointing(gcp.time_s, gcp.camera_px_per_rad, np.zeros((g, 2, 3))), knot_s, span)
+    own = (gcp.camera == gcp.defining_camera)[:, None, None]
+    d_an = np.vstack([np.asarray(pointing.an_px_per_rad, float).reshape(-1, 3),
+                      np.where(own, gcp.camera_px_per_rad, 0.0).reshape(-1, 3)])
+    ids, of = np.unique(gcp.gcp, return_inverse=True)
+    ground = np.zeros((2 * g, 3 * ids.size))
+    for q in range(2):
+        ground[2 * np.arange(g)[:, None] + q, 3 * of[:, None] + np.arange(3)[None, :]] = gcp.ground_px_per_m[:, q, :]
+    top = np.hstack([a_tie, np.zeros((a_tie.shape[0], ground.shape[1]))])
+    return np.hstack([np.vstack([top, np.hstack([a_gcp, ground])]), d_an])
 
 
 def _solve_rows(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat: int, w: Array,
@@ -244,11 +323,16 @@ def _solve_rows(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat
     return res, hat
 
 
+#: the GCP rows' class in the fit's per-class dictionaries (cameras are >= 0)
+_GCP = -1
+
+
 def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], time_s: Array, x: Array, d: Array,
                         epipolar: Array, sigma: Array, knot_s: float = 60.0, clip: float = 4.0,
                         min_redundancy: float = 30.0, max_iter: int = 10, tol: float = 0.01,
                         height_prior_m: float = 1000.0, pointing: Pointing | None = None,
-                        twin: dict[int, int] | None = None) -> PrecisionFit:
+                        twin: dict[int, int] | None = None, gcp: GcpRows | None = None,
+                        gcp_min_redundancy: float = 10.0) -> PrecisionFit:
     """Per-camera scales of the matching sigmas (see the module docstring).
 
     Arguments, one row per matched (non-defining) observation, ``n`` rows:
@@ -263,7 +347,9 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     (module docstring). ``twin`` maps a camera to the one at the same view angle on the other side
     of nadir (MISR's Df and Da, ...): a camera whose redundancy is below ``min_redundancy`` takes its
     twin's scale when the twin's is estimated (the pattern's change with view angle, the scale's main
-    cause, is alike), else keeps its stated sigma (scale 1)."""
+    cause, is alike), else keeps its stated sigma (scale 1). ``gcp`` (:class:`GcpRows`, shared-attitude
+    form only) adds the pass's GCP observations as a class of their own; their scale
+    (``PrecisionFit.gcp``) is estimated when their redundancy reaches ``gcp_min_redundancy``."""
     feature = np.asarray(feature, np.int64)
     camera = np.asarray(camera, np.int64)
     d = np.asarray(d, float).reshape(-1, 2)
@@ -273,44 +359,71 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     out = PrecisionFit()
     if n == 0:
         return out
+    if gcp is not None and pointing is None:
+        raise InputError("gcp", "GCP rows without pointing", "pointing sensitivities too (the shared-attitude form)")
     chi2_clip = float(stats.chi2.isf(2.0 * stats.norm.sf(clip), 2))
     rows = {int(c): np.flatnonzero(camera == c) for c in np.unique(camera)}
+    cams = sorted(rows)
     feat_ids, feat_of = np.unique(feature, return_inverse=True)
     time_s = np.asarray(time_s, float)
     x = np.asarray(x, float)
+    klass = camera
+    n_gcp = 0
     if pointing is not None:
         for name, v, shape in (("an_time_s", pointing.an_time_s, (n,)), ("camera_px_per_rad", pointing.camera_px_per_rad, (n, 2, 3)),
                                ("an_px_per_rad", pointing.an_px_per_rad, (n, 2, 3))):
             if np.shape(v) != shape or not np.all(np.isfinite(v)):
                 raise InputError(f"pointing.{name}", np.shape(v), f"finite values of shape {shape}")
-        a_rows = _shared_design(camera, sorted(rows), time_s, x, pointing, knot_s)
+        if gcp is not None:
+            gcp = _checked_gcp(gcp)
+            n_gcp = gcp.time_s.size
+        t_an = np.asarray(pointing.an_time_s, float)
+        times = [time_s, t_an] + ([gcp.time_s] if gcp is not None else [])
+        span = (float(min(t.min() for t in times if t.size)), float(max(t.max() for t in times if t.size)))
+        a_rows = _shared_design(camera, cams, time_s, x, pointing, knot_s, span)
         y_rows, e_rows, f_rows = d.reshape(-1), e.reshape(-1), np.repeat(feat_of, 2)
+        if n_gcp:
+            assert gcp is not None
+            cams_all = sorted(set(cams) | set(int(c) for c in np.unique(gcp.camera) if c != gcp.defining_camera))
+            a_rows = _joint_design(_shared_design(camera, cams_all, time_s, x, pointing, knot_s, span), pointing, gcp,
+                                   cams_all, span, knot_s)
+            y_rows = np.concatenate([y_rows, gcp.d.reshape(-1)])
+            e_rows = np.concatenate([e_rows, np.zeros(2 * n_gcp)])  # no height of a tie feature
+            f_rows = np.concatenate([f_rows, np.zeros(2 * n_gcp, np.int64)])
+            d = np.vstack([d, gcp.d])
+            sigma = np.concatenate([sigma, gcp.sigma])
+            klass = np.concatenate([camera, np.full(n_gcp, _GCP)])
+            rows[_GCP] = np.arange(n, n + n_gcp)
         out.model = "shared attitude"
+        n_all = n + n_gcp
 
         def solve(w: Array) -> tuple[Array, dict[int, float]]:
             res_r, hat = _solve_rows(a_rows, y_rows, e_rows, f_rows, feat_ids.size, np.repeat(w, 2), height_prior_m)
             used = np.repeat(w > 0, 2)
-            red_row = np.where(used, 1.0 - hat, 0.0).reshape(n, 2).sum(axis=1)
-            return res_r.reshape(n, 2), {c: float(np.sum(red_row[r])) for c, r in rows.items()}
+            red_row = np.where(used, 1.0 - hat, 0.0).reshape(n_all, 2).sum(axis=1)
+            return res_r.reshape(n_all, 2), {c: float(np.sum(red_row[r])) for c, r in rows.items()}
     else:
         X = {c: _design(time_s[r], x[r], knot_s) for c, r in rows.items()}
 
         def solve(w: Array) -> tuple[Array, dict[int, float]]:
             return _solve(X, rows, feat_of, feat_ids.size, d, e, w, height_prior_m)
     scale = {c: 1.0 for c in rows}
-    keep = np.ones(n, bool)
+    keep = np.ones(klass.size, bool)
     red: dict[int, float] = {}
     it = 0
-    cams = sorted(rows)
-    cam_pos = np.searchsorted(cams, camera)  # each row's camera, as a position in cams
+    classes = sorted(rows)
+    cls_pos = np.searchsorted(classes, klass)  # each row's class, as a position in classes
 
-    def per_row(d: dict[int, float]) -> Array:
-        return np.array([d[c] for c in cams])[cam_pos]
+    def per_row(v: dict[int, float]) -> Array:
+        return np.array([v[c] for c in classes])[cls_pos]
+
+    def enough(c: int) -> bool:
+        return red[c] >= (gcp_min_redundancy if c == _GCP else min_redundancy)
 
     def estimated_twin(c: int) -> int | None:
         """``c``'s twin when the fit estimated the twin's scale (``red`` of the latest solve)."""
-        t = twin.get(c) if twin is not None else None
-        return t if t in red and red[t] >= min_redundancy else None
+        t = twin.get(c) if twin is not None and c != _GCP else None
+        return t if t in red and enough(t) else None
 
     for it in range(1, max_iter + 1):
         w = np.where(keep, 1.0 / (sigma * per_row(scale)) ** 2, 0.0)
@@ -319,12 +432,12 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
         change = 0.0
         for c, r in rows.items():
             k = keep[r]
-            if red[c] >= min_redundancy:
+            if enough(c):
                 new = float(np.sqrt(np.sum(z2[r][k]) / red[c]))
                 change = max(change, abs(new / scale[c] - 1.0))
                 scale[c] = new
         for c in rows:
-            if red[c] < min_redundancy:
+            if not enough(c):
                 t = estimated_twin(c)
                 scale[c] = 1.0 if t is None else scale[t]
         new_keep = z2 <= per_row(scale) ** 2 * chi2_clip
@@ -332,7 +445,10 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
             break
         keep = new_keep
     for c, r in rows.items():
-        est = red[c] >= min_redundancy
+        est = enough(c)
+        if c == _GCP:
+            out.gcp = GcpScale(scale[c], float(max(red[c], 0.0)), int(keep[r].sum()), int((~keep[r]).sum()), bool(est))
+            continue
         out.scale[c] = scale[c]  # the twin's, or 1, where not estimated (set in the loop)
         if not est and estimated_twin(c) is not None:
             out.borrowed[c] = estimated_twin(c)
@@ -341,5 +457,21 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
         out.kept[c] = int(keep[r].sum())
         out.clipped[c] = int((~keep[r]).sum())
     out.iterations = it
-    out.outlier = ~keep
+    out.outlier = ~keep[:n]
     return out
+
+
+def _checked_gcp(gcp: GcpRows) -> GcpRows:
+    """``gcp`` as float/int arrays, every field of the same length and finite (InputError naming the field)."""
+    g = np.size(gcp.time_s)
+    shapes = {"gcp": (g,), "camera": (g,), "time_s": (g,), "x": (g,), "d": (g, 2), "sigma": (g,),
+              "camera_px_per_rad": (g, 2, 3), "ground_px_per_m": (g, 2, 3)}
+    out = {}
+    for name, shape in shapes.items():
+        v = np.asarray(getattr(gcp, name), np.int64 if name in ("gcp", "camera") else float)
+        if v.shape != shape or not np.all(np.isfinite(v)):
+            raise InputError(f"gcp.{name}", np.shape(getattr(gcp, name)), f"finite values of shape {shape}")
+        out[name] = v
+    if not np.all(out["sigma"] > 0):
+        raise InputError("gcp.sigma", float(np.min(out["sigma"])), "positive sigmas (px)")
+    return GcpRows(**out, defining_camera=int(gcp.defining_camera))

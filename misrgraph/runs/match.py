@@ -39,7 +39,8 @@ from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.imagery import MatchedSet, has_imagery, read_imagery, write_matched
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
 from misrgraph.io.truth import read_pass_truth
-from misrgraph.match.pipeline import AN, MatchConfig, MatchedObservations, match_gcps, match_ties, search_range
+from misrgraph.match.pipeline import (AN, MatchConfig, MatchedObservations, gcp_fit_rows, match_gcps, match_ties, scale_gcp_sigmas,
+                                      search_range)
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.dem import Geoid, fit_local_surface
 
@@ -116,7 +117,11 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
     tie_rows = np.unique(im.tie.landmark[lm.kind[im.tie.landmark] == KIND_TIE])
     t0 = time.perf_counter()
     report = (lambda i, n: progress(f"{p.pass_id}: tie point {i}/{n}")) if progress else None
-    features, t = match_ties(im, supplied, dem_height, tie_rows, cfg, progress=report)
+    fit_gcp = None
+    if cfg.gcp_sigma_from_redundancy and cfg.sigma_from_redundancy and cfg.sigma_model == "shared-attitude" and len(g):
+        fit_gcp = gcp_fit_rows(g, supplied, gcps.ecef(), lambda row: int(lm.gcp_index[row]), band)
+    features, t = match_ties(im, supplied, dem_height, tie_rows, cfg, progress=report, gcp=fit_gcp)
+    scale_gcp_sigmas(g, t.precision, cfg)
     t_tie = time.perf_counter() - t0
     if len(features) > _TIES_PER_PASS:
         raise InputError("tie features", len(features), f"at most {_TIES_PER_PASS} per pass")
@@ -144,7 +149,8 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
     summary: dict[str, Any] = {
         "pass_id": p.pass_id,
         "search_px": search_range(cfg, im),
-        "gcp": {"candidates": g.candidates, "matched": len(g), "seconds": t_gcp, "rejected": dict(g.reasons)},
+        "gcp": {"candidates": g.candidates, "matched": len(g), "seconds": t_gcp, "rejected": dict(g.reasons),
+                "sigma_scale": t.precision.gcp.as_dict() if t.precision is not None and t.precision.gcp is not None else None},
         "tie": {"candidates": tie_candidates, "matched": int(np.sum(np.array(t.camera) != AN)) if len(t) else 0,
                 "features": n_t, "seconds": t_tie, "rejected": dict(t.reasons),
                 "sigma_scale": t.precision.as_dict(CAMERAS) if t.precision is not None else None},

@@ -115,13 +115,18 @@ def test_schur_solution_and_redundancy_match_the_dense_hat_matrix():
         assert abs(red[k] - dense_red) < 1e-6 * dense_red, (k, red[k], dense_red)
 
 
-def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features: int = 150, duration_s: float = 600.0):
+def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features: int = 150, duration_s: float = 600.0,
+                     gcps: dict | None = None):
     """Differences from the shared-attitude model: one attitude correction a(t) (roll, pitch,
     yaw; sinusoids of 200-2000 s, 20" each) seen by camera c at its time and through An's ray at
     An's time, plus per-camera offsets, tilts and drifts, heights along the epipolar direction and
     noise of ``scales[c]`` times the stated sigma; camera c sees a fraction ``seen[c]`` of the
-    features. Returns the inputs of :func:`camera_sigma_scales` and the :class:`Pointing`."""
-    from misrgraph.match.precision import Pointing
+    features. Returns the inputs of :func:`camera_sigma_scales` and the :class:`Pointing`; with
+    ``gcps`` (``scale``, ``n``, ``ground_m``, ``an_static_arcsec``) also the :class:`GcpRows` of
+    ``n`` GCPs seen by every camera and by An (camera ``len(scales)``): the same attitude and
+    camera terms, An's static pointing error (the ties see it through An's ray), a ground offset of
+    ``ground_m`` per axis per GCP and noise of ``scale`` times their stated sigma."""
+    from misrgraph.match.precision import GcpRows, Pointing
 
     rng = np.random.default_rng(seed)
     arcsec = np.pi / 180 / 3600
@@ -132,10 +137,17 @@ def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features
 
     t_an = rng.uniform(420.0, 420.0 + duration_s, n_features)
     h = rng.normal(0.0, 30.0, n_features)
-    rows = []
-    for c in range(scales.size):
-        f = np.flatnonzero(rng.random(n_features) < seen[c])
-        offset_s = 105.0 * (c - 3.5) if c < 4 else 105.0 * (c - 3.5)
+    d_an = rng.normal(0.0, (gcps or {}).get("an_static_arcsec", 0.0) * arcsec, 3)  # An's static pointing error
+    rows, gcp_rows = [], []
+    n_gcp = (gcps or {}).get("n", 0)
+    t_gcp = rng.uniform(420.0, 420.0 + duration_s, n_gcp)
+    x_gcp = rng.uniform(-0.8, 0.8, n_gcp)
+    ground = rng.normal(0.0, (gcps or {}).get("ground_m", 0.0), (n_gcp, 3))
+    an = scales.size
+    for c in range(scales.size + (1 if n_gcp else 0)):
+        own = c == an  # An: GCP rows only
+        f = np.flatnonzero(rng.random(n_features) < (0.0 if own else seen[c]))
+        offset_s = 0.0 if own else 105.0 * (c - 3.5)
         t = t_an[f] + offset_s
         x = rng.uniform(-0.8, 0.8, f.size)
         # pointing sensitivities of the right size (px/rad; An's IFOV is ~3.9e-4 rad a pixel), varying with x
@@ -143,14 +155,34 @@ def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features
         jc = base[None] * (1.0 + 0.2 * x)[:, None, None]
         ka = -np.eye(2, 3)[None] * 2500.0 * (1.0 + 0.1 * rng.normal(size=(1, 2, 3)))
         ka = np.repeat(ka, f.size, axis=0)
-        smooth = np.einsum("nqa,na->nq", jc, att(t)) + np.einsum("nqa,na->nq", ka, att(t_an[f]))
-        smooth += rng.normal(0, 0.5, 2) + np.outer(x, rng.normal(0, 0.3, 2)) + np.outer((t - 720) / 600, rng.normal(0, 0.2, 2))
+        static = (rng.normal(0, 0.5, 2), rng.normal(0, 0.3, 2), rng.normal(0, 0.2, 2))  # offset, tilt in x, drift
+
+        def static_of(x, t):
+            return static[0] + np.outer(x, static[1]) + np.outer((t - 720) / 600, static[2])
+        smooth = np.einsum("nqa,na->nq", jc, att(t)) + np.einsum("nqa,na->nq", ka, att(t_an[f]) + d_an)
+        smooth += static_of(x, t)
         epi = np.column_stack([np.full(f.size, 0.0035 * (c - 3.5)), np.full(f.size, 0.0004)])
         sigma = rng.uniform(0.05, 0.2, f.size)
-        d = smooth + h[f][:, None] * epi + rng.standard_normal((f.size, 2)) * (scales[c] * sigma)[:, None]
-        rows.append((f, np.full(f.size, c), t, x, d, epi, sigma, t_an[f], jc, ka))
+        d = smooth + h[f][:, None] * epi + rng.standard_normal((f.size, 2)) * (scales[min(c, an - 1)] * sigma)[:, None]
+        if not own:
+            rows.append((f, np.full(f.size, c), t, x, d, epi, sigma, t_an[f], jc, ka))
+        if n_gcp:  # every camera sees every GCP, at its own time: a fixed ground point, no An ray
+            tg = t_gcp + offset_s
+            jg = base[None] * (1.0 + 0.2 * x_gcp)[:, None, None]
+            # px per metre east, north, up: ~1/275 across and along, the view angle's parallax
+            gg = np.repeat((np.array([[0.0, -1 / 275, 0.0035 * (c - 3.5)], [1 / 275, 0.0, 0.0004]])
+                            + rng.normal(0.0, 2e-4, (2, 3)))[None], n_gcp, axis=0)
+            dg = np.einsum("nqa,na->nq", jg, att(tg) + (d_an if own else 0.0)) + np.einsum("nqk,nk->nq", gg, ground)
+            if not own:
+                dg += static_of(x_gcp, tg)
+            sg = rng.uniform(0.02, 0.06, n_gcp)
+            dg += rng.standard_normal((n_gcp, 2)) * (gcps["scale"] * sg)[:, None]
+            gcp_rows.append((np.arange(n_gcp), np.full(n_gcp, c), tg, x_gcp, dg, sg, jg, gg))
     f, c, t, x, d, e, s, ta, jc, ka = (np.concatenate(v) for v in zip(*rows))
-    return (f, c, t, x, d, e, s), Pointing(ta, jc, ka)
+    if not n_gcp:
+        return (f, c, t, x, d, e, s), Pointing(ta, jc, ka)
+    return (f, c, t, x, d, e, s), Pointing(ta, jc, ka), GcpRows(*(np.concatenate(v) for v in zip(*gcp_rows)),
+                                                              defining_camera=an)
 
 
 def test_shared_attitude_estimates_a_camera_with_few_matches():
@@ -237,3 +269,43 @@ def test_pointing_of_the_wrong_shape_is_refused_by_name():
     bad = Pointing(pointing.an_time_s[:-1], pointing.camera_px_per_rad, pointing.an_px_per_rad)
     with pytest.raises(InputError, match="pointing.an_time_s"):
         camera_sigma_scales(*args, pointing=bad)
+
+
+def test_gcp_scale_recovered_and_blind_to_what_a_gcps_views_share():
+    """GCP observations joined to the shared-attitude fit (a 10-minute pass, 25 GCPs in nine
+    cameras, their sigma 1.8x optimistic): the GCP scale lies within 4 standard errors of 1.8
+    (``k / sqrt(2 r)``) and the tie cameras' within theirs. The ground offsets (catalogue error,
+    chip registration) and An's static pointing error are the fit's own unknowns: drawn 0 or 100 m
+    and 0 or 20", the residuals -- and so every scale -- are the same to rounding."""
+    scales = np.array([2.0, 1.3, 1.0, 0.9, 1.0, 1.1, 1.4, 2.0])
+    seen = np.full(8, 0.8)
+    fits = []
+    for ground_m, an_arcsec in ((30.0, 10.0), (0.0, 0.0), (100.0, 20.0)):
+        args, pointing, gcp = _shared_attitude(11, scales, seen, gcps={"scale": 1.8, "n": 25, "ground_m": ground_m,
+                                                                         "an_static_arcsec": an_arcsec})
+        fits.append(camera_sigma_scales(*args, pointing=pointing, gcp=gcp))
+    fit = fits[0]
+    g = fit.gcp
+    assert g is not None and g.estimated and g.kept == 225 and g.redundancy > 100, g
+    assert abs(g.scale - 1.8) <= 4.0 * 1.8 / np.sqrt(2.0 * g.redundancy), g
+    for cam, k in enumerate(scales):
+        assert abs(fit.scale[cam] - k) <= 4.0 * k / np.sqrt(2.0 * fit.redundancy[cam]), (cam, fit.scale[cam], k)
+    for other in fits[1:]:
+        assert other.gcp.scale == pytest.approx(g.scale, rel=1e-6)
+        assert all(other.scale[c] == pytest.approx(fit.scale[c], rel=1e-6) for c in fit.scale)
+    # too few GCP rows for the redundancy asked: not estimated, the stated sigma kept
+    few = camera_sigma_scales(*args, pointing=pointing, gcp=gcp, gcp_min_redundancy=10 * g.redundancy)
+    assert not few.gcp.estimated and few.gcp.scale == 1.0
+
+
+def test_gcp_rows_need_the_shared_attitude_and_the_right_shapes():
+    from misrgraph.errors import InputError
+
+    args, pointing, gcp = _shared_attitude(12, np.ones(2), np.ones(2), n_features=30,
+                                           gcps={"scale": 1.0, "n": 4, "ground_m": 10.0})
+    with pytest.raises(InputError, match="gcp"):
+        camera_sigma_scales(*args, gcp=gcp)  # the per-camera form has no attitude to share
+    with pytest.raises(InputError, match="gcp.d"):
+        camera_sigma_scales(*args, pointing=pointing, gcp=gcp._replace(d=gcp.d[:-1]))
+    with pytest.raises(InputError, match="gcp.sigma"):
+        camera_sigma_scales(*args, pointing=pointing, gcp=gcp._replace(sigma=-gcp.sigma))

@@ -103,6 +103,9 @@ def test_match_cli_prints_each_cameras_tie_sigma_scale(imagery_pass_dir):
         tail = "" if v["estimated"] else (f", {v['scale_from']}'s" if "scale_from" in v else ", LSM sigma kept")
         assert f"{cam} {v['scale']:.2f} ({v['redundancy']:.0f}{tail})" in line, (cam, line)
     assert any(not v["estimated"] for v in scales.values())  # the short pass has one (Df, from Da)
+    g = read_matched(load_scenario(imagery_pass_dir).pass_files[0]).summary["gcp"]["sigma_scale"]
+    assert g["estimated"], g
+    assert f"GCP sigma scale (redundancy): {g['scale']:.2f} ({g['redundancy']:.0f})" in r.stdout, r.stdout
 
 
 def test_bad_windows_are_reported_per_feature(imagery_pass_dir, tmp_path):
