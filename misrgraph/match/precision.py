@@ -90,7 +90,7 @@ from scipy.interpolate import BSpline
 
 from misrgraph.errors import InputError
 
-__all__ = ["GcpRows", "PrecisionFit", "Pointing", "camera_sigma_scales"]
+__all__ = ["GcpRows", "GcpScale", "PrecisionFit", "Pointing", "camera_sigma_scales"]
 
 Array = NDArray[np.float64]
 
@@ -380,13 +380,13 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
         t_an = np.asarray(pointing.an_time_s, float)
         times = [time_s, t_an] + ([gcp.time_s] if gcp is not None else [])
         span = (float(min(t.min() for t in times if t.size)), float(max(t.max() for t in times if t.size)))
-        a_rows = _shared_design(camera, cams, time_s, x, pointing, knot_s, span)
+        # a camera with GCP rows and no tie rows still has static terms (An has none: it sees dA)
+        cams_fit = cams if gcp is None else sorted(set(cams) | {int(c) for c in gcp.camera if c != gcp.defining_camera})
+        a_rows = _shared_design(camera, cams_fit, time_s, x, pointing, knot_s, span)
         y_rows, e_rows, f_rows = d.reshape(-1), e.reshape(-1), np.repeat(feat_of, 2)
         if n_gcp:
             assert gcp is not None
-            cams_all = sorted(set(cams) | set(int(c) for c in np.unique(gcp.camera) if c != gcp.defining_camera))
-            a_rows = _joint_design(_shared_design(camera, cams_all, time_s, x, pointing, knot_s, span), pointing, gcp,
-                                   cams_all, span, knot_s)
+            a_rows = _joint_design(a_rows, pointing, gcp, cams_fit, span, knot_s)
             y_rows = np.concatenate([y_rows, gcp.d.reshape(-1)])
             e_rows = np.concatenate([e_rows, np.zeros(2 * n_gcp)])  # no height of a tie feature
             f_rows = np.concatenate([f_rows, np.zeros(2 * n_gcp, np.int64)])
