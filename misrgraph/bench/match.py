@@ -103,6 +103,7 @@ def run_bench_match(tie_points: int = 1000, seed: int = 0, duration_s: float = 2
             summary[kind]["rejected"] = res["passes"][0][kind]["rejected"]
         for key in ("per_camera", "sigma_scale"):
             summary["tie"][key] = res["passes"][0]["tie"].get(key)
+        summary["gcp"]["sigma_scale"] = res["passes"][0]["gcp"].get("sigma_scale")
         sim = run_adjust(base / "imagery")
         mat = run_adjust(base / "imagery", observations="matched")
 

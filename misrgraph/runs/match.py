@@ -18,7 +18,8 @@ the match is right (one 5-px wrong match among 60 moves ``normalised_error_rms``
 the tie points' ``per_camera`` the same per camera, and the GCPs' ``per_band`` per band when they
 were matched in several (``simulate --bands red,nir --imagery``). An's tie observations define
 their tie points (zero error by construction) and are not scored. ``tie.sigma_scale`` gives each camera's scale of
-the matcher's sigma measured from the pass's redundancy (:mod:`misrgraph.match.precision`).
+the matcher's sigma measured from the pass's redundancy (:mod:`misrgraph.match.precision`), and
+``gcp.sigma_scale`` the one scale of the pass's GCP sigmas from the same fit (null without tie points).
 """
 
 from __future__ import annotations
