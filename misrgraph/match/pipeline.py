@@ -68,7 +68,7 @@ from misrgraph.model.constants import CAMERAS, N_PIXELS
 from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import ImagePoints, PassGeometry
 
-__all__ = ["DEFAULT_SEARCH_PX", "SIGMA_MODELS", "MatchConfig", "MatchedObservations", "TieFeature", "gcp_fit_rows",
+__all__ = ["AN_SIGMAS", "DEFAULT_SEARCH_PX", "SIGMA_MODELS", "MatchConfig", "MatchedObservations", "TieFeature", "gcp_fit_rows",
            "match_gcps", "match_ties", "scale_gcp_sigmas", "search_range"]
 
 log = logging.getLogger(__name__)
@@ -85,6 +85,9 @@ _TWIN = {c: len(CAMERAS) - 1 - c for c in range(len(CAMERAS))}
 
 #: ``MatchConfig.sigma_model``'s values
 SIGMA_MODELS = ("shared-attitude", "per-camera")
+
+#: ``MatchConfig.an_sigma``'s values
+AN_SIGMAS = ("median", "shared-offset")
 
 #: attitude step (rad, per axis) of the numerical pointing sensitivities (2", ~7 m on the ground
 #: from An: the predictions move by hundredths of a pixel, well inside their linear range)
@@ -124,6 +127,10 @@ class MatchConfig(Config):
     #: (one attitude correction for all cameras, through each observation's pointing sensitivity)
     #: or "per-camera" (each camera its own spline; needs ~30 matches a camera on a short pass)
     sigma_model: str = "shared-attitude"
+    #: An's defining observation's sigma: "median" (its conjugates' median) or "shared-offset" (the
+    #: shared-attitude fit also models an offset all conjugates of a feature share -- the template's
+    #: own position error -- and An takes its sigma; :mod:`misrgraph.match.precision`)
+    an_sigma: str = "median"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.template_px, int) and self.template_px >= 7 and self.template_px % 2 == 1):
@@ -139,6 +146,8 @@ class MatchConfig(Config):
                 raise InputError(name, getattr(self, name), "a positive number")
         if self.sigma_model not in SIGMA_MODELS:
             raise InputError("sigma_model", self.sigma_model, f"one of {SIGMA_MODELS}")
+        if self.an_sigma not in AN_SIGMAS:
+            raise InputError("an_sigma", self.an_sigma, f"one of {AN_SIGMAS}")
         if not (isinstance(self.min_cameras, int) and 2 <= self.min_cameras <= 9):
             raise InputError("min_cameras", self.min_cameras, "an integer in 2..9")
 
@@ -531,13 +540,18 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
         fit = camera_sigma_scales(a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3],
                                   (a[:, 4] - _CENTRE) / _CENTRE, a[:, 5:7], a[:, 7:9], sig[idx[fitted]],
                                   knot_s=cfg.sigma_knot_s, pointing=pointing, twin=_TWIN,
-                                  gcp=gcp if gcp is not None and gcp.time_s.size else None)
+                                  gcp=gcp if gcp is not None and gcp.time_s.size else None,
+                                  shared_offset=cfg.an_sigma == "shared-offset" and pointing is not None)
         sig[idx] = np.maximum(sig[idx] * np.array([fit.scale.get(int(c), 1.0) for c in cam]), cfg.sigma_floor_px)
         out.precision = fit
         out.pending_rows = idx[fitted]
     feat = np.asarray(out.feature)
     cams = np.asarray(out.camera)
+    shared = out.precision.shared_offset if out.precision is not None else None
     for i in np.flatnonzero(cams == AN):
-        others = (feat == feat[i]) & (cams != AN)
-        sig[i] = float(np.median(sig[others]))
+        if shared is not None and shared.estimated:
+            sig[i] = max(shared.sigma_px, cfg.sigma_floor_px)
+        else:
+            others = (feat == feat[i]) & (cams != AN)
+            sig[i] = float(np.median(sig[others]))
     out.sigma_px = [float(v) for v in sig]

@@ -90,7 +90,7 @@ from scipy.interpolate import BSpline
 
 from misrgraph.errors import InputError
 
-__all__ = ["GcpRows", "GcpScale", "PrecisionFit", "Pointing", "camera_sigma_scales"]
+__all__ = ["GcpRows", "GcpScale", "PrecisionFit", "Pointing", "SharedOffset", "camera_sigma_scales"]
 
 Array = NDArray[np.float64]
 
@@ -146,6 +146,20 @@ class GcpScale:
 
 
 @dataclass
+class SharedOffset:
+    """The (line, sample) offset all conjugates of a tie feature share (the template's own position
+    error): its 1 sigma ``sigma_px`` per coordinate (0 where not estimated), the ``redundancy``
+    behind it, ``estimated``."""
+
+    sigma_px: float = 0.0
+    redundancy: float = 0.0
+    estimated: bool = False
+
+    def as_dict(self) -> dict[str, float | bool]:
+        return {"sigma_px": self.sigma_px, "redundancy": self.redundancy, "estimated": self.estimated}
+
+
+@dataclass
 class PrecisionFit:
     """Per-camera sigma scales ``scale[c]`` (where not estimated: the twin camera's, ``borrowed[c]``
     naming it, when the twin's is estimated, else 1), the redundancy and the kept and
@@ -166,6 +180,8 @@ class PrecisionFit:
     model: str = "per camera"
     #: the GCP observations' scale, when the fit had them (module docstring)
     gcp: GcpScale | None = None
+    #: the offset a feature's conjugates share, when the fit modelled it (``shared_offset``)
+    shared_offset: SharedOffset | None = None
 
     def as_dict(self, names: list[str] | tuple[str, ...]) -> dict[str, dict[str, float | int | bool | str]]:
         out: dict[str, dict[str, float | int | bool | str]] = {}
@@ -323,6 +339,40 @@ def _solve_rows(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat
     return res, hat
 
 
+def _solve_blocks(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat: int, w: Array,
+                  prior: Array) -> tuple[Array, Array, Array, Array]:
+    """Weighted least squares of ``y (m,) = a (m, p) s + sum_j e[:, j] u[feat_of, j]`` with ``q``
+    unknowns ``u`` per feature (``e (m, q)``), each with a zero-mean prior of precision ``prior (q,)``,
+    the features' unknowns eliminated by a Schur complement on their ``q x q`` blocks. Returns the
+    residuals ``(m,)``, the hat matrix's diagonal ``(m,)`` (0 where ``w = 0``), the features'
+    unknowns ``(n_feat, q)`` and their covariance blocks ``(n_feat, q, q)`` (of the unit-weight
+    system). Columns are equilibrated and the reduced system solved by a pseudo-inverse, as in
+    :func:`_solve_rows`."""
+    q = e.shape[1]
+    col = np.sqrt(np.einsum("mp,m->p", a * a, w))
+    col[col == 0] = 1.0
+    a = a / col
+    aw = a * w[:, None]
+    a_ss = a.T @ aw
+    b = np.zeros((n_feat, q, a.shape[1]))
+    np.add.at(b, feat_of, e[:, :, None] * aw[:, None, :])
+    d = np.zeros((n_feat, q, q)) + np.diag(prior)
+    np.add.at(d, feat_of, w[:, None, None] * e[:, :, None] * e[:, None, :])
+    rhs_h = np.zeros((n_feat, q))
+    np.add.at(rhs_h, feat_of, (w * y)[:, None] * e)
+    d_inv = np.linalg.inv(d)
+    g = d_inv @ b  # (F, q, p)
+    q_mat = np.linalg.pinv(a_ss - np.einsum("fqp,fqk->pk", b, g), hermitian=True, rcond=1e-12)
+    x_s = q_mat @ (aw.T @ y - np.einsum("fqp,fq->p", b, np.einsum("fqk,fk->fq", d_inv, rhs_h)))
+    u = np.einsum("fqk,fk->fq", d_inv, rhs_h - b @ x_s)
+    res = y - a @ x_s - np.sum(e * u[feat_of], axis=1)
+    aq = a @ q_mat
+    cov_u = d_inv + np.einsum("fqp,pk,fjk->fqj", g, q_mat, g)
+    hat = w * (np.sum(aq * a, axis=1) - 2.0 * np.einsum("rp,rjp,rj->r", aq, g[feat_of], e)
+               + np.einsum("rq,rqj,rj->r", e, cov_u[feat_of], e))
+    return res, hat, u, cov_u
+
+
 #: the GCP rows' class in the fit's per-class dictionaries (cameras are >= 0)
 _GCP = -1
 
@@ -332,7 +382,7 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
                         min_redundancy: float = 30.0, max_iter: int = 10, tol: float = 0.01,
                         height_prior_m: float = 1000.0, pointing: Pointing | None = None,
                         twin: dict[int, int] | None = None, gcp: GcpRows | None = None,
-                        gcp_min_redundancy: float = 10.0) -> PrecisionFit:
+                        gcp_min_redundancy: float = 10.0, shared_offset: bool = False) -> PrecisionFit:
     """Per-camera scales of the matching sigmas (see the module docstring).
 
     Arguments, one row per matched (non-defining) observation, ``n`` rows:
@@ -369,6 +419,9 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     x = np.asarray(x, float)
     klass = camera
     n_gcp = 0
+    offset: dict[str, float] = {}
+    if shared_offset and pointing is None:
+        raise InputError("shared_offset", True, "pointing sensitivities too (the shared-attitude form)")
     if pointing is not None:
         for name, v, shape in (("an_time_s", pointing.an_time_s, (n,)), ("camera_px_per_rad", pointing.camera_px_per_rad, (n, 2, 3)),
                                ("an_px_per_rad", pointing.an_px_per_rad, (n, 2, 3))):
@@ -397,8 +450,26 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
         out.model = "shared attitude"
         n_all = n + n_gcp
 
+        if shared_offset:  # per feature: the height and a (line, sample) offset all its tie rows share
+            e_blk = np.zeros((y_rows.size, 3))
+            e_blk[:, 0] = e_rows
+            e_blk[0:2 * n:2, 1] = 1.0
+            e_blk[1:2 * n:2, 2] = 1.0
+            offset["var"] = (0.5 * float(np.median(sigma[:n]))) ** 2
+
         def solve(w: Array) -> tuple[Array, dict[int, float]]:
-            res_r, hat = _solve_rows(a_rows, y_rows, e_rows, f_rows, feat_ids.size, np.repeat(w, 2), height_prior_m)
+            if shared_offset:
+                prior = np.array([1.0 / height_prior_m ** 2, 1.0 / offset["var"], 1.0 / offset["var"]])
+                res_r, hat, u, cov_u = _solve_blocks(a_rows, y_rows, e_blk, f_rows, feat_ids.size, np.repeat(w, 2), prior)
+                # two pseudo-observations (the prior) per feature, each with redundancy 1 - p [N^-1]_kk
+                r_o = float(np.sum(2.0 - (cov_u[:, 1, 1] + cov_u[:, 2, 2]) / offset["var"]))
+                offset["redundancy"] = r_o
+                if r_o > 0:
+                    new = float(np.sum(u[:, 1:] ** 2) / r_o)  # its variance component (Foerstner)
+                    offset["change"] = abs(np.sqrt(new / offset["var"]) - 1.0)
+                    offset["var"] = new
+            else:
+                res_r, hat = _solve_rows(a_rows, y_rows, e_rows, f_rows, feat_ids.size, np.repeat(w, 2), height_prior_m)
             used = np.repeat(w > 0, 2)
             red_row = np.where(used, 1.0 - hat, 0.0).reshape(n_all, 2).sum(axis=1)
             return res_r.reshape(n_all, 2), {c: float(np.sum(red_row[r])) for c, r in rows.items()}
@@ -441,6 +512,7 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
                 t = estimated_twin(c)
                 scale[c] = 1.0 if t is None else scale[t]
         new_keep = z2 <= per_row(scale) ** 2 * chi2_clip
+        change = max(change, offset.get("change", 0.0))
         if change < tol and np.array_equal(new_keep, keep):
             break
         keep = new_keep
@@ -458,6 +530,10 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
         out.clipped[c] = int((~keep[r]).sum())
     out.iterations = it
     out.outlier = ~keep[:n]
+    if offset:
+        est = offset.get("redundancy", 0.0) >= min_redundancy
+        out.shared_offset = SharedOffset(float(np.sqrt(offset["var"])) if est else 0.0,
+                                         float(max(offset.get("redundancy", 0.0), 0.0)), bool(est))
     return out
 
 

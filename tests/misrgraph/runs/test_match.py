@@ -281,3 +281,38 @@ def test_the_search_range_defaults_to_the_windows_own(tmp_path):
     assert wide["gcp"]["matched"] + wide["tie"]["matched"] > 0
     with pytest.raises(InputError, match="search_px"):
         MatchConfig(search_px=0)
+
+
+def test_an_sigma_from_the_conjugates_shared_offset(imagery_pass_dir, tmp_path):
+    """``an_sigma="shared-offset"``: the precision fit also models the offset all conjugates of a
+    feature share and reports its sigma (``tie.shared_offset``); every An observation takes it
+    (at least the sigma floor), and the conjugates' pooled scale, no longer counting it, is not
+    larger than the default fit's (within its standard error). A value outside the two is refused
+    by name."""
+    import shutil
+
+    from misrgraph.io.passes import KIND_TIE
+    from misrgraph.match.pipeline import AN, MatchConfig
+
+    out = tmp_path / "imagery"
+    shutil.copytree(imagery_pass_dir, out)
+    cfg = MatchConfig(an_sigma="shared-offset")
+    s = run_match(out, cfg)["passes"][0]["tie"]
+    so = s["shared_offset"]
+    assert so["estimated"] and so["sigma_px"] > 0, so
+    m = read_matched(load_scenario(out).pass_files[0])
+    obs = m.observations
+    an = obs.sigma_px[(obs.camera == AN) & (m.landmarks.kind[obs.landmark] == KIND_TIE)]  # An's GCP views keep theirs
+    assert an.size > 0 and np.allclose(an, max(so["sigma_px"], cfg.sigma_floor_px))
+    default = read_matched(load_scenario(imagery_pass_dir).pass_files[0]).summary["tie"]
+    assert "shared_offset" not in default
+
+    def pooled(scales):  # over the estimated cameras, weighted by redundancy; its standard error
+        est = [v for v in scales.values() if v["estimated"]]
+        r = sum(v["redundancy"] for v in est)
+        return np.sqrt(sum(v["scale"] ** 2 * v["redundancy"] for v in est) / r), 1.0 / np.sqrt(2.0 * r)
+
+    (k_off, _), (k_def, se) = pooled(s["sigma_scale"]), pooled(default["sigma_scale"])
+    assert k_off <= k_def * (1.0 + se), (k_off, k_def, se)
+    with pytest.raises(InputError, match="an_sigma"):
+        MatchConfig(an_sigma="mean")
