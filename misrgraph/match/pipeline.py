@@ -39,7 +39,9 @@
   the shared-attitude fit as a class of their own, with three ground offsets per GCP (catalogue
   error, the chip's own registration), and all of them take its scale
   (``gcp_sigma_from_redundancy``). An's defining observation gets the
-  median of its conjugates' sigmas. The same fit is a consistency check across the pass: a
+  median of its conjugates' sigmas (``an_sigma="median"``, the default), or, with
+  ``an_sigma="shared-offset"``, the sigma of the offset all conjugates of a feature share, which the
+  fit then models. The same fit is a consistency check across the pass: a
   conjugate beyond its 4 sigma clip is rejected ("inconsistent with the pass"), and a feature
   left in fewer than ``min_cameras`` cameras with it.
 
