@@ -76,6 +76,16 @@ absorb it), An's GCP observations directly. ``k_g`` is the variance component of
 estimated when their redundancy reaches ``gcp_min_redundancy`` (its relative standard error is
 about ``1/sqrt(2 r)``: 22 % at 10), else 1. The GCP rows are clipped like the ties' (left out of
 the next fit, never rejected: that is the adjustment's call).
+
+**The offset a feature's conjugates share** (shared-attitude form, ``shared_offset``). All
+conjugates of a tie feature match the same An template, so part of their error is common: the
+template's own position error. With ``shared_offset`` each feature gets a (line, sample) offset
+``o_i`` in every conjugate row, a random effect ``o_i ~ N(0, s_o^2)`` whose variance is a variance
+component of its own (the prior's pseudo-observations: ``s_o^2 = sum |o_i|^2 / r_o``, ``r_o`` their
+redundancy), iterated with the cameras'. The cameras' scales then count only their conjugates' own
+error; ``s_o`` (``PrecisionFit.shared_offset``) is the sigma of the defining (An) observation,
+off the conjugates' common point by exactly that error. The features' height and offset are
+eliminated together (:func:`_solve_blocks`, ``3 x 3`` blocks).
 """
 
 from __future__ import annotations
@@ -465,7 +475,8 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
                 r_o = float(np.sum(2.0 - (cov_u[:, 1, 1] + cov_u[:, 2, 2]) / offset["var"]))
                 offset["redundancy"] = r_o
                 if r_o > 0:
-                    new = float(np.sum(u[:, 1:] ** 2) / r_o)  # its variance component (Foerstner)
+                    # its variance component (Foerstner), kept off zero so that the prior stays finite
+                    new = max(float(np.sum(u[:, 1:] ** 2) / r_o), (1e-3 * float(np.median(sigma[:n]))) ** 2)
                     offset["change"] = abs(np.sqrt(new / offset["var"]) - 1.0)
                     offset["var"] = new
             else:
