@@ -153,6 +153,12 @@ class MatchConfig(Config):
         if not (isinstance(self.min_cameras, int) and 2 <= self.min_cameras <= 9):
             raise InputError("min_cameras", self.min_cameras, "an integer in 2..9")
 
+    @property
+    def shared_attitude_fit(self) -> bool:
+        """Whether the tie sigmas come from the shared-attitude precision fit (which the GCP rows
+        and the shared offset need)."""
+        return self.sigma_from_redundancy and self.sigma_model == "shared-attitude"
+
 
 @dataclass
 class MatchedObservations:
@@ -480,14 +486,14 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             pending.append((len(out) - 1, fi, cam, tt, sm, ln - pl, sm - ps, epi[0], epi[1]))
             pending_geo.append((*ground[0], pl, ps, float(times[0])))
     pointing = None
-    if pending and cfg.sigma_from_redundancy and cfg.sigma_model == "shared-attitude":
+    if pending and cfg.shared_attitude_fit:
         a = np.asarray(pending, float)
         pg = np.asarray(pending_geo, float)
         jac, kan = _pointing_sensitivity(supplied_geo, a[:, 2].astype(np.int64), band, pg[:, :3], pg[:, 3], pg[:, 4],
                                          np.array([f.line for f in features]), np.array([f.sample for f in features]),
                                          a[:, 1].astype(np.int64), surface)
         pointing = Pointing(pg[:, 5], jac, kan)
-    _rescale(out, pending, cfg, pointing, gcp if pointing is not None else None)
+    _rescale(out, pending, cfg, pointing, gcp)
     return _drop_inconsistent(features, out, cfg)
 
 
@@ -523,8 +529,9 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
              gcp: GcpRows | None = None) -> None:
     """Scale each camera's tie sigmas by its precision from the pass's redundancy
     (:func:`misrgraph.match.precision.camera_sigma_scales`; with ``pointing``, one row per
-    ``pending`` row, the shared-attitude fit, joined by the ``gcp`` rows when given) and give each
-    An observation the median of its conjugates' sigmas; the fit is kept in ``out.precision``."""
+    ``pending`` row, the shared-attitude fit, joined by the ``gcp`` rows when given; without
+    ``pointing`` they are left out) and give each An observation the median of its conjugates'
+    sigmas, or the shared offset's (``cfg.an_sigma``); the fit is kept in ``out.precision``."""
     sig = np.asarray(out.sigma_px, float)
     if pending and cfg.sigma_from_redundancy:
         a = np.asarray(pending, float)
@@ -542,7 +549,7 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
         fit = camera_sigma_scales(a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3],
                                   (a[:, 4] - _CENTRE) / _CENTRE, a[:, 5:7], a[:, 7:9], sig[idx[fitted]],
                                   knot_s=cfg.sigma_knot_s, pointing=pointing, twin=_TWIN,
-                                  gcp=gcp if gcp is not None and gcp.time_s.size else None,
+                                  gcp=gcp if pointing is not None else None,
                                   shared_offset=cfg.an_sigma == "shared-offset" and pointing is not None)
         sig[idx] = np.maximum(sig[idx] * np.array([fit.scale.get(int(c), 1.0) for c in cam]), cfg.sigma_floor_px)
         out.precision = fit
@@ -550,10 +557,9 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
     feat = np.asarray(out.feature)
     cams = np.asarray(out.camera)
     shared = out.precision.shared_offset if out.precision is not None else None
-    for i in np.flatnonzero(cams == AN):
-        if shared is not None and shared.estimated:
-            sig[i] = max(shared.sigma_px, cfg.sigma_floor_px)
-        else:
-            others = (feat == feat[i]) & (cams != AN)
-            sig[i] = float(np.median(sig[others]))
+    if shared is not None and shared.estimated:
+        sig[cams == AN] = max(shared.sigma_px, cfg.sigma_floor_px)
+    else:
+        for i in np.flatnonzero(cams == AN):
+            sig[i] = float(np.median(sig[(feat == feat[i]) & (cams != AN)]))
     out.sigma_px = [float(v) for v in sig]

@@ -323,29 +323,10 @@ def _solve_rows(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat
                 h_prior_m: float) -> tuple[Array, Array]:
     """Weighted least squares of ``y (m,) = a (m, p) s + e (m,) h[feat_of]`` with a weak prior
     ``h ~ N(0, h_prior_m^2)`` on each height, the heights eliminated by a Schur complement; the
-    residuals ``(m,)`` and the hat matrix's diagonal ``(m,)`` (0 where ``w = 0``). The columns are
-    equilibrated first, and the reduced system is solved by a pseudo-inverse (a gauge the rows do
-    not fix -- a constant attitude against the cameras' offsets -- leaves the residuals alone)."""
-    col = np.sqrt(np.einsum("mp,m->p", a * a, w))
-    col[col == 0] = 1.0
-    a = a / col
-    aw = a * w[:, None]
-    a_ss = a.T @ aw
-    b = np.zeros((a.shape[1], n_feat))
-    np.add.at(b.T, feat_of, aw * e[:, None])
-    dd = np.full(n_feat, 1.0 / h_prior_m ** 2)
-    np.add.at(dd, feat_of, w * e * e)
-    rhs_h = np.zeros(n_feat)
-    np.add.at(rhs_h, feat_of, w * e * y)
-    bd = b / dd
-    q_mat = np.linalg.pinv(a_ss - bd @ b.T, hermitian=True, rcond=1e-12)
-    x_s = q_mat @ (aw.T @ y - bd @ rhs_h)
-    h = (rhs_h - b.T @ x_s) / dd
-    res = y - a @ x_s - e * h[feat_of]
-    aq = a @ q_mat
-    qbd = q_mat @ bd
-    h_ff = 1.0 / dd + np.sum(bd * qbd, axis=0)
-    hat = w * (np.sum(aq * a, axis=1) - 2.0 * e * np.sum(aq * bd[:, feat_of].T, axis=1) + e * e * h_ff[feat_of])
+    residuals ``(m,)`` and the hat matrix's diagonal ``(m,)`` (0 where ``w = 0``): :func:`_solve_blocks`
+    with one unknown per feature. A gauge the rows do not fix -- a constant attitude against the
+    cameras' offsets -- leaves the residuals alone."""
+    res, hat, _, _ = _solve_blocks(a, y, e[:, None], feat_of, n_feat, w, np.array([1.0 / h_prior_m ** 2]))
     return res, hat
 
 
@@ -377,7 +358,7 @@ def _solve_blocks(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_fe
     u = np.einsum("fqk,fk->fq", d_inv, rhs_h - b @ x_s)
     res = y - a @ x_s - np.sum(e * u[feat_of], axis=1)
     aq = a @ q_mat
-    cov_u = d_inv + np.einsum("fqp,pk,fjk->fqj", g, q_mat, g)
+    cov_u = d_inv + (g @ q_mat) @ g.transpose(0, 2, 1)
     hat = w * (np.sum(aq * a, axis=1) - 2.0 * np.einsum("rp,rjp,rj->r", aq, g[feat_of], e)
                + np.einsum("rq,rqj,rj->r", e, cov_u[feat_of], e))
     return res, hat, u, cov_u
@@ -409,7 +390,10 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     twin's scale when the twin's is estimated (the pattern's change with view angle, the scale's main
     cause, is alike), else keeps its stated sigma (scale 1). ``gcp`` (:class:`GcpRows`, shared-attitude
     form only) adds the pass's GCP observations as a class of their own; their scale
-    (``PrecisionFit.gcp``) is estimated when their redundancy reaches ``gcp_min_redundancy``."""
+    (``PrecisionFit.gcp``) is estimated when their redundancy reaches ``gcp_min_redundancy``.
+    ``shared_offset`` (shared-attitude form only) also models the offset a feature's conjugates
+    share; its sigma (``PrecisionFit.shared_offset``) is estimated when the prior's redundancy
+    reaches ``min_redundancy`` (module docstring)."""
     feature = np.asarray(feature, np.int64)
     camera = np.asarray(camera, np.int64)
     d = np.asarray(d, float).reshape(-1, 2)
@@ -533,8 +517,8 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
             out.gcp = GcpScale(scale[c], float(max(red[c], 0.0)), int(keep[r].sum()), int((~keep[r]).sum()), bool(est))
             continue
         out.scale[c] = scale[c]  # the twin's, or 1, where not estimated (set in the loop)
-        if not est and estimated_twin(c) is not None:
-            out.borrowed[c] = estimated_twin(c)
+        if not est and (t := estimated_twin(c)) is not None:
+            out.borrowed[c] = t
         out.redundancy[c] = float(max(red[c], 0.0))
         out.estimated[c] = bool(est)
         out.kept[c] = int(keep[r].sum())

@@ -119,7 +119,7 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
     t0 = time.perf_counter()
     report = (lambda i, n: progress(f"{p.pass_id}: tie point {i}/{n}")) if progress else None
     fit_gcp = None
-    if cfg.gcp_sigma_from_redundancy and cfg.sigma_from_redundancy and cfg.sigma_model == "shared-attitude" and len(g):
+    if cfg.gcp_sigma_from_redundancy and cfg.shared_attitude_fit and len(g):
         fit_gcp = gcp_fit_rows(g, supplied, gcps.ecef(), lambda row: int(lm.gcp_index[row]), band)
     features, t = match_ties(im, supplied, dem_height, tie_rows, cfg, progress=report, gcp=fit_gcp)
     scale_gcp_sigmas(g, t.precision, cfg)

@@ -233,9 +233,28 @@ def test_shared_attitude_without_the_an_term_inflates_the_scales():
     assert k_blind > k_fit + 5.0 * se, (k_blind, k_fit, se)
 
 
+def _dense_feature_system(a, y, e, ff, n_f, w, prior):
+    """The dense stacked solution of ``y = a s + sum_j e[:, j] u[ff, j]`` with zero-mean priors of
+    precision ``prior (q,)`` on each feature's ``q`` unknowns (columns of ``a`` equilibrated as the
+    solvers do; pseudo-inverse for the gauge): residuals, hat diagonal, the unknowns ``(n_f, q)`` and
+    their covariance blocks ``(n_f, q, q)``."""
+    q, p, m = e.shape[1], a.shape[1], y.size
+    col = np.sqrt(np.einsum("mp,m->p", a * a, w))
+    col[col == 0] = 1.0  # a spline coefficient no row sees
+    A = np.zeros((m, p + q * n_f))
+    A[:, :p] = a / col
+    for j in range(q):
+        A[np.arange(m), p + q * ff + j] = e[:, j]
+    N = A.T @ (A * w[:, None]) + np.diag(np.r_[np.zeros(p), np.tile(prior, n_f)])
+    Ninv = np.linalg.pinv(N, hermitian=True, rcond=1e-12)
+    x_all = Ninv @ (A.T @ (w * y))
+    blocks = np.array([Ninv[p + q * k:p + q * (k + 1), p + q * k:p + q * (k + 1)] for k in range(n_f)])
+    return y - A @ x_all, np.einsum("ij,jk,ik->i", A, Ninv, A) * w, x_all[p:].reshape(n_f, q), blocks
+
+
 def test_shared_attitude_solution_and_hat_diagonal_match_the_dense_system():
     """``_solve_rows``'s Schur-complement residuals and hat diagonal equal the dense stacked
-    computation (heights and prior rows included; pseudo-inverse for the gauge)."""
+    computation (heights and their prior included; pseudo-inverse for the gauge)."""
     from misrgraph.match.precision import _shared_design, _solve_rows
 
     (f, c, t, x, d, e, s), pointing = _shared_attitude(8, np.array([1.0, 2.0, 1.5]), np.array([0.6, 0.8, 0.7]),
@@ -244,19 +263,7 @@ def test_shared_attitude_solution_and_hat_diagonal_match_the_dense_system():
     a = _shared_design(c, [0, 1, 2], t, x, pointing, 120.0)
     y, ee, ff, w = d.reshape(-1), e.reshape(-1), np.repeat(feat_of, 2), np.repeat(1.0 / s ** 2, 2)
     res, hat = _solve_rows(a, y, ee, ff, ids.size, w, 1000.0)
-    m = y.size
-    col = np.sqrt(np.einsum("mp,m->p", a * a, w))
-    col[col == 0] = 1.0  # a spline coefficient no row sees
-    A = np.zeros((m + ids.size, a.shape[1] + ids.size))
-    A[:m, :a.shape[1]] = a / col
-    A[np.arange(m), a.shape[1] + ff] = ee
-    A[m + np.arange(ids.size), a.shape[1] + np.arange(ids.size)] = 1.0
-    W = np.concatenate([w, np.full(ids.size, 1e-6)])
-    Y = np.concatenate([y, np.zeros(ids.size)])
-    N = A.T @ (A * W[:, None])
-    Ninv = np.linalg.pinv(N, hermitian=True, rcond=1e-12)
-    r_dense = (Y - A @ (Ninv @ (A.T @ (W * Y))))[:m]
-    hat_dense = (np.einsum("ij,jk,ik->i", A, Ninv, A) * W)[:m]
+    r_dense, hat_dense, _, _ = _dense_feature_system(a, y, ee[:, None], ff, ids.size, w, np.array([1e-6]))
     assert np.allclose(res, r_dense, atol=1e-6 * np.abs(y).max())
     assert np.allclose(hat, hat_dense, atol=1e-6)
 
@@ -328,22 +335,12 @@ def test_feature_blocks_solution_and_covariance_match_the_dense_system():
     e3[:, 0], e3[0::2, 1], e3[1::2, 2] = e.reshape(-1), 1.0, 1.0
     prior = np.array([1e-6, 1 / 0.003, 1 / 0.003])
     res, hat, u, cov_u = _solve_blocks(a, y, e3, ff, n_f, w, prior)
-    col = np.sqrt(np.einsum("mp,m->p", a * a, w))
-    col[col == 0] = 1.0
-    p = a.shape[1]
-    A = np.zeros((m, p + 3 * n_f))
-    A[:, :p] = a / col
-    for j in range(3):
-        A[np.arange(m), p + 3 * ff + j] = e3[:, j]
-    N = A.T @ (A * w[:, None]) + np.diag(np.r_[np.zeros(p), np.tile(prior, n_f)])
-    Ninv = np.linalg.pinv(N, hermitian=True, rcond=1e-12)
-    x_all = Ninv @ (A.T @ (w * y))
-    assert np.allclose(res, y - A @ x_all, atol=1e-6 * np.abs(y).max())
-    assert np.allclose(hat, np.einsum("ij,jk,ik->i", A, Ninv, A) * w, atol=1e-6)
+    r_dense, hat_dense, u_dense, blocks = _dense_feature_system(a, y, e3, ff, n_f, w, prior)
+    assert np.allclose(res, r_dense, atol=1e-6 * np.abs(y).max())
+    assert np.allclose(hat, hat_dense, atol=1e-6)
     # the heights (m) sit on a weak prior, so their last digits depend on the pseudo-inverse; 0.1 mm
-    assert np.allclose(u[:, 0], x_all[p::3], atol=1e-4)
-    assert np.allclose(u[:, 1:], x_all[p:].reshape(n_f, 3)[:, 1:], rtol=1e-6, atol=1e-9)
-    blocks = np.array([Ninv[p + 3 * k:p + 3 * k + 3, p + 3 * k:p + 3 * k + 3] for k in range(n_f)])
+    assert np.allclose(u[:, 0], u_dense[:, 0], atol=1e-4)
+    assert np.allclose(u[:, 1:], u_dense[:, 1:], rtol=1e-6, atol=1e-9)
     assert np.allclose(cov_u[:, 1:, 1:], blocks[:, 1:, 1:], rtol=1e-6)
 
 
