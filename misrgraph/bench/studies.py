@@ -184,8 +184,11 @@ MODEL_TRUTH_ADJUST: dict[str, Any] = {"attitude_jitter_arcsec": 0.0}
 
 
 #: the NEES classes of an adjustment (:func:`misrgraph.evaluate.score.score_pass`): the whole
-#: state also split exactly into the landmarks given the other variables and those jointly
-NEES_CLASSES = ("knots", "ephemeris", "camera", "landmarks", "state", "state_landmarks_given_rest", "state_rest")
+#: state also split exactly into the landmarks given the other variables and those jointly, and
+#: the landmarks into what those seen within 300 s of each other share and what each has alone
+#: (:mod:`misrgraph.evaluate.landmarks`)
+NEES_CLASSES = ("knots", "ephemeris", "camera", "landmarks", "landmarks_common", "landmarks_within", "state",
+                "state_landmarks_given_rest", "state_rest")
 
 
 def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
@@ -196,7 +199,9 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
     ``calibration``: months (reduced: 24 GCPs over 16 days; standard: 120 GCPs over 30 days), NEES
     of the 27 camera corrections. ``adjust``: passes (reduced: 10 minutes, 80 tie points, 20 check
     points; standard: 45 minutes, 600 tie points, 20 check points), NEES of the knots (joint),
-    the ephemeris (joint), the camera corrections, the landmarks and the whole state (also split
+    the ephemeris (joint), the camera corrections, the landmarks (also split into the mean error
+    of the landmarks within 300 s of each other and each one's deviation from it, with their full
+    joint covariance: :mod:`misrgraph.evaluate.landmarks`) and the whole state (also split
     into the landmarks given the other variables' errors and those others jointly,
     :data:`NEES_CLASSES`), and with
     check points their actual RMS over the RMS the covariance predicts (over all cameras, and per

@@ -390,7 +390,13 @@ def _print_adjust_summary(s: dict) -> None:
                       + f" ({100 * s['observed_fraction_of_pass']:.0f} % of the pass observed); "
                       f"ephemeris RMS error {s['ephemeris_rms_m']:.1f} m")
         n = s["nees"]
-        console.print(f"NEES / dim: knots {n['knots']:.2f}, landmarks {n['landmarks']:.2f}, whole state {n['state']:.2f} (1 = honest)")
+        parts = [f"knots {n['knots']:.2f}", f"landmarks {n['landmarks']:.2f}"]
+        if "landmarks_within" in n:
+            parts[-1] += (f" (common to {s['landmark_split']['window_s']:.0f} s windows {n['landmarks_common']:.2f}, "
+                          f"within them {n['landmarks_within']:.2f})")
+        parts += [f"{name} {n[k]:.2f}" for k, name in (("camera", "camera"), ("ephemeris", "ephemeris"), ("state", "whole state"))
+                  if k in n]
+        console.print("NEES / dim: " + ", ".join(parts) + " (1 = honest)")
 
 
 @app.command()

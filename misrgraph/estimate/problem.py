@@ -420,12 +420,30 @@ class FlatProblem:
 @dataclass
 class Marginals:
     """Marginal covariances of every variable (dict key -> (d, d)) and the joint of the
-    non-landmark variables (``joint``, ordered as ``joint_keys``)."""
+    non-landmark variables (``joint``, ordered as ``joint_keys``).
+
+    When all of them were computed (:func:`schur_marginals` without ``joint_keys``) the
+    landmarks' response to the other variables comes too: ``landmark_response`` ``G = H_ll^-1 H_lc``
+    (sparse ``(3L, n_c)``, row block ``landmark_index[key]``, columns in ``joint`` order), so that
+    two landmarks' cross-covariance is ``G_i joint G_j^T`` (:meth:`landmark_response_of`)."""
 
     cov: dict[int, Array]
     joint: Array
     joint_keys: list[int]
     joint_offsets: dict[int, int]
+    landmark_response: sp.csr_matrix | None = None
+    landmark_index: dict[int, int] = field(default_factory=dict)
+
+    def landmark_response_of(self, keys: list[int]) -> Array:
+        """``(n, 3, n_c)``: the landmarks' responses ``G_i`` (columns in ``joint`` order); two
+        landmarks ``i != j`` have the cross-covariance ``G_i joint G_j^T``."""
+        if self.landmark_response is None:
+            raise InputError("marginals", "joint-only", "marginals of every variable (schur_marginals without joint_keys)")
+        missing = [int(k) for k in keys if int(k) not in self.landmark_index]
+        if missing:
+            raise InputError("keys", missing[:3], "landmark keys of the problem")
+        rows = np.concatenate([3 * self.landmark_index[int(k)] + np.arange(3) for k in keys]) if keys else np.zeros(0, np.int64)
+        return self.landmark_response[rows].toarray().reshape(len(keys), 3, -1)
 
     def __getitem__(self, key: int) -> Array:
         return self.cov[int(key)]
@@ -607,7 +625,8 @@ def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_
         sl = h_ll_inv + np.einsum("lib,ljb->lij", gs, gd)
         for j, k in enumerate(landmark_keys):
             cov[int(k)] = sl[j]
-    return Marginals(cov, sigma_cc, [int(k) for k in other_keys], off)
+    return Marginals(cov, sigma_cc, [int(k) for k in other_keys], off, g.tocsr(),
+                     {int(k): j for j, k in enumerate(landmark_keys)})
 
 
 def marginal_covariances(problem: Problem, values: gtsam.Values, lin: gtsam.GaussianFactorGraph | None = None,

@@ -20,6 +20,7 @@ from factors.collinearity import camera_param_scale
 from misrgraph.estimate.adjust import AdjustResult, corrected_geometry, estimated_models, supplied_camera_of
 from misrgraph.estimate.calibrate import param_value
 from misrgraph.estimate.solver import information_norm_split, linearize
+from misrgraph.evaluate.landmarks import LANDMARK_GROUP_S, landmark_nees_split, time_groups
 from misrgraph.io.passes import KIND_CHECK, OrbitPass
 from misrgraph.io.truth import PassTruth
 from misrgraph.model.camera import CameraModel
@@ -28,7 +29,7 @@ from misrgraph.model.errormodels import AttitudeErrorModel, spline_design
 from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import PassGeometry
 
-__all__ = ["score_pass", "geolocation_errors", "predicted_checkpoint_rms", "horizontal_error", "true_knots"]
+__all__ = ["score_pass", "geolocation_errors", "predicted_checkpoint_rms", "landmark_split", "horizontal_error", "true_knots"]
 
 Array = NDArray[np.float64]
 RED = BANDS.index("red")
@@ -103,6 +104,12 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
     out["nees"] = _joint_nees(res, delta, knot_keys, "knots")
     lm_nees = [delta[int(k)] @ np.linalg.solve(res.marginals[int(k)], delta[int(k)]) for k in pg.landmark_keys]
     out["nees"].update(landmarks=float(np.mean(lm_nees) / 3.0), landmarks_dim=int(3 * len(lm_nees)))
+    split = landmark_split(orbit_pass, truth, res, delta)
+    if split is not None:
+        out["landmark_split"] = split
+        out["nees"].update(landmarks_common=split["common"], landmarks_common_dim=split["common_dim"])
+        if split["within_dim"]:
+            out["nees"].update(landmarks_within=split["within"], landmarks_within_dim=split["within_dim"])
     if same_eph:
         out["nees"].update(_joint_nees(res, delta, pg.ephemeris_keys(), "ephemeris"))
     if pg.camera_keys:
@@ -232,6 +239,36 @@ def _joint_nees(res: AdjustResult, delta: dict[int, Array], keys: list[int], nam
     """NEES/dim of several variables with their joint covariance: ``{name, name_dim}``."""
     e = np.concatenate([delta[k] for k in keys])
     return {name: float(e @ np.linalg.solve(res.marginals.joint_of(keys), e) / e.size), f"{name}_dim": int(e.size)}
+
+
+def landmark_split(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, delta: dict[int, Array],
+                   window_s: float = LANDMARK_GROUP_S) -> dict[str, Any] | None:
+    """The landmark NEES split into the part landmarks seen within ``window_s`` of each other
+    share and the part each has alone (:func:`misrgraph.evaluate.landmarks.landmark_nees_split`),
+    in each landmark's local east, north, up, over the landmarks with adjusted observations
+    (grouped by their mean observation time). ``delta``: estimate minus truth per landmark key.
+    None when the marginals hold no landmark response (joint-only marginals)."""
+    pg = res.pass_graph
+    if res.marginals.landmark_response is None or not len(pg.landmark_keys):
+        return None
+    obs = orbit_pass.observations
+    rows = obs.landmark[pg.obs_index]
+    t = orbit_pass.observation_times()[pg.obs_index]
+    n_rows = len(orbit_pass.landmarks.kind)
+    count = np.bincount(rows, minlength=n_rows)
+    mean_t = np.bincount(rows, weights=t, minlength=n_rows) / np.maximum(count, 1)
+    lm_rows = np.asarray(pg.landmark_rows)
+    seen = count[lm_rows] > 0
+    keys = [int(k) for k, ok in zip(pg.landmark_keys, seen) if ok]
+    if not keys:
+        return None
+    lat, lon, _ = ecef_to_geodetic(truth.landmark_ecef[lm_rows[seen]])
+    enu = enu_basis(lat, lon)                                            # (L, 3, 3), columns east, north, up
+    err = np.einsum("lij,li->lj", enu, np.array([delta[k] for k in keys]))
+    cov = np.einsum("lji,ljk,lkm->lim", enu, np.array([res.marginals[k] for k in keys]), enu)
+    resp = np.einsum("lji,ljc->lic", enu, res.marginals.landmark_response_of(keys))
+    out = landmark_nees_split(err, cov, resp, res.marginals.joint, time_groups(mean_t[lm_rows[seen]], window_s))
+    return {"window_s": float(window_s), "landmarks": len(keys), **out}
 
 
 def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array, h: Array, true_geo: PassGeometry,

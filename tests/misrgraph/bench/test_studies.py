@@ -56,8 +56,10 @@ def test_bench_nees_per_class_at_reduced_size(bench_dir):
 
     r = run_bench_nees("adjust", runs=2, seed=1000, workdir=bench_dir)
     assert r["truth"] == "model" and r["adjust_overrides"] == {"attitude_jitter_arcsec": 0.0}
-    assert set(r["summary"]) >= {"knots", "ephemeris", "landmarks", "state", "state_landmarks_given_rest", "state_rest",
-                                 "checkpoint_rms_over_predicted", "checkpoint_rms_m"}
+    assert set(r["summary"]) >= {"knots", "ephemeris", "landmarks", "landmarks_common", "landmarks_within", "state",
+                                 "state_landmarks_given_rest", "state_rest", "checkpoint_rms_over_predicted", "checkpoint_rms_m"}
+    # the landmarks' two parts are averaged over the same landmarks as the landmarks' NEES
+    assert r["summary"]["landmarks_within"]["dof"] <= r["summary"]["landmarks"]["dof"]
     # the whole state's chi-square is the sum of its two parts, run by run and pooled
     sm = r["summary"]
     assert sm["state_landmarks_given_rest"]["dof"] + sm["state_rest"]["dof"] == sm["state"]["dof"]

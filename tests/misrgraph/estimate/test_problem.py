@@ -75,6 +75,29 @@ def test_every_marginal_path_agrees_with_gtsam(solved):
         np.testing.assert_allclose(flat_path[k], lin_path[k], rtol=1e-8, atol=1e-12 * np.max(np.abs(lin_path[k])))
 
 
+def test_landmark_cross_covariance_agrees_with_gtsam(solved):
+    """Two landmarks co-vary through the other variables only: ``G_i joint G_j^T`` from the
+    marginals' landmark response is GTSAM's joint marginal of the pair, on both marginal paths;
+    joint-only marginals refuse the question."""
+    from misrgraph.errors import InputError
+
+    pg, res = solved
+    prob = pg.problem
+    keys = [int(k) for k in pg.landmark_keys[[0, len(pg.landmark_keys) // 2, -1]]]
+    ref = _gtsam_marginals(prob, res.values).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+    for marg in (marginal_covariances(prob, res.values), flat_marginals(prob.flat(), prob.flat().from_values(res.values))):
+        g = marg.landmark_response_of(keys)
+        for i in range(3):
+            for j in range(3):
+                block = marg[keys[i]] if i == j else g[i] @ marg.joint @ g[j].T
+                want = ref[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+                np.testing.assert_allclose(block, want, rtol=1e-6, atol=1e-8 * np.max(np.abs(np.diag(ref))))
+    with pytest.raises(InputError, match="marginals"):
+        marginal_covariances(prob, res.values, joint_keys=pg.ephemeris_keys()).landmark_response_of(keys[:1])
+    with pytest.raises(InputError, match="keys"):
+        marginal_covariances(prob, res.values).landmark_response_of([int(pg.ephemeris_keys()[0])])
+
+
 def test_a_month_s_camera_marginals_agree_with_gtsam(small_month_dir):
     """A calibration problem (GCP landmarks shared by several passes, the cameras by all), solved
     on GTSAM's elimination with the core's COLAMD ordering: the cameras' joint covariance by the
