@@ -366,7 +366,7 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
     with bench_workdir(workdir) as wd:
         out = wd / f"path_{passes}_{tie_points}_{seed}"
         if not (out / "scenario.json").exists():
-            run_simulate(ScenarioConfig(scenario="path", seed=seed, n_passes=passes, n_tie_points=tie_points,
+            run_simulate(ScenarioConfig(truth="model", scenario="path", seed=seed, n_passes=passes, n_tie_points=tie_points,
                                         n_check_points=0, duration_s=900.0, start_lat_deg=55.0), out)
         sc = load_scenario(out)
         orbit_passes = [sc.load_pass(k) for k in range(len(sc.pass_files))]

@@ -69,7 +69,7 @@ def run_bench_calibration(size: str = "standard", seed: int = 3, workdir: str | 
         out = Path(wd) / f"month_{size}_{seed}"
         if not (out / "scenario.json").exists():
             log.info("simulating the %s month (seed %d)", size, seed)
-            run_simulate(ScenarioConfig(scenario="month", seed=seed, **MONTH_SIZES[size]), out)
+            run_simulate(ScenarioConfig(scenario="month", seed=seed, truth="model", **MONTH_SIZES[size]), out)
         sc = load_scenario(out)
         passes = [sc.load_pass(i) for i in range(len(sc.pass_files))]
         prob, _ = _build(passes, sc.camera_model, sc.gcps, CalibrateConfig().graph_config(), None, None)

@@ -270,14 +270,14 @@ def _prepare_inputs(work: Path, commands: tuple[str, ...]) -> dict[str, Any]:
     inputs: dict[str, Any] = {}
     if "adjust" in commands:
         inputs["pass"] = work / "in_pass"
-        run_simulate(ScenarioConfig(scenario="pass", seed=7, n_tie_points=60, n_check_points=5, duration_s=600.0,
+        run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=7, n_tie_points=60, n_check_points=5, duration_s=600.0,
                                     start_lat_deg=50.0), inputs["pass"])
     if "calibrate" in commands:
         inputs["month"] = work / "in_month"
-        run_simulate(ScenarioConfig(scenario="month", seed=8, n_gcps=16, month_days=8), inputs["month"])
+        run_simulate(ScenarioConfig(truth="model", scenario="month", seed=8, n_gcps=16, month_days=8), inputs["month"])
     if "update" in commands:
         p = work / "in_path"
-        run_simulate(ScenarioConfig(scenario="path", seed=9, n_passes=2, n_tie_points=30, n_check_points=3,
+        run_simulate(ScenarioConfig(truth="model", scenario="path", seed=9, n_passes=2, n_tie_points=30, n_check_points=3,
                                     duration_s=400.0, start_lat_deg=50.0), p)
         inputs["path_passes"] = sorted((p / "passes").glob("*.h5"))
         base = work / "base_state"

@@ -90,7 +90,7 @@ def run_bench_match(tie_points: int = 1000, seed: int = 0, duration_s: float = 2
     """Render, match and adjust one pass (see the module docstring); returns the figures."""
     with bench_workdir(workdir, "misrgraph-bench-match-") as base:
         cfg = dict(scenario="pass", seed=seed, n_tie_points=tie_points, n_check_points=check_points,
-                   duration_s=duration_s, cloud_fraction=cloud_fraction)
+                   duration_s=duration_s, cloud_fraction=cloud_fraction, truth="model")
         t0 = time.perf_counter()
         run_simulate(ScenarioConfig(**cfg), base / "plain")
         t_plain = time.perf_counter() - t0

@@ -43,7 +43,7 @@ def run_bench_roi(passes: int = 4, blocks: int = 2, seed: int = 0, workdir: str 
         t_sim = None
         if not (scen / "scenario.json").is_file():
             t0 = time.perf_counter()
-            run_simulate(ScenarioConfig(scenario="path", seed=seed, n_passes=passes, n_tie_points=tie_points, imagery=True,
+            run_simulate(ScenarioConfig(truth="model", scenario="path", seed=seed, n_passes=passes, n_tie_points=tie_points, imagery=True,
                                         cloud_fraction=cloud_fraction, feature_windows=False,
                                         roi_blocks=(first_block, last)), scen, progress=progress)
             t_sim = time.perf_counter() - t0

@@ -32,7 +32,7 @@ def standard_pass(tie_points: int, seed: int, workdir: Path, duration_s: float =
     ``check_points`` check points, which only score the products)."""
     out = workdir / (f"pass_{tie_points}_{seed}_{int(duration_s)}" + (f"_c{check_points}" if check_points else ""))
     if not (out / "scenario.json").exists():
-        run_simulate(ScenarioConfig(scenario="pass", seed=seed, n_tie_points=tie_points, n_check_points=check_points,
+        run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=seed, n_tie_points=tie_points, n_check_points=check_points,
                                     duration_s=duration_s), out)
     sc = load_scenario(out)
     return sc, sc.load_pass(0)

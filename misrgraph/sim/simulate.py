@@ -116,9 +116,10 @@ PAIRED_SOURCES = frozenset({"jitter_arcsec", "once_per_rev_m", "subposting_relie
 class ScenarioConfig(Config):
     """Simulator settings (units in the names). Unknown keys are rejected by ``from_dict``.
 
-    ``truth``: ``"model"`` draws the navigation errors from the estimator's own parameterisations
+    ``truth``: ``"independent"`` (the default) draws the errors from processes the estimator does
+    not share; ``"model"`` draws the navigation errors from the estimator's own parameterisations
     (an attitude spline on its knot grid, eq. 19 on its segments) -- NEES then checks the algebra
-    only; ``"independent"`` draws them from processes the estimator does not share: the attitude
+    only, which is what the model truth is for. Under the independent truth the attitude
     error is a smooth process (periods 200-2000 s) plus jitter (``jitter_arcsec`` 1 sigma, periods
     8-120 s) on a 2 s spline, the ephemeris error an offset, a drift and a once-per-revolution term
     (``once_per_rev_m`` 1 sigma per axis) on 60 s segments; and, also only there:
@@ -173,7 +174,7 @@ class ScenarioConfig(Config):
     """
 
     scenario: str = "pass"
-    truth: str = "model"
+    truth: str = "independent"
     jitter_arcsec: float = 1.0
     once_per_rev_m: float = 30.0
     subposting_relief_m: float = 3.0

@@ -133,7 +133,7 @@ def test_nees_inside_chi2_band_over_seeds(tmp_path):
     tot = {"knots": [0.0, 0], "state": [0.0, 0]}
     for seed in range(8):
         out = tmp_path / f"s{seed}"
-        run_simulate(ScenarioConfig(scenario="pass", seed=100 + seed, n_tie_points=80, n_check_points=0,
+        run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=100 + seed, n_tie_points=80, n_check_points=0,
                                     duration_s=600.0, start_lat_deg=50.0), out)
         s = run_adjust(out, cfg=AdjustConfig(**MODEL_TRUTH_ADJUST))
         for k in tot:

@@ -29,7 +29,7 @@ def month(small_month_dir):
 def test_standard_month_meets_the_eighth_pixel_requirement(tmp_path):
     """The standard month (120 GCPs, 30 days, 5 % GCP blunders): every camera within 1/8 pixel."""
     out = tmp_path / "month"
-    run_simulate(ScenarioConfig(scenario="month", seed=3), out)
+    run_simulate(ScenarioConfig(truth="model", scenario="month", seed=3), out)
     s = run_calibrate(out)
     assert s["max_pointing_error_px"] <= 0.125  # the seed's requirement
     for v in s["cameras"].values():
@@ -57,7 +57,7 @@ def test_nees_inside_chi2_band_over_seeds(tmp_path):
     chi2, dof = 0.0, 0
     for seed in range(5):
         out = tmp_path / f"m{seed}"
-        run_simulate(ScenarioConfig(scenario="month", seed=200 + seed, n_gcps=24, month_days=16), out)
+        run_simulate(ScenarioConfig(truth="model", scenario="month", seed=200 + seed, n_gcps=24, month_days=16), out)
         s = run_calibrate(out)
         chi2 += s["nees"] * s["nees_dim"]
         dof += s["nees_dim"]

@@ -191,7 +191,7 @@ def test_a_pass_across_the_antimeridian_adjusts(tmp_path):
     from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
     d = tmp_path / "am"
-    run_simulate(ScenarioConfig(scenario="pass", seed=6, path=91, n_tie_points=60, n_check_points=10,
+    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=6, path=91, n_tie_points=60, n_check_points=10,
                                 duration_s=300.0, start_lat_deg=72.0), d)
     _, lon, _ = ecef_to_geodetic(load_scenario(d).load_truth(0).landmark_ecef)
     assert np.sum(lon > 179.0) > 3 and np.sum(lon < -179.0) > 3

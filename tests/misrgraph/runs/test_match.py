@@ -145,7 +145,7 @@ def test_clouds_no_wrong_match_survives(tmp_path):
     """30 % cloud: wrong matches (more than 1 px from the truth) are rejected by matching or by the
     adjustment's blunder tests; none is left in the solution."""
     out = tmp_path / "cloudy"
-    run_simulate(ScenarioConfig(scenario="pass", seed=5, n_tie_points=60, n_check_points=5, duration_s=900.0,
+    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=5, n_tie_points=60, n_check_points=5, duration_s=900.0,
                                 start_lat_deg=45.0, imagery=True, cloud_fraction=0.3), out)
     res = run_match(out)
     s = run_adjust(out, observations="matched")
@@ -172,7 +172,7 @@ def dense_imagery_dir(tmp_path_factory):
     """A 25-minute pass with 250 tie points: enough redundancy in every camera (the D cameras see
     An's features of the middle 11 minutes only) to measure its precision."""
     out = tmp_path_factory.mktemp("scen") / "dense"
-    run_simulate(ScenarioConfig(scenario="pass", seed=8, n_tie_points=250, n_check_points=5, duration_s=1500.0,
+    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=8, n_tie_points=250, n_check_points=5, duration_s=1500.0,
                                 start_lat_deg=55.0, imagery=True), out)
     return out
 
@@ -209,7 +209,7 @@ def test_a_month_calibrates_from_gcps_matched_in_its_imagery(tmp_path):
     from misrgraph.runs.calibrate import run_calibrate
 
     out = tmp_path / "month"
-    s = run_simulate(ScenarioConfig(scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True), out)
+    s = run_simulate(ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True), out)
     res = run_match(out)
     g = res["gcp"]
     assert len(res["passes"]) == s["passes"] > 1 and res["tie"]["candidates"] == 0
@@ -239,7 +239,7 @@ def test_gcps_matched_in_two_bands_calibrate_each_band(tmp_path):
     from misrgraph.model.constants import BANDS
 
     out = tmp_path / "month2"
-    run_simulate(ScenarioConfig(scenario="month", seed=1, n_gcps=20, month_days=3, imagery=True,
+    run_simulate(ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=20, month_days=3, imagery=True,
                                 bands=("red", "nir"), band_misalignment_arcsec=10.0), out)
     im = read_imagery(load_scenario(out).pass_files[0])
     assert set(im.gcp.band.tolist()) == {BANDS.index("red"), BANDS.index("nir")}
@@ -272,7 +272,7 @@ def test_the_search_range_defaults_to_the_windows_own(tmp_path):
     from misrgraph.match.pipeline import MatchConfig
 
     out = tmp_path / "wide"
-    run_simulate(ScenarioConfig(scenario="pass", seed=4, n_tie_points=12, n_check_points=2, duration_s=300.0,
+    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=4, n_tie_points=12, n_check_points=2, duration_s=300.0,
                                 start_lat_deg=45.0, imagery=True, search_px=12), out)
     assert read_imagery(load_scenario(out).pass_files[0]).gcp.pixels.shape[-1] == 64 + 2 * 12
     wide = run_match(out)["passes"][0]

@@ -25,14 +25,14 @@ def test_config_rejects_unknown_and_bad_values():
     with pytest.raises(InputError, match="ScenarioConfig.tie_sigma"):
         ScenarioConfig.from_dict({"tie_sigma": 0.2})
     with pytest.raises(InputError, match="scenario"):
-        ScenarioConfig(scenario="week")
+        ScenarioConfig(truth="model", scenario="week")
     with pytest.raises(InputError, match="gcp_blunder_rate"):
-        ScenarioConfig(gcp_blunder_rate=1.5)
+        ScenarioConfig(truth="model", gcp_blunder_rate=1.5)
 
 
 def test_noise_free_observations_reproject_exactly(tmp_path):
     out = tmp_path / "nf"
-    run_simulate(ScenarioConfig(scenario="pass", seed=2, n_tie_points=60, n_check_points=5, duration_s=900.0,
+    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=2, n_tie_points=60, n_check_points=5, duration_s=900.0,
                                 start_lat_deg=55.0, noise_free=True), out)
     sc = load_scenario(out)
     p, tp = sc.load_pass(0), sc.load_truth(0)
@@ -97,7 +97,7 @@ def test_pass_contents(small_pass):
 
 
 def test_truth_draw_statistics():
-    cfg = ScenarioConfig()
+    cfg = ScenarioConfig(truth="model")
     rng = np.random.default_rng(0)
     n = 400
     p = np.stack([draw_ephemeris_error(rng, cfg, 0.0, 2700.0).params[0] for _ in range(n)])
@@ -117,7 +117,7 @@ def test_truth_draw_statistics():
 
 def test_month_scenario_gcps_seen_three_times(tmp_path):
     out = tmp_path / "month"
-    s = run_simulate(ScenarioConfig(scenario="month", seed=3, n_gcps=24, month_days=30), out)
+    s = run_simulate(ScenarioConfig(truth="model", scenario="month", seed=3, n_gcps=24, month_days=30), out)
     assert s["gcps_seen"] >= 22
     assert s["gcps_seen_in_3_or_more_passes"] >= 0.85 * s["gcps_seen"]
     sc = load_scenario(out)
@@ -216,7 +216,7 @@ def test_crash_during_simulation_leaves_no_directory(tmp_path, monkeypatch):
 
     monkeypatch.setattr(sim, "simulate_dem_tiles", boom)
     with pytest.raises(RuntimeError):
-        run_simulate(ScenarioConfig(scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0,
+        run_simulate(ScenarioConfig(truth="model", scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0,
                                     start_lat_deg=45.0), tmp_path / "out")
     assert list(tmp_path.iterdir()) == []
 
@@ -232,7 +232,7 @@ def test_scenario_directory_validation(tmp_path):
 def test_refuses_to_overwrite_foreign_directory(tmp_path):
     (tmp_path / "precious.txt").write_text("data")
     with pytest.raises(InputError, match="--out"):
-        run_simulate(ScenarioConfig(n_tie_points=5), tmp_path)
+        run_simulate(ScenarioConfig(truth="model", n_tie_points=5), tmp_path)
     assert (tmp_path / "precious.txt").read_text() == "data"
     assert not (tmp_path / "scenario.json").exists() and json.loads("{}") == {}
 
@@ -240,7 +240,7 @@ def test_refuses_to_overwrite_foreign_directory(tmp_path):
 def test_replacing_a_scenario_keeps_user_files_and_leaves_no_debris(tmp_path):
     """A scenario directory is replaced only if it holds nothing but what simulate writes; the
     replacement swaps directories (the old one is deleted after the new one is in place)."""
-    cfg = ScenarioConfig(scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0, start_lat_deg=45.0)
+    cfg = ScenarioConfig(truth="model", scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0, start_lat_deg=45.0)
     out = tmp_path / "scen"
     run_simulate(cfg, out)
     first = (out / "scenario.json").read_text()
@@ -353,7 +353,7 @@ def test_measurements_moved_outside_the_pass_are_not_made(tmp_path):
     measurements instead of writing a pass file that fails its own check (seen at standard
     size: a mismatch put a line at -0.56). Large blunders at a high rate make it certain here."""
     out = tmp_path / "edge"
-    cfg = ScenarioConfig(scenario="pass", seed=4, n_tie_points=60, n_check_points=5, duration_s=600.0,
+    cfg = ScenarioConfig(truth="model", scenario="pass", seed=4, n_tie_points=60, n_check_points=5, duration_s=600.0,
                          start_lat_deg=50.0, tie_blunder_rate=0.5, blunder_min_px=200.0, blunder_max_px=400.0)
     run_simulate(cfg, out)
     sc = load_scenario(out)
@@ -380,6 +380,25 @@ def test_cli_refuses_a_negative_coast_ramp(tmp_path):
     assert r.returncode != 0
     assert "coast_ramp_m" in r.stderr and "-5.0" in r.stderr and ">= 0" in r.stderr and "Traceback" not in r.stderr
     assert not out.exists()
+
+
+def test_simulate_draws_the_independent_truth_unless_told(tmp_path):
+    """``misrgraph simulate`` and ``ScenarioConfig`` without a truth draw the independent one (the
+    attitude truth on its own 2 s grid, not on the estimator's 60 s knots); ``--truth model``
+    draws the estimator's own."""
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+    from misrgraph.sim.simulate import load_scenario
+
+    args = ["simulate", "--scenario", "pass", "--tie-points", "5", "--check-points", "0", "--duration", "300"]
+    spacing = {}
+    for name, extra in (("default", []), ("model", ["--truth", "model"])):
+        r = CliRunner().invoke(app, [*args, *extra, "--out", str(tmp_path / name)])
+        assert r.exit_code == 0, r.output
+        spacing[name] = float(np.median(np.diff(load_scenario(tmp_path / name).load_truth(0).attitude_error.knot_times[1])))
+    assert spacing == {"default": 2.0, "model": 60.0}
+    assert json.loads((tmp_path / "default" / "scenario.json").read_text())["config"]["truth"] == "independent"
 
 
 def test_paired_sources_leave_every_other_draw_unchanged(tmp_path, monkeypatch):
