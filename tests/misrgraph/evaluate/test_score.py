@@ -46,8 +46,18 @@ def test_an_independent_truth_is_scored_on_what_it_defines(tmp_path):
     assert np.allclose(np.diff(t.ephemeris_error.boundaries)[:-1], 60.0)
     s = run_adjust(d)
     assert s["truth_in_estimator_parameterisation"] is False
-    assert {"knots", "landmarks"} <= set(s["nees"]) and not {"state", "ephemeris"} & set(s["nees"])
+    assert {"knots", "landmarks", "landmarks_common", "landmarks_within"} <= set(s["nees"])
+    assert not {"state", "ephemeris"} & set(s["nees"])
     assert np.isfinite(s["nees"]["knots"]) and s["checkpoint_geolocation_m"]
+    # the CLI prints what this truth defines (it once failed looking for the whole-state NEES)
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+
+    r = CliRunner().invoke(app, ["adjust", str(d)])
+    assert r.exit_code == 0, r.output
+    text = " ".join(r.stdout.split())  # rich wraps at the terminal's width
+    assert "NEES / dim: knots" in text and "within them" in text and "whole state" not in text
     with pytest.raises(Exception, match="truth"):
         ScenarioConfig(truth="made-up")
 
