@@ -247,6 +247,7 @@ def adjust(
     accept_unconverged: bool = typer.Option(False, "--accept-unconverged", help="Keep the result of a solve that did not converge (flagged in the summary and RESULT.h5) instead of failing with exit 1."),
     observations: str = typer.Option("simulated", "--observations", help="simulated (the pass's observations) or matched (those 'misrgraph match' measured in the imagery)."),
     tie_height: str = typer.Option("auto", "--tie-height-sigma-m", help="1 sigma (m) of the height error a matched tie point's rays share (relief under the template), added to each tie point's covariance along An's ray: 'auto' estimates it from the pass's DEM residuals for matched tie points and leaves it out for simulated ones; 'estimate' always estimates it; a number fixes it (0: off). See docs/conventions.md."),
+    tie_offset: str = typer.Option("auto", "--tie-offset-sigma-px", help="1 sigma (px) of the offset a matched tie point's conjugates share (they all match An's template), its effect added to each tie point's covariance: 'auto' takes what 'misrgraph match' measured for the pass and leaves it out for simulated tie points; a number fixes it (0: off). See docs/design.md."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
@@ -263,6 +264,12 @@ def adjust(
             tie_height_setting = float(tie_height)
         except ValueError:
             _fail(f"--tie-height-sigma-m: got {tie_height!r}; expected auto, estimate or a 1 sigma in m (0: off)")
+    tie_offset_setting: float | str = tie_offset
+    if tie_offset != "auto":
+        try:
+            tie_offset_setting = float(tie_offset)
+        except ValueError:
+            _fail(f"--tie-offset-sigma-px: got {tie_offset!r}; expected auto or a 1 sigma in px (0: off)")
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
                                       knot_prior=knot_prior, knot_prior_damping=knot_damping, use_dem=not no_dem,
@@ -273,7 +280,7 @@ def adjust(
                                       attitude_jitter_arcsec=jitter_arcsec, attitude_jitter_periods_s=periods,
                                       jitter_in_weights=not no_jitter_weights,
                                       ephemeris_once_per_rev_m=once_per_rev, ephemeris_segments=eph_segments,
-                                      tie_height_sigma_m=tie_height_setting))
+                                      tie_height_sigma_m=tie_height_setting, tie_offset_sigma_px=tie_offset_setting))
     with err_console.status("adjusting...") as st:
         summary = run_adjust(scenario_dir, camera_model, pass_file, gcp_file, dem_file, out, cfg,
                              progress=lambda s: st.update(s), observations=observations)
@@ -375,6 +382,11 @@ def _print_adjust_summary(s: dict) -> None:
                       "added to their covariance along An's ray")
     elif th.get("source") == "fixed":
         console.print(f"tie points' shared height error: {th['sigma_m']:.1f} m (fixed), added to their covariance along An's ray")
+    to = s.get("tie_offset", {})
+    if to.get("source") in ("matched", "fixed"):
+        console.print(f"offset shared by a tie point's conjugates: {to['sigma_px']:.3f} px "
+                      f"({'measured by the matcher' if to['source'] == 'matched' else 'fixed'}), its effect added to "
+                      f"{to.get('tie_points', 0)} tie points' covariance")
     if "checkpoint_geolocation_m" in s:
         t = Table(title="check points: ground error (m) with supplied -> corrected navigation")
         for col in ("camera", "before mean", "before std", "after mean", "after std", "ratio", "co-reg vs An (px)"):

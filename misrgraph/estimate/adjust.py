@@ -48,10 +48,11 @@ from misrgraph.estimate.solver import SolverParams, check_converged, solve
 from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
 from misrgraph.estimate.reliability import Reliability, critical_T, reliability
 from misrgraph.estimate.tieheight import TIE_HEIGHT_MODES, inflate_along, shared_height_variance
+from misrgraph.estimate.tieoffset import TIE_OFFSET_MODES, offset_covariance, offset_response
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
            "supplied_camera_of", "drop_unsupported_landmarks", "snoop", "attitude_sigma_summary", "adjustment_marginals",
-           "unresolved_attitude", "tie_height_term"]
+           "unresolved_attitude", "tie_height_term", "tie_offset_term"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -129,6 +130,12 @@ class AdjustConfig(Config):
     #: point measurements (the simulator's own observations); "estimate" always estimates it; a
     #: number (m) fixes it, 0 switches it off
     tie_height_sigma_m: float | str = "auto"
+    #: the offset a matched tie point's conjugates share (px, 1 sigma per coordinate;
+    #: :mod:`misrgraph.estimate.tieoffset`), its effect added to each tie landmark's covariance:
+    #: "auto" (default) takes the matcher's measurement when the tie points were matched
+    #: (``adjust_pass(..., tie_offset_px=...)``) and leaves it out otherwise; a number (px) fixes
+    #: it, 0 switches it off
+    tie_offset_sigma_px: float | str = "auto"
     max_iterations: int = 100
     backend: str = "auto"
     #: keep the result of a solve that did not converge (flagged in the summary and the result
@@ -149,6 +156,10 @@ class AdjustConfig(Config):
         if not (t in TIE_HEIGHT_MODES if isinstance(t, str) else
                 isinstance(t, (int, float)) and not isinstance(t, bool) and np.isfinite(t) and t >= 0):
             raise InputError("tie_height_sigma_m", t, f"one of {TIE_HEIGHT_MODES} or a finite 1 sigma >= 0 (m)")
+        o = self.tie_offset_sigma_px
+        if not (o in TIE_OFFSET_MODES if isinstance(o, str) else
+                isinstance(o, (int, float)) and not isinstance(o, bool) and np.isfinite(o) and o >= 0):
+            raise InputError("tie_offset_sigma_px", o, f"one of {TIE_OFFSET_MODES} or a finite 1 sigma >= 0 (px)")
         self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
@@ -202,6 +213,10 @@ class AdjustResult:
     #: what that term added to each tie landmark's marginal covariance (key -> (3, 3) m^2); the
     #: marginals already include it, scores of the graph's own information add it back
     landmark_extra_cov: dict = dataclasses.field(default_factory=dict)
+    #: the offset the matched tie points' conjugates share (``AdjustConfig.tie_offset_sigma_px``):
+    #: how it was set ("matched", "fixed", "off") and its figures (:func:`tie_offset_term`); its
+    #: covariance is in ``landmark_extra_cov`` too
+    tie_offset: dict = dataclasses.field(default_factory=lambda: {"source": "off", "sigma_px": 0.0})
 
 
 def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -> tuple[AttitudeErrorModel, EphemerisErrorModel, CameraModel]:
@@ -233,10 +248,13 @@ def adjust_pass(
     cfg: AdjustConfig = AdjustConfig(),
     progress: Callable[[str], None] | None = None,
     ties_matched: bool = False,
+    tie_offset_px: float | None = None,
 ) -> AdjustResult:
     """Robust solve, blunder rejection, least-squares re-solve and marginals (module docstring).
     ``ties_matched``: the tie points were measured by image matching (``misrgraph match``), so
-    ``tie_height_sigma_m="auto"`` estimates their shared height error."""
+    ``tie_height_sigma_m="auto"`` estimates their shared height error; ``tie_offset_px``: the
+    offset their conjugates share as the matcher measured it (px, 1 sigma; None: not measured),
+    which ``tie_offset_sigma_px="auto"`` uses."""
     t0 = time.perf_counter()
     params = SolverParams(max_iterations=cfg.max_iterations)
     obs = orbit_pass.observations
@@ -293,6 +311,9 @@ def adjust_pass(
         progress("marginal covariances")
     marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
     tie_height, extra = tie_height_term(orbit_pass, camera, pg, res.values, at, cfg.tie_height_sigma_m, ties_matched)
+    offset, extra_o = tie_offset_term(orbit_pass, pg, res.values, cfg.tie_offset_sigma_px,
+                                      tie_offset_px if ties_matched else None)
+    extra = {k: extra.get(k, 0) + extra_o.get(k, 0) for k in set(extra) | set(extra_o)}
     for k, c in extra.items():
         marg.cov[k] = marg.cov[k] + c
     if progress and tie_height["source"] == "estimated":
@@ -310,7 +331,7 @@ def adjust_pass(
                         res.history, time.perf_counter() - t0, dropped, res.status,
                         variance_factor(pg.problem, res.final_error), rel,
                         unresolved_attitude(pg.attitude_model.knot_times, cfg.attitude_jitter_arcsec, cfg.attitude_jitter_periods_s),
-                        np.flatnonzero(snooped), tie_height, extra)
+                        np.flatnonzero(snooped), tie_height, extra, offset)
 
 
 def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, values: gtsam.Values,
@@ -356,6 +377,43 @@ def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
     cov = inflate_along(np.zeros((keys.size, 3, 3)), u, s2)
     info["tie_points"] = int(keys.size)
     return info, {int(k): c for k, c in zip(keys, cov)}
+
+
+def tie_offset_term(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values, setting: float | str,
+                    measured_px: float | None) -> tuple[dict[str, Any], dict[int, Array]]:
+    """The offset a matched tie point's conjugates share (:mod:`misrgraph.estimate.tieoffset`): its
+    summary and, per tie landmark key, ``s_o^2 R R^T`` (m^2). ``setting``:
+    ``AdjustConfig.tie_offset_sigma_px``; ``measured_px``: the matcher's ``s_o`` (None: none). The
+    response needs the flat form; outside it the term is left out and says so."""
+    if setting == "auto":
+        if measured_px is None:
+            return {"source": "off", "sigma_px": 0.0}, {}
+        s_o, info = float(measured_px), {"source": "matched", "sigma_px": float(measured_px)}
+    else:
+        s_o = float(setting)
+        info = {"source": "fixed" if s_o > 0 else "off", "sigma_px": s_o}
+    if s_o <= 0:
+        return info, {}
+    try:
+        flat = pg.problem.flat()
+    except NotFlat as exc:
+        return {"source": "off", "sigma_px": 0.0, "reason": f"problem outside the flat form ({exc})"}, {}
+    x = flat.from_values(values)
+    jac, sigma, lm = flat.landmark_jacobians(x)
+    obs = orbit_pass.observations
+    rows = pg.obs_index[pg.collinearity.order]
+    if rows.size != lm.size:
+        raise DegenerateProblemError("tie offset: the collinearity rows do not match the pass's observations")
+    tie_lm = np.zeros(len(pg.problem.eliminate_first), bool)
+    index = {int(k): i for i, k in enumerate(pg.problem.eliminate_first)}
+    tie = orbit_pass.landmarks.kind[pg.landmark_rows] == KIND_TIE
+    keys = [int(k) for k in pg.landmark_keys[tie]]
+    tie_lm[[index[k] for k in keys]] = True
+    shared = (obs.camera[rows] != CAMERAS.index("An")) & tie_lm[lm]
+    blk = flat.normal_equations(x)[0]
+    cov = offset_covariance(offset_response(blk, jac, sigma, lm, shared), s_o)
+    info["tie_points"] = len(keys)
+    return info, {k: cov[index[k]] for k in keys}
 
 
 def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = "hessian") -> tuple[Marginals, str]:

@@ -235,6 +235,15 @@ class FlatProblem:
         om = np.broadcast_to(b.omega_supplied, (len(b), 3)) + cols[9]
         return land, theta, knots, cam, om
 
+    def landmark_jacobians(self, x: Array) -> tuple[Array, Array, NDArray[np.int64]]:
+        """Each collinearity observation's (batch order) Jacobian of its predicted (line, sample)
+        with respect to its landmark, ``(N, 2, 3)`` px/m (not whitened), its 1 sigma ``(N, 2)`` px
+        (as weighted), and its landmark's index in ``problem.eliminate_first`` ``(N,)``."""
+        b = self.coll
+        _, j = collinearity_residual(*self._gather(x), b.const, jacobians=True)
+        sigma = np.broadcast_to(np.asarray(b.sigma_px, float).reshape(len(b), -1), (len(b), 2))
+        return b._blocks(j)[0], np.array(sigma), self._slot_cols[0][:, 0] // 3
+
     def residual(self, x: Array) -> Array:
         """Whitened residual ``(m,)``: collinearity rows, then DEM rows, then prior rows."""
         return np.concatenate([self.family_rows(x, f, False)[0] for f in self.FAMILIES])

@@ -41,7 +41,9 @@
   (``gcp_sigma_from_redundancy``). An's defining observation gets the
   median of its conjugates' sigmas (``an_sigma="median"``, the default), or, with
   ``an_sigma="shared-offset"``, the sigma of the offset all conjugates of a feature share, which the
-  fit then models. The same fit is a consistency check across the pass: a
+  fit then models. With the default that offset is measured by a second fit whose scales are not
+  used: the adjustment adds its effect to each tie point's covariance
+  (``AdjustConfig.tie_offset_sigma_px``). The same fit is a consistency check across the pass: a
   conjugate beyond its 4 sigma clip is rejected ("inconsistent with the pass"), and a feature
   left in fewer than ``min_cameras`` cameras with it.
 
@@ -531,7 +533,8 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
     (:func:`misrgraph.match.precision.camera_sigma_scales`; with ``pointing``, one row per
     ``pending`` row, the shared-attitude fit, joined by the ``gcp`` rows when given; without
     ``pointing`` they are left out) and give each An observation the median of its conjugates'
-    sigmas, or the shared offset's (``cfg.an_sigma``); the fit is kept in ``out.precision``."""
+    sigmas, or the shared offset's (``cfg.an_sigma``); the fit is kept in ``out.precision`` (with the
+    median, its ``shared_offset`` from a second fit that models the offset, for the adjustment)."""
     sig = np.asarray(out.sigma_px, float)
     if pending and cfg.sigma_from_redundancy:
         a = np.asarray(pending, float)
@@ -546,18 +549,21 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
                          int(np.sum(~fitted)))
             a = a[fitted]
             pointing = Pointing(*(v[fitted] for v in pointing))
-        fit = camera_sigma_scales(a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3],
-                                  (a[:, 4] - _CENTRE) / _CENTRE, a[:, 5:7], a[:, 7:9], sig[idx[fitted]],
-                                  knot_s=cfg.sigma_knot_s, pointing=pointing, twin=_TWIN,
-                                  gcp=gcp if pointing is not None else None,
-                                  shared_offset=cfg.an_sigma == "shared-offset" and pointing is not None)
+        args = (a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3], (a[:, 4] - _CENTRE) / _CENTRE,
+                a[:, 5:7], a[:, 7:9], sig[idx[fitted]])
+        kw = dict(knot_s=cfg.sigma_knot_s, pointing=pointing, twin=_TWIN, gcp=gcp if pointing is not None else None)
+        fit = camera_sigma_scales(*args, **kw, shared_offset=cfg.an_sigma == "shared-offset" and pointing is not None)
+        if pointing is not None and cfg.an_sigma != "shared-offset":
+            # the offset a feature's conjugates share, measured by the fit that models it (its scales
+            # are not used here): the adjustment adds its effect to each tie point's covariance
+            fit.shared_offset = camera_sigma_scales(*args, **kw, shared_offset=True).shared_offset
         sig[idx] = np.maximum(sig[idx] * np.array([fit.scale.get(int(c), 1.0) for c in cam]), cfg.sigma_floor_px)
         out.precision = fit
         out.pending_rows = idx[fitted]
     feat = np.asarray(out.feature)
     cams = np.asarray(out.camera)
     shared = out.precision.shared_offset if out.precision is not None else None
-    if shared is not None and shared.estimated:
+    if cfg.an_sigma == "shared-offset" and shared is not None and shared.estimated:
         sig[cams == AN] = max(shared.sigma_px, cfg.sigma_floor_px)
     else:
         for i in np.flatnonzero(cams == AN):

@@ -30,7 +30,7 @@ from misrgraph.io.results import capped_list
 from misrgraph.io.truth import PassTruth, load_pass_observations
 from misrgraph.model.constants import ANGLES, CAMERAS
 
-__all__ = ["run_adjust", "run_tie_height_pool", "write_adjust_result"]
+__all__ = ["run_adjust", "run_tie_height_pool", "write_adjust_result", "matched_tie_offset"]
 
 
 def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, summary: dict[str, Any],
@@ -89,6 +89,17 @@ def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, su
         write_camera_group(f.create_group("camera_model"), res.camera)
 
 
+def matched_tie_offset(pass_file: str | os.PathLike[str]) -> float | None:
+    """The offset the matched tie points' conjugates share (px, 1 sigma), as ``misrgraph match``
+    measured it for this pass (``tie.shared_offset`` of its summary); None when it has none
+    (matched before the measurement existed, or too little redundancy)."""
+    from misrgraph.io.imagery import read_matched
+
+    summary = read_matched(pass_file).summary or {}
+    so = (summary.get("tie") or {}).get("shared_offset") or {}
+    return float(so["sigma_px"]) if so.get("estimated") else None
+
+
 def run_adjust(
     scenario_dir: str | os.PathLike[str],
     camera_model: str | os.PathLike[str] | None = None,
@@ -129,7 +140,8 @@ def run_adjust(
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
     gcps = read_gcp_database(gcp_file or d / "gcp.h5")
     dem = read_dem(dem_file or d / "dem.h5")
-    res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress, ties_matched=observations == "matched")
+    res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress, ties_matched=observations == "matched",
+                      tie_offset_px=matched_tie_offset(pass_file) if observations == "matched" else None)
     pg = res.pass_graph
     snooped = set(res.snooped.tolist())
     summary: dict[str, Any] = {
@@ -155,6 +167,7 @@ def run_adjust(
             f"{out}:/observations/rejected" if out is not None else None, group_by=("camera", "landmark_kind")),
         "attitude_sigma": attitude_sigma_summary(res, cfg.graph_config().attitude_sigma_arcsec),
         "tie_height": res.tie_height,
+        "tie_offset": res.tie_offset,
         "ephemeris": {"params": res.ephemeris.params.tolist(),
                       "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in pg.ephemeris_keys()]},
     }

@@ -304,8 +304,15 @@ def test_an_sigma_from_the_conjugates_shared_offset(imagery_pass_dir, tmp_path):
     obs = m.observations
     an = obs.sigma_px[(obs.camera == AN) & (m.landmarks.kind[obs.landmark] == KIND_TIE)]  # An's GCP views keep theirs
     assert an.size > 0 and np.allclose(an, max(so["sigma_px"], cfg.sigma_floor_px))
-    default = read_matched(load_scenario(imagery_pass_dir).pass_files[0]).summary["tie"]
-    assert "shared_offset" not in default
+    dm = read_matched(load_scenario(imagery_pass_dir).pass_files[0])
+    default = dm.summary["tie"]
+    # the default measures the same offset by a second fit (for the adjustment's tie covariance)
+    # and keeps giving An its conjugates' median sigma
+    assert default["shared_offset"]["sigma_px"] == pytest.approx(so["sigma_px"], rel=1e-9)
+    o, kind = dm.observations, dm.landmarks.kind
+    for lm in np.unique(o.landmark[(o.camera == AN) & (kind[o.landmark] == KIND_TIE)])[:10]:
+        mine = o.landmark == lm
+        assert o.sigma_px[mine & (o.camera == AN)][0] == pytest.approx(np.median(o.sigma_px[mine & (o.camera != AN)]))
 
     def pooled(scales):  # over the estimated cameras, weighted by redundancy; its standard error
         est = [v for v in scales.values() if v["estimated"]]
