@@ -48,7 +48,7 @@ from misrgraph.estimate.solver import SolverParams, check_converged, solve
 from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
 from misrgraph.estimate.reliability import Reliability, critical_T, reliability
 from misrgraph.estimate.tieheight import TIE_HEIGHT_MODES, inflate_along, shared_height_variance
-from misrgraph.estimate.tieoffset import TIE_OFFSET_MODES, offset_covariance, offset_response
+from misrgraph.estimate.tieoffset import TIE_OFFSET_MODES, counted_covariance, offset_covariance, offset_response
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
            "supplied_camera_of", "drop_unsupported_landmarks", "snoop", "attitude_sigma_summary", "adjustment_marginals",
@@ -249,12 +249,14 @@ def adjust_pass(
     progress: Callable[[str], None] | None = None,
     ties_matched: bool = False,
     tie_offset_px: float | None = None,
+    tie_offset_own_ratio: dict[str, float] | None = None,
 ) -> AdjustResult:
     """Robust solve, blunder rejection, least-squares re-solve and marginals (module docstring).
     ``ties_matched``: the tie points were measured by image matching (``misrgraph match``), so
     ``tie_height_sigma_m="auto"`` estimates their shared height error; ``tie_offset_px``: the
     offset their conjugates share as the matcher measured it (px, 1 sigma; None: not measured),
-    which ``tie_offset_sigma_px="auto"`` uses."""
+    which ``tie_offset_sigma_px="auto"`` uses, with ``tie_offset_own_ratio`` (camera name ->
+    ``rho``, :mod:`misrgraph.estimate.tieoffset`; None or a missing camera: 1)."""
     t0 = time.perf_counter()
     params = SolverParams(max_iterations=cfg.max_iterations)
     obs = orbit_pass.observations
@@ -312,7 +314,7 @@ def adjust_pass(
     marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
     tie_height, extra = tie_height_term(orbit_pass, camera, pg, res.values, at, cfg.tie_height_sigma_m, ties_matched)
     offset, extra_o = tie_offset_term(orbit_pass, pg, res.values, cfg.tie_offset_sigma_px,
-                                      tie_offset_px if ties_matched else None)
+                                      tie_offset_px if ties_matched else None, tie_offset_own_ratio)
     extra = {k: extra.get(k, 0) + extra_o.get(k, 0) for k in set(extra) | set(extra_o)}
     for k, c in extra.items():
         marg.cov[k] = marg.cov[k] + c
@@ -380,11 +382,13 @@ def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
 
 
 def tie_offset_term(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values, setting: float | str,
-                    measured_px: float | None) -> tuple[dict[str, Any], dict[int, Array]]:
+                    measured_px: float | None, own_ratio: dict[str, float] | None = None) -> tuple[dict[str, Any], dict[int, Array]]:
     """The offset a matched tie point's conjugates share (:mod:`misrgraph.estimate.tieoffset`): its
-    summary and, per tie landmark key, ``s_o^2 R R^T`` (m^2). ``setting``:
-    ``AdjustConfig.tie_offset_sigma_px``; ``measured_px``: the matcher's ``s_o`` (None: none). The
-    response needs the flat form; outside it the term is left out and says so."""
+    summary and, per tie landmark key, ``s_o^2 R R^T - sum_c a_c R_c R_c^T`` (m^2). ``setting``:
+    ``AdjustConfig.tie_offset_sigma_px``; ``measured_px``: the matcher's ``s_o`` (None: none);
+    ``own_ratio``: camera name -> ``rho_c`` (the share of each conjugate's sigma that is its own;
+    None or a missing camera: 1, nothing counted). The response needs the flat form; outside it
+    the term is left out and says so."""
     if setting == "auto":
         if measured_px is None:
             return {"source": "off", "sigma_px": 0.0}, {}
@@ -411,8 +415,12 @@ def tie_offset_term(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values, 
     tie_lm[[index[k] for k in keys]] = True
     shared = (obs.camera[rows] != CAMERAS.index("An")) & tie_lm[lm]
     blk = flat.normal_equations(x)[0]
-    cov = offset_covariance(offset_response(blk, jac, sigma, lm, shared), s_o)
+    rho = np.array([(own_ratio or {}).get(c, 1.0) for c in CAMERAS])[obs.camera[rows]]
+    counted = np.where(shared, np.minimum(obs.sigma_px[rows] ** 2 * np.clip(1.0 - rho**2, 0.0, None), s_o**2), 0.0)
+    cov = offset_covariance(offset_response(blk, jac, sigma, lm, shared), s_o) - counted_covariance(blk, jac, sigma, lm, counted)
     info["tie_points"] = len(keys)
+    if own_ratio:
+        info["own_scale_ratio"] = dict(own_ratio)
     return info, {k: cov[index[k]] for k in keys}
 
 

@@ -15,7 +15,17 @@ under a common shift ``o`` of its conjugates' measured positions by ``R_i o``, w
 diag(1/sigma_line^2, 1/sigma_sample^2)`` its weight and ``H_ll,i`` the landmark's 3 x 3 block of
 the information matrix (all its rays, An's included, and its DEM factor). With ``o ~ N(0, s_o^2
 I_2)`` the landmark's covariance gains ``s_o^2 R_i R_i^T`` (:func:`offset_covariance`), which the
-adjustment adds to its marginal (``AdjustConfig.tie_offset_sigma_px``). It is first order, and
+adjustment adds to its marginal (``AdjustConfig.tie_offset_sigma_px``) -- less what the
+conjugates' own sigmas already hold of it. A conjugate weighted with ``sigma_c`` whose own error
+is ``sigma_own,c = rho_c sigma_c`` (``rho_c``: the ratio of the matcher's two fits' scales for its
+camera, ``SharedOffset.own_scale_ratio``) already puts ``a_c = sigma_c^2 (1 - rho_c^2)`` (at most
+``s_o^2``) of the shared variance into the landmark's covariance, as if independent:
+``a_c R_c R_c^T`` with ``R_c = H_ll,i^-1 J_c^T W_c``. The term is then
+
+    s_o^2 R_i R_i^T - sum_c a_c R_c R_c^T,
+
+exactly ``H^-1 J^T W (C - diag(sigma^2)) W J H^-1`` for the conjugates' true covariance
+``C = diag(sigma_own^2) + s_o^2 1 1^T`` (per coordinate; :func:`counted_covariance`). It is first order, and
 conditional on the other variables, like the tie points' shared height term
 (:mod:`misrgraph.estimate.tieheight`). A line offset also moves the time an observation's geometry
 is evaluated at, and with it the predicted sample (up to 0.15 px per px of line on a test pass);
@@ -23,7 +33,7 @@ is evaluated at, and with it the predicted sample (up to 0.15 px per px of line 
 
 Measured 2026-11-26 on passes matched from images under the independent truth (docs/design.md,
 "The landmarks' NEES, split by time"): the tie landmarks' per-landmark NEES part went from 1.36 to
-1.00 at reduced size (40 passes) and to 0.88 at standard size (20 passes).
+1.06 (0.99-1.12) at reduced size (40 passes) and to 0.98 (0.91-1.04) at standard size (6 passes).
 """
 
 from __future__ import annotations
@@ -33,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import InputError
 
-__all__ = ["offset_response", "offset_covariance", "TIE_OFFSET_MODES"]
+__all__ = ["offset_response", "offset_covariance", "counted_covariance", "TIE_OFFSET_MODES"]
 
 Array = NDArray[np.float64]
 
@@ -69,3 +79,23 @@ def offset_covariance(response: ArrayLike, sigma_px: float) -> Array:
         raise InputError("tie_offset_sigma_px", sigma_px, "a finite 1 sigma >= 0 (px)")
     r = np.asarray(response, float)
     return sigma_px**2 * np.einsum("lij,lkj->lik", r, r)
+
+
+def counted_covariance(h_ll: ArrayLike, jacobian: ArrayLike, sigma_px: ArrayLike, landmark: ArrayLike,
+                       counted_px2: ArrayLike) -> Array:
+    """``sum_c a_c R_c R_c^T`` ``(L, 3, 3)`` m^2: the shared variance ``a_c`` (px^2, ``(N,)``; 0 for
+    observations that are not conjugates) that each observation's own sigma already carries into
+    its landmark's covariance, ``R_c = H_ll^-1 J_c^T W_c``. Arguments as :func:`offset_response`."""
+    h = np.asarray(h_ll, float)
+    j = np.asarray(jacobian, float)
+    sig = np.asarray(sigma_px, float)
+    lm = np.asarray(landmark)
+    a = np.asarray(counted_px2, float)
+    if a.shape != (j.shape[0],) or not np.all(a >= 0):
+        raise InputError("counted_px2", a.shape if a.shape != (j.shape[0],) else float(a.min()), "(N,) variances >= 0 (px^2)")
+    use = a > 0
+    out = np.zeros((h.shape[0], 3, 3))
+    if use.any():
+        rc = np.linalg.solve(h[lm[use]], np.swapaxes(j[use] / sig[use][:, :, None] ** 2, 1, 2))  # (n, 3, 2)
+        np.add.at(out, lm[use], a[use, None, None] * (rc @ np.swapaxes(rc, 1, 2)))
+    return out

@@ -556,7 +556,11 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
         if pointing is not None and cfg.an_sigma != "shared-offset":
             # the offset a feature's conjugates share, measured by the fit that models it (its scales
             # are not used here): the adjustment adds its effect to each tie point's covariance
-            fit.shared_offset = camera_sigma_scales(*args, **kw, shared_offset=True).shared_offset
+            second = camera_sigma_scales(*args, **kw, shared_offset=True)
+            if second.shared_offset is not None:
+                second.shared_offset.own_scale_ratio = {c: second.scale[c] / fit.scale[c] for c in fit.scale
+                                                        if c in second.scale and fit.scale[c] > 0}
+            fit.shared_offset = second.shared_offset
         sig[idx] = np.maximum(sig[idx] * np.array([fit.scale.get(int(c), 1.0) for c in cam]), cfg.sigma_floor_px)
         out.precision = fit
         out.pending_rows = idx[fitted]

@@ -91,7 +91,7 @@ eliminated together (:func:`_solve_blocks`, ``3 x 3`` blocks).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -164,9 +164,16 @@ class SharedOffset:
     sigma_px: float = 0.0
     redundancy: float = 0.0
     estimated: bool = False
+    #: camera -> the conjugates' scale in the fit that models the offset over the scale their
+    #: sigmas were given (1 when they were given that fit's scales; below 1 when their sigma also
+    #: holds part of the shared variance): ``sigma_own = rho sigma``
+    own_scale_ratio: dict[int, float] = field(default_factory=dict)
 
-    def as_dict(self) -> dict[str, float | bool]:
-        return {"sigma_px": self.sigma_px, "redundancy": self.redundancy, "estimated": self.estimated}
+    def as_dict(self, names: list[str] | tuple[str, ...] | None = None) -> dict[str, Any]:
+        out: dict[str, Any] = {"sigma_px": self.sigma_px, "redundancy": self.redundancy, "estimated": self.estimated}
+        if self.own_scale_ratio and names is not None:
+            out["own_scale_ratio"] = {names[c]: v for c, v in sorted(self.own_scale_ratio.items())}
+        return out
 
 
 @dataclass

@@ -89,15 +89,18 @@ def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, su
         write_camera_group(f.create_group("camera_model"), res.camera)
 
 
-def matched_tie_offset(pass_file: str | os.PathLike[str]) -> float | None:
+def matched_tie_offset(pass_file: str | os.PathLike[str]) -> tuple[float | None, dict[str, float] | None]:
     """The offset the matched tie points' conjugates share (px, 1 sigma), as ``misrgraph match``
-    measured it for this pass (``tie.shared_offset`` of its summary); None when it has none
+    measured it for this pass (``tie.shared_offset`` of its summary), and its conjugates'
+    own-scale ratio per camera name (:mod:`misrgraph.estimate.tieoffset`); None when it has none
     (matched before the measurement existed, or too little redundancy)."""
     from misrgraph.io.imagery import read_matched
 
     summary = read_matched(pass_file).summary or {}
     so = (summary.get("tie") or {}).get("shared_offset") or {}
-    return float(so["sigma_px"]) if so.get("estimated") else None
+    if not so.get("estimated"):
+        return None, None
+    return float(so["sigma_px"]), so.get("own_scale_ratio")
 
 
 def run_adjust(
@@ -140,8 +143,9 @@ def run_adjust(
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
     gcps = read_gcp_database(gcp_file or d / "gcp.h5")
     dem = read_dem(dem_file or d / "dem.h5")
+    s_o, own = matched_tie_offset(pass_file) if observations == "matched" else (None, None)
     res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress, ties_matched=observations == "matched",
-                      tie_offset_px=matched_tie_offset(pass_file) if observations == "matched" else None)
+                      tie_offset_px=s_o, tie_offset_own_ratio=own)
     pg = res.pass_graph
     snooped = set(res.snooped.tolist())
     summary: dict[str, Any] = {

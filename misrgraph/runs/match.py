@@ -155,7 +155,7 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
         "tie": {"candidates": tie_candidates, "matched": int(np.sum(np.array(t.camera) != AN)) if len(t) else 0,
                 "features": n_t, "seconds": t_tie, "rejected": dict(t.reasons),
                 "sigma_scale": t.precision.as_dict(CAMERAS) if t.precision is not None else None,
-                **({"shared_offset": t.precision.shared_offset.as_dict()}
+                **({"shared_offset": t.precision.shared_offset.as_dict(CAMERAS)}
                    if t.precision is not None and t.precision.shared_offset is not None else {})},
     }
     truth = read_pass_truth(pass_file)

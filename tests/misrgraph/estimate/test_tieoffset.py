@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from misrgraph.errors import InputError
-from misrgraph.estimate.tieoffset import offset_covariance, offset_response
+from misrgraph.estimate.tieoffset import counted_covariance, offset_covariance, offset_response
 
 
 def test_the_response_is_the_landmarks_move_under_a_common_shift_of_their_conjugates(small_pass):
@@ -75,6 +75,34 @@ def test_the_response_is_the_landmarks_move_under_a_common_shift_of_their_conjug
     np.testing.assert_allclose(cov[tie], 0.05**2 * r[tie] @ np.swapaxes(r[tie], 1, 2))
 
 
+def test_the_term_is_the_conjugates_true_covariance_propagated():
+    """Per landmark, observations weighted by ``sigma`` whose true errors are, per coordinate,
+    ``diag(sigma_own^2) + s_o^2 1 1^T`` over the conjugates (``sigma_own = rho sigma``; the first,
+    An's, independent at ``sigma``): the term equals the dense propagation of that covariance
+    through the least-squares estimate minus the propagation the independent weights assume."""
+    rng = np.random.default_rng(3)
+    n_l, per, s_o = 4, 6, 0.04
+    lm = np.repeat(np.arange(n_l), per)
+    jac = rng.normal(0.0, 2e-3, (lm.size, 2, 3))  # px per m
+    sigma = rng.uniform(0.05, 0.09, lm.size)
+    rho = np.sqrt(1.0 - rng.uniform(0.0, 1.0, lm.size) * s_o**2 / sigma**2)  # sigma^2 (1 - rho^2) <= s_o^2
+    shared = np.tile(np.arange(per) > 0, n_l)
+    w = 1.0 / sigma**2
+    h = np.array([sum(w[n] * jac[n].T @ jac[n] for n in np.flatnonzero(lm == i)) + 1e-6 * np.eye(3) for i in range(n_l)])
+    counted = np.where(shared, sigma**2 * (1.0 - rho**2), 0.0)
+    term = (offset_covariance(offset_response(h, jac, np.c_[sigma, sigma], lm, shared), s_o)
+            - counted_covariance(h, jac, np.c_[sigma, sigma], lm, counted))
+    for i in range(n_l):
+        idx = np.flatnonzero(lm == i)
+        a = np.concatenate([w[n] * jac[n].T for n in idx], axis=1)  # (3, 2 per): J^T W
+        own = np.where(shared[idx], (rho[idx] * sigma[idx]) ** 2, sigma[idx] ** 2)
+        true = np.kron(np.diag(own) + s_o**2 * np.outer(shared[idx], shared[idx]), np.eye(2))
+        assumed = np.kron(np.diag(sigma[idx] ** 2), np.eye(2))
+        hi = np.linalg.inv(h[i])
+        want = hi @ a @ (true - assumed) @ a.T @ hi
+        np.testing.assert_allclose(term[i], want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+
+
 def test_bad_input_is_named():
     h = np.tile(np.eye(3), (2, 1, 1))
     j = np.ones((3, 2, 3))
@@ -84,6 +112,8 @@ def test_bad_input_is_named():
         offset_response(h, j[:2], np.ones((3, 2)), np.array([0, 1, 1]), np.ones(3, bool))
     with pytest.raises(InputError, match="tie_offset_sigma_px"):
         offset_covariance(np.zeros((2, 3, 2)), -1.0)
+    with pytest.raises(InputError, match="counted_px2"):
+        counted_covariance(h, j, np.ones((3, 2)), np.array([0, 1, 1]), -np.ones(3))
     from misrgraph.estimate.adjust import AdjustConfig
 
     with pytest.raises(InputError, match="tie_offset_sigma_px"):
@@ -92,9 +122,10 @@ def test_bad_input_is_named():
 
 def test_a_matched_pass_carries_the_matchers_offset_into_its_tie_points(imagery_pass_dir, tmp_path):
     """Adjusted from its matched observations, the pass takes the offset the matcher measured
-    (``tie.shared_offset``) and adds ``s_o^2 R R^T`` to each tie point's covariance -- and nothing
-    to the GCPs'; switched off (0) the same solve has the plain covariances; the simulated
-    observations get no such term; the CLI says what it added."""
+    (``tie.shared_offset``, with the conjugates' own-scale ratio per camera) and adds its term to
+    each tie point's covariance -- which stays positive definite, and grows in some direction --
+    and nothing to the GCPs'; switched off (0) the same solve has the plain covariances; the
+    simulated observations get no such term; the CLI says what it added."""
     from typer.testing import CliRunner
 
     from misrgraph.commands.cli import app
@@ -108,14 +139,17 @@ def test_a_matched_pass_carries_the_matchers_offset_into_its_tie_points(imagery_
     on = run_adjust(imagery_pass_dir, observations="matched", out=tmp_path / "on.h5")
     off = run_adjust(imagery_pass_dir, observations="matched", out=tmp_path / "off.h5", cfg=AdjustConfig(tie_offset_sigma_px=0))
     assert on["tie_offset"]["source"] == "matched" and on["tie_offset"]["sigma_px"] == so["sigma_px"] > 0
+    assert on["tie_offset"]["own_scale_ratio"] == so["own_scale_ratio"] and set(so["own_scale_ratio"]) == {"Df", "Cf", "Bf", "Af", "Aa", "Ba", "Ca", "Da"}
     assert off["tie_offset"]["source"] == "off"
     with h5py.File(tmp_path / "on.h5") as a, h5py.File(tmp_path / "off.h5") as b:
         kind = a["landmarks/kind"][:]
         assert np.array_equal(a["landmarks/ecef"][:], b["landmarks/ecef"][:])
-        d = a["landmarks/covariance"][:] - b["landmarks/covariance"][:]
+        total = a["landmarks/covariance"][:]
+        d = total - b["landmarks/covariance"][:]
     assert on["tie_offset"]["tie_points"] == int(np.sum(kind == KIND_TIE))
+    assert np.all(np.linalg.eigvalsh(total[kind == KIND_TIE])[:, 0] > 0)
     eig = np.linalg.eigvalsh(0.5 * (d + np.swapaxes(d, 1, 2)))
-    assert np.all(eig[kind == KIND_TIE] > -1e-9) and np.all(eig[kind == KIND_TIE][:, -1] > 0.1)  # m^2
+    assert np.all(eig[kind == KIND_TIE][:, -1] > 0.1)  # m^2
     np.testing.assert_allclose(d[kind == KIND_GCP], 0.0, atol=1e-12)
     assert run_adjust(imagery_pass_dir)["tie_offset"]["source"] == "off"
     r = CliRunner().invoke(app, ["adjust", str(imagery_pass_dir), "--observations", "matched"])
