@@ -258,18 +258,18 @@ def adjust(
         periods = tuple(float(x) for x in jitter_periods.split(","))
     except ValueError:
         _fail(f"--jitter-periods-s: got {jitter_periods!r}; expected two periods in s, MIN,MAX (e.g. 8,120)")
-    tie_height_setting: float | str = tie_height
-    if tie_height not in ("auto", "estimate"):
+    def mode_or_sigma(option: str, value: str, modes: tuple[str, ...], unit: str) -> float | str:
+        """A named setting of the option, or its 1 sigma as a number (a clear error otherwise)."""
+        if value in modes:
+            return value
         try:
-            tie_height_setting = float(tie_height)
+            return float(value)
         except ValueError:
-            _fail(f"--tie-height-sigma-m: got {tie_height!r}; expected auto, estimate or a 1 sigma in m (0: off)")
-    tie_offset_setting: float | str = tie_offset
-    if tie_offset != "auto":
-        try:
-            tie_offset_setting = float(tie_offset)
-        except ValueError:
-            _fail(f"--tie-offset-sigma-px: got {tie_offset!r}; expected auto or a 1 sigma in px (0: off)")
+            _fail(f"{option}: got {value!r}; expected {', '.join(modes)} or a 1 sigma in {unit} (0: off)")
+            raise  # _fail exits
+
+    tie_height_setting = mode_or_sigma("--tie-height-sigma-m", tie_height, ("auto", "estimate"), "m")
+    tie_offset_setting = mode_or_sigma("--tie-offset-sigma-px", tie_offset, ("auto",), "px")
     cfg = AdjustConfig.from_dict(dict(knot_spacing_s=(rollyaw_spacing, pitch_spacing, rollyaw_spacing),
                                       threshold1=threshold1, threshold2=threshold2, knot_rule=knot_rule,
                                       knot_prior=knot_prior, knot_prior_damping=knot_damping, use_dem=not no_dem,

@@ -152,14 +152,11 @@ class AdjustConfig(Config):
         check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
-        t = self.tie_height_sigma_m
-        if not (t in TIE_HEIGHT_MODES if isinstance(t, str) else
-                isinstance(t, (int, float)) and not isinstance(t, bool) and np.isfinite(t) and t >= 0):
-            raise InputError("tie_height_sigma_m", t, f"one of {TIE_HEIGHT_MODES} or a finite 1 sigma >= 0 (m)")
-        o = self.tie_offset_sigma_px
-        if not (o in TIE_OFFSET_MODES if isinstance(o, str) else
-                isinstance(o, (int, float)) and not isinstance(o, bool) and np.isfinite(o) and o >= 0):
-            raise InputError("tie_offset_sigma_px", o, f"one of {TIE_OFFSET_MODES} or a finite 1 sigma >= 0 (px)")
+        for name, modes, unit in (("tie_height_sigma_m", TIE_HEIGHT_MODES, "m"), ("tie_offset_sigma_px", TIE_OFFSET_MODES, "px")):
+            v = getattr(self, name)
+            if not (v in modes if isinstance(v, str) else
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v >= 0):
+                raise InputError(name, v, f"one of {modes} or a finite 1 sigma >= 0 ({unit})")
         self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run
 
     def graph_config(self, **overrides: Any) -> GraphConfig:

@@ -44,7 +44,7 @@ from misrgraph.io.passes import Landmarks, Observations
 from misrgraph.model.constants import CAMERAS
 from misrgraph.model.dem import bilinear
 __all__ = ["ImageWindows", "ImageStrip", "PassImagery", "read_strip", "strip_cameras", "StripReader", "open_strips", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
-           "write_matched", "read_matched", "has_matched", "OBSERVATION_SETS", "INTEREST_RADIUS_PX"]
+           "write_matched", "read_matched", "read_matched_summary", "has_matched", "OBSERVATION_SETS", "INTEREST_RADIUS_PX"]
 
 #: how far (px) from a tie window's centre the matcher may place its interest point (the renderer
 #: sizes tie windows for it)
@@ -336,20 +336,37 @@ def write_matched(path: str | os.PathLike[str], matched: MatchedSet) -> None:
         raise
 
 
-def read_matched(path: str | os.PathLike[str], with_truth: bool = False) -> MatchedSet:
-    """The matched observations of a pass file (FileFormatError if ``misrgraph match`` has not run)."""
+def _matched_group(f: Any, path: str | os.PathLike[str]) -> Any:
+    """An open pass file's ``/matched`` group (FileFormatError if ``misrgraph match`` has not run)."""
+    if "matched" not in f:
+        raise FileFormatError(path, "no /matched group: run 'misrgraph match' on the scenario first")
+    return f["matched"]
+
+
+def _matched_summary(group: Any) -> dict[str, Any] | None:
+    """The match summary stored on a ``/matched`` group (None if it has none)."""
     import json
 
+    return json.loads(group.attrs["summary_json"]) if "summary_json" in group.attrs else None
+
+
+def read_matched_summary(path: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """Only the match summary of a pass file's ``/matched`` group, without its observations
+    (FileFormatError if ``misrgraph match`` has not run)."""
     with open_h5(path, "orbit_pass") as f:
-        if "matched" not in f:
-            raise FileFormatError(path, "no /matched group: run 'misrgraph match' on the scenario first")
-        m = f["matched"]
+        return _matched_summary(_matched_group(f, path))
+
+
+def read_matched(path: str | os.PathLike[str], with_truth: bool = False) -> MatchedSet:
+    """The matched observations of a pass file (FileFormatError if ``misrgraph match`` has not run)."""
+    with open_h5(path, "orbit_pass") as f:
+        m = _matched_group(f, path)
         lg, og = m["landmarks"], m["observations"]
         nl, no = lg["id"].shape[0], og["landmark"].shape[0]
         lms = Landmarks(*(read_dataset(lg, k, (nl,), dtype=np.int64) for k in ("id", "kind", "gcp_index")))
         obs = Observations(*(read_dataset(og, k, (no,), dtype=(np.int64 if k in ("landmark", "camera", "band") else float))
                              for k in ("landmark", "camera", "band", "line", "sample", "exposure", "sigma_px")))
-        summary = json.loads(m.attrs["summary_json"]) if "summary_json" in m.attrs else None
+        summary = _matched_summary(m)
         tl = tb = None
         if with_truth and "truth" in f and "matched" in f["truth"]:
             tg = f["truth"]["matched"]

@@ -94,9 +94,9 @@ def matched_tie_offset(pass_file: str | os.PathLike[str]) -> tuple[float | None,
     measured it for this pass (``tie.shared_offset`` of its summary), and its conjugates'
     own-scale ratio per camera name (:mod:`misrgraph.estimate.tieoffset`); None when it has none
     (matched before the measurement existed, or too little redundancy)."""
-    from misrgraph.io.imagery import read_matched
+    from misrgraph.io.imagery import read_matched_summary
 
-    summary = read_matched(pass_file).summary or {}
+    summary = read_matched_summary(pass_file) or {}
     so = (summary.get("tie") or {}).get("shared_offset") or {}
     if not so.get("estimated"):
         return None, None
