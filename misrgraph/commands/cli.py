@@ -500,6 +500,7 @@ def update(
     linearization_tol: Optional[float] = typer.Option(None, "--linearization-tol", min=1e-6,
                                                       help="Re-linearise until the linear model's error is at most this many sigma "
                                                            "(smaller: closer to the optimum, slower) [default: misrgraph.estimate.incremental.DEFAULT_LINEARIZATION_TOL]."),
+    observations: Optional[str] = typer.Option(None, "--observations", help="simulated (each pass's observations) or matched (those 'misrgraph match' measured in its imagery, the tie points' height and offset terms in their covariance as in adjust): fixed when the state is created [default: simulated]; a later update may repeat it, not change it."),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON."),
 ) -> None:
     """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
@@ -512,11 +513,11 @@ def update(
             _fail("PASSES: give new pass files to add, or --report PASS_ID for an earlier pass")
         out = run_update(state, [str(p) for p in passes or []], camera_model, gcp_file, dem_file,
                          compare_batch=compare_batch, progress=lambda m: st.update(m), report=report,
-                         linearization_tol=linearization_tol)  # None: the library default
+                         linearization_tol=linearization_tol, observations=observations)  # None: the library default
     if as_json:
         _print_json(out)
         return
-    console.print(f"state {out['state']}: {out['passes_in_state']} passes")
+    console.print(f"state {out['state']}: {out['passes_in_state']} passes ({out['observation_set']} observations)")
     if "report" in out:
         r = out["report"]
         console.print(f"{r['pass_id']}: knots kept/removed " + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in r["knots"].items())
@@ -530,6 +531,10 @@ def update(
             b = u["batch"]
             line += f"; batch re-solve {b['seconds']:.2f} s (update/batch {b['ratio_update_over_batch']:.2f}), max difference {b['max_difference_in_sigma']:.1e} sigma"
         console.print(line)
+        th, to = u["tie_height"], u["tie_offset"]
+        if th["source"] != "off" or to["source"] != "off":
+            console.print(f"   tie points: shared height error {th['sigma_m']:.1f} m ({th['source']}), conjugates' shared offset "
+                          f"{to['sigma_px']:.3f} px ({to['source']}), both in their covariance")
         if "nees" in u:
             console.print(f"   NEES/dim knots {u['nees']['knots']:.2f}, landmarks {u['nees']['landmarks']:.2f}; "
                           "attitude RMS where observed (arcsec) " + ", ".join(f"{k} {v:.1f}" for k, v in u["attitude_rms_arcsec_observed"].items()))

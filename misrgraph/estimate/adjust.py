@@ -52,7 +52,7 @@ from misrgraph.estimate.tieoffset import TIE_OFFSET_MODES, counted_covariance, o
 
 __all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
            "supplied_camera_of", "drop_unsupported_landmarks", "snoop", "attitude_sigma_summary", "adjustment_marginals",
-           "unresolved_attitude", "tie_height_term", "tie_offset_term"]
+           "unresolved_attitude", "tie_point_terms", "tie_height_term", "tie_offset_term"]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -309,12 +309,8 @@ def adjust_pass(
     if progress:
         progress("marginal covariances")
     marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
-    tie_height, extra = tie_height_term(orbit_pass, camera, pg, res.values, at, cfg.tie_height_sigma_m, ties_matched)
-    offset, extra_o = tie_offset_term(orbit_pass, pg, res.values, cfg.tie_offset_sigma_px,
-                                      tie_offset_px if ties_matched else None, tie_offset_own_ratio)
-    extra = {k: extra.get(k, 0) + extra_o.get(k, 0) for k in set(extra) | set(extra_o)}
-    for k, c in extra.items():
-        marg.cov[k] = marg.cov[k] + c
+    tie_height, offset, extra = tie_point_terms(orbit_pass, camera, pg, res.values, marg, cfg, ties_matched,
+                                                tie_offset_px, tie_offset_own_ratio, at)
     if progress and tie_height["source"] == "estimated":
         progress(f"tie points' shared height error: {tie_height['sigma_m']:.1f} m")
     r, _ = pg.collinearity.residuals(res.values)
@@ -333,6 +329,33 @@ def adjust_pass(
                         np.flatnonzero(snooped), tie_height, extra, offset)
 
 
+def tie_point_terms(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, values: gtsam.Values, marginals: Marginals,
+                    cfg: AdjustConfig, ties_matched: bool, tie_offset_px: float | None = None,
+                    tie_offset_own_ratio: dict[str, float] | None = None, at: "_ReliabilityAt | None" = None,
+                    ) -> tuple[dict[str, Any], dict[str, Any], dict[int, Array]]:
+    """The tie points' shared height error (:func:`tie_height_term`) and their conjugates' shared
+    offset (:func:`tie_offset_term`), each set by ``cfg``, added to the tie landmarks' blocks of
+    ``marginals`` in place (m^2). Returns the two terms' summaries and, per tie landmark key, the
+    covariance added. ``ties_matched``, ``tie_offset_px``, ``tie_offset_own_ratio``: as
+    :func:`adjust_pass`. ``at``: the reliability at ``values`` when already computed; otherwise it
+    is computed here if the height term is to be estimated. Used by ``adjust`` and by ``update``
+    (on a pass's own graph at the joint estimate)."""
+    if at is None and _tie_height_mode(cfg.tie_height_sigma_m, ties_matched) == "estimate":
+        at = _reliability_at(orbit_pass, pg, values)
+    tie_height, extra = tie_height_term(orbit_pass, camera, pg, values, at, cfg.tie_height_sigma_m, ties_matched)
+    offset, extra_o = tie_offset_term(orbit_pass, pg, values, cfg.tie_offset_sigma_px,
+                                      tie_offset_px if ties_matched else None, tie_offset_own_ratio)
+    extra = {k: extra.get(k, 0) + extra_o.get(k, 0) for k in set(extra) | set(extra_o)}
+    for k, c in extra.items():
+        marginals.cov[k] = marginals.cov[k] + c
+    return tie_height, offset, extra
+
+
+def _tie_height_mode(setting: float | str, ties_matched: bool) -> float | str:
+    """``AdjustConfig.tie_height_sigma_m`` resolved: "auto" estimates for matched tie points and is 0 otherwise."""
+    return ("estimate" if ties_matched else 0.0) if setting == "auto" else setting
+
+
 def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, values: gtsam.Values,
                     at: "_ReliabilityAt | None", setting: float | str, ties_matched: bool) -> tuple[dict[str, Any], dict[int, Array]]:
     """The shared height error of the tie points (:mod:`misrgraph.estimate.tieheight`): its summary
@@ -341,7 +364,7 @@ def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
 
     Estimated from the DEM factors' residuals and redundancy numbers at the optimum (``at``); a
     problem outside the flat form has none, and the term is then left out and says so."""
-    mode = ("estimate" if ties_matched else 0.0) if setting == "auto" else setting
+    mode = _tie_height_mode(setting, ties_matched)
     if mode == "estimate":
         if at is None:
             return {"source": "off", "sigma_m": 0.0, "reason": "no redundancy numbers (problem outside the flat form)"}, {}

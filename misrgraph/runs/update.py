@@ -7,8 +7,10 @@ a simulated pass's summary adds the scores of :mod:`misrgraph.evaluate.score`.
 Persistent state (directory ``STATE``)::
 
     STATE/state.json                    the manifest: inputs (camera model, GCPs, DEM) with their
-                                        SHA-256, config, the estimate file and the ordered passes,
-                                        each named with its SHA-256
+                                        SHA-256, config, the observation set ("simulated", or
+                                        "matched": what 'misrgraph match' measured in each pass's
+                                        imagery), the estimate file and the ordered passes, each
+                                        named with its SHA-256
     STATE/passes/<pass_id>-<sha12>.h5   a copy of every pass added
     STATE/estimate-<sha12>.h5           the latest estimate of every variable (warm start)
     STATE/.lock                         held by the update in progress (one at a time)
@@ -41,15 +43,17 @@ import numpy as np
 
 from misrgraph import __version__
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.estimate.adjust import AdjustConfig, find_blunders
+from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, find_blunders, tie_point_terms
 from misrgraph.estimate.incremental import DEFAULT_LINEARIZATION_TOL, IncrementalSolver, batch_solution
 from misrgraph.evaluate.score import score_pass
 from misrgraph.io.camera import load_camera_model
 from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_file, atomic_h5, fsync_directory, open_h5, read_dataset, stored_file_sha256, write_dataset
-from misrgraph.io.passes import PASS_ID_PATTERN, OrbitPass
-from misrgraph.io.truth import read_pass_truth
+from misrgraph.io.passes import PASS_ID_PATTERN
+from misrgraph.io.imagery import OBSERVATION_SETS
+from misrgraph.io.truth import load_pass_observations
+from misrgraph.runs.adjust import matched_tie_offset
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, ARCSEC
 from misrgraph.model.nominal import MODEL_NAMES
@@ -121,6 +125,8 @@ def _check_manifest(f: Path, meta: Any) -> None:
         if meta.get(key) is not None and not (isinstance(sha, dict) and _HEX64.fullmatch(str(sha.get(key)))):
             raise FileFormatError(f, f"input_sha256.{key} is {sha.get(key) if isinstance(sha, dict) else sha!r}; "
                                      "expected 64 hex digits")
+    if meta.get("observations", "simulated") not in OBSERVATION_SETS:
+        raise FileFormatError(f, f"observations is {meta['observations']!r}; expected one of {OBSERVATION_SETS}")
     files = ([("estimate", meta["estimate"])] if meta["estimate"] is not None else [])
     if not isinstance(meta["passes"], list):
         raise FileFormatError(f, "passes is not a list")
@@ -268,7 +274,7 @@ def _restore(d: Path, meta: dict[str, Any], linearization_tol: float | None,
     solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol)
     # replay the state (warm start from the saved estimate), in one update
     files = [_checked_file(d, p) for p in meta["passes"]]
-    old = [OrbitPass.load(f) for f in files]
+    old = [load_pass_observations(f, _observation_set(meta))[0] for f in files]
     for p, entry in zip(old, meta["passes"]):
         if p.pass_id != entry["pass_id"]:
             raise FileFormatError(d / entry["file"], f"holds pass {p.pass_id!r}; state.json says {entry['pass_id']!r}")
@@ -283,6 +289,27 @@ def _restore(d: Path, meta: dict[str, Any], linearization_tol: float | None,
         warm = _load_estimate(_checked_file(d, meta["estimate"])) if meta["estimate"] else gtsam.Values()
         solver.add_passes(old, excl, warm)
     return solver, camera, files
+
+
+def _observation_set(meta: dict[str, Any]) -> str:
+    """The observation set a state adjusts (states from before the field existed: "simulated")."""
+    return str(meta.get("observations", "simulated"))
+
+
+def _pass_result(solver: IncrementalSolver, index: int, pass_file: Path, camera: CameraModel, observations: str,
+                 seconds: float = 0.0) -> AdjustResult:
+    """Pass ``index``'s error models and marginals from the solver's current estimate. With
+    matched observations its tie landmarks' covariances also carry the shared height error and
+    the conjugates' shared offset, as ``adjust --observations matched`` adds them
+    (:func:`misrgraph.estimate.adjust.tie_point_terms`, the solver's config; the height error
+    estimated from the DEM residuals and redundancy numbers of the pass's own graph at the joint
+    estimate, the offset as ``misrgraph match`` measured it for the pass)."""
+    res = solver.pass_result(index, seconds)
+    if observations == "matched":
+        s_o, own = matched_tie_offset(pass_file)
+        res.tie_height, res.tie_offset, res.landmark_extra_cov = tie_point_terms(
+            solver.passes[index], camera, res.pass_graph, res.values, res.marginals, solver.cfg, True, s_o, own)
+    return res
 
 
 def restore_state(state_dir: str | os.PathLike[str], progress: Callable[[str], None] | None = None
@@ -310,11 +337,16 @@ def run_update(
     crash_before_commit: bool = False,
     report: str | None = None,
     linearization_tol: float | None = None,
+    observations: str | None = None,
 ) -> dict[str, Any]:
     """Add passes to a persistent state and re-solve incrementally; summary of each new pass.
 
     The first call creates the state and needs ``camera_model`` and ``gcp_file`` (and optionally
-    ``dem_file``); later calls reuse what the state names. ``report`` names an earlier pass whose
+    ``dem_file``); later calls reuse what the state names. ``observations``: the set every pass of
+    the state is adjusted with, fixed when the state is created (default ``"simulated"``, the
+    pass's own; ``"matched"``, what ``misrgraph match`` measured in its imagery, with the tie
+    points' height and offset terms in their covariance as ``adjust`` adds them); a later call
+    may repeat it but not change it. ``report`` names an earlier pass whose
     error models, marginals and scores (from the current estimate) are returned under
     ``"report"``. ``crash_before_commit`` (tests only) raises after the work is done but before
     ``state.json`` is replaced. ``linearization_tol`` (sigma units, default
@@ -323,15 +355,17 @@ def run_update(
     d = Path(state_dir)
     with _state_lock(d):
         return _run_update_locked(d, new_passes, camera_model, gcp_file, dem_file, cfg, compare_batch, progress,
-                                  crash_before_commit, report, linearization_tol)
+                                  crash_before_commit, report, linearization_tol, observations)
 
 
 def _run_update_locked(
     d: Path, new_passes: list[str | os.PathLike[str]], camera_model: str | os.PathLike[str] | None,
     gcp_file: str | os.PathLike[str] | None, dem_file: str | os.PathLike[str] | None, cfg: AdjustConfig,
     compare_batch: bool, progress: Callable[[str], None] | None, crash_before_commit: bool, report: str | None,
-    linearization_tol: float | None,
+    linearization_tol: float | None, observations: str | None,
 ) -> dict[str, Any]:
+    if observations is not None and observations not in OBSERVATION_SETS:
+        raise InputError("--observations", observations, OBSERVATION_SETS)
     state = load_state(d)
     if state is None:
         if camera_model is None or gcp_file is None:
@@ -345,14 +379,19 @@ def _run_update_locked(
                 raise InputError(flag, spec, "an existing file")
         meta = {"version": STATE_VERSION, "software": f"misrgraph {__version__}", **specs,
                 "input_sha256": {k: _input_sha256(v, k) for k, v in specs.items() if v is not None},
-                "config": dataclasses.asdict(cfg), "estimate": None, "passes": []}
+                "config": dataclasses.asdict(cfg), "observations": observations or "simulated", "estimate": None,
+                "passes": []}
         state = State(d, meta)
     meta = state.meta
+    obs_set = _observation_set(meta)
+    if observations is not None and observations != obs_set:
+        raise InputError("--observations", observations, f"{obs_set!r}, the observation set this state adjusts "
+                                                          "(a state keeps one; start a new state for the other)")
     solver, camera, files = _restore(d, meta, linearization_tol, progress)
     summaries = []
     added = []
     for f in new_passes:
-        p = OrbitPass.load(f)
+        p, truth = load_pass_observations(f, obs_set)
         if p.pass_id in state.pass_ids or p.pass_id in [a["pass_id"] for a in added]:
             summaries.append({"pass_id": p.pass_id, "status": "already in the state; not added again"})
             continue
@@ -363,15 +402,15 @@ def _run_update_locked(
             progress(f"pass {p.pass_id}: iSAM2 update")
         seconds = solver.add_passes([p], [rejected])
         idx = len(solver.graphs) - 1
-        res = solver.pass_result(idx, seconds)
+        res = _pass_result(solver, idx, Path(f), camera, obs_set, seconds)
         res.rejected_norm = norms[res.rejected]
         s = {"pass_id": p.pass_id, "status": "added", "update_seconds": seconds, "relinearization_rounds": solver.last_rounds,
              "linearization_error_sigma": solver.last_linearization_error,
              "passes_in_state": len(solver.passes), "knots": {a: {"kept": int(res.attitude.knot_times[i].size),
                                                                   "removed": int(res.pass_graph.removed_knots[i].size)}
                                                               for i, a in enumerate(ANGLES)},
-             "rejected_observations": int(res.rejected.size), "iterations": solver.last_rounds, "final_cost": res.final_cost}
-        truth = read_pass_truth(f)
+             "rejected_observations": int(res.rejected.size), "iterations": solver.last_rounds, "final_cost": res.final_cost,
+             "observation_set": obs_set, "tie_height": res.tie_height, "tie_offset": res.tie_offset}
         if truth is not None:
             s.update(score_pass(p, truth, res, camera, whole_state=False))
         if compare_batch:
@@ -398,14 +437,15 @@ def _run_update_locked(
         if report not in ids:
             raise InputError("--report", report, ids or "a pass id already in the state")
         i = ids.index(report)
-        res = solver.pass_result(i)
+        res = _pass_result(solver, i, files[i], camera, obs_set)
         rep = {"pass_id": report, "knots": {a: {"kept": int(res.attitude.knot_times[j].size),
                                                 "removed": int(res.pass_graph.removed_knots[j].size)} for j, a in enumerate(ANGLES)},
                "ephemeris": {"params": res.ephemeris.params.tolist(),
                              "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in res.pass_graph.ephemeris_keys()]},
                "attitude_knot_sigma_arcsec": {a: [float(np.sqrt(res.marginals[k][0, 0]) / ARCSEC) for k in res.pass_graph.knot_keys(j)]
-                                              for j, a in enumerate(ANGLES)}}
-        truth = read_pass_truth(files[i])
+                                              for j, a in enumerate(ANGLES)},
+               "observation_set": obs_set, "tie_height": res.tie_height, "tie_offset": res.tie_offset}
+        truth = load_pass_observations(files[i], obs_set)[1]
         if truth is not None:
             rep.update(score_pass(solver.passes[i], truth, res, camera, whole_state=False))
         out["report"] = rep
@@ -418,4 +458,4 @@ def _run_update_locked(
         _write_json_atomic(d / "state.json", new_meta)  # the commit point
         meta = new_meta
         _collect_garbage(d, meta)
-    return {"state": str(d), "passes_in_state": len(meta["passes"]), "updates": summaries, **out}
+    return {"state": str(d), "passes_in_state": len(meta["passes"]), "observation_set": obs_set, "updates": summaries, **out}

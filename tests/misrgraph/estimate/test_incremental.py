@@ -304,3 +304,65 @@ def test_a_state_from_before_the_dem_low_pass_keeps_the_raw_dem(path_dir, tmp_pa
     assert _restore(state, meta, None, None)[0].cfg.dem_smoothing_postings == 1.0
     del meta["config"]["dem_smoothing_postings"]
     assert _restore(state, meta, None, None)[0].cfg.dem_smoothing_postings == 0.0
+
+
+def test_update_with_matched_observations_is_adjust_on_the_same_pass(imagery_pass_dir, tmp_path):
+    """``update --observations matched`` adjusts what ``misrgraph match`` measured, with the tie
+    points' shared height error and their conjugates' shared offset in their covariance: on one
+    pass (no snooping, J^T J marginals in both: the same least-squares problem) its estimate of
+    the height error and its scores equal ``adjust --observations matched``'s, and they are not the
+    simulated observations'. The state keeps its observation set on replay and refuses another."""
+    from misrgraph.errors import InputError
+    from misrgraph.runs.adjust import run_adjust
+
+    d = imagery_pass_dir
+    f = str(load_scenario(d).pass_files[0])
+    cfg = AdjustConfig(snooping_rounds=0, covariance="gauss_newton")
+    kw = dict(camera_model=d / "camera_model.h5", gcp_file=d / "gcp.h5", dem_file=d / "dem.h5", cfg=cfg)
+    out = run_update(tmp_path / "m", [f], observations="matched", **kw)
+    u = out["updates"][0]
+    ref = run_adjust(d, observations="matched", cfg=cfg)
+    assert out["observation_set"] == u["observation_set"] == "matched"
+    assert u["rejected_observations"] == ref["rejected_observations"]["count"]
+    assert u["tie_height"]["source"] == ref["tie_height"]["source"] == "estimated"
+    # the same optimum to the update's linearisation tolerance: the estimate agrees to 1e-3 of it
+    assert u["tie_height"]["variance_m2"] == pytest.approx(ref["tie_height"]["variance_m2"], rel=1e-3)
+    assert u["tie_offset"] == ref["tie_offset"] and u["tie_offset"]["source"] == "matched"
+    for cls in ("landmarks", "knots", "camera"):
+        assert u["nees"][cls] == pytest.approx(ref["nees"][cls], rel=1e-2), cls
+    # with the two terms off both read alike again, and the terms move this pass's landmarks by more
+    # than that 1 % (so an update without them could not have passed the comparison above)
+    off = AdjustConfig(snooping_rounds=0, covariance="gauss_newton", tie_height_sigma_m=0.0, tie_offset_sigma_px=0.0)
+    bare = run_update(tmp_path / "b", [f], observations="matched", **{**kw, "cfg": off})["updates"][0]
+    ref_bare = run_adjust(d, observations="matched", cfg=off)
+    assert bare["tie_height"]["source"] == bare["tie_offset"]["source"] == "off"
+    assert bare["nees"]["landmarks"] == pytest.approx(ref_bare["nees"]["landmarks"], rel=1e-2)
+    assert abs(ref_bare["nees"]["landmarks"] / ref["nees"]["landmarks"] - 1) > 2e-2
+    # the pass's own (simulated) observations are another set: other landmarks, no terms
+    sim = run_update(tmp_path / "s", [f], **kw)
+    assert sim["observation_set"] == "simulated" and sim["updates"][0]["tie_height"]["source"] == "off"
+    assert sim["updates"][0]["nees"]["landmarks_dim"] != u["nees"]["landmarks_dim"]
+    # a restart replays the matched set: the report of the pass is the one it had when added (the
+    # replay re-linearises from the saved estimate, within the update's 0.01 sigma tolerance)
+    rep = run_update(tmp_path / "m", [], report=u["pass_id"])["report"]
+    assert rep["observation_set"] == "matched" and rep["nees"]["landmarks_dim"] == u["nees"]["landmarks_dim"]
+    assert rep["nees"]["landmarks"] == pytest.approx(u["nees"]["landmarks"], rel=1e-3)
+    assert rep["tie_height"]["variance_m2"] == pytest.approx(u["tie_height"]["variance_m2"], rel=1e-3)
+    with pytest.raises(InputError, match=r"--observations.*'matched', the observation set this state adjusts"):
+        run_update(tmp_path / "m", [], report=u["pass_id"], observations="simulated")
+    with pytest.raises(InputError, match=r"--observations: got 'imaged'; expected one of simulated, matched"):
+        run_update(tmp_path / "n", [f], observations="imaged", **kw)
+
+
+def test_update_cli_matched_observations(imagery_pass_dir, tmp_path):
+    """``misrgraph update --observations matched``: the set and both tie-point terms printed; the
+    state refuses another set in one line (exit 2)."""
+    d = imagery_pass_dir
+    f = str(load_scenario(d).pass_files[0])
+    res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), f, "--camera-model", str(d / "camera_model.h5"),
+                                   "--gcps", str(d / "gcp.h5"), "--dem", str(d / "dem.h5"), "--observations", "matched"])
+    assert res.exit_code == 0, res.output
+    assert "(matched observations)" in res.output and "conjugates' shared offset" in res.output
+    assert "(estimated)" in res.output and "px (matched)" in res.output
+    res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), "--report", "x", "--observations", "simulated"])
+    assert res.exit_code == 2 and "--observations" in res.output and "'matched', the observation set" in res.output
