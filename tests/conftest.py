@@ -64,6 +64,18 @@ def imagery_pass_dir(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def matched_month_dir(tmp_path_factory):
+    """A reduced month with imagery (seed 1, 30 GCPs, 5 days: GCP windows and chips in every GCP
+    pass), matched once by the fixture; ``(directory, simulate's summary, match's summary)``."""
+    from misrgraph.runs.match import run_match
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+
+    out = tmp_path_factory.mktemp("scen") / "month"
+    s = run_simulate(ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True), out)
+    return out, s, run_match(out)
+
+
+@pytest.fixture(scope="session")
 def path_dir(tmp_path_factory):
     """A repeat-path scenario (seed 41): ten 10-minute passes of one path, 40 tie points each."""
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate

@@ -26,6 +26,7 @@ import numpy as np
 from misrgraph import __version__
 from misrgraph.config import Config
 from misrgraph.errors import InputError
+from misrgraph.io.imagery import OBSERVATION_SETS
 from misrgraph.misr.som import N_BLOCKS
 from misrgraph.model.orbit import REPEAT_PATHS
 
@@ -60,7 +61,11 @@ class CampaignConfig(Config):
     ``products``: build the per-path incremental state and products; ``roi``: build each path's
     Reference Orbit Imagery from its state too (the path's inputs need whole-swath strips and a
     SOM DEM: when the campaign simulates them, it renders ``roi_blocks`` blocks from the one under
-    the middle of the pass, all nine cameras, at ~80 s a block and pass on 2 cores).
+    the middle of the pass, all nine cameras, at ~80 s a block and pass on 2 cores);
+    ``observations``: what the calibration, the adjustments and the path states use --
+    ``"simulated"`` (each pass's own) or ``"matched"`` (measured in the imagery by ``misrgraph
+    match``: the campaign then simulates the month and the paths with imagery, GCP chips and tie
+    windows, and matches them as part of their inputs; brought inputs must have been matched).
     """
 
     months: float = 6.0
@@ -75,6 +80,7 @@ class CampaignConfig(Config):
     products: bool = True
     roi: bool = False
     roi_blocks: int = 1
+    observations: str = "simulated"
 
     def __post_init__(self) -> None:
         if not self.months > 0:
@@ -96,6 +102,8 @@ class CampaignConfig(Config):
             raise InputError("roi", self.roi, "False unless products is True (the ROI is built from each path's state)")
         if isinstance(self.roi_blocks, bool) or not isinstance(self.roi_blocks, int) or not 1 <= self.roi_blocks <= 20:
             raise InputError("roi_blocks", self.roi_blocks, "an integer number of blocks in 1..20")
+        if self.observations not in OBSERVATION_SETS:
+            raise InputError("observations", self.observations, OBSERVATION_SETS)
 
     @property
     def blocks(self) -> int:

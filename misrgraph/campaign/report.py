@@ -57,7 +57,9 @@ def write_report(report_dir: Path, plan: dict[str, Any], summary: dict[str, Any]
     cfg = plan["config"]
     L = ["# misrgraph campaign", "",
          f"{len(plan['paths'])} paths, {cfg['months']} months of data, {cfg['fraction']:.0%} of each path's repeat passes "
-         f"(at least {cfg['passes_per_path']}), {cfg['size']} size, {cfg['truth']} truth; inputs: {plan['inputs']}.",
+         f"(at least {cfg['passes_per_path']}), {cfg['size']} size, {cfg['truth']} truth; inputs: {plan['inputs']}; "
+         f"{cfg.get('observations', 'simulated')} observations"
+         + (" (measured in the imagery by image matching)." if cfg.get("observations") == "matched" else "."),
          f"Ran on: {summary['cluster'].get('kind')} ({summary['cluster'].get('workers')} workers) in {summary['seconds']:.0f} s.", "",
          "## Passes", "", "| planned | done | failed |", "|---:|---:|---:|",
          f"| {summary['passes']['planned']} | {summary['passes']['done']} | {summary['passes']['failed']} |", ""]

@@ -275,20 +275,21 @@ def _execute(ex: Any, plan: CampaignPlan, out: str, month_dir: Path | None, path
         return fut
 
     if month_dir is not None:
-        month = submit("inputs", "month", tasks.existing_inputs, "month", str(month_dir), priority=10)
+        month = submit("inputs", "month", tasks.existing_inputs, "month", str(month_dir), cfg.observations, priority=10)
     else:
         month = submit("inputs", "month", tasks.simulate_month, out, cfg, priority=10)
-    cal = submit("calibration", "month", tasks.calibrate, out, month, priority=9)
+    cal = submit("calibration", "month", tasks.calibrate, out, month, cfg.observations, priority=9)
     for pp in plan.paths:
         if pp.path in path_dirs:
-            pin = submit("inputs", f"path {pp.path}", tasks.existing_inputs, f"path {pp.path}", str(path_dirs[pp.path]))
+            pin = submit("inputs", f"path {pp.path}", tasks.existing_inputs, f"path {pp.path}", str(path_dirs[pp.path]),
+                         cfg.observations)
         else:
             pin = submit("inputs", f"path {pp.path}", tasks.simulate_path, out, cfg, pp.path, pp.cycles, month, priority=5)
         if cfg.products:  # the longest tasks first, so that they do not end the campaign alone
             submit("path", f"path {pp.path}", tasks.path_products, out, pp.path, pp.pass_ids, pin, cal, cfg.blocks, cfg.roi,
-                   priority=2)
+                   cfg.observations, priority=2)
         for pid in pp.pass_ids:
-            submit("adjust", pid, tasks.adjust, out, pp.path, pid, pin, cal)
+            submit("adjust", pid, tasks.adjust, out, pp.path, pid, pin, cal, cfg.observations)
     cluster = ex.describe()
     if progress and cluster.get("dashboard"):
         progress(0, len(futs), f"Dask dashboard: {cluster['dashboard']}")

@@ -111,21 +111,47 @@ def _scenario_cfg(cfg: CampaignConfig, kind: str, **extra: Any) -> dict[str, Any
     return {"scenario": kind, "truth": cfg.truth, "epoch_date": cfg.epoch_date, **SIZES[cfg.size][kind], **extra}
 
 
-def _simulate(out_dir: Path, scfg: dict[str, Any]) -> tuple[Path, bool, dict[str, Any]]:
+def _simulate(out_dir: Path, scfg: dict[str, Any], match: bool = False) -> tuple[Path, bool, dict[str, Any]]:
+    """Simulate a scenario into ``out_dir`` (atomically, :func:`misrgraph.sim.simulate.run_simulate`)
+    unless it is there; with ``match``, then match every pass that has no matched set yet
+    (``misrgraph match``: each pass file is replaced atomically and the matching is deterministic,
+    so a run killed part-way matches the rest on the rerun)."""
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-    if (out_dir / "scenario.json").exists():
-        s = json.loads((out_dir / "scenario.json").read_text())
-        return out_dir, True, {"passes": s["passes"], "observations": s["observations"]}
-    s = run_simulate(ScenarioConfig.from_dict(scfg), out_dir)
-    return out_dir, False, {"passes": s["passes"], "observations": s["observations"]}
+    skipped = (out_dir / "scenario.json").exists()
+    s = json.loads((out_dir / "scenario.json").read_text()) if skipped else run_simulate(ScenarioConfig.from_dict(scfg), out_dir)
+    summary = {"passes": s["passes"], "observations": s["observations"]}
+    if match:
+        skipped = _match_missing(out_dir, summary) and skipped
+    return out_dir, skipped, summary
+
+
+def _match_missing(d: Path, summary: dict[str, Any]) -> bool:
+    """Match the scenario's passes when any has no matched set; add the matched counts to
+    ``summary``; True when every pass was matched already."""
+    from misrgraph.io.imagery import has_matched, read_matched_summary
+    from misrgraph.runs.match import run_match
+
+    files = sorted((d / "passes").glob("*.h5"))
+    done = all(has_matched(f) for f in files)
+    if not done:
+        run_match(d)
+    counts = {"gcp": 0, "tie": 0}
+    for f in files:
+        m = read_matched_summary(f) or {}
+        for kind in counts:
+            counts[kind] += int((m.get(kind) or {}).get("matched", 0))
+    summary["matched"] = counts
+    return done
 
 
 def simulate_month(out: str, cfg: CampaignConfig) -> dict[str, Any]:
-    """Simulate the GCP month into ``OUT/inputs/month-<digest>``."""
-    scfg = _scenario_cfg(cfg, "month", seed=cfg.seed)
+    """Simulate the GCP month into ``OUT/inputs/month-<digest>`` (with ``cfg.observations ==
+    "matched"``, with its GCP chips and windows, and matched)."""
+    matched = cfg.observations == "matched"
+    scfg = _scenario_cfg(cfg, "month", seed=cfg.seed, **({"imagery": True} if matched else {}))
     d = Path(out) / "inputs" / f"month-{digest(scfg)[:12]}"
-    return _task("inputs", "month", (), lambda: _simulate(d, scfg))
+    return _task("inputs", "month", (), lambda: _simulate(d, scfg, matched))
 
 
 def mid_pass_block(scfg: dict[str, Any]) -> int:
@@ -147,36 +173,56 @@ def simulate_path(out: str, cfg: CampaignConfig, path: int, cycles: tuple[int, .
     """Simulate the chosen repeat passes of ``path`` (the month's instrument: its true camera
     model) into ``OUT/inputs/path_PPP-<digest>``; with ``cfg.roi``, with whole-swath strips of
     ``cfg.roi_blocks`` blocks from the one under the middle of the pass (clouds over 20 % of the
-    sky) and the SOM DEM the ROI is made with."""
+    sky) and the SOM DEM the ROI is made with; with ``cfg.observations == "matched"``, with the
+    tie points' and GCPs' windows and chips, and matched."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
         truth = Path(month["output"]) / "camera_truth.h5"
         seed = int.from_bytes(bytes.fromhex(digest("path seed", cfg.seed, path)[:8]), "big")
         scfg = _scenario_cfg(cfg, "path", seed=seed, path=path, repeat_indices=list(cycles), camera_truth=str(truth))
+        matched = cfg.observations == "matched"
+        if matched:
+            scfg.update(imagery=True)
         if cfg.roi:
             b0 = mid_pass_block(scfg)
-            scfg.update(imagery=True, cloud_fraction=0.2, feature_windows=False, roi_blocks=[b0, b0 + cfg.roi_blocks - 1])
+            scfg.update(imagery=True, cloud_fraction=0.2, feature_windows=matched, roi_blocks=[b0, b0 + cfg.roi_blocks - 1])
         d = Path(out) / "inputs" / f"path_{path:03d}-{digest(scfg, _sha(truth))[:12]}"
-        return _simulate(d, scfg)
+        return _simulate(d, scfg, matched)
 
     return _task("inputs", f"path {path}", (month,), body)
 
 
-def existing_inputs(name: str, directory: str) -> dict[str, Any]:
-    """A record for a scenario directory the user brought (checked to exist)."""
+def existing_inputs(name: str, directory: str, observations: str = "simulated") -> dict[str, Any]:
+    """A record for a scenario directory the user brought (checked to exist; for ``observations
+    == "matched"``, every pass checked to hold what ``misrgraph match`` measured)."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
+        from misrgraph.io.imagery import has_matched
+
         d = Path(directory)
         if not (d / "passes").is_dir():
             raise FileFormatError(d, "not a scenario directory (no passes/); make one with 'misrgraph simulate'")
-        return d, True, {"passes": len(list((d / "passes").glob("*.h5")))}
+        files = sorted((d / "passes").glob("*.h5"))
+        if observations == "matched":
+            bare = [f.name for f in files if not has_matched(f)]
+            if bare:
+                raise FileFormatError(d / "passes" / bare[0], f"no matched observations ({len(bare)} of {len(files)} passes "
+                                                              "lack them); run 'misrgraph match' on the scenario first")
+        return d, True, {"passes": len(files)}
 
     return _task("inputs", name, (), body)
 
 
 # ---------------------------------------------------------------------------- calibration
-def calibrate(out: str, month: dict[str, Any]) -> dict[str, Any]:
-    """Calibrate the cameras on the GCP month into ``OUT/calibration/camera_model-<digest>.h5``."""
+def _observation_key(observations: str) -> list[dict[str, str]]:
+    """The observation set's part of an output's digest (none for the simulated observations, so
+    that their outputs keep the names they had before the option existed)."""
+    return [] if observations == "simulated" else [{"observations": observations}]
+
+
+def calibrate(out: str, month: dict[str, Any], observations: str = "simulated") -> dict[str, Any]:
+    """Calibrate the cameras on the GCP month into ``OUT/calibration/camera_model-<digest>.h5``,
+    from the ``observations`` set."""
     from misrgraph.estimate.calibrate import CalibrateConfig
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
@@ -185,17 +231,18 @@ def calibrate(out: str, month: dict[str, Any]) -> dict[str, Any]:
 
         d = Path(month["output"])
         cfg = CalibrateConfig()
-        f = Path(out) / "calibration" / f"camera_model-{digest('calibrate', _scenario_sha(d), cfg.to_dict())[:12]}.h5"
+        key = digest('calibrate', _scenario_sha(d), cfg.to_dict(), *_observation_key(observations))
+        f = Path(out) / "calibration" / f"camera_model-{key[:12]}.h5"
         if f.exists():
             with open_h5(f, "camera_model") as h:
                 return f, True, _calibration_summary(json.loads(h["calibration"].attrs["summary_json"]))
-        return f, False, _calibration_summary(run_calibrate(d, out=f, cfg=cfg))
+        return f, False, _calibration_summary(run_calibrate(d, out=f, cfg=cfg, observations=observations))
 
     return _task("calibration", "month", (month,), body)
 
 
 def _calibration_summary(s: dict[str, Any]) -> dict[str, Any]:
-    keep = ("status", "max_pointing_error_px", "nees", "passes", "observations")
+    keep = ("status", "max_pointing_error_px", "nees", "passes", "observations", "observation_set")
     out = {k: s[k] for k in keep if k in s}
     if "cameras" in s:
         out["pointing_error_px"] = {c: v.get("pointing_error_px") for c, v in s["cameras"].items()}
@@ -204,9 +251,10 @@ def _calibration_summary(s: dict[str, Any]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- per pass
-def adjust(out: str, path: int, pass_id: str, inputs: dict[str, Any], calibration: dict[str, Any]) -> dict[str, Any]:
+def adjust(out: str, path: int, pass_id: str, inputs: dict[str, Any], calibration: dict[str, Any],
+           observations: str = "simulated") -> dict[str, Any]:
     """Adjust one pass with the calibrated model into ``OUT/adjusted/path_PPP/<pass id>-<digest>.h5``
-    (RESULT.h5); the graph is built and solved here, on the worker."""
+    (RESULT.h5), from the ``observations`` set; the graph is built and solved here, on the worker."""
     from misrgraph.estimate.adjust import AdjustConfig
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
@@ -219,21 +267,22 @@ def adjust(out: str, path: int, pass_id: str, inputs: dict[str, Any], calibratio
             raise FileFormatError(pass_file, "the planned pass is not in the scenario")
         cam = Path(calibration["output"])
         cfg = AdjustConfig()
-        key = digest("adjust", _sha(pass_file), _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"), cfg.to_dict())
+        key = digest("adjust", _sha(pass_file), _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"), cfg.to_dict(),
+                     *_observation_key(observations))
         f = Path(out) / "adjusted" / f"path_{path:03d}" / f"{pass_id}-{key[:12]}.h5"
         if f.exists():
             with open_h5(f, "adjustment_result") as h:
                 return f, True, _pass_summary(json.loads(h.attrs["summary_json"]))
         f.parent.mkdir(parents=True, exist_ok=True)
-        s = run_adjust(d, camera_model=cam, pass_file=pass_file, out=f, cfg=cfg, score_points=True)
+        s = run_adjust(d, camera_model=cam, pass_file=pass_file, out=f, cfg=cfg, score_points=True, observations=observations)
         return f, False, _pass_summary(s)
 
     return _task("adjust", pass_id, (inputs, calibration), body)
 
 
 def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
-    out = {k: s[k] for k in ("pass_id", "solver_status", "iterations", "seconds", "variance_factor", "coregistration_px",
-                             "checkpoint_points", "checkpoint_rms_over_predicted") if k in s}
+    out = {k: s[k] for k in ("pass_id", "observation_set", "solver_status", "iterations", "seconds", "variance_factor",
+                             "coregistration_px", "checkpoint_points", "checkpoint_rms_over_predicted") if k in s}
     if "checkpoint_geolocation_m" in s:
         out["checkpoint_m"] = {c: {"n": v["n"], "rms": v["after"].get("rms"), "before_mean": v["before"]["mean"],
                                    "predicted_rms": v["after"].get("predicted_rms")}
@@ -246,12 +295,13 @@ def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------- per path
 def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[str, Any], calibration: dict[str, Any],
-                  blocks: int, roi: bool = False) -> dict[str, Any]:
+                  blocks: int, roi: bool = False, observations: str = "simulated") -> dict[str, Any]:
     """The path's incremental state over its passes (``misrgraph update``, one pass at a time)
     and the Projection Parameters of its first pass (``misrgraph products``) into
-    ``OUT/paths/path_PPP-<digest>/{state/, products/, path.json}``; with ``roi``, the Reference
-    Orbit Imagery of the blocks its strips cover, from every pass of the state with the state's
-    estimate (``misrgraph products STATE --roi``), into ``products/roi/``."""
+    ``OUT/paths/path_PPP-<digest>/{state/, products/, path.json}``, both from the
+    ``observations`` set; with ``roi``, the Reference Orbit Imagery of the blocks its strips
+    cover, from every pass of the state with the state's estimate (``misrgraph products STATE
+    --roi``), into ``products/roi/``."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
         from misrgraph.estimate.adjust import AdjustConfig
@@ -265,16 +315,17 @@ def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[s
             raise FileFormatError(d / "passes", f"planned passes missing: {', '.join(missing)}")
         cam = Path(calibration["output"])
         key = digest("path", [_sha(f) for f in files], _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"),
-                     AdjustConfig().to_dict(), blocks, {"roi": True} if roi else {})
+                     AdjustConfig().to_dict(), blocks, {"roi": True} if roi else {}, *_observation_key(observations))
         final = Path(out) / "paths" / f"path_{path:03d}-{key[:12]}"
         if (final / SUMMARY_FILE).exists():
             return final, True, json.loads((final / SUMMARY_FILE).read_text())
         with _building(final) as tmp:
             t0 = time.perf_counter()
             upd = run_update(tmp / "state", [str(f) for f in files], camera_model=cam, gcp_file=d / "gcp.h5",
-                             dem_file=d / "dem.h5")
+                             dem_file=d / "dem.h5", observations=observations)
             t_update = time.perf_counter() - t0
-            prod = run_products(d, tmp / "products", pass_file=files[0], camera_model=cam, default_blocks=blocks)
+            prod = run_products(d, tmp / "products", pass_file=files[0], camera_model=cam, default_blocks=blocks,
+                                observations=observations)
             pp_name = Path(prod["files"]["pp"]).name
             prod["files"]["pp"] = str(final / "products" / pp_name)  # where it will be after the rename
             (tmp / "products" / "products.json").write_text(json.dumps(prod, indent=2))
@@ -288,7 +339,7 @@ def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[s
                                "coregistration_px": r["roi_coregistration_px"], "truth_px": r.get("roi_truth"),
                                "obscured_fraction": r["roi"]["obscured_fraction"], "seconds": r["seconds"]["total"]}
             summary = {
-                "path": path, "passes": list(pass_ids),
+                "path": path, "passes": list(pass_ids), "observation_set": observations,
                 "update": [{k: u.get(k) for k in ("pass_id", "status", "update_seconds", "rejected_observations")}
                            | ({"checkpoint_rms_m": {c: v["after"].get("rms") for c, v in u["checkpoint_geolocation_m"].items()}}
                               if "checkpoint_geolocation_m" in u else {}) for u in upd["updates"]],

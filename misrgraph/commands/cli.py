@@ -579,6 +579,7 @@ def campaign(
     roi: bool = typer.Option(False, "--roi", help="Build each path's Reference Orbit Imagery from its state (inputs with "
                                                   "whole-swath strips and a SOM DEM; simulated ones get them, ~80 s a block and pass)."),
     roi_blocks: int = typer.Option(1, "--roi-blocks", help="Blocks of strips a simulated path gets with --roi, from the one under mid-pass."),
+    observations: str = typer.Option("simulated", "--observations", help="simulated (each pass's own) or matched (measured in the imagery by 'misrgraph match': simulated inputs then get imagery and are matched, brought ones must have been) for the calibration, the adjustments and the path states."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -591,7 +592,8 @@ def campaign(
         _fail("--workers and --scheduler: give one (--workers starts a local cluster, --scheduler uses yours)")
     cfg = CampaignConfig.from_dict(dict(months=months, fraction=fraction, paths=parse_paths(paths) if paths else (),
                                         passes_per_path=passes_per_path, size=size, truth=truth, seed=seed,
-                                        pp_blocks=pp_blocks, products=not no_products, roi=roi, roi_blocks=roi_blocks))
+                                        pp_blocks=pp_blocks, products=not no_products, roi=roi, roi_blocks=roi_blocks,
+                                        observations=observations))
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err_console, disable=as_json) as bar:
         task = bar.add_task("campaign: starting", total=None)
@@ -641,6 +643,7 @@ def products(
     quicklooks: bool = typer.Option(False, "--quicklooks", help="With --roi: one quick-look PNG per camera."),
     som_dem: Optional[Path] = typer.Option(None, "--som-dem", help="With --roi: heights on the path's 275 m SOM grid (default: the scenario's dem_som.h5)."),
     coreg_points: int = typer.Option(64, "--coreg-points", help="With --roi: co-registration matches per image pair and block (0: not measured)."),
+    observations: str = typer.Option("simulated", "--observations", help="simulated (the pass's own) or matched (those 'misrgraph match' measured) for the scenario's adjustment; a state adjusts its own set."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Projection Parameters of an adjusted pass on its path's 1.1 km SOM grid, with their 1 sigma
@@ -665,7 +668,7 @@ def products(
         opts = RoiOptions(som_dem=str(som_dem) if som_dem else None, geotiff=geotiff, quicklooks=quicklooks,
                           coregistration_points=coreg_points) if roi else None
         res = run_products(scenario_dir, out, blocks=blocks, pass_file=pass_file, camera_model=camera_model,
-                           band=band, progress=progress, roi=roi, roi_options=opts)
+                           band=band, progress=progress, roi=roi, roi_options=opts, observations=observations)
     if as_json:
         _print_json(res)
         return

@@ -37,7 +37,8 @@ from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_file
 from misrgraph.io.passes import OrbitPass
 from misrgraph.io.products import ProjectionParameters, save_pp
-from misrgraph.io.truth import PassTruth, pass_truth_in, read_pass_truth
+from misrgraph.io.imagery import OBSERVATION_SETS
+from misrgraph.io.truth import PassTruth, load_pass_observations, pass_truth_in, read_pass_truth
 from misrgraph.misr.som import N_BLOCKS, SomGrid
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.constants import CAMERAS
@@ -95,6 +96,7 @@ def run_products(
     default_blocks: int = DEFAULT_BLOCKS,
     roi: bool = False,
     roi_options: "RoiOptions | None" = None,
+    observations: str = "simulated",
 ) -> dict[str, Any]:
     """Adjust one pass of ``scenario_dir`` (the only one, or ``pass_file``; for a multi-pass
     scenario the first pass when none is named), compute its PP over ``blocks`` (``"A-B"``;
@@ -119,24 +121,29 @@ def run_products(
     in ``"notes"``) and, for simulated passes, ``"roi_truth"`` (the true
     misregistration of the points the ROI keeps) and ``"roi_truth_obscured"`` (per camera, the
     points the terrain mask flags against those the truth hides: ``points``, ``flagged``,
-    ``hidden``, ``missed``, ``false``) and ``"roi_truth_by_block"`` (the truth per block)."""
+    ``hidden``, ``missed``, ``false``) and ``"roi_truth_by_block"`` (the truth per block).
+
+    ``observations``: the set a scenario's passes are adjusted with (``"simulated"``, their own;
+    ``"matched"``, what ``misrgraph match`` measured); a state adjusts its own set."""
     t_start = time.perf_counter()
     d = Path(scenario_dir)
     roi_options = (roi_options or RoiOptions()) if roi else None
     if roi and pass_file is not None:
         raise InputError("--pass", str(pass_file), "no --pass with --roi (the ROI is made of all the passes with strips)")
+    if observations not in OBSERVATION_SETS:
+        raise InputError("--observations", observations, OBSERVATION_SETS)
     if (d / "state.json").is_file():
         return _run_products_state(d, out, blocks, pass_file, band, progress, default_blocks, t_start, roi_options)
     if not d.is_dir():
         raise InputError("SCENARIO_DIR", str(d), "a directory written by 'misrgraph simulate'")
     if roi:
-        return _run_products_roi(d, out, blocks, camera_model, band, cfg, progress, roi_options, t_start)
+        return _run_products_roi(d, out, blocks, camera_model, band, cfg, progress, roi_options, t_start, observations)
     if pass_file is None:
         passes = sorted((d / "passes").glob("*.h5"))
         if not passes:
             raise FileFormatError(d / "passes", "no pass files (*.h5)")
         pass_file = passes[0]
-    orbit_pass = OrbitPass.load(pass_file)
+    orbit_pass = load_pass_observations(pass_file, observations)[0]
     grid = SomGrid(int(orbit_pass.path), 1100)
     cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
@@ -144,11 +151,11 @@ def run_products(
     if progress:
         progress("adjusting the pass", 0, 1)
     t0 = time.perf_counter()
-    res = adjust_pass(orbit_pass, camera, read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5"), cfg)
+    res = _adjust(orbit_pass, pass_file, camera, read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5"), cfg, observations)
     t_adjust = time.perf_counter() - t0
     chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
     provenance = {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
-                  "software": f"misrgraph {__version__}", "solver_status": res.status}
+                  "software": f"misrgraph {__version__}", "solver_status": res.status, "observation_set": observations}
     row, t_pp, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, read_pass_truth(pass_file),
                             camera, progress)
     summary: dict[str, Any] = {"path": grid.path, "band": band, "blocks": [int(chosen.min()), int(chosen.max())], **row,
@@ -157,6 +164,18 @@ def run_products(
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
     return summary
+
+
+def _adjust(orbit_pass: OrbitPass, pass_file: str | os.PathLike[str], camera: Any, dem: Any, gcps: Any, cfg: AdjustConfig,
+            observations: str) -> AdjustResult:
+    """``adjust_pass`` of a pass loaded with its ``observations`` set (matched: as ``adjust
+    --observations matched`` does, with the tie offset ``misrgraph match`` measured)."""
+    if observations != "matched":
+        return adjust_pass(orbit_pass, camera, dem, gcps, cfg)
+    from misrgraph.runs.adjust import matched_tie_offset
+
+    s_o, own = matched_tie_offset(pass_file)
+    return adjust_pass(orbit_pass, camera, dem, gcps, cfg, ties_matched=True, tie_offset_px=s_o, tie_offset_own_ratio=own)
 
 
 def _out_dir(out: str | os.PathLike[str]) -> Path:
@@ -270,8 +289,9 @@ class RoiOptions:
 
 def _run_products_roi(d: Path, out: str | os.PathLike[str], blocks: str | None, camera_model: str | os.PathLike[str] | None,
                       band: str, cfg: AdjustConfig, progress: Callable[[str, int, int], None] | None,
-                      opts: RoiOptions, t_start: float) -> dict[str, Any]:
-    """Adjust every pass of scenario ``d`` that has whole-swath strips, then :func:`_roi_stage`."""
+                      opts: RoiOptions, t_start: float, observations: str = "simulated") -> dict[str, Any]:
+    """Adjust every pass of scenario ``d`` that has whole-swath strips (from the ``observations``
+    set), then :func:`_roi_stage`."""
     from misrgraph.io.imagery import strip_cameras
 
     out_dir = _out_dir(out)
@@ -287,8 +307,8 @@ def _run_products_roi(d: Path, out: str | os.PathLike[str], blocks: str | None, 
     for n, f in enumerate(files):
         if progress:
             progress(f"adjusting pass {n + 1}/{len(files)}", n, len(files))
-        orbit_pass = OrbitPass.load(f)
-        res = adjust_pass(orbit_pass, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg)
+        orbit_pass = load_pass_observations(f, observations)[0]
+        res = _adjust(orbit_pass, f, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg, observations)
         adjusted.append((orbit_pass, res, f))
     return _roi_stage(adjusted, int(adjusted[0][0].path), blocks, band, out_dir, d, d, camera_all, progress, opts,
                       {"scenario": str(d), "adjust": time.perf_counter() - t0}, t_start)

@@ -147,3 +147,48 @@ def test_bad_input_is_one_clear_error(campaign_setup, tmp_path) -> None:
     assert r.exit_code == 2 and "give one" in r.output
     r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "c"), "--paths", "300"])
     assert r.exit_code == 2 and "paths" in r.output and "1..233" in r.output
+
+
+def test_a_campaign_from_matched_observations(matched_month_dir, campaign_setup, tmp_path) -> None:
+    """``campaign --observations matched`` on brought inputs that ``misrgraph match`` measured (a
+    5-day month's GCP chips; two passes of path 37 flown by the month's instrument, tie points and
+    GCPs matched in their imagery): the calibration, every adjustment and the path's state and PP
+    use the matched set, and the check points still end well under the supplied navigation's
+    error in every camera, as on the simulated observations. Inputs never matched are refused
+    with the command that fixes them, and the tasks that need them say so."""
+    import h5py
+
+    from misrgraph.campaign import CampaignConfig
+    from misrgraph.runs.match import run_match
+    from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+
+    month = matched_month_dir[0]
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    (inputs / "month").symlink_to(month, target_is_directory=True)
+    run_simulate(ScenarioConfig(truth="model", scenario="path", seed=43, n_passes=2, n_tie_points=30, n_check_points=5,
+                                duration_s=600.0, start_lat_deg=52.0, imagery=True,
+                                camera_truth=str(month / "camera_truth.h5")), inputs / "path_037")
+    run_match(inputs / "path_037")
+    cfg = CampaignConfig(paths=(37,), size="reduced", pp_blocks=1, passes_per_path=2, observations="matched")
+    s = run_campaign(tmp_path / "out", cfg, inputs=inputs, workers=0)
+    assert s["passes"] == {"planned": 2, "done": 2, "failed": 0} and s["failed"] == [], s["failed"]
+    assert s["calibration"]["observation_set"] == "matched"
+    for cam, v in s["cameras"].items():
+        assert v["checkpoint_rms_m"] < 0.5 * v["supplied_mean_m"], (cam, v)
+    p = s["paths"]["37"]
+    assert p["products"]["status"] == "done" and np.isfinite(p["products"]["pp_error_rms_m"])
+    for f in p["adjusted"]:
+        with h5py.File(f) as h:
+            assert json.loads(h.attrs["summary_json"])["observation_set"] == "matched"
+    d = Path(p["products"]["dir"])
+    assert json.loads((d / "state" / "state.json").read_text())["observations"] == "matched"
+    assert json.loads((d / "path.json").read_text())["observation_set"] == "matched"
+    assert "matched observations (measured in the imagery" in (tmp_path / "out" / "report" / "campaign.md").read_text()
+    # the reduced campaign's inputs were never matched: refused, and nothing else runs on them
+    bare = run_campaign(tmp_path / "bare", campaign_setup[0].replace(observations="matched", products=False),
+                        inputs=campaign_setup[1], workers=0)
+    reasons = {(f["stage"], f["name"]): f["reason"] for f in bare["failed"]}
+    assert "no matched observations" in reasons[("inputs", "month")] and "misrgraph match" in reasons[("inputs", "month")]
+    assert reasons[("calibration", "month")] == "needs inputs month, which failed"
+    assert bare["passes"]["done"] == 0

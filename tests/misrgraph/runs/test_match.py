@@ -198,7 +198,7 @@ def test_sigma_from_redundancy_makes_the_d_cameras_honest(dense_imagery_dir):
     assert scaled["normalised_error_rms"] >= scaled["normalised_error_rms_correct"]
 
 
-def test_a_month_calibrates_from_gcps_matched_in_its_imagery(tmp_path):
+def test_a_month_calibrates_from_gcps_matched_in_its_imagery(matched_month_dir):
     """A reduced month with imagery (GCP windows and chips in every GCP pass): the GCPs matched
     in it to 1/8 px with no wrong match, and ``calibrate --observations matched`` recovers every
     camera within 3 sigma of the truth and better than the supplied model, as the calibration of
@@ -208,9 +208,7 @@ def test_a_month_calibrates_from_gcps_matched_in_its_imagery(tmp_path):
     from misrgraph.commands.cli import app
     from misrgraph.runs.calibrate import run_calibrate
 
-    out = tmp_path / "month"
-    s = run_simulate(ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True), out)
-    res = run_match(out)
+    out, s, res = matched_month_dir
     g = res["gcp"]
     assert len(res["passes"]) == s["passes"] > 1 and res["tie"]["candidates"] == 0
     assert g["error_px"]["rms"] <= 0.125 and g["matched"] >= 0.8 * g["candidates"] and g["wrong_matches"] == 0, g
