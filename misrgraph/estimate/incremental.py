@@ -230,6 +230,16 @@ class IncrementalSolver:
                 self._first_position[int(k)] = pg.problem.initial.atVector(int(k))
         return pg
 
+    def standalone_graph(self, index: int) -> PassGraph:
+        """Pass ``index``'s graph as an adjustment of that pass alone builds it: the same keys,
+        exclusions and landmark line scales as the solver's, but with every variable's prior (the
+        solver's own graph leaves the priors of variables an earlier pass owns to that pass, so on
+        its own it may not determine them). For statistics of one pass at the joint estimate,
+        such as its redundancy numbers; a tie point other passes also see keeps only this pass's rays."""
+        return build_pass_graph(self.passes[index], self.camera, self.dem, self.gcps, self.cfg.graph_config(),
+                                pass_index=index, exclude_observations=self.exclusions[index],
+                                known_landmarks=self._first_position)
+
     def _linearize(self, pass_index: int, values: gtsam.Values, positions: NDArray[np.int64]) -> gtsam.NonlinearFactorGraph:
         """The factors at ``positions`` of a pass as ``LinearContainerFactor`` s at ``values``, and
         the same rows of the pass's flat linear model refreshed at ``values``. Each family these

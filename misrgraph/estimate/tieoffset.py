@@ -33,7 +33,7 @@ is evaluated at, and with it the predicted sample (up to 0.15 px per px of line 
 
 Measured 2026-11-26 on passes matched from images under the independent truth (docs/design.md,
 "The landmarks' NEES, split by time"): the tie landmarks' per-landmark NEES part went from 1.36 to
-1.06 (0.99-1.12) at reduced size (40 passes) and to 0.98 (0.91-1.04) at standard size (6 passes).
+1.06 (0.99-1.12) at reduced size (40 passes) and to 0.96 (0.91-1.00) at standard size (20 passes).
 """
 
 from __future__ import annotations

@@ -301,14 +301,16 @@ def _pass_result(solver: IncrementalSolver, index: int, pass_file: Path, camera:
     """Pass ``index``'s error models and marginals from the solver's current estimate. With
     matched observations its tie landmarks' covariances also carry the shared height error and
     the conjugates' shared offset, as ``adjust --observations matched`` adds them
-    (:func:`misrgraph.estimate.adjust.tie_point_terms`, the solver's config; the height error
-    estimated from the DEM residuals and redundancy numbers of the pass's own graph at the joint
-    estimate, the offset as ``misrgraph match`` measured it for the pass)."""
+    (:func:`misrgraph.estimate.adjust.tie_point_terms`, the solver's config, on the pass's
+    standalone graph at the joint estimate, :meth:`IncrementalSolver.standalone_graph`: the height
+    error estimated from its DEM residuals and redundancy numbers, the offset as ``misrgraph
+    match`` measured it for the pass)."""
     res = solver.pass_result(index, seconds)
     if observations == "matched":
         s_o, own = matched_tie_offset(pass_file)
         res.tie_height, res.tie_offset, res.landmark_extra_cov = tie_point_terms(
-            solver.passes[index], camera, res.pass_graph, res.values, res.marginals, solver.cfg, True, s_o, own)
+            solver.passes[index], camera, solver.standalone_graph(index), res.values, res.marginals, solver.cfg, True,
+            s_o, own)
     return res
 
 

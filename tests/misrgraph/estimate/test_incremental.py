@@ -366,3 +366,26 @@ def test_update_cli_matched_observations(imagery_pass_dir, tmp_path):
     assert "(estimated)" in res.output and "px (matched)" in res.output
     res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), "--report", "x", "--observations", "simulated"])
     assert res.exit_code == 2 and "--observations" in res.output and "'matched', the observation set" in res.output
+
+
+def test_a_later_pass_alone_is_determined_by_its_standalone_graph(campaign_setup):
+    """The solver's graph of a later pass leaves the priors of shared variables to the pass that
+    owns them, so on its own it need not determine them (here a GCP scene the second pass does
+    not see, under the independent truth's scene-correlated GCP errors); statistics of one pass at
+    the joint estimate (``update --observations matched``'s redundancy numbers) use
+    :meth:`IncrementalSolver.standalone_graph`, which has the same keys and every prior."""
+    from misrgraph.errors import DegenerateProblemError
+    from misrgraph.estimate.reliability import reliability
+
+    sc = load_scenario(campaign_setup[1] / "path_037")
+    solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem)
+    for i in range(2):
+        solver.add_passes([sc.load_pass(i)])
+    own, alone = solver.graphs[1], solver.standalone_graph(1)
+    assert own.problem.dims == alone.problem.dims
+    x = solver.estimate
+    with pytest.raises(DegenerateProblemError, match="not determined"):
+        reliability(own.problem.flat(), own.problem.flat().from_values(x))
+    rel = reliability(alone.problem.flat(), alone.problem.flat().from_values(x))
+    dem = rel.r[rel.families["dem"]]
+    assert dem.size > 0 and np.all((dem > 0) & (dem <= 1 + 1e-9))
