@@ -38,7 +38,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import expm
 
-__all__ = ["gcp_prior", "gcp_scene_prior", "scene_offset_prior", "vector_prior", "process_transition", "process_prior_factors", "linear_factor"]
+__all__ = ["gcp_prior", "gcp_scene_prior", "scene_offset_prior", "vector_prior", "process_transition", "process_prior_factors", "linear_factor",
+           "joint_prior_factor"]
 
 
 def gcp_prior(key: int, position_ecef: ArrayLike, covariance: ArrayLike) -> gtsam.PriorFactorVector:
@@ -97,6 +98,33 @@ def linear_factor(keys: list[int], blocks: list[np.ndarray], rhs: ArrayLike,
         zero.insert(int(k), np.zeros(a.shape[1]))
     jf = gtsam.JacobianFactor(*args, r @ np.asarray(rhs, dtype=float), gtsam.noiseModel.Unit.Create(r.shape[0]))
     return gtsam.LinearContainerFactor(jf, zero)
+
+
+def joint_prior_factor(keys: list[int], dims: list[int], covariance: ArrayLike) -> gtsam.LinearContainerFactor:
+    """``x ~ N(0, C)`` for the stacked vector variables ``keys`` (``dims`` each, ``C`` ``(sum dims,)``
+    square, in the variables' units), as one GTSAM linear factor on any number of keys (the wrapped
+    ``JacobianFactor`` constructors take at most three): the information ``C^-1`` split into one
+    ``HessianFactor`` per block on and above the diagonal, summed into one dense
+    ``HessianFactor`` (the parts need not be positive definite, their sum is), in a
+    ``LinearContainerFactor`` linearised at zero. Its error is ``0.5 x^T C^-1 x``."""
+    c = np.asarray(covariance, dtype=float)
+    n = int(sum(dims))
+    if c.shape != (n, n) or len(keys) != len(dims):
+        raise ValueError(f"joint_prior_factor: covariance {c.shape} for {len(keys)} keys of total dimension {n}")
+    d = np.sqrt(np.diag(c))
+    info = np.linalg.inv(c / np.outer(d, d)) / np.outer(d, d)  # in correlation form first: units may differ
+    off = np.concatenate([[0], np.cumsum(dims)]).astype(int)
+    parts = gtsam.GaussianFactorGraph()
+    zero = gtsam.Values()
+    for i, (ki, di) in enumerate(zip(keys, dims)):
+        zero.insert(int(ki), np.zeros(di))
+        bi = slice(off[i], off[i + 1])
+        parts.push_back(gtsam.HessianFactor(int(ki), info[bi, bi], np.zeros(di), 0.0))
+        for j in range(i + 1, len(keys)):
+            bj = slice(off[j], off[j + 1])
+            parts.push_back(gtsam.HessianFactor(int(ki), int(keys[j]), np.zeros((di, di)), info[bi, bj], np.zeros(di),
+                                                np.zeros((dims[j], dims[j])), np.zeros(dims[j]), 0.0))
+    return gtsam.LinearContainerFactor(gtsam.HessianFactor(parts), zero)
 
 
 def process_prior_factors(keys: list[int], times: ArrayLike, sigma: float, lam: float, zeta: float = 1.0) -> list:

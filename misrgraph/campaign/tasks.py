@@ -288,7 +288,7 @@ def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
                                    "predicted_rms": v["after"].get("predicted_rms")}
                                for c, v in s["checkpoint_geolocation_m"].items()}
     if "nees" in s:
-        out["nees"] = {k: s["nees"][k] for k in ("knots", "landmarks") if k in s["nees"]}
+        out["nees"] = {k: s["nees"][k] for k in ("knots", "landmarks", "camera", "camera_dim") if k in s["nees"]}
     out["rejected_observations"] = s.get("rejected_observations", {}).get("count")
     return out
 

@@ -83,6 +83,11 @@ class AdjustConfig(Config):
     #: see ``GraphConfig.ephemeris_once_per_rev_m`` (0: the navigation's offset and drift alone)
     ephemeris_once_per_rev_m: float = _GRAPH_DEFAULTS.ephemeris_once_per_rev_m
     camera_prior_px: float = _GRAPH_DEFAULTS.camera_prior_px
+    #: a camera model written by ``misrgraph calibrate --out`` carries its corrections' joint
+    #: covariance: the runs (adjust, update, products, campaign) then give it to the camera
+    #: corrections as their prior, in place of ``camera_prior_px`` per camera
+    #: (:func:`misrgraph.io.camera.read_calibration_prior`); False: ``camera_prior_px`` always
+    camera_prior_from_calibration: bool = True
     #: the camera corrections estimated per camera (:data:`factors.collinearity.CAMERA_PARAMS`);
     #: f and alpha_i are held by ``camera_focal_prior_px`` (the supplied model's knowledge)
     camera_params: tuple = CAMERA_PARAMS_ADJUST
@@ -247,30 +252,36 @@ def adjust_pass(
     ties_matched: bool = False,
     tie_offset_px: float | None = None,
     tie_offset_own_ratio: dict[str, float] | None = None,
+    camera_prior: tuple[list[str], Array] | None = None,
 ) -> AdjustResult:
     """Robust solve, blunder rejection, least-squares re-solve and marginals (module docstring).
     ``ties_matched``: the tie points were measured by image matching (``misrgraph match``), so
     ``tie_height_sigma_m="auto"`` estimates their shared height error; ``tie_offset_px``: the
     offset their conjugates share as the matcher measured it (px, 1 sigma; None: not measured),
     which ``tie_offset_sigma_px="auto"`` uses, with ``tie_offset_own_ratio`` (camera name ->
-    ``rho``, :mod:`misrgraph.estimate.tieoffset`; None or a missing camera: 1)."""
+    ``rho``, :mod:`misrgraph.estimate.tieoffset`; None or a missing camera: 1). ``camera_prior``:
+    the camera model's calibration covariance (:func:`misrgraph.io.camera.read_calibration_prior`),
+    the joint prior of the camera corrections of the cameras it covers (None: ``camera_prior_px``
+    each; :func:`misrgraph.estimate.graph.build_pass_graph`)."""
     t0 = time.perf_counter()
     params = SolverParams(max_iterations=cfg.max_iterations)
     obs = orbit_pass.observations
     if progress and cfg.robust != "none":
         progress("robust solve")
-    rejected, norm = find_blunders(orbit_pass, camera, dem, gcps, cfg)
+    rejected, norm = find_blunders(orbit_pass, camera, dem, gcps, cfg, camera_prior)
     blunder_mask = rejected
     rejected, dropped = drop_unsupported_landmarks(orbit_pass, rejected, cfg.drop_rejected_tie_points)
     if progress:
         progress("least-squares solve")
-    pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected)
+    pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected,
+                          camera_prior=camera_prior)
     res = solve(pg.problem, params.replace(backend=cfg.backend))
     check_converged(res, "the least-squares solve", cfg.accept_unconverged)
 
     def resolve(op: OrbitPass, excluded: NDArray[np.bool_], previous: gtsam.Values, after: str):
         """Rebuild and re-solve, warm-started from the previous optimum."""
-        g = build_pass_graph(op, camera, dem, gcps, cfg.graph_config(), exclude_observations=excluded)
+        g = build_pass_graph(op, camera, dem, gcps, cfg.graph_config(), exclude_observations=excluded,
+                             camera_prior=camera_prior)
         g.problem.warm_start(previous)
         r = solve(g.problem, params.replace(backend=cfg.backend))
         check_converged(r, f"the least-squares solve after {after}", cfg.accept_unconverged)
@@ -560,16 +571,18 @@ def reliability_summary(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Valu
 
 
 def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | None, gcps: GcpDatabase | None,
-                  cfg: AdjustConfig) -> tuple[NDArray[np.bool_], Array]:
+                  cfg: AdjustConfig, camera_prior: tuple[list[str], Array] | None = None) -> tuple[NDArray[np.bool_], Array]:
     """Robust (per-observation) solve of one pass; observations whose whitened residual norm
-    exceeds ``reject_sigma`` are blunders. Returns (rejected mask, normalised residual) per observation."""
+    exceeds ``reject_sigma`` are blunders. Returns (rejected mask, normalised residual) per
+    observation. ``camera_prior``: as :func:`adjust_pass`."""
     obs = orbit_pass.observations
     rejected = np.zeros(len(obs), bool)
     norm = np.zeros(len(obs))
     if cfg.robust == "none":
         return rejected, norm
     pg_r = build_pass_graph(orbit_pass, camera, dem, gcps,
-                            cfg.graph_config(group_by="observation", robust=cfg.robust, robust_k=cfg.robust_k))
+                            cfg.graph_config(group_by="observation", robust=cfg.robust, robust_k=cfg.robust_k),
+                            camera_prior=camera_prior)
     res_r = solve(pg_r.problem, SolverParams(max_iterations=cfg.max_iterations))
     check_converged(res_r, "the robust solve (blunder screening)", cfg.accept_unconverged)
     r, _ = pg_r.collinearity.residuals(res_r.values)

@@ -24,7 +24,7 @@ from factors import keys as K
 from factors.collinearity import CAMERA_PARAMS, CollinearityBatch, CollinearityConstants, camera_param_scale, collinearity_residual
 from factors.dem_height import DemBatch
 from factors.geometry import enu_covariance
-from factors.priors import gcp_prior, gcp_scene_prior, linear_factor, process_prior_factors, scene_offset_prior, vector_prior
+from factors.priors import gcp_prior, gcp_scene_prior, joint_prior_factor, linear_factor, process_prior_factors, scene_offset_prior, vector_prior
 from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
@@ -38,7 +38,7 @@ from misrgraph.model.gcp import GcpDatabase
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
 from misrgraph.estimate.problem import Problem
 
-__all__ = ["GraphConfig", "calibrated_camera_sigma", "observation_sigma", "check_jitter", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
+__all__ = ["GraphConfig", "calibrated_camera_sigma", "calibration_rows", "observation_sigma", "check_jitter", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
            "CAMERA_PRIOR_SIGMA", "calibration_prior_sigma", "merge_problems", "merge_flat"]
 
 log = logging.getLogger(__name__)
@@ -264,8 +264,14 @@ def build_pass_graph(
     camera_for_pass: CameraModel | None = None,
     temperature_bin: int = 0,
     known_landmarks: Mapping[int, Array] | None = None,
+    camera_prior: tuple[list[str], Array] | None = None,
 ) -> PassGraph:
     """Build the factor graph of one pass (see the module docstring).
+
+    ``camera_prior``: the joint covariance of the camera model's calibration (``(labels,
+    covariance)``, :func:`misrgraph.io.camera.read_calibration_prior`): the corrections of the
+    cameras it covers (all of ``cfg.camera_params``) get it as one joint prior instead of
+    ``cfg.camera_prior_px`` each; not with per-band corrections or in a calibration.
 
     ``shared`` holds keys (GCPs, cameras, omega) whose value and prior another pass of the same
     problem already added: they are referenced, not added again. ``camera_for_pass`` is the
@@ -459,15 +465,31 @@ def build_pass_graph(
         eph_sig = np.r_[np.asarray(cfg.ephemeris_a_sigma_mps, float), np.full(3, cfg.ephemeris_b_sigma_m)]
         for k in eph_keys:
             graph.add(vector_prior(k, np.zeros(6), eph_sig))
+    scale = camera_param_scale(cfg.camera_params)
+    use_calibration = camera_prior is not None and not cfg.camera_per_band and not cfg.camera_prior_calibration
+    joint_keys: list[int] = []
+    joint_rows: list[NDArray[np.int64]] = []
     for ck, k in camera_keys.items():
         c = (ck % 1000) // 10 if cfg.camera_per_band else ck % 1000
-        scale = camera_param_scale(cfg.camera_params)
         if cfg.camera_prior_calibration:
             sig = calibration_prior_sigma(camera, c, cfg.camera_params, cfg.calibration_focal_prior_px) / scale
         else:
             sig = calibrated_camera_sigma(camera, c, cfg.camera_params, cfg.camera_prior_px, cfg.camera_focal_prior_px) / scale
-        if add(k, np.zeros(len(cfg.camera_params))):
+        if not add(k, np.zeros(len(cfg.camera_params))):
+            continue
+        rows = calibration_rows(camera_prior, c, cfg.camera_params) if use_calibration else None
+        if rows is None:
             graph.add(vector_prior(k, np.zeros(len(cfg.camera_params)), sig))
+        else:
+            joint_keys.append(k)
+            joint_rows.append(rows)
+    if joint_keys:  # the calibration's joint covariance of these cameras' corrections, in the variables' units
+        assert camera_prior is not None
+        n = len(cfg.camera_params)
+        rows_all = np.concatenate(joint_rows)
+        s_all = np.tile(scale, len(joint_keys))
+        cov = camera_prior[1][np.ix_(rows_all, rows_all)] / np.outer(s_all, s_all)
+        graph.add(joint_prior_factor(joint_keys, [n] * len(joint_keys), cov))
     if cfg.estimate_omega and add(K.omega_key(), np.zeros(3)):
         graph.add(vector_prior(K.omega_key(), np.zeros(3), np.full(3, cfg.omega_prior_rad)))
     last = list(camera_keys.values()) + ([K.omega_key()] if cfg.estimate_omega else []) + scene_keys
@@ -502,6 +524,16 @@ def observation_sigma(sigma_px: Array, const: CollinearityConstants, landmarks: 
     assert jac is not None
     d_angles = -jac["knots"][:, :, :, 0]  # the attitude error enters with a minus sign
     return np.sqrt(sig**2 + unresolved_rad**2 * np.sum(d_angles**2, axis=2))
+
+
+def calibration_rows(camera_prior: tuple[list[str], Array] | None, cam: int, params: tuple[str, ...]) -> NDArray[np.int64] | None:
+    """Indices into a calibration's covariance (``(labels, covariance)``) of camera ``cam``'s
+    ``params``, in their order; None when it lacks any of them (or there is none)."""
+    if camera_prior is None:
+        return None
+    index = {label: i for i, label in enumerate(camera_prior[0])}
+    rows = [index.get(f"{CAMERAS[cam]}.{p}") for p in params]
+    return None if any(r is None for r in rows) else np.array(rows, np.int64)
 
 
 def calibration_prior_sigma(camera: CameraModel, cam: int, params: tuple[str, ...], focal_px: float = 0.0) -> Array:

@@ -160,17 +160,20 @@ class IncrementalSolver:
     the optimum. After each update, ``last_linearization_error`` holds that figure,
     ``last_rounds`` the number of rounds and ``last_costs`` the live factors' nonlinear cost before
     each round and at the end. ``settle_after``: passes are marginalised in the first update after
-    this many newer passes (module docstring); None keeps every factor live.
+    this many newer passes (module docstring); None keeps every factor live. ``camera_prior``:
+    the camera model's calibration covariance, the joint prior of the camera corrections
+    (:func:`misrgraph.estimate.graph.build_pass_graph`; the first pass that has a camera adds it).
     """
 
     def __init__(self, camera: CameraModel, gcps: GcpDatabase, dem: DemTiles | None, cfg: AdjustConfig = AdjustConfig(),
                  linearization_tol: float = DEFAULT_LINEARIZATION_TOL, max_rounds: int = 20,
-                 settle_after: int | None = DEFAULT_SETTLE_AFTER) -> None:
+                 settle_after: int | None = DEFAULT_SETTLE_AFTER, camera_prior: tuple[list[str], Array] | None = None) -> None:
         if not linearization_tol > 0:
             raise InputError("linearization_tol", linearization_tol, "a positive number (sigma units)")
         if settle_after is not None and not (isinstance(settle_after, int) and settle_after >= 1):
             raise InputError("settle_after", settle_after, "a whole number of passes >= 1, or None (never marginalise)")
         self.camera, self.gcps, self.dem, self.cfg = camera, gcps, dem, cfg
+        self.camera_prior = camera_prior
         self.linearization_tol = float(linearization_tol)
         self.max_rounds = max_rounds
         self.settle_after = settle_after
@@ -223,7 +226,8 @@ class IncrementalSolver:
     # ------------------------------------------------------------------ building
     def _graph(self, orbit_pass: OrbitPass, index: int, exclude: NDArray[np.bool_]) -> PassGraph:
         pg = build_pass_graph(orbit_pass, self.camera, self.dem, self.gcps, self.cfg.graph_config(), pass_index=index,
-                              shared=self.owned, exclude_observations=exclude, known_landmarks=self._first_position)
+                              shared=self.owned, exclude_observations=exclude, known_landmarks=self._first_position,
+                              camera_prior=self.camera_prior)
         for k in pg.problem.initial.keys():
             self.owned.add(int(k))
             if gtsam.Symbol(int(k)).chr() in _POINT_LETTERS:
@@ -238,7 +242,7 @@ class IncrementalSolver:
         such as its redundancy numbers; a tie point other passes also see keeps only this pass's rays."""
         return build_pass_graph(self.passes[index], self.camera, self.dem, self.gcps, self.cfg.graph_config(),
                                 pass_index=index, exclude_observations=self.exclusions[index],
-                                known_landmarks=self._first_position)
+                                known_landmarks=self._first_position, camera_prior=self.camera_prior)
 
     def _linearize(self, pass_index: int, values: gtsam.Values, positions: NDArray[np.int64]) -> gtsam.NonlinearFactorGraph:
         """The factors at ``positions`` of a pass as ``LinearContainerFactor`` s at ``values``, and

@@ -22,7 +22,7 @@ from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.nominal import MODEL_NAMES, builtin_camera_model
 
-__all__ = ["save_camera_model", "load_camera_model", "read_camera_file", "write_camera_group",
+__all__ = ["save_camera_model", "load_camera_model", "read_camera_file", "read_calibration_prior", "write_camera_group",
            "read_camera_group", "write_camera_groups", "MODEL_NAMES"]
 
 _UNITS = {"focal_length": "m", "k": "m", "cy": "pixel", "alpha": "pixel^-i", "omega": "rad"}
@@ -95,6 +95,31 @@ def read_camera_file(path: str | os.PathLike[str]) -> CameraModel | TabulatedCam
     """Read a camera-model file (plain or tabulated), validating kind, version, checksums and every field."""
     with open_h5(path, "camera_model") as f:
         return read_camera_groups(f, path)
+
+
+def read_calibration_prior(spec: str | os.PathLike[str]) -> tuple[list[str], np.ndarray] | None:
+    """The joint covariance of the corrections a calibrated camera-model file carries
+    (``misrgraph calibrate --out``: ``/calibration/labels`` ``(P,)`` as ``"<camera>.<param>"`` and
+    ``/calibration/covariance`` ``(P, P)``, SI: rad, m, pixel^-i), as ``(labels, covariance)``;
+    None for a built-in model, a file without a calibration, or a per-band or per-temperature
+    calibration (its labels name a band or a temperature bin). An adjustment with this model uses
+    it as the prior of its camera corrections (``AdjustConfig.camera_prior_from_calibration``)."""
+    text = os.fspath(spec)
+    if text in MODEL_NAMES and not os.path.exists(text):
+        return None
+    import h5py
+
+    with open_h5(text, "camera_model") as f:
+        if "calibration" not in f or "labels" not in f["calibration"] or "covariance" not in f["calibration"]:
+            return None
+        g = f["calibration"]
+        labels = [x.decode() if isinstance(x, bytes) else str(x) for x in g["labels"][()]]
+        if isinstance(g["labels"], h5py.Dataset) and any("/" in x or "@" in x for x in labels):
+            return None
+        cov = read_dataset(g, "covariance", (len(labels), len(labels)))
+    if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) <= 0):
+        raise FileFormatError(text, "/calibration/covariance has a non-finite or non-positive variance")
+    return labels, cov
 
 
 def load_camera_model(spec: str | os.PathLike[str]) -> CameraModel | TabulatedCameraModel:

@@ -21,7 +21,7 @@ from misrgraph import __version__
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, adjust_pass, attitude_sigma_summary
 from misrgraph.evaluate.score import score_pass
-from misrgraph.io.camera import load_camera_model, write_camera_group
+from misrgraph.io.camera import load_camera_model, read_calibration_prior, write_camera_group
 from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_h5, write_dataset
@@ -30,7 +30,7 @@ from misrgraph.io.results import capped_list
 from misrgraph.io.truth import PassTruth, load_pass_observations
 from misrgraph.model.constants import ANGLES, CAMERAS
 
-__all__ = ["run_adjust", "run_tie_height_pool", "write_adjust_result", "matched_tie_offset"]
+__all__ = ["run_adjust", "run_tie_height_pool", "write_adjust_result", "matched_tie_offset", "camera_prior_of"]
 
 
 def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, summary: dict[str, Any],
@@ -103,6 +103,13 @@ def matched_tie_offset(pass_file: str | os.PathLike[str]) -> tuple[float | None,
     return float(so["sigma_px"]), so.get("own_scale_ratio")
 
 
+def camera_prior_of(camera_model: str | os.PathLike[str], cfg: AdjustConfig) -> tuple[list[str], np.ndarray] | None:
+    """The joint covariance of the calibration a camera model file carries
+    (:func:`misrgraph.io.camera.read_calibration_prior`), when ``cfg.camera_prior_from_calibration``
+    asks for it as the prior of the camera corrections; None otherwise (or when it has none)."""
+    return read_calibration_prior(camera_model) if cfg.camera_prior_from_calibration else None
+
+
 def run_adjust(
     scenario_dir: str | os.PathLike[str],
     camera_model: str | os.PathLike[str] | None = None,
@@ -144,13 +151,15 @@ def run_adjust(
     gcps = read_gcp_database(gcp_file or d / "gcp.h5")
     dem = read_dem(dem_file or d / "dem.h5")
     s_o, own = matched_tie_offset(pass_file) if observations == "matched" else (None, None)
+    prior = camera_prior_of(cam_path, cfg)
     res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress, ties_matched=observations == "matched",
-                      tie_offset_px=s_o, tie_offset_own_ratio=own)
+                      tie_offset_px=s_o, tie_offset_own_ratio=own, camera_prior=prior)
     pg = res.pass_graph
     snooped = set(res.snooped.tolist())
     summary: dict[str, Any] = {
         "pass_id": orbit_pass.pass_id,
         "observation_set": observations,
+        "camera_prior": "the camera model's calibration covariance" if prior is not None else "camera_prior_px per camera",
         "solver_status": res.status,
         "covariance": res.reliability.get("covariance", "gauss_newton"),
         "variance_factor": res.variance_factor,

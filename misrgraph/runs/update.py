@@ -53,7 +53,7 @@ from misrgraph.io.h5 import atomic_file, atomic_h5, fsync_directory, open_h5, re
 from misrgraph.io.passes import PASS_ID_PATTERN
 from misrgraph.io.imagery import OBSERVATION_SETS
 from misrgraph.io.truth import load_pass_observations
-from misrgraph.runs.adjust import matched_tie_offset
+from misrgraph.runs.adjust import camera_prior_of, matched_tie_offset
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, ARCSEC
 from misrgraph.model.nominal import MODEL_NAMES
@@ -265,13 +265,16 @@ def _restore(d: Path, meta: dict[str, Any], linearization_tol: float | None,
     conf = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()}
     # a state written before the DEM's low-pass existed (2026-11-26) read the raw DEM: it goes on so
     conf.setdefault("dem_smoothing_postings", 0.0)
+    # and one written before the calibration's covariance became the camera prior (2026-11-26) used camera_prior_px
+    conf.setdefault("camera_prior_from_calibration", False)
     cfg = AdjustConfig.from_dict(conf)
     camera = load_camera_model(meta["camera_model"])
     if not isinstance(camera, CameraModel):
         raise InputError("--camera-model", meta["camera_model"], "a single-temperature camera model (not a temperature table)")
     gcps = read_gcp_database(meta["gcps"])
     dem = read_dem(meta["dem"]) if meta.get("dem") else None
-    solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol)
+    solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol,
+                               camera_prior=camera_prior_of(meta["camera_model"], cfg))
     # replay the state (warm start from the saved estimate), in one update
     files = [_checked_file(d, p) for p in meta["passes"]]
     old = [load_pass_observations(f, _observation_set(meta))[0] for f in files]
@@ -399,7 +402,7 @@ def _run_update_locked(
             continue
         if progress:
             progress(f"pass {p.pass_id}: blunder screening")
-        rejected, norms = find_blunders(p, camera, solver.dem, solver.gcps, solver.cfg)
+        rejected, norms = find_blunders(p, camera, solver.dem, solver.gcps, solver.cfg, solver.camera_prior)
         if progress:
             progress(f"pass {p.pass_id}: iSAM2 update")
         seconds = solver.add_passes([p], [rejected])

@@ -78,3 +78,31 @@ def test_block_layout_matches_naive_assembly(rng):
                 if k >= 0:
                     naive[2 * li:2 * li + 2, cols[k]:cols[k] + dims[s]] = blocks[s][i]
         np.testing.assert_array_equal(a, naive)
+
+
+def test_joint_prior_factor_is_the_gaussian_on_any_number_of_keys():
+    """Nine camera keys of five parameters each (more than GTSAM's Python JacobianFactor takes),
+    units spanning five decades: the factor's error is 0.5 x^T C^-1 x for random x, and the flat
+    problem's reading of it (a JacobianFactor) whitens to the same."""
+    from factors.priors import joint_prior_factor
+
+    rng = np.random.default_rng(3)
+    dims = [5] * 9
+    n = sum(dims)
+    a = rng.normal(size=(n, n))
+    scale = np.tile(np.logspace(-6, -1, 5), 9)
+    c = (a @ a.T / n + 0.05 * np.eye(n)) * np.outer(scale, scale)
+    keys = [gtsam.symbol("c", i) for i in range(9)]
+    f = joint_prior_factor(keys, dims, c)
+    assert list(f.keys()) == keys
+    for _ in range(3):
+        x = rng.multivariate_normal(np.zeros(n), c)
+        v = gtsam.Values()
+        for i, k in enumerate(keys):
+            v.insert(k, x[5 * i:5 * i + 5])
+        expected = 0.5 * x @ np.linalg.solve(c, x)
+        assert f.error(v) == pytest.approx(expected, rel=1e-7)
+        jac, b = gtsam.JacobianFactor(f.factor()).jacobian()
+        assert 0.5 * np.sum((np.asarray(jac) @ x - np.asarray(b)) ** 2) == pytest.approx(expected, rel=1e-7)
+    with pytest.raises(ValueError, match="covariance"):
+        joint_prior_factor(keys, dims, c[:-1, :-1])

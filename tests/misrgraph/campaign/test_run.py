@@ -54,6 +54,20 @@ def test_the_campaign_improves_on_the_supplied_navigation_in_every_camera(runs) 
         assert v["passes"] == 8
         # check points against the simulator's truth: after adjustment, well under the supplied error
         assert v["checkpoint_rms_m"] < 0.5 * v["supplied_mean_m"], (cam, v)
+    # the calibrated model carries its covariance into each adjustment's camera prior: the camera
+    # corrections' NEES of every pass inside the 99.9 % chi-square band of its dimension (with
+    # the per-camera default prior, 1/16 px, they read 7-9 on a reduced month's calibration)
+    from scipy.stats import chi2
+
+    for name in ("sequential", "cluster"):
+        for f in sorted((base / name / "adjusted").rglob("*.h5")):
+            import h5py
+
+            with h5py.File(f) as h:
+                s = json.loads(h.attrs["summary_json"])
+            n = s["nees"]["camera_dim"]
+            assert s["camera_prior"].startswith("the camera model's calibration")
+            assert s["nees"]["camera"] < chi2.ppf(0.999, n) / n, (f.name, s["nees"]["camera"])
     for path in ("37", "38"):
         p = clu["paths"][path]
         assert p["passes"] == {"planned": 4, "done": 4, "failed": 0}
