@@ -68,6 +68,10 @@ def test_the_campaign_improves_on_the_supplied_navigation_in_every_camera(runs) 
             n = s["nees"]["camera_dim"]
             assert s["camera_prior"].startswith("the camera model's calibration")
             assert s["nees"]["camera"] < chi2.ppf(0.999, n) / n, (f.name, s["nees"]["camera"])
+    from misrgraph.runs.update import restore_state
+
+    solver = restore_state(Path(clu["paths"]["37"]["products"]["dir"]) / "state")[0]  # the path's state: the same prior
+    assert solver.camera_prior is not None and len(solver.camera_prior[0]) == 45
     for path in ("37", "38"):
         p = clu["paths"][path]
         assert p["passes"] == {"planned": 4, "done": 4, "failed": 0}

@@ -304,6 +304,10 @@ def test_a_state_from_before_the_dem_low_pass_keeps_the_raw_dem(path_dir, tmp_pa
     assert _restore(state, meta, None, None)[0].cfg.dem_smoothing_postings == 1.0
     del meta["config"]["dem_smoothing_postings"]
     assert _restore(state, meta, None, None)[0].cfg.dem_smoothing_postings == 0.0
+    # likewise the camera prior: a new state takes a calibrated model's covariance, an old one did not
+    assert meta["config"]["camera_prior_from_calibration"] is True
+    del meta["config"]["camera_prior_from_calibration"]
+    assert _restore(state, meta, None, None)[0].cfg.camera_prior_from_calibration is False
 
 
 def test_update_with_matched_observations_is_adjust_on_the_same_pass(imagery_pass_dir, tmp_path):
