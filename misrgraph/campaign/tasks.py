@@ -214,12 +214,6 @@ def existing_inputs(name: str, directory: str, observations: str = "simulated") 
 
 
 # ---------------------------------------------------------------------------- calibration
-def _observation_key(observations: str) -> list[dict[str, str]]:
-    """The observation set's part of an output's digest (none for the simulated observations, so
-    that their outputs keep the names they had before the option existed)."""
-    return [] if observations == "simulated" else [{"observations": observations}]
-
-
 def calibrate(out: str, month: dict[str, Any], observations: str = "simulated") -> dict[str, Any]:
     """Calibrate the cameras on the GCP month into ``OUT/calibration/camera_model-<digest>.h5``,
     from the ``observations`` set."""
@@ -231,7 +225,7 @@ def calibrate(out: str, month: dict[str, Any], observations: str = "simulated") 
 
         d = Path(month["output"])
         cfg = CalibrateConfig()
-        key = digest('calibrate', _scenario_sha(d), cfg.to_dict(), *_observation_key(observations))
+        key = digest('calibrate', _scenario_sha(d), cfg.to_dict(), {"observations": observations})
         f = Path(out) / "calibration" / f"camera_model-{key[:12]}.h5"
         if f.exists():
             with open_h5(f, "camera_model") as h:
@@ -268,7 +262,7 @@ def adjust(out: str, path: int, pass_id: str, inputs: dict[str, Any], calibratio
         cam = Path(calibration["output"])
         cfg = AdjustConfig()
         key = digest("adjust", _sha(pass_file), _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"), cfg.to_dict(),
-                     *_observation_key(observations))
+                     {"observations": observations})
         f = Path(out) / "adjusted" / f"path_{path:03d}" / f"{pass_id}-{key[:12]}.h5"
         if f.exists():
             with open_h5(f, "adjustment_result") as h:
@@ -315,7 +309,7 @@ def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[s
             raise FileFormatError(d / "passes", f"planned passes missing: {', '.join(missing)}")
         cam = Path(calibration["output"])
         key = digest("path", [_sha(f) for f in files], _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"),
-                     AdjustConfig().to_dict(), blocks, {"roi": True} if roi else {}, *_observation_key(observations))
+                     AdjustConfig().to_dict(), blocks, {"roi": True} if roi else {}, {"observations": observations})
         final = Path(out) / "paths" / f"path_{path:03d}-{key[:12]}"
         if (final / SUMMARY_FILE).exists():
             return final, True, json.loads((final / SUMMARY_FILE).read_text())

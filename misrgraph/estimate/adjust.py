@@ -350,7 +350,7 @@ def tie_point_terms(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
     covariance added. ``ties_matched``, ``tie_offset_px``, ``tie_offset_own_ratio``: as
     :func:`adjust_pass`. ``at``: the reliability at ``values`` when already computed; otherwise it
     is computed here if the height term is to be estimated. Used by ``adjust`` and by ``update``
-    (on a pass's own graph at the joint estimate)."""
+    (on the pass's standalone graph at the joint estimate)."""
     if at is None and _tie_height_mode(cfg.tie_height_sigma_m, ties_matched) == "estimate":
         at = _reliability_at(orbit_pass, pg, values)
     tie_height, extra = tie_height_term(orbit_pass, camera, pg, values, at, cfg.tie_height_sigma_m, ties_matched)

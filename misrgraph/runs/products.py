@@ -30,7 +30,7 @@ import numpy as np
 from misrgraph import __version__
 from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, adjust_pass
-from misrgraph.runs.adjust import camera_prior_of
+from misrgraph.runs.adjust import camera_prior_of, matched_tie_offset
 from misrgraph.evaluate.products import score_pp
 from misrgraph.io.camera import load_camera_model
 from misrgraph.io.dem import read_dem
@@ -175,8 +175,6 @@ def _adjust(orbit_pass: OrbitPass, pass_file: str | os.PathLike[str], camera: An
     corrections' prior from the model's calibration when it has one (``camera_prior``)."""
     if observations != "matched":
         return adjust_pass(orbit_pass, camera, dem, gcps, cfg, camera_prior=camera_prior)
-    from misrgraph.runs.adjust import matched_tie_offset
-
     s_o, own = matched_tie_offset(pass_file)
     return adjust_pass(orbit_pass, camera, dem, gcps, cfg, ties_matched=True, tie_offset_px=s_o, tie_offset_own_ratio=own,
                        camera_prior=camera_prior)
