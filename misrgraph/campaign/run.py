@@ -241,6 +241,13 @@ def run_campaign(
         if f.exists():
             old = json.loads(f.read_text())
             if old.get("digest") != plan_doc["digest"]:
+                old_cfg = old.get("config") if isinstance(old.get("config"), dict) else {}
+                new_cfg = json.loads(json.dumps(plan_doc["config"]))  # as stored (tuples as lists)
+                missing = sorted(set(new_cfg) - set(old_cfg))
+                if missing and all(old_cfg.get(k) == v for k, v in new_cfg.items() if k in old_cfg):
+                    raise InputError("--out", str(out_dir), "a new directory: the campaign in it was planned by an earlier "
+                                                            f"misrgraph (its plan has no {', '.join(missing)}), whose "
+                                                            "outputs this version does not reuse")
                 raise InputError("--out", str(out_dir), "a new directory, or the options of the campaign already in it "
                                                         f"(its plan: {json.dumps(old.get('config'))})")
         else:

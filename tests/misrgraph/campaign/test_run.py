@@ -161,6 +161,12 @@ def test_bad_input_is_one_clear_error(campaign_setup, tmp_path) -> None:
     (tmp_path / "b" / "campaign.json").write_text(json.dumps({"digest": "other", "config": {"months": 1}}))
     with pytest.raises(InputError, match="options of the campaign already in it"):
         run_campaign(tmp_path / "b", cfg, inputs=inputs, workers=0)
+    # a plan written before a config field existed: said to be an earlier version's, not other options
+    (tmp_path / "e").mkdir()
+    old = {k: v for k, v in cfg.to_dict().items() if k != "observations"}
+    (tmp_path / "e" / "campaign.json").write_text(json.dumps({"digest": "older", "config": old}, default=list))
+    with pytest.raises(InputError, match="planned by an earlier misrgraph .its plan has no observations."):
+        run_campaign(tmp_path / "e", cfg, inputs=inputs, workers=0)
     r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "c"), "--workers", "1", "--scheduler", "tcp://x:1"])
     assert r.exit_code == 2 and "give one" in r.output
     r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "c"), "--paths", "300"])
