@@ -22,7 +22,8 @@ from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.nominal import MODEL_NAMES, builtin_camera_model
 
-__all__ = ["save_camera_model", "load_camera_model", "read_camera_file", "read_calibration_prior", "write_camera_group",
+__all__ = ["save_camera_model", "load_camera_model", "read_camera_file", "read_calibration_prior", "is_builtin_model",
+           "write_camera_group",
            "read_camera_group", "write_camera_groups", "MODEL_NAMES"]
 
 _UNITS = {"focal_length": "m", "k": "m", "cy": "pixel", "alpha": "pixel^-i", "omega": "rad"}
@@ -105,7 +106,7 @@ def read_calibration_prior(spec: str | os.PathLike[str]) -> tuple[list[str], np.
     calibration (its labels name a band or a temperature bin). An adjustment with this model uses
     it as the prior of its camera corrections (``AdjustConfig.camera_prior_from_calibration``)."""
     text = os.fspath(spec)
-    if text in MODEL_NAMES and not os.path.exists(text):
+    if is_builtin_model(text):
         return None
     with open_h5(text, "camera_model") as f:
         if "calibration" not in f or "labels" not in f["calibration"] or "covariance" not in f["calibration"]:
@@ -127,6 +128,13 @@ def load_camera_model(spec: str | os.PathLike[str]) -> CameraModel | TabulatedCa
     A name wins over a file of the same name only when no such file exists.
     """
     text = os.fspath(spec)
-    if text in MODEL_NAMES and not os.path.exists(text):
+    if is_builtin_model(text):
         return builtin_camera_model(text)
     return read_camera_file(text)
+
+
+def is_builtin_model(spec: str | os.PathLike[str]) -> bool:
+    """Whether ``spec`` names a built-in camera model (:data:`~misrgraph.model.nominal.MODEL_NAMES`)
+    rather than a file: a name wins only when no file of that name exists."""
+    text = os.fspath(spec)
+    return text in MODEL_NAMES and not os.path.exists(text)

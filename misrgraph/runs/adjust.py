@@ -28,9 +28,13 @@ from misrgraph.io.h5 import atomic_h5, write_dataset
 from misrgraph.io.passes import KIND_GCP, OrbitPass
 from misrgraph.io.results import capped_list
 from misrgraph.io.truth import PassTruth, load_pass_observations
+from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, CAMERAS
+from misrgraph.model.dem import DemTiles
+from misrgraph.model.gcp import GcpDatabase
 
-__all__ = ["run_adjust", "run_tie_height_pool", "write_adjust_result", "matched_tie_offset", "camera_prior_of"]
+__all__ = ["run_adjust", "run_tie_height_pool", "write_adjust_result", "matched_tie_offset", "camera_prior_of",
+           "adjust_observation_set"]
 
 
 def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, summary: dict[str, Any],
@@ -110,6 +114,20 @@ def camera_prior_of(camera_model: str | os.PathLike[str], cfg: AdjustConfig) -> 
     return read_calibration_prior(camera_model) if cfg.camera_prior_from_calibration else None
 
 
+def adjust_observation_set(orbit_pass: OrbitPass, pass_file: str | os.PathLike[str], camera: CameraModel,
+                           dem: DemTiles | None, gcps: GcpDatabase | None, cfg: AdjustConfig, observations: str,
+                           camera_prior: tuple[list[str], np.ndarray] | None,
+                           progress: Callable[[str], None] | None = None) -> AdjustResult:
+    """:func:`~misrgraph.estimate.adjust.adjust_pass` of ``orbit_pass`` as loaded with its
+    ``observations`` set from ``pass_file`` (matched: with the offset ``misrgraph match`` measured
+    for the pass, :func:`matched_tie_offset`), the camera corrections' prior ``camera_prior``
+    (:func:`camera_prior_of`). The one adjustment of ``adjust`` and ``products``."""
+    matched = observations == "matched"
+    s_o, own = matched_tie_offset(pass_file) if matched else (None, None)
+    return adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress, ties_matched=matched, tie_offset_px=s_o,
+                       tie_offset_own_ratio=own, camera_prior=camera_prior)
+
+
 def run_adjust(
     scenario_dir: str | os.PathLike[str],
     camera_model: str | os.PathLike[str] | None = None,
@@ -150,10 +168,8 @@ def run_adjust(
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
     gcps = read_gcp_database(gcp_file or d / "gcp.h5")
     dem = read_dem(dem_file or d / "dem.h5")
-    s_o, own = matched_tie_offset(pass_file) if observations == "matched" else (None, None)
     prior = camera_prior_of(cam_path, cfg)
-    res = adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress, ties_matched=observations == "matched",
-                      tie_offset_px=s_o, tie_offset_own_ratio=own, camera_prior=prior)
+    res = adjust_observation_set(orbit_pass, pass_file, camera, dem, gcps, cfg, observations, prior, progress)
     pg = res.pass_graph
     snooped = set(res.snooped.tolist())
     summary: dict[str, Any] = {

@@ -29,8 +29,8 @@ import numpy as np
 
 from misrgraph import __version__
 from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError
-from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, adjust_pass
-from misrgraph.runs.adjust import camera_prior_of, matched_tie_offset
+from misrgraph.estimate.adjust import AdjustConfig, AdjustResult
+from misrgraph.runs.adjust import adjust_observation_set, camera_prior_of
 from misrgraph.evaluate.products import score_pp
 from misrgraph.io.camera import load_camera_model
 from misrgraph.io.dem import read_dem
@@ -152,8 +152,8 @@ def run_products(
     if progress:
         progress("adjusting the pass", 0, 1)
     t0 = time.perf_counter()
-    res = _adjust(orbit_pass, pass_file, camera, read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5"), cfg, observations,
-                  camera_prior_of(cam_path, cfg))
+    res = adjust_observation_set(orbit_pass, pass_file, camera, read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5"), cfg,
+                                 observations, camera_prior_of(cam_path, cfg))
     t_adjust = time.perf_counter() - t0
     chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
     provenance = {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
@@ -166,18 +166,6 @@ def run_products(
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
     return summary
-
-
-def _adjust(orbit_pass: OrbitPass, pass_file: str | os.PathLike[str], camera: Any, dem: Any, gcps: Any, cfg: AdjustConfig,
-            observations: str, camera_prior: tuple[list[str], np.ndarray] | None) -> AdjustResult:
-    """``adjust_pass`` of a pass loaded with its ``observations`` set (matched: as ``adjust
-    --observations matched`` does, with the tie offset ``misrgraph match`` measured), the camera
-    corrections' prior from the model's calibration when it has one (``camera_prior``)."""
-    if observations != "matched":
-        return adjust_pass(orbit_pass, camera, dem, gcps, cfg, camera_prior=camera_prior)
-    s_o, own = matched_tie_offset(pass_file)
-    return adjust_pass(orbit_pass, camera, dem, gcps, cfg, ties_matched=True, tie_offset_px=s_o, tie_offset_own_ratio=own,
-                       camera_prior=camera_prior)
 
 
 def _out_dir(out: str | os.PathLike[str]) -> Path:
@@ -311,7 +299,8 @@ def _run_products_roi(d: Path, out: str | os.PathLike[str], blocks: str | None, 
         if progress:
             progress(f"adjusting pass {n + 1}/{len(files)}", n, len(files))
         orbit_pass = load_pass_observations(f, observations)[0]
-        res = _adjust(orbit_pass, f, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg, observations, prior)
+        res = adjust_observation_set(orbit_pass, f, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg,
+                                     observations, prior)
         adjusted.append((orbit_pass, res, f))
     return _roi_stage(adjusted, int(adjusted[0][0].path), blocks, band, out_dir, d, d, camera_all, progress, opts,
                       {"scenario": str(d), "adjust": time.perf_counter() - t0}, t_start)

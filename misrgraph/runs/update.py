@@ -46,7 +46,7 @@ from misrgraph.errors import FileFormatError, InputError
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, find_blunders, tie_point_terms
 from misrgraph.estimate.incremental import DEFAULT_LINEARIZATION_TOL, IncrementalSolver, batch_solution
 from misrgraph.evaluate.score import score_pass
-from misrgraph.io.camera import load_camera_model
+from misrgraph.io.camera import is_builtin_model, load_camera_model
 from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_file, atomic_h5, fsync_directory, open_h5, read_dataset, stored_file_sha256, write_dataset
@@ -56,7 +56,6 @@ from misrgraph.io.truth import load_pass_observations
 from misrgraph.runs.adjust import camera_prior_of, matched_tie_offset
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, ARCSEC
-from misrgraph.model.nominal import MODEL_NAMES
 
 __all__ = ["run_update", "load_state", "restore_state", "State"]
 
@@ -96,7 +95,7 @@ def _model_sha256(camera: CameraModel) -> str:
 
 def _is_builtin(what: str, spec: str) -> bool:
     """Whether an input spec names a built-in camera model (no file) rather than a file."""
-    return what == "camera_model" and spec in MODEL_NAMES and not os.path.exists(spec)
+    return what == "camera_model" and is_builtin_model(spec)
 
 
 def _input_sha256(spec: str, what: str) -> str:
