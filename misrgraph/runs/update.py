@@ -335,7 +335,7 @@ def run_update(
     camera_model: str | os.PathLike[str] | None = None,
     gcp_file: str | os.PathLike[str] | None = None,
     dem_file: str | os.PathLike[str] | None = None,
-    cfg: AdjustConfig = AdjustConfig(),
+    cfg: AdjustConfig | None = None,
     compare_batch: bool = False,
     progress: Callable[[str], None] | None = None,
     crash_before_commit: bool = False,
@@ -353,7 +353,9 @@ def run_update(
     may repeat it but not change it. ``report`` names an earlier pass whose
     error models, marginals and scores (from the current estimate) are returned under
     ``"report"``. ``crash_before_commit`` (tests only) raises after the work is done but before
-    ``state.json`` is replaced. ``linearization_tol`` (sigma units, default
+    ``state.json`` is replaced. ``cfg``: the adjustment settings of a new state (default
+    :class:`AdjustConfig`'s); a state keeps the settings it was created with, and another ``cfg``
+    for it is refused. ``linearization_tol`` (sigma units, default
     :data:`DEFAULT_LINEARIZATION_TOL`): see :class:`IncrementalSolver`.
     """
     d = Path(state_dir)
@@ -364,7 +366,7 @@ def run_update(
 
 def _run_update_locked(
     d: Path, new_passes: list[str | os.PathLike[str]], camera_model: str | os.PathLike[str] | None,
-    gcp_file: str | os.PathLike[str] | None, dem_file: str | os.PathLike[str] | None, cfg: AdjustConfig,
+    gcp_file: str | os.PathLike[str] | None, dem_file: str | os.PathLike[str] | None, cfg: AdjustConfig | None,
     compare_batch: bool, progress: Callable[[str], None] | None, crash_before_commit: bool, report: str | None,
     linearization_tol: float | None, observations: str | None,
 ) -> dict[str, Any]:
@@ -383,10 +385,13 @@ def _run_update_locked(
                 raise InputError(flag, spec, "an existing file")
         meta = {"version": STATE_VERSION, "software": f"misrgraph {__version__}", **specs,
                 "input_sha256": {k: _input_sha256(v, k) for k, v in specs.items() if v is not None},
-                "config": dataclasses.asdict(cfg), "observations": observations or "simulated", "estimate": None,
+                "config": dataclasses.asdict(cfg or AdjustConfig()), "observations": observations or "simulated", "estimate": None,
                 "passes": []}
         state = State(d, meta)
     meta = state.meta
+    if cfg is not None and json.dumps(dataclasses.asdict(cfg), sort_keys=True) != json.dumps(meta["config"], sort_keys=True):
+        raise InputError("--config", "settings that differ from the state's",
+                         "the settings the state was created with (a state keeps them; start a new state for others)")
     obs_set = _observation_set(meta)
     if observations is not None and observations != obs_set:
         raise InputError("--observations", observations, f"{obs_set!r}, the observation set this state adjusts "

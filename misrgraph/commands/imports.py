@@ -1,0 +1,62 @@
+"""``misrgraph import``: real GCP lists and DEM rasters into misrgraph's files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from misrgraph.commands.common import (
+    console,
+    handle_errors,
+    print_json,
+)
+
+__all__ = ["app", "import_gcps", "import_dem"]
+
+app = typer.Typer(help="Real inputs: GCP lists (CSV, GeoJSON) and DEM rasters (any GDAL raster) into misrgraph's files.",
+                  no_args_is_help=True)
+
+
+@app.command("gcps")
+@handle_errors
+def import_gcps(
+    source: Path = typer.Argument(..., help="GCP list: .csv (header row) or .geojson (Point features)."),
+    out: Path = typer.Option(..., "--out", help="GCP database to write (HDF5), e.g. SCENARIO_DIR/gcp.h5."),
+    sigma_m: Optional[float] = typer.Option(None, "--sigma-m", help="1-sigma (m, every ENU axis) where the list has no sigma column."),
+    geoid: Optional[Path] = typer.Option(None, "--geoid", help="Geoid grid raster (e.g. us_nga_egm96_15.tif) for heights above the geoid."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Import a GCP list with its sigmas (columns: lat, lon, height [m ellipsoidal] or height_msl,
+    sigma_m or sigma_h_m + sigma_v_m or sigma_e_m + sigma_n_m + sigma_u_m, optional id, region)."""
+    from misrgraph.runs.imports import run_import_gcps
+
+    res = run_import_gcps(source, out, sigma_m, geoid)
+    if as_json:
+        print_json(res)
+        return
+    console.print(f"{res['gcps']} GCPs -> {res['out']} (sigma {res['sigma_m']['min']:.3g}..{res['sigma_m']['max']:.3g} m)")
+
+
+@app.command("dem")
+@handle_errors
+def import_dem(
+    sources: list[Path] = typer.Argument(..., help="DEM rasters (GeoTIFF, DTED, ... any CRS), heights in metres."),
+    out: Path = typer.Option(..., "--out", help="DEM file to write (HDF5), e.g. SCENARIO_DIR/dem.h5."),
+    posting_arcsec: float = typer.Option(3.0, "--posting-arcsec", help="Posting of the geographic grid (arc seconds)."),
+    tile_postings: int = typer.Option(1201, "--tile-postings", help="Postings per tile side (>= 32)."),
+    quality: int = typer.Option(1, "--quality", help="Accuracy class: 1 (30 m), 2 (60 m), 3 (120 m) 1-sigma."),
+    geoid: Optional[Path] = typer.Option(None, "--geoid", help="Geoid grid raster; heights above it become ellipsoidal."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Import DEM rasters as square geographic tiles (bilinear onto the posting grid)."""
+    from misrgraph.runs.imports import run_import_dem
+
+    res = run_import_dem(sources, out, posting_arcsec, tile_postings, quality, geoid)
+    if as_json:
+        print_json(res)
+        return
+    console.print(f"{res['tiles']} tiles of {res['tile_postings']} postings -> {res['out']} "
+                  f"(heights {res['height_m']['min']:.0f}..{res['height_m']['max']:.0f} m, {res['height_reference']})")
+
