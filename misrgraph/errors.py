@@ -15,6 +15,7 @@ __all__ = [
     "MisrGraphError",
     "InputError",
     "FileFormatError",
+    "OutputError",
     "ConvergenceError",
     "DegenerateProblemError",
     "MissingDependencyError",
@@ -64,6 +65,20 @@ class FileFormatError(MisrGraphError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+
+class OutputError(MisrGraphError):
+    """An output could not be written: a full disk, a read-only or missing place, no permission.
+
+    The message names the path and the operating system's reason, never a library's detail.
+    """
+
+    exit_code = 1
+
+    def __init__(self, path: Any, reason: str) -> None:
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"{self.path}: cannot write ({reason})")
 
 
 class ConvergenceError(MisrGraphError):

@@ -25,7 +25,6 @@ import json
 import logging
 import os
 import shutil
-import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -35,6 +34,7 @@ import numpy as np
 
 from misrgraph.campaign.plan import SIZES, CampaignConfig, digest
 from misrgraph.errors import FileFormatError, MisrGraphError
+from misrgraph.io.h5 import make_temp_dir
 
 __all__ = ["simulate_month", "simulate_path", "existing_inputs", "calibrate", "adjust", "path_products",
            "SUMMARY_FILE"]
@@ -94,7 +94,7 @@ def _building(final: Path) -> Any:
     """A hidden temporary sibling directory that becomes ``final`` when the block succeeds (if
     another execution of the same task got there first, its identical output is kept)."""
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    tmp = make_temp_dir(f".{final.name}.", final.parent, suffix=".tmp")
     try:
         yield tmp
         try:

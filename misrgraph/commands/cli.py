@@ -25,7 +25,7 @@ from misrgraph.commands import (
     update,
     view,
 )
-from misrgraph.commands.common import configure_logging, set_debug
+from misrgraph.commands.common import configure_logging, exit_hard_on_output_errors, set_debug
 
 __all__ = ["app", "main", "click_command"]
 
@@ -65,6 +65,7 @@ def click_command() -> object:
 
 def main() -> None:
     """Console-script entry point."""
+    exit_hard_on_output_errors()
     app()
 
 

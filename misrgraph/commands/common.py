@@ -19,13 +19,11 @@ code  meaning
 from __future__ import annotations
 
 import contextlib
-import errno
 import functools
 import json
 import logging
 import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any, Callable, Iterator, Optional
 
@@ -40,7 +38,8 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from misrgraph.errors import InputError, MisrGraphError
+from misrgraph.errors import InputError, MisrGraphError, OutputError
+from misrgraph.io.h5 import check_writable, is_write_failure, os_reason
 
 __all__ = [
     "console",
@@ -48,6 +47,7 @@ __all__ = [
     "fail",
     "handle_errors",
     "set_debug",
+    "exit_hard_on_output_errors",
     "configure_logging",
     "merge_config",
     "print_json",
@@ -65,7 +65,7 @@ err_console = Console(stderr=True)
 #: The help text of every command's ``--config`` option (the dataclass is named by the command).
 CONFIG_HELP = "JSON file of {cls} fields; its values replace the options' (unknown keys are refused)."
 
-_STATE = {"debug": False}
+_STATE = {"debug": False, "hard_exit": False}
 
 
 def set_debug(debug: bool) -> None:
@@ -74,8 +74,38 @@ def set_debug(debug: bool) -> None:
 
 
 def configure_logging(verbose: bool) -> None:
-    """Log at INFO with ``--verbose``, else WARNING, on stderr."""
+    """Log at INFO with ``--verbose``, else WARNING, on stderr; HDF5 objects that fail to close
+    after a failed write are logged at DEBUG instead of printed as tracebacks."""
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    default_hook = sys.unraisablehook
+
+    def hook(unraisable: Any) -> None:
+        if "h5py" in repr(getattr(unraisable, "object", "")):
+            logging.getLogger("misrgraph").debug("h5py: %s", unraisable.exc_value)
+            return
+        default_hook(unraisable)
+
+    sys.unraisablehook = hook
+    default_excepthook = sys.excepthook
+
+    def excepthook(kind: Any, value: Any, tb: Any) -> None:
+        # Cython prints a deallocation failure through sys.excepthook before the unraisable hook
+        frames, t = [], tb
+        while t is not None:
+            frames.append(t.tb_frame.f_code.co_filename)
+            t = t.tb_next
+        if frames and "h5py" in frames[-1] and "_objects" in frames[-1]:
+            logging.getLogger("misrgraph").debug("h5py: %s", value)
+            return
+        default_excepthook(kind, value, tb)
+
+    sys.excepthook = excepthook
+
+
+def exit_hard_on_output_errors() -> None:
+    """In the console script: after an output error, end the process at once (HDF5 would otherwise
+    try to flush the failed file again at interpreter exit, onto the same full disk)."""
+    _STATE["hard_exit"] = True
 
 
 def fail(message: str, code: int = 2) -> None:
@@ -84,17 +114,12 @@ def fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
-#: errno values that mean "this place cannot be written" rather than a bug
-_IO_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EROFS, errno.EPERM, errno.ENOENT, errno.EIO,
-              errno.ENOTDIR, errno.EISDIR}
-
-
 def _io_message(exc: OSError) -> str | None:
-    """One line for an operating-system I/O failure: the path and the reason, no library detail."""
-    if exc.errno not in _IO_ERRNOS:
+    """One line for an operating-system write failure that no writer caught: the path (when the
+    error names one) and the reason, no library detail; ``None`` for any other OSError."""
+    if not is_write_failure(exc):
         return None
-    path = exc.filename or "output"
-    return f"{path}: cannot write or read there ({os.strerror(exc.errno)})"
+    return f"{exc.filename or 'output'}: cannot write ({os_reason(exc)})"
 
 
 def handle_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -111,6 +136,11 @@ def handle_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
         except MisrGraphError as exc:
             if _STATE["debug"]:
                 raise
+            if isinstance(exc, OutputError) and _STATE["hard_exit"]:
+                err_console.print(f"misrgraph: error: {exc}", markup=False, highlight=False, soft_wrap=True)
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(exc.exit_code)
             fail(str(exc), exc.exit_code)
         except KeyboardInterrupt:
             fail("interrupted", 130)
@@ -152,27 +182,10 @@ def print_json(obj: Any) -> None:
 
 
 def check_output(path: Optional[Path], option: str) -> None:
-    """Refuse, before any work, an output location that cannot be written.
-
-    The parent directories are created (as ``mkdir -p``) and a temporary file is made and removed
-    in the directory that will hold ``path``.
-
-    Raises
-    ------
-    InputError
-        Naming ``option``, the path and the operating system's reason.
-    """
-    if path is None:
-        return
-    parent = Path(path).absolute().parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".misrgraph-write-check.", dir=parent)
-        os.close(fd)
-        os.unlink(tmp)
-    except OSError as exc:
-        reason = os.strerror(exc.errno) if exc.errno else str(exc)
-        raise InputError(option, str(path), f"a place that can be written ({parent}: {reason})") from None
+    """Refuse, before any work, an output location that cannot be written
+    (:func:`misrgraph.io.h5.check_writable`); ``None`` is accepted (no output)."""
+    if path is not None:
+        check_writable(path, option)
 
 
 @contextlib.contextmanager

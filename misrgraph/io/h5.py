@@ -24,8 +24,10 @@ HDF5 sees it.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
@@ -33,9 +35,9 @@ from typing import Any, Iterator
 import h5py
 import numpy as np
 
-from misrgraph.errors import FileFormatError
+from misrgraph.errors import FileFormatError, InputError, OutputError
 
-__all__ = ["atomic_h5", "open_h5", "read_dataset", "read_attr", "write_dataset", "create_dataset", "FORMAT_VERSIONS",
+__all__ = ["check_writable", "make_temp_dir", "dir_mode", "os_reason", "is_write_failure", "atomic_h5", "open_h5", "read_dataset", "read_attr", "write_dataset", "create_dataset", "FORMAT_VERSIONS",
            "require_group", "DIGEST_ATTR", "content_digest", "stamp_content_digest", "fsync_directory", "file_mode",
            "USERBLOCK_SIZE", "file_checksum_ok", "reseal", "stored_file_sha256", "atomic_file"]
 
@@ -184,6 +186,67 @@ def file_mode() -> int:
     return 0o666 & ~mask
 
 
+def dir_mode() -> int:
+    """The mode a new directory gets under the current umask (0o777 & ~umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o777 & ~mask
+
+
+def make_temp_dir(prefix: str, parent: str | os.PathLike[str], suffix: str = "") -> Path:
+    """A hidden temporary directory in ``parent`` with the umask's mode (``mkdtemp`` alone gives
+    0700, which the directory would keep once renamed into place)."""
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=parent))
+    os.chmod(tmp, dir_mode())
+    return tmp
+
+
+#: errno values that mean the place cannot take the output (not a bug, not an input's fault)
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG}
+
+
+def _errno_of(exc: OSError) -> int | None:
+    if exc.errno is not None:
+        return exc.errno
+    m = re.search(r"errno = (\d+)", str(exc))
+    return int(m.group(1)) if m else None
+
+
+def is_write_failure(exc: BaseException) -> bool:
+    """True for an OSError that says the place cannot take the output (full disk, read-only, ...)."""
+    return isinstance(exc, OSError) and _errno_of(exc) in _WRITE_ERRNOS
+
+
+def os_reason(exc: OSError) -> str:
+    """The operating system's reason for an I/O failure, without a library's detail (HDF5's
+    messages carry ``errno = N`` inside a long text)."""
+    code = _errno_of(exc)
+    if code:
+        return os.strerror(code)
+    return str(exc).splitlines()[0][:160] if str(exc) else exc.__class__.__name__
+
+
+def check_writable(path: str | os.PathLike[str], field: str) -> None:
+    """Refuse, before any work, an output at ``path`` that cannot be written.
+
+    The parent directories are created (as ``mkdir -p``); a temporary file is made and removed in
+    the directory that will hold ``path``.
+
+    Raises
+    ------
+    InputError
+        Naming ``field``, the path and the operating system's reason.
+    """
+    parent = Path(path).absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".misrgraph-write-check.", dir=parent)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise InputError(field, str(path), f"a place that can be written ({parent}: {os_reason(exc)})") from None
+
+
 def fsync_directory(path: str | os.PathLike[str]) -> None:
     """fsync a directory so that a rename inside it survives a crash (no-op where unsupported)."""
     try:
@@ -203,7 +266,10 @@ def atomic_file(path: str | os.PathLike[str], binary: bool = False) -> Iterator[
     """Open a plain file for writing that appears at ``path`` only if the block succeeds: a hidden
     temporary in the same directory, fsynced, given the umask's mode, renamed, directory fsynced."""
     target = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    except OSError as exc:
+        raise OutputError(target, os_reason(exc)) from None
     try:
         with os.fdopen(fd, "wb" if binary else "w") as fh:
             yield fh
@@ -211,9 +277,11 @@ def atomic_file(path: str | os.PathLike[str], binary: bool = False) -> Iterator[
             os.fsync(fh.fileno())
         os.chmod(tmp, file_mode())
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if is_write_failure(exc):
+            raise OutputError(target, os_reason(exc)) from exc
         raise
     fsync_directory(target.parent)
 
@@ -222,8 +290,11 @@ def atomic_file(path: str | os.PathLike[str], binary: bool = False) -> Iterator[
 def atomic_h5(path: str | os.PathLike[str], kind: str) -> Iterator[h5py.File]:
     """Open a new HDF5 file for writing that appears at ``path`` only if the block succeeds."""
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    except OSError as exc:
+        raise OutputError(target, os_reason(exc)) from None
     os.close(fd)
     try:
         with h5py.File(tmp, "w", userblock_size=USERBLOCK_SIZE) as f:
@@ -235,9 +306,11 @@ def atomic_h5(path: str | os.PathLike[str], kind: str) -> Iterator[h5py.File]:
         _write_userblock(tmp)  # whole-file SHA-256, fsynced
         os.replace(tmp, target)
         fsync_directory(target.parent)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if is_write_failure(exc):
+            raise OutputError(target, os_reason(exc)) from exc
         raise
 
 

@@ -37,28 +37,58 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.priors import process_transition
 from misrgraph import __version__
-from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.config import Config
-from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS, N_PIXELS, NODAL_PERIOD_S, REPEAT_PATHS
-from misrgraph.model.dem import DemTiles, Geoid
-from misrgraph.sim.terrain import SyntheticTerrain, land_mask, simulate_dem_tiles
+from misrgraph.errors import FileFormatError, InputError, OutputError
+from misrgraph.io.camera import load_camera_model, save_camera_model
 from misrgraph.io.dem import read_dem, save_dem
 from misrgraph.io.gcp import read_gcp_database, save_gcp_database
-from misrgraph.io.truth import PassTruth, read_gcp_truth, read_pass_truth, save_pass_with_truth
-from factors.priors import process_transition
-from misrgraph.model.errormodels import ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, AttitudeErrorModel, EphemerisErrorModel, uniform_knots
-from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.h5 import atomic_file, check_writable, fsync_directory, make_temp_dir
+from misrgraph.io.imagery import PassImagery
+from misrgraph.io.passes import (
+    KIND_CHECK,
+    KIND_GCP,
+    KIND_TIE,
+    Landmarks,
+    Observations,
+    OrbitPass,
+)
+from misrgraph.io.truth import (
+    PassTruth,
+    read_gcp_truth,
+    read_pass_truth,
+    save_pass_with_truth,
+)
+from misrgraph.model.camera import CameraModel, TabulatedCameraModel
+from misrgraph.model.constants import (
+    ARCSEC,
+    BANDS,
+    CAMERAS,
+    N_PIXELS,
+    NODAL_PERIOD_S,
+    REPEAT_PATHS,
+)
+from misrgraph.model.dem import DemTiles, Geoid
+from misrgraph.model.errormodels import (
+    ATTITUDE_DAMPING,
+    ATTITUDE_RATE_FACTOR,
+    AttitudeErrorModel,
+    EphemerisErrorModel,
+    uniform_knots,
+)
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
-from misrgraph.sim.gcps import generate_gcp_database
 from misrgraph.model.geolocation import PassGeometry
-from misrgraph.io.h5 import atomic_file, fsync_directory
-from misrgraph.model.orbit import AttitudeSeries, Ephemeris, path_node_longitude, terra_like_orbit
-from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
-from misrgraph.io.camera import load_camera_model, save_camera_model
-from misrgraph.io.imagery import PassImagery
 from misrgraph.model.nominal import nominal_camera_model
+from misrgraph.model.orbit import (
+    AttitudeSeries,
+    Ephemeris,
+    path_node_longitude,
+    terra_like_orbit,
+)
+from misrgraph.sim.gcps import generate_gcp_database
+from misrgraph.sim.terrain import SyntheticTerrain, land_mask, simulate_dem_tiles
 
 __all__ = [
     "ScenarioConfig",
@@ -736,6 +766,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     """Simulate a scenario into directory ``out`` (written atomically: a temporary sibling
     directory renamed into place). Returns a summary dict (also saved as scenario.json)."""
     out_dir = Path(out)
+    check_writable(out_dir, "out")
     _check_replaceable(out_dir)
     rng = _scenario_rng(cfg.seed)
     independent = cfg.truth == "independent"
@@ -795,8 +826,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                     for k in cycles]
         else:
             plan = [(0, cfg.path, cfg.epoch_date, cfg.start_lat_deg, cfg.duration_s)]
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    tmp = make_temp_dir(f".{out_dir.name}.", out_dir.parent)
     try:
         (tmp / "passes").mkdir()
         all_lm = []
@@ -865,6 +895,9 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         with atomic_file(tmp / "scenario.json") as fh:
             fh.write(json.dumps(summary, indent=2))
         _swap_into_place(tmp, out_dir)
+    except OutputError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise OutputError(out_dir, exc.reason) from None  # the scenario, not its hidden temporary
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -876,7 +909,11 @@ def _render_imagery(cfg: ScenarioConfig, p: OrbitPass, p_truth: PassTruth, suppl
                     progress: Callable[[str, int, int], None] | None = None) -> "PassImagery":
     """The pass's image windows and GCP chips (:mod:`misrgraph.sim.imagery`), from a generator of
     their own so that switching imagery on changes nothing else in the scenario."""
-    from misrgraph.sim.imagery import SceneRadiance, render_block_strips, render_pass_imagery
+    from misrgraph.sim.imagery import (
+        SceneRadiance,
+        render_block_strips,
+        render_pass_imagery,
+    )
 
     surface = lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo)
     scene = SceneRadiance(cfg.seed, surface, cloud_fraction=cfg.cloud_fraction, cloud_epoch=k)
