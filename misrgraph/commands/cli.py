@@ -25,7 +25,11 @@ from misrgraph.commands import (
     update,
     view,
 )
-from misrgraph.commands.common import configure_logging, exit_hard_on_output_errors, set_debug
+from misrgraph.commands.common import (
+    configure_logging,
+    exit_hard_on_output_errors,
+    set_debug,
+)
 
 __all__ = ["app", "main", "click_command"]
 
