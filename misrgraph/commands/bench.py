@@ -21,7 +21,7 @@ from misrgraph.commands.common import (
 
 SAVE_HELP = "Also write the result, with its provenance (command, commit, machine), as JSON to this file."
 
-__all__ = ["app", "bench_solver", "bench_calibration", "bench_sba", "bench_match", "bench_scaling", "bench_incremental", "bench_nees", "bench_nees_pool", "bench_pp", "bench_roi", "bench_sources", "bench_campaign", "bench_campaign_kill", "bench_kill"]
+__all__ = ["app", "bench_solver", "bench_calibration", "bench_sba", "bench_match", "bench_scaling", "bench_incremental", "bench_nees", "bench_nees_pool", "bench_pp", "bench_roi", "bench_sources", "bench_campaign", "bench_campaign_kill", "bench_kill", "bench_report"]
 
 app = typer.Typer(help="Speed, memory and statistical studies; each prints ratios and intervals measured in one run.",
                   no_args_is_help=True)
@@ -588,3 +588,36 @@ def bench_kill(
     if res["failures"]:
         raise typer.Exit(1)
 
+
+
+@app.command("report")
+@handle_errors
+def bench_report(
+    data: Path = typer.Option(Path("docs/results/data"), "--data", help="Directory of stored results (*.json)."),
+    pages: Path = typer.Option(Path("docs/results"), "--pages", help="Directory of the generated results pages."),
+    readme: Optional[Path] = typer.Option(
+        Path("README.md"), "--readme", help="README whose generated blocks are rendered ('-': leave it alone)."),
+    check: bool = typer.Option(
+        False, "--check", help="Write nothing; exit 1 when a page differs from what the stored results render."),
+    as_json: bool = typer.Option(False, "--json", help="Print what was rendered as JSON."),
+) -> None:
+    """Render the results pages and the README's figures from stored bench results.
+
+    Every figure in the README and docs/results comes from a JSON file written by a bench command's
+    --save; each page is headed by that command, the commit and the machine.
+    """
+    from misrgraph.bench.report import ReportConfig, run_report
+
+    cfg = ReportConfig(data=data, pages=pages, readme=None if readme is None or str(readme) == "-" else readme)
+    res = run_report(cfg, check=check)
+    if as_json:
+        print_json(res)
+    elif check:
+        for p in res["changed"]:
+            err_console.print(f"out of date: {p} (run 'misrgraph bench report')", markup=False, highlight=False)
+        if not res["changed"]:
+            console.print(f"{len(res['files'])} generated files up to date")
+    else:
+        console.print(f"{len(res['changed'])} of {len(res['files'])} generated files written", highlight=False)
+    if check and res["changed"]:
+        raise typer.Exit(1)
