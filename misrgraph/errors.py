@@ -34,18 +34,20 @@ class MisrGraphError(Exception):
 
 
 class InputError(MisrGraphError, ValueError):
-    exit_code = 2
     """A user-supplied value is out of range, of the wrong shape or not one of the allowed names.
 
     Parameters
     ----------
-    field:
+    field : str
         Name of the field / option / argument at fault (e.g. ``"camera"``, ``"--pixel"``).
-    value:
+    value : Any
         The offending value as received.
-    expected:
-        Human-readable description of what is allowed (e.g. ``"one of Df, Cf, ..."``).
+    expected : str or iterable of str
+        Human-readable description of what is allowed (e.g. ``"one of Df, Cf, ..."``), or the
+        allowed names.
     """
+
+    exit_code = 2
 
     def __init__(self, field: str, value: Any, expected: str | Iterable[str]) -> None:
         if not isinstance(expected, str):

@@ -47,8 +47,14 @@ def source_commit(root: Path = _ROOT) -> str:
 
 def machine() -> dict[str, Any]:
     """The machine a result was measured on: processor model, cores, memory, OS and versions."""
-    import gtsam
+    from importlib.metadata import PackageNotFoundError, version
+
     import numpy as np
+
+    try:
+        gtsam_version = version("gtsam")
+    except PackageNotFoundError:
+        gtsam_version = "?"
 
     cpu = platform.processor() or platform.machine()
     try:
@@ -63,27 +69,41 @@ def machine() -> dict[str, Any]:
     except (ValueError, OSError, AttributeError):
         memory = float("nan")
     return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": round(memory, 1), "os": platform.system(),
-            "python": platform.python_version(), "numpy": np.__version__, "gtsam": getattr(gtsam, "__version__", "?")}
+            "python": platform.python_version(), "numpy": np.__version__, "gtsam": gtsam_version}
+
+
+def _click_context() -> tuple[Any, Any]:
+    """The running command's click context and click's ParameterSource enum: click's own, or the
+    copy of click that typer carries (typer >= 0.17); ``(None, None)`` outside a command."""
+    import importlib
+
+    for base in ("click", "typer._click"):
+        try:
+            glob = importlib.import_module(f"{base}.globals")
+            core = importlib.import_module(f"{base}.core")
+        except ImportError:
+            continue
+        ctx = glob.get_current_context(silent=True)
+        if ctx is not None:
+            return ctx, core.ParameterSource
+    return None, None
 
 
 def _command_line() -> tuple[str, str]:
     """``misrgraph bench NAME --opt value ...`` of the running click command (options given on the
     command line only) and the bench's name."""
-    import click
-    from click.core import ParameterSource
-
-    ctx = click.get_current_context(silent=True)
+    ctx, source = _click_context()
     if ctx is None:
         return "(Python API)", "api"
     words = ["misrgraph", *ctx.command_path.split()[1:]]
     for param in ctx.command.params:
-        if ctx.get_parameter_source(param.name) is not ParameterSource.COMMANDLINE or param.name in ("save", "as_json"):
+        if ctx.get_parameter_source(param.name) is not source.COMMANDLINE or param.name in ("save", "as_json"):
             continue
         opt = param.opts[0]
         value = ctx.params[param.name]
         if isinstance(value, bool):
             words.append(opt if value else (param.secondary_opts or [opt])[0])
-        elif isinstance(param, click.Argument):
+        elif param.param_type_name == "argument":
             words.extend(str(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
         else:
             words += [opt, str(value)]

@@ -31,7 +31,7 @@ from misrgraph.commands.common import (
     set_debug,
 )
 
-__all__ = ["app", "main", "click_command"]
+__all__ = ["app", "main"]
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_show_locals=False,
                   help="In-flight geometric calibration of MISR as a GTSAM factor graph.")
@@ -60,11 +60,6 @@ app.command()(demo.demo)
 app.add_typer(som.app, name="som")
 app.add_typer(imports.app, name="import")
 app.add_typer(bench.app, name="bench")
-
-
-def click_command() -> object:
-    """The click command behind :data:`app` (for the generated CLI reference)."""
-    return typer.main.get_command(app)
 
 
 def main() -> None:
