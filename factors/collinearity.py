@@ -39,15 +39,23 @@ from numpy.typing import NDArray
 from factors.geometry import attitude_matrix, attitude_matrix_derivatives, drot_x, drot_y, drot_z, rot_x, rot_y, rot_z
 from factors.layout import BlockLayout
 
-__all__ = ["CAMERA_PARAMS", "CAMERA_PARAM_SCALE", "camera_param_scale", "CollinearityConstants", "collinearity_residual", "CollinearityBatch",
-           "FactorShapeError", "cached_at"]
+__all__ = [
+    "CAMERA_PARAMS",
+    "CAMERA_PARAM_SCALE",
+    "camera_param_scale",
+    "CollinearityConstants",
+    "collinearity_residual",
+    "CollinearityBatch",
+    "FactorShapeError",
+    "cached_at",
+]
 
 Array = NDArray[np.float64]
 CAMERA_PARAMS = ("delta", "beta", "epsilon", "f", "alpha0", "alpha1", "alpha2", "alpha3", "alpha4", "alpha5")
 #: Unit of each camera-correction variable in SI: angles in rad, f in mm, alpha_i in units of
 #: the field-angle term at the swath edge (|s - c_y| = 752 px), so all columns are well scaled
 #: (alpha_5 in SI is ~1e-18 and made GTSAM's elimination report an indeterminate system).
-CAMERA_PARAM_SCALE = np.array([1.0, 1.0, 1.0, 1e-3] + [752.0 ** -i for i in range(6)])
+CAMERA_PARAM_SCALE = np.array([1.0, 1.0, 1.0, 1e-3] + [752.0**-i for i in range(6)])
 
 
 def camera_param_scale(params: "tuple[str, ...] | list[str]") -> Array:
@@ -93,8 +101,17 @@ class CollinearityConstants:
 
     def take(self, idx: Any) -> "CollinearityConstants":
         return CollinearityConstants(
-            self.eci_to_ecef[idx], self.p_meas[idx], self.t_go[idx], self.eph_design[idx], self.angles_meas[idx],
-            self.hermite[idx], self.k[idx], self.frac[idx], self.sample_offset[idx], self.cross_scale[idx], self.dx,
+            self.eci_to_ecef[idx],
+            self.p_meas[idx],
+            self.t_go[idx],
+            self.eph_design[idx],
+            self.angles_meas[idx],
+            self.hermite[idx],
+            self.k[idx],
+            self.frac[idx],
+            self.sample_offset[idx],
+            self.cross_scale[idx],
+            self.dx,
             self.along_scale[idx],
         )
 
@@ -173,15 +190,22 @@ def collinearity_residual(
         dr_da = np.einsum("nij,nj->ni", jm, np.einsum("nji,nj->ni", d, u))
         j_knots[:, :, a, :] = -dr_da[:, :, None] * c.hermite[:, a, None, :]
     j_cam = np.zeros((n, 2, 10))
-    dms = (u_tsi @ u_ryb @ drot_x(u_delta) @ u_rze, u_tsi @ drot_y(u_beta) @ u_rxd @ u_rze, u_tsi @ u_tic @ drot_z(u_eps))
+    dms = (
+        u_tsi @ u_ryb @ drot_x(u_delta) @ u_rze,
+        u_tsi @ drot_y(u_beta) @ u_rxd @ u_rze,
+        u_tsi @ u_tic @ drot_z(u_eps),
+    )
     for i, dm in enumerate(dms):
         j_cam[:, :, i] = np.einsum("nij,nj->ni", jv, np.einsum("nji,nj->ni", dm[inv], v_s))
     j_cam[:, 0, 3] = vx / (vz * a_s)
     j_cam[:, 1, 3] = (vy / vz - poly) / c.cross_scale
     j_cam[:, 1, 4:10] = -(f / c.cross_scale)[:, None] * powers
     rest = u_tic @ u_rze
-    dws = (u_rz @ u_ry @ drot_x(uniq[:, 3]) @ rest, u_rz @ drot_y(uniq[:, 4]) @ u_rx @ rest,
-           drot_z(uniq[:, 5]) @ u_ry @ u_rx @ rest)
+    dws = (
+        u_rz @ u_ry @ drot_x(uniq[:, 3]) @ rest,
+        u_rz @ drot_y(uniq[:, 4]) @ u_rx @ rest,
+        drot_z(uniq[:, 5]) @ u_ry @ u_rx @ rest,
+    )
     j_om = np.zeros((n, 2, 3))
     for i, dm in enumerate(dws):
         j_om[:, :, i] = np.einsum("nij,nj->ni", jv, np.einsum("nji,nj->ni", dm[inv], v_s))
@@ -200,8 +224,9 @@ def _robust(noise: gtsam.noiseModel.Base, robust: tuple[str, float] | None) -> g
     return gtsam.noiseModel.Robust.Create(est, noise)
 
 
-def cached_at(cache: tuple[gtsam.Values, Array, Array | None] | None, values: gtsam.Values | None,
-              want_jacobians: bool) -> tuple[Array, Array | None] | None:
+def cached_at(
+    cache: tuple[gtsam.Values, Array, Array | None] | None, values: gtsam.Values | None, want_jacobians: bool
+) -> tuple[Array, Array | None] | None:
     """A batch cache's (residuals, Jacobians) if it was computed at this very ``Values`` object
     (and holds Jacobians when they are wanted); None means: compute live."""
     if cache is None or cache[0] is not values or (want_jacobians and cache[2] is None):
@@ -257,7 +282,12 @@ class CollinearityBatch:
         self.slot_keys = [
             np.asarray(keys["landmark"], np.int64)[order],
             np.asarray(keys["ephemeris"], np.int64)[order],
-            kn[:, 0, 0], kn[:, 0, 1], kn[:, 1, 0], kn[:, 1, 1], kn[:, 2, 0], kn[:, 2, 1],
+            kn[:, 0, 0],
+            kn[:, 0, 1],
+            kn[:, 1, 0],
+            kn[:, 1, 1],
+            kn[:, 2, 0],
+            kn[:, 2, 1],
             np.asarray(keys["camera"], np.int64)[order] if keys.get("camera") is not None else none,
             np.asarray(keys["omega"], np.int64)[order] if keys.get("omega") is not None else none,
         ]
@@ -280,26 +310,59 @@ class CollinearityBatch:
             raise ValueError("CollinearityBatch.concatenate needs at least one batch")
         b0 = batches[0]
         for i, b in enumerate(batches[1:], 1):
-            same = (b.camera_select == b0.camera_select and b.robust == b0.robust and b.const.dx == b0.const.dx
-                    and np.array_equal(b.omega_supplied, b0.omega_supplied))
+            same = (
+                b.camera_select == b0.camera_select
+                and b.robust == b0.robust
+                and b.const.dx == b0.const.dx
+                and np.array_equal(b.omega_supplied, b0.omega_supplied)
+            )
             if not same:
-                raise ValueError(f"CollinearityBatch.concatenate: batch {i} differs from batch 0 in its camera "
-                                 "selection, loss, pixel pitch or supplied instrument angles")
+                raise ValueError(
+                    f"CollinearityBatch.concatenate: batch {i} differs from batch 0 in its camera "
+                    "selection, loss, pixel pitch or supplied instrument angles"
+                )
         cat = np.concatenate
-        const = CollinearityConstants(*(cat([getattr(b.const, f) for b in batches]) for f in
-                                        ("eci_to_ecef", "p_meas", "t_go", "eph_design", "angles_meas", "hermite", "k",
-                                         "frac", "sample_offset", "cross_scale")), b0.const.dx,
-                                      cat([b.const.along_scale for b in batches]))
+        const = CollinearityConstants(
+            *(
+                cat([getattr(b.const, f) for b in batches])
+                for f in (
+                    "eci_to_ecef",
+                    "p_meas",
+                    "t_go",
+                    "eph_design",
+                    "angles_meas",
+                    "hermite",
+                    "k",
+                    "frac",
+                    "sample_offset",
+                    "cross_scale",
+                )
+            ),
+            b0.const.dx,
+            cat([b.const.along_scale for b in batches]),
+        )
         groups, base = [], 0
         for b in batches:
             groups.append(b.group + base)
             base += b.layout.n_factors
         sk = [cat([b.slot_keys[s] for b in batches]) for s in range(len(b0.slot_keys))]
-        keys = {"landmark": sk[0], "ephemeris": sk[1], "knots": np.stack([np.stack([sk[2 + 2 * a], sk[3 + 2 * a]], -1)
-                                                                            for a in range(3)], 1),
-                "camera": sk[8], "omega": sk[9]}
-        return cls(const, cat([b.camera_supplied for b in batches]), b0.omega_supplied,
-                   cat([b.sigma_px for b in batches]), cat(groups), keys, b0.camera_select, b0.robust)
+        keys = {
+            "landmark": sk[0],
+            "ephemeris": sk[1],
+            "knots": np.stack([np.stack([sk[2 + 2 * a], sk[3 + 2 * a]], -1) for a in range(3)], 1),
+            "camera": sk[8],
+            "omega": sk[9],
+        }
+        return cls(
+            const,
+            cat([b.camera_supplied for b in batches]),
+            b0.omega_supplied,
+            cat([b.sigma_px for b in batches]),
+            cat(groups),
+            keys,
+            b0.camera_select,
+            b0.robust,
+        )
 
     # ------------------------------------------------------------------ variables
     def _gather(self, values: gtsam.Values, sl: slice) -> tuple[Array, Array, Array, Array, Array]:
@@ -334,8 +397,18 @@ class CollinearityBatch:
 
     def _blocks(self, j: dict[str, Array]) -> list[Array]:
         jk = j["knots"]
-        return [j["landmark"], j["theta"], jk[:, :, 0, :2], jk[:, :, 0, 2:], jk[:, :, 1, :2], jk[:, :, 1, 2:],
-                jk[:, :, 2, :2], jk[:, :, 2, 2:], j["camera"][:, :, list(self.camera_select)] * self.camera_scale, j["omega"]]
+        return [
+            j["landmark"],
+            j["theta"],
+            jk[:, :, 0, :2],
+            jk[:, :, 0, 2:],
+            jk[:, :, 1, :2],
+            jk[:, :, 1, 2:],
+            jk[:, :, 2, :2],
+            jk[:, :, 2, 2:],
+            j["camera"][:, :, list(self.camera_select)] * self.camera_scale,
+            j["omega"],
+        ]
 
     def residuals(self, values: gtsam.Values, jacobians: bool = False) -> tuple[Array, dict[str, Array] | None]:
         """Residuals (N, 2) in the batch's (sorted) observation order, and Jacobians if asked."""
@@ -377,7 +450,7 @@ class CollinearityBatch:
         hit = cached_at(self._cache, values, want_h)
         if hit is not None:
             r_all, buf = hit
-            r = r_all[2 * a: 2 * b]
+            r = r_all[2 * a : 2 * b]
             blocks = self.layout.split(self.layout.factor_matrix(buf, f), f) if want_h and buf is not None else None
             return r, blocks
         assert values is not None
@@ -392,7 +465,7 @@ class CollinearityBatch:
             keys = self.slot_keys[s][a:b]
             for i in range(b - a):
                 if keys[i] >= 0:
-                    mats[where[int(keys[i])]][2 * i: 2 * i + 2] = blk[i]
+                    mats[where[int(keys[i])]][2 * i : 2 * i + 2] = blk[i]
         return r.ravel(), mats
 
     def _callback(self, f: int):
@@ -409,7 +482,9 @@ class CollinearityBatch:
                 assert blocks is not None
                 for i, (blk, d) in enumerate(zip(blocks, dims)):
                     if blk.shape != (m, d):
-                        raise FactorShapeError(f"collinearity factor {f}: Jacobian {i} shape {blk.shape}, expected ({m}, {d})")
+                        raise FactorShapeError(
+                            f"collinearity factor {f}: Jacobian {i} shape {blk.shape}, expected ({m}, {d})"
+                        )
                     H[i] = blk
             return r
 

@@ -83,8 +83,9 @@ class DemBatch:
         batch's surface (the batches must have been built on the same DEM, geoid and fit)."""
         if not batches:
             raise ValueError("DemBatch.concatenate needs at least one batch")
-        return cls(np.concatenate([b.keys for b in batches]), np.concatenate([b.sigma_m for b in batches]),
-                   batches[0].surface)
+        return cls(
+            np.concatenate([b.keys for b in batches]), np.concatenate([b.sigma_m for b in batches]), batches[0].surface
+        )
 
     def _landmarks(self, values: gtsam.Values) -> Array:
         return np.stack([values.atVector(int(k)) for k in self.keys]) if len(self) else np.zeros((0, 3))
@@ -104,16 +105,20 @@ class DemBatch:
         self._cache = None
 
     def factors(self) -> list[gtsam.CustomFactor]:
-        return [gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, float(s)), [int(k)], self._callback(i))
-                for i, (k, s) in enumerate(zip(self.keys, self.sigma_m))]
+        return [
+            gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, float(s)), [int(k)], self._callback(i))
+            for i, (k, s) in enumerate(zip(self.keys, self.sigma_m))
+        ]
 
     def _callback(self, i: int):
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H: Any) -> Array:
             hit = cached_at(self._cache, values, H is not None)
             if hit is not None:
-                r, j = hit[0][i:i + 1], (hit[1][i] if hit[1] is not None else None)
+                r, j = hit[0][i : i + 1], (hit[1][i] if hit[1] is not None else None)
             else:
-                rr, jj = dem_residual(np.asarray(values.atVector(int(self.keys[i])))[None, :], self.surface, H is not None)
+                rr, jj = dem_residual(
+                    np.asarray(values.atVector(int(self.keys[i])))[None, :], self.surface, H is not None
+                )
                 r, j = rr, (jj[0] if jj is not None else None)
             if r.shape != (1,):
                 raise FactorShapeError(f"DEM factor {i}: residual shape {r.shape}, expected (1,)")

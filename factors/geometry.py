@@ -96,9 +96,7 @@ def attitude_matrix(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> Array:
     return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
 
 
-def attitude_matrix_derivatives(
-    roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike
-) -> tuple[Array, Array, Array, Array]:
+def attitude_matrix_derivatives(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> tuple[Array, Array, Array, Array]:
     """``T_os`` and its partial derivatives with respect to roll, pitch and yaw.
 
     Returns ``(T, dT/droll, dT/dpitch, dT/dyaw)``, each ``(..., 3, 3)``.

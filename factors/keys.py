@@ -24,8 +24,21 @@ from __future__ import annotations
 import gtsam
 
 __all__ = [
-    "LANDMARK", "GCP", "GCP_SCENE", "KNOT", "EPHEMERIS", "CAMERA", "OMEGA",
-    "landmark_key", "gcp_key", "gcp_scene_key", "knot_key", "ephemeris_key", "camera_key", "omega_key", "describe",
+    "LANDMARK",
+    "GCP",
+    "GCP_SCENE",
+    "KNOT",
+    "EPHEMERIS",
+    "CAMERA",
+    "OMEGA",
+    "landmark_key",
+    "gcp_key",
+    "gcp_scene_key",
+    "knot_key",
+    "ephemeris_key",
+    "camera_key",
+    "omega_key",
+    "describe",
 ]
 
 LANDMARK = "l"

@@ -82,13 +82,19 @@ class BlockLayout:
         for s, d in enumerate(self.slot_dims):
             used = np.asarray(self.slot_keys[s]) >= 0
             cc = np.arange(d)
-            idx = (base[:, None, None] + rr[None, :, None] * ncol_obs[:, None, None]
-                   + slot_col[s][:, None, None] + cc[None, None, :])
+            idx = (
+                base[:, None, None]
+                + rr[None, :, None] * ncol_obs[:, None, None]
+                + slot_col[s][:, None, None]
+                + cc[None, None, :]
+            )
             self.slot_index.append(idx[used])
             self.slot_used.append(used)
         self.size = int(self.buf_offset[-1])
 
-    def assemble(self, blocks: list[NDArray[np.float64]], select: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+    def assemble(
+        self, blocks: list[NDArray[np.float64]], select: NDArray[np.int64] | None = None
+    ) -> NDArray[np.float64]:
         """Flat buffer of all factors' Jacobians from per-slot blocks ``(N, rows, dim)``."""
         buf = np.zeros(self.size)
         for s, blk in enumerate(blocks):
@@ -99,8 +105,8 @@ class BlockLayout:
     def factor_matrix(self, buf: NDArray[np.float64], f: int) -> NDArray[np.float64]:
         """The dense (rows * n_obs, n_cols) Jacobian of factor ``f`` (a view into ``buf``)."""
         m = (self.obs_stop[f] - self.obs_start[f]) * self.rows
-        return buf[self.buf_offset[f]: self.buf_offset[f + 1]].reshape(m, self.n_cols[f])
+        return buf[self.buf_offset[f] : self.buf_offset[f + 1]].reshape(m, self.n_cols[f])
 
     def split(self, a: NDArray[np.float64], f: int) -> list[NDArray[np.float64]]:
         """Per-key column blocks of a factor matrix, in ``factor_keys[f]`` order."""
-        return [a[:, c:c + d] for c, d in zip(self.col_start[f], self.factor_dims[f])]
+        return [a[:, c : c + d] for c, d in zip(self.col_start[f], self.factor_dims[f])]

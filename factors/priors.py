@@ -38,17 +38,30 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import expm
 
-__all__ = ["gcp_prior", "gcp_scene_prior", "scene_offset_prior", "vector_prior", "process_transition", "process_prior_factors", "linear_factor",
-           "joint_prior_factor"]
+__all__ = [
+    "gcp_prior",
+    "gcp_scene_prior",
+    "scene_offset_prior",
+    "vector_prior",
+    "process_transition",
+    "process_prior_factors",
+    "linear_factor",
+    "joint_prior_factor",
+]
 
 
 def gcp_prior(key: int, position_ecef: ArrayLike, covariance: ArrayLike) -> gtsam.PriorFactorVector:
     """Eq. 32: ``P_GCP - P = 0`` with a full ECEF covariance (m^2)."""
-    return gtsam.PriorFactorVector(key, np.asarray(position_ecef, dtype=float),
-                                   gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)))
+    return gtsam.PriorFactorVector(
+        key,
+        np.asarray(position_ecef, dtype=float),
+        gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)),
+    )
 
 
-def gcp_scene_prior(key: int, scene_key: int, position_ecef: ArrayLike, own_covariance: ArrayLike) -> gtsam.LinearContainerFactor:
+def gcp_scene_prior(
+    key: int, scene_key: int, position_ecef: ArrayLike, own_covariance: ArrayLike
+) -> gtsam.LinearContainerFactor:
     """A GCP of a source scene (module docstring): ``P - o - P_GCP ~ N(0, C_own)`` on the GCP's
     position ``P`` and its scene's offset ``o`` (both ECEF m); ``own_covariance`` (3, 3) m^2."""
     eye = np.eye(3)
@@ -57,13 +70,17 @@ def gcp_scene_prior(key: int, scene_key: int, position_ecef: ArrayLike, own_cova
 
 def scene_offset_prior(scene_key: int, covariance: ArrayLike) -> gtsam.PriorFactorVector:
     """A source scene's shared GCP error ``o ~ N(0, C_s)`` (ECEF m; ``covariance`` (3, 3) m^2)."""
-    return gtsam.PriorFactorVector(scene_key, np.zeros(3), gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)))
+    return gtsam.PriorFactorVector(
+        scene_key, np.zeros(3), gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float))
+    )
 
 
 def vector_prior(key: int, mean: ArrayLike, sigmas: ArrayLike) -> gtsam.PriorFactorVector:
     """Independent Gaussian prior on a vector variable (knot, ephemeris segment, camera)."""
     m = np.asarray(mean, dtype=float)
-    return gtsam.PriorFactorVector(key, m, gtsam.noiseModel.Diagonal.Sigmas(np.broadcast_to(np.asarray(sigmas, float), m.shape).copy()))
+    return gtsam.PriorFactorVector(
+        key, m, gtsam.noiseModel.Diagonal.Sigmas(np.broadcast_to(np.asarray(sigmas, float), m.shape).copy())
+    )
 
 
 def process_transition(dt: float, sigma: float, lam: float, zeta: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -83,8 +100,9 @@ def process_transition(dt: float, sigma: float, lam: float, zeta: float = 1.0) -
     return phi, 0.5 * (q + q.T)
 
 
-def linear_factor(keys: list[int], blocks: list[np.ndarray], rhs: ArrayLike,
-                  covariance: ArrayLike) -> gtsam.LinearContainerFactor:
+def linear_factor(
+    keys: list[int], blocks: list[np.ndarray], rhs: ArrayLike, covariance: ArrayLike
+) -> gtsam.LinearContainerFactor:
     """The linear Gaussian factor ``sum_k A_k x_k - b ~ N(0, C)`` on vector variables, as GTSAM's
     C++ ``LinearContainerFactor`` (linearisation point zero, so its error is exactly this)."""
     c = np.asarray(covariance, dtype=float)
@@ -122,8 +140,18 @@ def joint_prior_factor(keys: list[int], dims: list[int], covariance: ArrayLike) 
         parts.push_back(gtsam.HessianFactor(int(ki), info[bi, bi], np.zeros(di), 0.0))
         for j in range(i + 1, len(keys)):
             bj = slice(off[j], off[j + 1])
-            parts.push_back(gtsam.HessianFactor(int(ki), int(keys[j]), np.zeros((di, di)), info[bi, bj], np.zeros(di),
-                                                np.zeros((dims[j], dims[j])), np.zeros(dims[j]), 0.0))
+            parts.push_back(
+                gtsam.HessianFactor(
+                    int(ki),
+                    int(keys[j]),
+                    np.zeros((di, di)),
+                    info[bi, bj],
+                    np.zeros(di),
+                    np.zeros((dims[j], dims[j])),
+                    np.zeros(dims[j]),
+                    0.0,
+                )
+            )
     return gtsam.LinearContainerFactor(gtsam.HessianFactor(parts), zero)
 
 
@@ -133,7 +161,9 @@ def process_prior_factors(keys: list[int], times: ArrayLike, sigma: float, lam: 
     ``x_{k+1} - Phi x_k ~ N(0, Q)`` between consecutive knots (module docstring)."""
     t = np.asarray(times, dtype=float)
     if t.size != len(keys) or t.size == 0 or np.any(np.diff(t) <= 0):
-        raise ValueError(f"process_prior_factors needs one increasing time per key, got {t.size} times for {len(keys)} keys")
+        raise ValueError(
+            f"process_prior_factors needs one increasing time per key, got {t.size} times for {len(keys)} keys"
+        )
     out: list = [vector_prior(keys[0], np.zeros(2), [sigma, lam * sigma])]
     for k0, k1, dt in zip(keys[:-1], keys[1:], np.diff(t)):
         phi, q = process_transition(float(dt), sigma, lam, zeta)

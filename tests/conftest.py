@@ -8,8 +8,8 @@ from hypothesis import settings
 
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.geolocation import PassGeometry
-from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 from misrgraph.model.nominal import nominal_camera_model
+from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 
 settings.register_profile("ci", max_examples=40, deadline=None, derandomize=True)
 settings.load_profile("ci")
@@ -43,8 +43,16 @@ def small_pass_dir(tmp_path_factory):
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "pass"
-    cfg = ScenarioConfig(truth="model", scenario="pass", seed=11, n_tie_points=150, n_check_points=20, duration_s=900.0,
-                         start_lat_deg=55.0, tie_blunder_rate=0.02)
+    cfg = ScenarioConfig(
+        truth="model",
+        scenario="pass",
+        seed=11,
+        n_tie_points=150,
+        n_check_points=20,
+        duration_s=900.0,
+        start_lat_deg=55.0,
+        tie_blunder_rate=0.02,
+    )
     run_simulate(cfg, out)
     return out
 
@@ -57,8 +65,19 @@ def imagery_pass_dir(tmp_path_factory):
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "imagery"
-    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=3, n_tie_points=60, n_check_points=10, duration_s=900.0,
-                                start_lat_deg=45.0, imagery=True), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=3,
+            n_tie_points=60,
+            n_check_points=10,
+            duration_s=900.0,
+            start_lat_deg=45.0,
+            imagery=True,
+        ),
+        out,
+    )
     run_match(out)
     return out
 
@@ -71,7 +90,9 @@ def matched_month_dir(tmp_path_factory):
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "month"
-    s = run_simulate(ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True), out)
+    s = run_simulate(
+        ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True), out
+    )
     return out, s, run_match(out)
 
 
@@ -81,8 +102,19 @@ def path_dir(tmp_path_factory):
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "path"
-    run_simulate(ScenarioConfig(truth="model", scenario="path", seed=41, n_passes=10, n_tie_points=40, n_check_points=5,
-                                duration_s=600.0, start_lat_deg=52.0), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="path",
+            seed=41,
+            n_passes=10,
+            n_tie_points=40,
+            n_check_points=5,
+            duration_s=600.0,
+            start_lat_deg=52.0,
+        ),
+        out,
+    )
     return out
 
 
@@ -94,10 +126,27 @@ def _simulate_roi_path(out, camera_truth=None):
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     block = mid_pass_block({"scenario": "path", "path": 37, "start_lat_deg": 52.0, "duration_s": 600.0})
-    run_simulate(ScenarioConfig(truth="model", scenario="path", seed=41, n_passes=4, n_tie_points=30, n_check_points=5, n_gcps=20,
-                                duration_s=600.0, start_lat_deg=52.0, imagery=True, cloud_fraction=0.2,
-                                roi_blocks=(block, block), strip_cameras=("Df", "An", "Da"), strip_samples=(600, 256),
-                                feature_windows=False, camera_truth=camera_truth or ""), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="path",
+            seed=41,
+            n_passes=4,
+            n_tie_points=30,
+            n_check_points=5,
+            n_gcps=20,
+            duration_s=600.0,
+            start_lat_deg=52.0,
+            imagery=True,
+            cloud_fraction=0.2,
+            roi_blocks=(block, block),
+            strip_cameras=("Df", "An", "Da"),
+            strip_samples=(600, 256),
+            feature_windows=False,
+            camera_truth=camera_truth or "",
+        ),
+        out,
+    )
     return out
 
 
@@ -130,8 +179,21 @@ def exact_pass(tmp_path_factory):
     from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "exact"
-    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=21, n_tie_points=40, n_check_points=0, duration_s=900.0,
-                                start_lat_deg=55.0, noise_free=True, camera_residual_px=0.0, camera_f_alpha_px=0.0), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=21,
+            n_tie_points=40,
+            n_check_points=0,
+            duration_s=900.0,
+            start_lat_deg=55.0,
+            noise_free=True,
+            camera_residual_px=0.0,
+            camera_f_alpha_px=0.0,
+        ),
+        out,
+    )
     sc = load_scenario(out)
     return sc, sc.load_pass(0)
 
@@ -153,8 +215,18 @@ def thermal_month_dir(tmp_path_factory):
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "thermal_month"
-    run_simulate(ScenarioConfig(truth="model", scenario="month", seed=5, n_gcps=40, month_days=30, thermal_arcsec_per_c=2.0,
-                                thermal_focal_ppm_per_c=20.0), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="month",
+            seed=5,
+            n_gcps=40,
+            month_days=30,
+            thermal_arcsec_per_c=2.0,
+            thermal_focal_ppm_per_c=20.0,
+        ),
+        out,
+    )
     return out
 
 
@@ -165,8 +237,18 @@ def band_month_dir(tmp_path_factory):
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     out = tmp_path_factory.mktemp("scen") / "band_month"
-    run_simulate(ScenarioConfig(truth="model", scenario="month", seed=7, n_gcps=30, month_days=16, bands=("blue", "green", "red", "nir"),
-                                band_misalignment_arcsec=10.0), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="month",
+            seed=7,
+            n_gcps=30,
+            month_days=16,
+            bands=("blue", "green", "red", "nir"),
+            band_misalignment_arcsec=10.0,
+        ),
+        out,
+    )
     return out
 
 

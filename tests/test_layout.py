@@ -27,7 +27,20 @@ ALLOWED = {
     "runs": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "viz"},
     "campaign": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "viz", "runs"},
     "bench": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "runs", "campaign"},
-    "commands": {"model", "misr", "io", "sim", "estimate", "match", "products", "evaluate", "viz", "runs", "campaign", "bench"},
+    "commands": {
+        "model",
+        "misr",
+        "io",
+        "sim",
+        "estimate",
+        "match",
+        "products",
+        "evaluate",
+        "viz",
+        "runs",
+        "campaign",
+        "bench",
+    },
 }
 BASE = {"misrgraph", "misrgraph.errors", "misrgraph.config", "misrgraph.__main__"}
 
@@ -88,7 +101,7 @@ def test_no_import_cycle() -> None:
             if n.startswith(m + ".") or m.startswith(n + "."):
                 continue  # a package and its own submodules
             if state.get(n) == 1:
-                cycle = stack[stack.index(n):] + [n]
+                cycle = stack[stack.index(n) :] + [n]
                 pytest.fail("import cycle: " + " -> ".join(cycle))
             if n not in state:
                 visit(n)
@@ -126,8 +139,13 @@ def test_model_is_numpy_only() -> None:
         if _room(m) not in ("model", "misr"):
             continue
         for node in ast.walk(ast.parse(p.read_text())):
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
             bad = [n for n in names if n.split(".")[0] in banned]
             assert not bad, f"{m} imports {bad}"
         checked += 1
@@ -141,14 +159,28 @@ def test_estimate_never_reads_truth() -> None:
         if _room(m) != "estimate":
             continue
         tree = ast.parse(p.read_text())
-        docstrings = {id(n.body[0].value) for n in ast.walk(tree)
-                      if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef))
-                      and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+        docstrings = {
+            id(n.body[0].value)
+            for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef))
+            and n.body
+            and isinstance(n.body[0], ast.Expr)
+            and isinstance(n.body[0].value, ast.Constant)
+        }
         for node in ast.walk(tree):
-            text = (node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute)
-                    else node.arg if isinstance(node, ast.arg)
-                    else node.value if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings
-                    else node.name if isinstance(node, (ast.FunctionDef, ast.ClassDef)) else "")
+            text = (
+                node.id
+                if isinstance(node, ast.Name)
+                else node.attr
+                if isinstance(node, ast.Attribute)
+                else node.arg
+                if isinstance(node, ast.arg)
+                else node.value
+                if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings
+                else node.name
+                if isinstance(node, (ast.FunctionDef, ast.ClassDef))
+                else ""
+            )
             assert "truth" not in str(text).lower(), f"{m}:{getattr(node, 'lineno', '?')} uses {text!r}"
         for d in GRAPH[m]:
             assert _room(d) not in ("sim", "evaluate"), f"{m} imports {d}"

@@ -50,7 +50,7 @@ SOLVER_LABELS = {
     "scipy_trust_krylov": "scipy minimize trust-krylov, J^T J + DEM curvature (second order)",
     "ceres": "Ceres (pyceres), DENSE_SCHUR, per-landmark cost functions on the pure functions",
     "ceres_batched": "Ceres (pyceres), SPARSE_NORMAL_CHOLESKY (SuiteSparse), one cost function per "
-                     "16 landmarks on the pure functions",
+    "16 landmarks on the pure functions",
 }
 
 #: landmarks per Ceres cost function of ``ceres_batched`` (16 and 32 were the fastest per
@@ -126,8 +126,9 @@ class _Metric:
         return float(np.max(np.abs(d) / self.sigma)), d
 
 
-def _verified_optimum(flat: Any, prob: Any, candidates: list[Array],
-                      nav_keys: list[int]) -> tuple[_Metric, dict[str, Any]]:
+def _verified_optimum(
+    flat: Any, prob: Any, candidates: list[Array], nav_keys: list[int]
+) -> tuple[_Metric, dict[str, Any]]:
     """The lowest-cost of the candidates' end points after a tight polish by the core, as the
     metric of distances from it, with the Gauss-Newton step there in sigma units (the check)."""
     tight = SolverParams(relative_error_tol=1e-14, absolute_error_tol=1e-14, max_iterations=100, backend="schur")
@@ -144,12 +145,19 @@ def _verified_optimum(flat: Any, prob: Any, candidates: list[Array],
     cost, x_ref = best
     metric = _Metric(flat, x_ref, nav_keys)
     step_sigma, d = metric.gauss_newton_step()
-    check = {"cost": cost, "gauss_newton_step_max_sigma": step_sigma,
-             "gauss_newton_step_mahalanobis": metric.mahalanobis(x_ref + d),
-             "verified": step_sigma <= VERIFIED_STEP_SIGMA, "criterion_sigma": VERIFIED_STEP_SIGMA}
+    check = {
+        "cost": cost,
+        "gauss_newton_step_max_sigma": step_sigma,
+        "gauss_newton_step_mahalanobis": metric.mahalanobis(x_ref + d),
+        "verified": step_sigma <= VERIFIED_STEP_SIGMA,
+        "criterion_sigma": VERIFIED_STEP_SIGMA,
+    }
     if not check["verified"]:
-        log.warning("the reference optimum is not verified: Gauss-Newton step %.2g sigma > %.0e", step_sigma,
-                    VERIFIED_STEP_SIGMA)
+        log.warning(
+            "the reference optimum is not verified: Gauss-Newton step %.2g sigma > %.0e",
+            step_sigma,
+            VERIFIED_STEP_SIGMA,
+        )
     return metric, check
 
 
@@ -160,9 +168,15 @@ def _first_time(points: list[tuple[float, float, Array]], dist: list[float], lev
     return None
 
 
-def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | None = None,
-                  skip: tuple[str, ...] = (), budget_s: float = 60.0, check_points: int = 200,
-                  duration_s: float = 2700.0) -> dict[str, Any]:
+def run_bench_sba(
+    tie_points: int = 2000,
+    seed: int = 0,
+    workdir: str | Path | None = None,
+    skip: tuple[str, ...] = (),
+    budget_s: float = 60.0,
+    check_points: int = 200,
+    duration_s: float = 2700.0,
+) -> dict[str, Any]:
     """Solvers at equal accuracy of the estimate on the standard pass (issue 20).
 
     Every solver minimises the same cost (least squares, DEM on) from the same start with a tight
@@ -266,16 +280,29 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
             for name in {"ceres", "ceres_batched"} - set(skip):
                 skipped[name] = "pyceres is not installed (pip install 'misrgraph[bench]')"
         else:
+
             def ceres(tr: _Trace) -> str:
-                res = solve_ceres(flat, ftol=1e-10, max_iterations=500, max_seconds=budget_s,
-                                  on_point=lambda x, c: tr.add(x, c, False))
+                res = solve_ceres(
+                    flat,
+                    ftol=1e-10,
+                    max_iterations=500,
+                    max_seconds=budget_s,
+                    on_point=lambda x, c: tr.add(x, c, False),
+                )
                 return res["report"]
 
             record("ceres", ceres)
 
             def ceres_batched(tr: _Trace) -> str:
-                res = solve_ceres(flat, ftol=1e-10, max_iterations=500, max_seconds=budget_s, group=CERES_GROUP,
-                                  linear_solver="SPARSE_NORMAL_CHOLESKY", on_point=lambda x, c: tr.add(x, c, False))
+                res = solve_ceres(
+                    flat,
+                    ftol=1e-10,
+                    max_iterations=500,
+                    max_seconds=budget_s,
+                    group=CERES_GROUP,
+                    linear_solver="SPARSE_NORMAL_CHOLESKY",
+                    on_point=lambda x, c: tr.add(x, c, False),
+                )
                 return res["report"]
 
             record("ceres_batched", ceres_batched)
@@ -302,8 +329,15 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
             "label": SOLVER_LABELS[name],
             "seconds_to_sigma": {_level_key(lv): _first_time(pts, ms, lv) for lv in SIGMA_LEVELS},
             "seconds_to_mahalanobis": {_level_key(lv): _first_time(pts, mh, lv) for lv in SIGMA_LEVELS},
-            "stop": {"seconds": r["run_seconds"], "ended": r["ended"], "cost": pts[-1][1], "max_sigma": ms[-1],
-                     "mahalanobis": mh[-1], "improving_iterates": len(pts) - 1, **products(x_end)},
+            "stop": {
+                "seconds": r["run_seconds"],
+                "ended": r["ended"],
+                "cost": pts[-1][1],
+                "max_sigma": ms[-1],
+                "mahalanobis": mh[-1],
+                "improving_iterates": len(pts) - 1,
+                **products(x_end),
+            },
         }
     for name, why in skipped.items():
         results[name] = {"label": SOLVER_LABELS[name], "skipped": why}
@@ -323,22 +357,36 @@ def run_bench_sba(tie_points: int = 2000, seed: int = 0, workdir: str | Path | N
             ratios[name] = None  # stopped by its own rule before getting there: it never does
     peers = [n for n in ratios if not n.startswith("misrgraph")]
     return {
-        "tie_points": tie_points, "check_points": check_points, "variables": len(prob.dims), "unknowns": flat.n,
-        "observations": len(pg.collinearity), "budget_seconds": budget_s, "sigma_levels": [_level_key(v) for v in SIGMA_LEVELS],
-        "reference": {**check, **products(x_ref)}, "marginals": {"seconds": marginal_seconds,
-                                                                   "routine": "flat_marginals (sparse Schur), the same for every solver"},
+        "tie_points": tie_points,
+        "check_points": check_points,
+        "variables": len(prob.dims),
+        "unknowns": flat.n,
+        "observations": len(pg.collinearity),
+        "budget_seconds": budget_s,
+        "sigma_levels": [_level_key(v) for v in SIGMA_LEVELS],
+        "reference": {**check, **products(x_ref)},
+        "marginals": {
+            "seconds": marginal_seconds,
+            "routine": "flat_marginals (sparse Schur), the same for every solver",
+        },
         "solvers": results,
         "ratio_to_core_at_0.1_sigma": ratios,
         "ratios_that_are_lower_bounds": bounds,
         "never_within_0.1_sigma": [n for n, v in ratios.items() if v is None],
-        "core_at_least_3x_faster_than_every_peer_at_0.1_sigma": (bool(peers) and core_t is not None and all(
-            ratios[n] is None or ratios[n] >= 3.0 for n in peers)),
+        "core_at_least_3x_faster_than_every_peer_at_0.1_sigma": (
+            bool(peers) and core_t is not None and all(ratios[n] is None or ratios[n] >= 3.0 for n in peers)
+        ),
     }
 
 
-def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0,
-                          workdir: str | Path | None = None, linearization_tol: float | None = None,
-                          settle_after: int | None = DEFAULT_SETTLE_AFTER) -> dict[str, Any]:
+def run_bench_incremental(
+    passes: int = 10,
+    tie_points: int = 150,
+    seed: int = 0,
+    workdir: str | Path | None = None,
+    linearization_tol: float | None = None,
+    settle_after: int | None = DEFAULT_SETTLE_AFTER,
+) -> dict[str, Any]:
     """iSAM2 update per pass against a warm-started batch, over ``passes`` repeat passes (issue 20).
 
     ``settle_after``: :class:`~misrgraph.estimate.incremental.IncrementalSolver`'s (None: every
@@ -366,8 +414,19 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
     with bench_workdir(workdir) as wd:
         out = wd / f"path_{passes}_{tie_points}_{seed}"
         if not (out / "scenario.json").exists():
-            run_simulate(ScenarioConfig(truth="model", scenario="path", seed=seed, n_passes=passes, n_tie_points=tie_points,
-                                        n_check_points=0, duration_s=900.0, start_lat_deg=55.0), out)
+            run_simulate(
+                ScenarioConfig(
+                    truth="model",
+                    scenario="path",
+                    seed=seed,
+                    n_passes=passes,
+                    n_tie_points=tie_points,
+                    n_check_points=0,
+                    duration_s=900.0,
+                    start_lat_deg=55.0,
+                ),
+                out,
+            )
         sc = load_scenario(out)
         orbit_passes = [sc.load_pass(k) for k in range(len(sc.pass_files))]
     solver = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, cfg, linearization_tol=tol, settle_after=settle_after)
@@ -384,8 +443,13 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
         tr = _Trace(float("inf"))
         tr.add(flat.from_values(start), flat.cost(flat.from_values(start)), False)
         err: list[float] = []
-        res = solve(prob, tight, initial=start, progress=lambda i, c, lam: err.append(c),
-                    on_iterate=lambda x: tr.add(x, err[-1], False))
+        res = solve(
+            prob,
+            tight,
+            initial=start,
+            progress=lambda i, c, lam: err.append(c),
+            on_iterate=lambda x: tr.add(x, err[-1], False),
+        )
         whole = tr.seconds()
         for b in prob.batches:
             b.clear()
@@ -398,20 +462,45 @@ def run_bench_incremental(passes: int = 10, tie_points: int = 150, seed: int = 0
         target = max(isam_dist, 1e-3)
         dist = [metric.max_sigma(x) for _, _, x in tr.points]
         hit = _first_time(tr.points[1:], dist[1:], target)  # at least one iteration
-        rows.append({"pass": k + 1, "update_seconds": update_s, "batch_seconds": whole if hit is None else hit,
-                     "batch_reached_target": hit is not None, "batch_iterations": res.iterations,
-                     "max_difference_sigma": isam_dist, "optimum_gauss_newton_step_sigma": step_sigma,
-                     "relinearization_rounds": solver.last_rounds,
-                     "linearization_error_sigma": solver.last_linearization_error})
-        log.info("bench incremental: pass %d: update %.3f s, batch %.3f s, iSAM2 %.4f sigma from the optimum",
-                 k + 1, update_s, rows[-1]["batch_seconds"], isam_dist)
+        rows.append(
+            {
+                "pass": k + 1,
+                "update_seconds": update_s,
+                "batch_seconds": whole if hit is None else hit,
+                "batch_reached_target": hit is not None,
+                "batch_iterations": res.iterations,
+                "max_difference_sigma": isam_dist,
+                "optimum_gauss_newton_step_sigma": step_sigma,
+                "relinearization_rounds": solver.last_rounds,
+                "linearization_error_sigma": solver.last_linearization_error,
+            }
+        )
+        log.info(
+            "bench incremental: pass %d: update %.3f s, batch %.3f s, iSAM2 %.4f sigma from the optimum",
+            k + 1,
+            update_s,
+            rows[-1]["batch_seconds"],
+            isam_dist,
+        )
     by_pass = {r["pass"]: r for r in rows}
     marks = [k for k in (10, 25, 50) if k in by_pass] or [rows[-1]["pass"]]
     return {
-        "passes": len(rows), "tie_points": tie_points, "linearization_tol": tol, "settle_after": settle_after, "per_pass": rows,
-        "at": {str(k): {"update_seconds": by_pass[k]["update_seconds"], "batch_seconds": by_pass[k]["batch_seconds"],
-                        "update_over_batch": by_pass[k]["update_seconds"] / by_pass[k]["batch_seconds"]} for k in marks},
-        "update_last_over_update_10": (rows[-1]["update_seconds"] / by_pass[10]["update_seconds"]) if 10 in by_pass else None,
+        "passes": len(rows),
+        "tie_points": tie_points,
+        "linearization_tol": tol,
+        "settle_after": settle_after,
+        "per_pass": rows,
+        "at": {
+            str(k): {
+                "update_seconds": by_pass[k]["update_seconds"],
+                "batch_seconds": by_pass[k]["batch_seconds"],
+                "update_over_batch": by_pass[k]["update_seconds"] / by_pass[k]["batch_seconds"],
+            }
+            for k in marks
+        },
+        "update_last_over_update_10": (rows[-1]["update_seconds"] / by_pass[10]["update_seconds"])
+        if 10 in by_pass
+        else None,
         "max_difference_sigma_worst": max(r["max_difference_sigma"] for r in rows),
     }
 

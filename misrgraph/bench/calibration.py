@@ -49,8 +49,9 @@ def _best(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
     return float(best), out
 
 
-def run_bench_calibration(size: str = "standard", seed: int = 3, workdir: str | Path | None = None,
-                          repeat: int = 3, lam: float = 1e-3) -> dict[str, Any]:
+def run_bench_calibration(
+    size: str = "standard", seed: int = 3, workdir: str | Path | None = None, repeat: int = 3, lam: float = 1e-3
+) -> dict[str, Any]:
     """The two comparisons of the module docstring on a simulated month of ``size`` (a key of
     :data:`MONTH_SIZES`), linearised at its start (the supplied camera model), LM damping ``lam``.
 
@@ -82,17 +83,28 @@ def run_bench_calibration(size: str = "standard", seed: int = 3, workdir: str | 
         return np.concatenate([d.at(int(k)) for k in keys])
 
     t_former_order, former_order = _best(
-        lambda: gtsam.Ordering([int(k) for k in prob.eliminate_first] + prob.other_keys), repeat)
+        lambda: gtsam.Ordering([int(k) for k in prob.eliminate_first] + prob.other_keys), repeat
+    )
     t_current_order, current_order = _best(lambda: _ordering(prob), repeat)
     t_former, d_former = _best(lambda: step(former_order), repeat)
     t_current, d_current = _best(lambda: step(current_order), repeat)
     res: dict[str, Any] = {
-        "size": size, "seed": int(seed), "passes": len(passes), "variables": len(keys),
-        "landmarks": len(prob.eliminate_first), "cameras": len(prob.eliminate_last), "factors": int(prob.graph.size()),
-        "step": {"former": "landmarks first", "current": "COLAMD, cameras last",
-                 "former_s": t_former, "current_s": t_current, "ratio": t_former / t_current,
-                 "ordering_s": {"former": t_former_order, "current": t_current_order},
-                 "relative_difference": float(np.max(np.abs(d_former - d_current)) / np.max(np.abs(d_former)))},
+        "size": size,
+        "seed": int(seed),
+        "passes": len(passes),
+        "variables": len(keys),
+        "landmarks": len(prob.eliminate_first),
+        "cameras": len(prob.eliminate_last),
+        "factors": int(prob.graph.size()),
+        "step": {
+            "former": "landmarks first",
+            "current": "COLAMD, cameras last",
+            "former_s": t_former,
+            "current_s": t_current,
+            "ratio": t_former / t_current,
+            "ordering_s": {"former": t_former_order, "current": t_current_order},
+            "relative_difference": float(np.max(np.abs(d_former - d_current)) / np.max(np.abs(d_former))),
+        },
     }
     h_ll, h_lc, h_cc = _blocks_from_linear(prob, lin)
     _, _, s = schur_reduce(h_ll, h_lc, h_cc)
@@ -107,8 +119,12 @@ def run_bench_calibration(size: str = "standard", seed: int = 3, workdir: str | 
     t_lu, c_lu = _best(lambda: joint(), repeat)
     t_sym, c_sym = _best(lambda: joint(**SPD_SPLU_OPTIONS), repeat)
     res["camera_covariance"] = {
-        "former": "SuperLU, unsymmetric LU", "current": "SuperLU, symmetric mode without pivoting",
+        "former": "SuperLU, unsymmetric LU",
+        "current": "SuperLU, symmetric mode without pivoting",
         "reduced_system": {"size": int(s.shape[0]), "nonzeros": int(s.nnz)},
-        "former_s": t_lu, "current_s": t_sym, "ratio": t_lu / t_sym,
-        "relative_difference": float(np.max(np.abs(c_lu - c_sym)) / np.max(np.abs(c_lu)))}
+        "former_s": t_lu,
+        "current_s": t_sym,
+        "ratio": t_lu / t_sym,
+        "relative_difference": float(np.max(np.abs(c_lu - c_sym)) / np.max(np.abs(c_lu))),
+    }
     return res

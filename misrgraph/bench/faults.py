@@ -179,8 +179,22 @@ class _Simulate(_Target):
         return self.work / "scen"
 
     def command(self, trial: int) -> list[str]:
-        return _cli("simulate", "--scenario", "pass", "--seed", str(100 + trial), "--tie-points", "30",
-                    "--check-points", "5", "--duration", "300", "--out", str(self.out), "--json")
+        return _cli(
+            "simulate",
+            "--scenario",
+            "pass",
+            "--seed",
+            str(100 + trial),
+            "--tie-points",
+            "30",
+            "--check-points",
+            "5",
+            "--duration",
+            "300",
+            "--out",
+            str(self.out),
+            "--json",
+        )
 
     def reset(self, trial: int) -> None:
         if trial % 2 == 0 and self.out.exists():
@@ -270,19 +284,51 @@ def _prepare_inputs(work: Path, commands: tuple[str, ...]) -> dict[str, Any]:
     inputs: dict[str, Any] = {}
     if "adjust" in commands:
         inputs["pass"] = work / "in_pass"
-        run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=7, n_tie_points=60, n_check_points=5, duration_s=600.0,
-                                    start_lat_deg=50.0), inputs["pass"])
+        run_simulate(
+            ScenarioConfig(
+                truth="model",
+                scenario="pass",
+                seed=7,
+                n_tie_points=60,
+                n_check_points=5,
+                duration_s=600.0,
+                start_lat_deg=50.0,
+            ),
+            inputs["pass"],
+        )
     if "calibrate" in commands:
         inputs["month"] = work / "in_month"
         run_simulate(ScenarioConfig(truth="model", scenario="month", seed=8, n_gcps=16, month_days=8), inputs["month"])
     if "update" in commands:
         p = work / "in_path"
-        run_simulate(ScenarioConfig(truth="model", scenario="path", seed=9, n_passes=2, n_tie_points=30, n_check_points=3,
-                                    duration_s=400.0, start_lat_deg=50.0), p)
+        run_simulate(
+            ScenarioConfig(
+                truth="model",
+                scenario="path",
+                seed=9,
+                n_passes=2,
+                n_tie_points=30,
+                n_check_points=3,
+                duration_s=400.0,
+                start_lat_deg=50.0,
+            ),
+            p,
+        )
         inputs["path_passes"] = sorted((p / "passes").glob("*.h5"))
         base = work / "base_state"
-        _run(_cli("update", str(base), str(inputs["path_passes"][0]), "--camera-model", str(p / "camera_model.h5"),
-                  "--gcps", str(p / "gcp.h5"), "--dem", str(p / "dem.h5")))
+        _run(
+            _cli(
+                "update",
+                str(base),
+                str(inputs["path_passes"][0]),
+                "--camera-model",
+                str(p / "camera_model.h5"),
+                "--gcps",
+                str(p / "gcp.h5"),
+                "--dem",
+                str(p / "dem.h5"),
+            )
+        )
         inputs["base_state"] = base
     return inputs
 
@@ -342,9 +388,14 @@ def run_kill_trials(
                     log.warning("%s trial %d: %s (kill after %.2f s of %.2f s)", name, i, outcome, after, full_s)
                 if not t.rerun_ok(i):
                     counts["rerun_failed"] += 1
-            report[name] = {"trials": trials, "killed_while_running": killed, "uninterrupted_s": full_s,
-                            "startup_s": startup_s,
-                            **counts, "debris": debris}
+            report[name] = {
+                "trials": trials,
+                "killed_while_running": killed,
+                "uninterrupted_s": full_s,
+                "startup_s": startup_s,
+                **counts,
+                "debris": debris,
+            }
         return {"commands": report, "failures": int(sum(r[k] for r in report.values() for k in _FAILURES))}
     finally:
         if tmp is not None:

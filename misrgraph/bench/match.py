@@ -31,9 +31,11 @@ __all__ = ["run_bench_match"]
 
 def _parabola(cc: np.ndarray, i: int, j: int) -> tuple[float, float]:
     """Sub-pixel peak offsets by a three-point parabola along each axis (0 at the border)."""
+
     def off(a: float, b: float, c: float) -> float:
         d = a - 2 * b + c
         return 0.5 * (a - c) / d if d < 0 else 0.0
+
     di = off(cc[i - 1, j], cc[i, j], cc[i + 1, j]) if 0 < i < cc.shape[0] - 1 else 0.0
     dj = off(cc[i, j - 1], cc[i, j], cc[i, j + 1]) if 0 < j < cc.shape[1] - 1 else 0.0
     return di, dj
@@ -56,8 +58,14 @@ def _chips_side_by_side(scenario: Path) -> dict[str, Any]:
             continue
         ip = geo.ground_to_pixel(cam, band, tp.landmark_ecef[row][None], continuous=True)
         if ip.visible[0]:
-            jobs.append((im.gcp.pixels[k].astype(float), chip.astype(float),
-                         float(ip.line[0] - im.gcp.line0[k]), float(ip.sample[0] - im.gcp.sample0[k])))
+            jobs.append(
+                (
+                    im.gcp.pixels[k].astype(float),
+                    chip.astype(float),
+                    float(ip.line[0] - im.gcp.line0[k]),
+                    float(ip.sample[0] - im.gcp.sample0[k]),
+                )
+            )
     out: dict[str, Any] = {"chips": len(jobs)}
     if not jobs:
         return out
@@ -77,20 +85,43 @@ def _chips_side_by_side(scenario: Path) -> dict[str, Any]:
         res = lsm(img, chip, pk.row, pk.col) if pk is not None else None
         ours.append((res.row - r, res.col - c) if res is not None and res.converged else (np.nan, np.nan))
     t_ours = time.perf_counter() - t0
-    rms = lambda e: float(np.sqrt(np.nanmean(np.square(np.asarray(e)))))
-    out.update({"ncc_lsm": {"error_rms_px": rms(ours), "chips_per_second": len(jobs) / t_ours,
-                            "converged": int(np.sum(np.isfinite(np.asarray(ours)[:, 0])))},
-                "skimage_parabola": {"error_rms_px": rms(plain), "chips_per_second": len(jobs) / t_plain},
-                "time_ratio_ncc_lsm_over_skimage": t_ours / t_plain})
+
+    def rms(e):
+        return float(np.sqrt(np.nanmean(np.square(np.asarray(e)))))
+
+    out.update(
+        {
+            "ncc_lsm": {
+                "error_rms_px": rms(ours),
+                "chips_per_second": len(jobs) / t_ours,
+                "converged": int(np.sum(np.isfinite(np.asarray(ours)[:, 0]))),
+            },
+            "skimage_parabola": {"error_rms_px": rms(plain), "chips_per_second": len(jobs) / t_plain},
+            "time_ratio_ncc_lsm_over_skimage": t_ours / t_plain,
+        }
+    )
     return out
 
 
-def run_bench_match(tie_points: int = 1000, seed: int = 0, duration_s: float = 2700.0, cloud_fraction: float = 0.0,
-                    check_points: int = 100, workdir: str | Path | None = None) -> dict[str, Any]:
+def run_bench_match(
+    tie_points: int = 1000,
+    seed: int = 0,
+    duration_s: float = 2700.0,
+    cloud_fraction: float = 0.0,
+    check_points: int = 100,
+    workdir: str | Path | None = None,
+) -> dict[str, Any]:
     """Render, match and adjust one pass (see the module docstring); returns the figures."""
     with bench_workdir(workdir, "misrgraph-bench-match-") as base:
-        cfg = dict(scenario="pass", seed=seed, n_tie_points=tie_points, n_check_points=check_points,
-                   duration_s=duration_s, cloud_fraction=cloud_fraction, truth="model")
+        cfg = dict(
+            scenario="pass",
+            seed=seed,
+            n_tie_points=tie_points,
+            n_check_points=check_points,
+            duration_s=duration_s,
+            cloud_fraction=cloud_fraction,
+            truth="model",
+        )
         t0 = time.perf_counter()
         run_simulate(ScenarioConfig(**cfg), base / "plain")
         t_plain = time.perf_counter() - t0
@@ -112,15 +143,34 @@ def run_bench_match(tie_points: int = 1000, seed: int = 0, duration_s: float = 2
             return float(np.sqrt(np.mean([x["after"]["rms"] ** 2 for x in v])))
 
         return {
-            "pass": {"tie_points": tie_points, "duration_s": duration_s, "cloud_fraction": cloud_fraction, "seed": seed},
-            "simulate_seconds": {"without_imagery": t_plain, "with_imagery": t_img,
-                                 "rendering": t_img - t_plain, "ratio": t_img / t_plain},
+            "pass": {
+                "tie_points": tie_points,
+                "duration_s": duration_s,
+                "cloud_fraction": cloud_fraction,
+                "seed": seed,
+            },
+            "simulate_seconds": {
+                "without_imagery": t_plain,
+                "with_imagery": t_img,
+                "rendering": t_img - t_plain,
+                "ratio": t_img / t_plain,
+            },
             "match": summary,
             "gcp_chips": _chips_side_by_side(base / "imagery"),
-            "adjust": {"simulated": {"checkpoint_rms_m": pooled(sim), "coregistration_px_max": max(sim["coregistration_px"].values()),
-                                     "nees": sim.get("nees")},
-                       "matched": {"checkpoint_rms_m": pooled(mat), "coregistration_px_max": max(mat["coregistration_px"].values()),
-                                   "nees": mat.get("nees"), "blunders": mat.get("blunders"),
-                                   "observations": mat["observations"], "tie_height": mat["tie_height"]},
-                       "checkpoint_ratio_matched_over_simulated": pooled(mat) / pooled(sim)},
+            "adjust": {
+                "simulated": {
+                    "checkpoint_rms_m": pooled(sim),
+                    "coregistration_px_max": max(sim["coregistration_px"].values()),
+                    "nees": sim.get("nees"),
+                },
+                "matched": {
+                    "checkpoint_rms_m": pooled(mat),
+                    "coregistration_px_max": max(mat["coregistration_px"].values()),
+                    "nees": mat.get("nees"),
+                    "blunders": mat.get("blunders"),
+                    "observations": mat["observations"],
+                    "tie_height": mat["tie_height"],
+                },
+                "checkpoint_ratio_matched_over_simulated": pooled(mat) / pooled(sim),
+            },
         }

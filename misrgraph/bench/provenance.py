@@ -36,10 +36,21 @@ def source_commit(root: Path = _ROOT) -> str:
     """The git commit of the source tree (short hash, ``-dirty`` if tracked files changed), or
     ``"unknown"`` when the package is not run from a git checkout."""
     try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short=12", "HEAD"], capture_output=True,
-                              text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "diff", "--quiet", "HEAD", "--", "misrgraph", "factors"],
-                               capture_output=True, timeout=10).returncode != 0
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "--short=12", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
+        dirty = (
+            subprocess.run(
+                ["git", "-C", str(root), "diff", "--quiet", "HEAD", "--", "misrgraph", "factors"],
+                capture_output=True,
+                timeout=10,
+            ).returncode
+            != 0
+        )
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return head + ("-dirty" if dirty else "") if head else "unknown"
@@ -68,8 +79,15 @@ def machine() -> dict[str, Any]:
         memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     except (ValueError, OSError, AttributeError):
         memory = float("nan")
-    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": round(memory, 1), "os": platform.system(),
-            "python": platform.python_version(), "numpy": np.__version__, "gtsam": gtsam_version}
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "memory_gib": round(memory, 1),
+        "os": platform.system(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "gtsam": gtsam_version,
+    }
 
 
 def _click_context() -> tuple[Any, Any]:
@@ -116,8 +134,14 @@ def provenance() -> dict[str, Any]:
 
     command, bench = _command_line()
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-    return {"command": command, "bench": bench, "commit": source_commit(), "version": __version__,
-            "machine": machine(), "measured_utc": now}
+    return {
+        "command": command,
+        "bench": bench,
+        "commit": source_commit(),
+        "version": __version__,
+        "machine": machine(),
+        "measured_utc": now,
+    }
 
 
 def finish(result: dict[str, Any], save: str | os.PathLike[str] | None = None) -> dict[str, Any]:

@@ -31,19 +31,31 @@ __all__ = ["ReportConfig", "render_report", "run_report", "render_page", "TITLES
 
 #: the title and one-line description of each bench's page
 TITLES: dict[str, tuple[str, str]] = {
-    "demo": ("The demo", "`make demo`: the whole workflow on simulated data, each stage scored against the "
-                         "simulator's truth."),
-    "nees": ("Covariance honesty (NEES)", "Normalised estimation error squared per class of variables over seeded "
-                                          "runs: 1 is honest. The band is the two-sided 95 % chi-square band of the "
-                                          "pooled NEES; the interval is the 95 % interval of the mean from the "
-                                          "run-to-run scatter."),
-    "solver": ("Solver core against GTSAM's optimizer", "The same pass graph solved by misrgraph's "
-                                                        "Levenberg-Marquardt core and by gtsam.LevenbergMarquardtOptimizer."),
-    "incremental": ("Incremental updates (iSAM2)", "Adding the k-th repeat pass with iSAM2 against a warm-started "
-                                                   "batch re-solve of all k passes at the same accuracy."),
+    "demo": (
+        "The demo",
+        "`make demo`: the whole workflow on simulated data, each stage scored against the simulator's truth.",
+    ),
+    "nees": (
+        "Covariance honesty (NEES)",
+        "Normalised estimation error squared per class of variables over seeded "
+        "runs: 1 is honest. The band is the two-sided 95 % chi-square band of the "
+        "pooled NEES; the interval is the 95 % interval of the mean from the "
+        "run-to-run scatter.",
+    ),
+    "solver": (
+        "Solver core against GTSAM's optimizer",
+        "The same pass graph solved by misrgraph's Levenberg-Marquardt core and by gtsam.LevenbergMarquardtOptimizer.",
+    ),
+    "incremental": (
+        "Incremental updates (iSAM2)",
+        "Adding the k-th repeat pass with iSAM2 against a warm-started "
+        "batch re-solve of all k passes at the same accuracy.",
+    ),
     "scaling": ("Scaling with the number of tie points", "Time and memory of a pass adjustment against its size."),
-    "pp": ("Projection Parameters: honesty of their 1 sigma", "PP geolocation error against the truth over the "
-                                                               "predicted 1 sigma, per camera, over seeded passes."),
+    "pp": (
+        "Projection Parameters: honesty of their 1 sigma",
+        "PP geolocation error against the truth over the predicted 1 sigma, per camera, over seeded passes.",
+    ),
 }
 
 _BEGIN = "<!-- generated:{name}:begin -->"
@@ -102,14 +114,22 @@ def _table(head: list[str], rows: list[list[str]]) -> str:
 
 
 def _machine(m: dict[str, Any]) -> str:
-    return (f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, {m.get('memory_gib', '?')} GiB; {m.get('os', '?')}, "
-            f"Python {m.get('python', '?')}, numpy {m.get('numpy', '?')}, gtsam {m.get('gtsam', '?')}")
+    return (
+        f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, {m.get('memory_gib', '?')} GiB; {m.get('os', '?')}, "
+        f"Python {m.get('python', '?')}, numpy {m.get('numpy', '?')}, gtsam {m.get('gtsam', '?')}"
+    )
 
 
 def provenance_block(p: dict[str, Any]) -> str:
     """The heading of every generated page or block: command, commit, machine."""
-    return _table(["", ""], [["command", f"`{p.get('command', '?')}`"], ["commit", f"`{p.get('commit', '?')}`"],
-                             ["machine", _machine(p.get("machine", {}))]])
+    return _table(
+        ["", ""],
+        [
+            ["command", f"`{p.get('command', '?')}`"],
+            ["commit", f"`{p.get('commit', '?')}`"],
+            ["machine", _machine(p.get("machine", {}))],
+        ],
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -127,40 +147,98 @@ def _render_nees(r: dict[str, Any]) -> str:
     for k, v in r["summary"].items():
         if "nees_per_dim" in v:
             band = v["band"]
-            rows.append([k, f"{v['nees_per_dim']:.3f}", f"[{band[0]:.3f}, {band[1]:.3f}]", str(v["dof"]),
-                         "inside" if v["inside"] else "**outside**", _ci(v["per_run"], fmt=".3f")])
+            rows.append(
+                [
+                    k,
+                    f"{v['nees_per_dim']:.3f}",
+                    f"[{band[0]:.3f}, {band[1]:.3f}]",
+                    str(v["dof"]),
+                    "inside" if v["inside"] else "**outside**",
+                    _ci(v["per_run"], fmt=".3f"),
+                ]
+            )
         else:
             rr = v.get("rms_of_runs")
-            rows.append([k, "-", "-", "-", "-", _ci(v["per_run"], fmt=".3f")
-                         + (f"; RMS of runs {_ci(rr, 'rms', '.3f')}" if rr else "")])
+            rows.append(
+                [
+                    k,
+                    "-",
+                    "-",
+                    "-",
+                    "-",
+                    _ci(v["per_run"], fmt=".3f") + (f"; RMS of runs {_ci(rr, 'rms', '.3f')}" if rr else ""),
+                ]
+            )
     head = f"{r['runs']} {r['size']} {r['study']} runs under the {r['truth']} truth (seeds from {r.get('seed', '?')})."
-    return head + "\n\n" + _table(["class", "NEES/dim (pooled)", "95 % band", "dof", "", "mean of runs [95 % interval]"],
-                                  rows)
+    return (
+        head
+        + "\n\n"
+        + _table(["class", "NEES/dim (pooled)", "95 % band", "dof", "", "mean of runs [95 % interval]"], rows)
+    )
 
 
 def _render_solver(r: dict[str, Any]) -> str:
-    rows = [[name, f"{r[name]['seconds']:.2f}", str(r[name]["iterations"]), f"{r[name]['seconds_per_iteration']:.3f}",
-             f"{r[name]['final_cost']:.6f}"] for name in ("core", "gtsam_lm")]
-    return (f"A pass of {r['observations']} observations ({r['variables']} variables, {r['factors']} factors).\n\n"
-            + _table(["solver", "seconds", "iterations", "s / iteration", "final cost"], rows)
-            + f"\n\ngtsam_lm / core: {r['ratio_gtsam_lm_over_core']:.1f}x.")
+    rows = [
+        [
+            name,
+            f"{r[name]['seconds']:.2f}",
+            str(r[name]["iterations"]),
+            f"{r[name]['seconds_per_iteration']:.3f}",
+            f"{r[name]['final_cost']:.6f}",
+        ]
+        for name in ("core", "gtsam_lm")
+    ]
+    return (
+        f"A pass of {r['observations']} observations ({r['variables']} variables, {r['factors']} factors).\n\n"
+        + _table(["solver", "seconds", "iterations", "s / iteration", "final cost"], rows)
+        + f"\n\ngtsam_lm / core: {r['ratio_gtsam_lm_over_core']:.1f}x."
+    )
 
 
 def _render_incremental(r: dict[str, Any]) -> str:
-    rows = [[str(p["pass"]), f"{p['update_seconds']:.3f}", f"{p['batch_seconds']:.3f}",
-             f"{p['update_seconds'] / p['batch_seconds']:.2f}", f"{p['max_difference_sigma']:.1e}",
-             str(p["relinearization_rounds"])] for p in r["per_pass"]]
-    return (f"{r['passes']} repeat passes of {r['tie_points']} tie points.\n\n"
-            + _table(["pass k", "iSAM2 update (s)", "warm batch (s)", "update / batch", "iSAM2 from optimum (sigma)",
-                      "re-linearisation rounds"], rows)
-            + f"\n\nLargest distance of iSAM2 from the converged batch: {r['max_difference_sigma_worst']:.1e} sigma.")
+    rows = [
+        [
+            str(p["pass"]),
+            f"{p['update_seconds']:.3f}",
+            f"{p['batch_seconds']:.3f}",
+            f"{p['update_seconds'] / p['batch_seconds']:.2f}",
+            f"{p['max_difference_sigma']:.1e}",
+            str(p["relinearization_rounds"]),
+        ]
+        for p in r["per_pass"]
+    ]
+    return (
+        f"{r['passes']} repeat passes of {r['tie_points']} tie points.\n\n"
+        + _table(
+            [
+                "pass k",
+                "iSAM2 update (s)",
+                "warm batch (s)",
+                "update / batch",
+                "iSAM2 from optimum (sigma)",
+                "re-linearisation rounds",
+            ],
+            rows,
+        )
+        + f"\n\nLargest distance of iSAM2 from the converged batch: {r['max_difference_sigma_worst']:.1e} sigma."
+    )
 
 
 def _render_scaling(r: dict[str, Any]) -> str:
-    rows = [[str(x["tie_points"]), str(x["observations"]), f"{x['seconds']:.2f}", str(x["iterations"]),
-             f"{x['peak_python_mb']:.0f}"] for x in r["rows"]]
-    return (_table(["tie points", "observations", "seconds", "iterations", "peak Python MB"], rows)
-            + f"\n\nFitted exponent of the total time against tie points: {r['exponent_total_vs_tie_points']:.2f}.")
+    rows = [
+        [
+            str(x["tie_points"]),
+            str(x["observations"]),
+            f"{x['seconds']:.2f}",
+            str(x["iterations"]),
+            f"{x['peak_python_mb']:.0f}",
+        ]
+        for x in r["rows"]
+    ]
+    return (
+        _table(["tie points", "observations", "seconds", "iterations", "peak Python MB"], rows)
+        + f"\n\nFitted exponent of the total time against tie points: {r['exponent_total_vs_tie_points']:.2f}."
+    )
 
 
 def _render_pp(r: dict[str, Any]) -> str:
@@ -185,8 +263,12 @@ def _render_generic(r: dict[str, Any]) -> str:
 
 
 RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
-    "demo": _render_demo, "nees": _render_nees, "solver": _render_solver, "incremental": _render_incremental,
-    "scaling": _render_scaling, "pp": _render_pp,
+    "demo": _render_demo,
+    "nees": _render_nees,
+    "solver": _render_solver,
+    "incremental": _render_incremental,
+    "scaling": _render_scaling,
+    "pp": _render_pp,
 }
 
 
@@ -210,8 +292,11 @@ def render_page(name: str, result: dict[str, Any]) -> str:
         body = RENDERERS.get(bench, _render_generic)(result)
     except (KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
         raise FileFormatError(name + ".json", f"a {bench} result without the fields its page needs ({exc!r})") from None
-    return (f"# {title}\n\n{what}\n\n{provenance_block(result['provenance'])}\n\n{body}\n\n"
-            + _FOOTER.format(source=f"data/{name}.json") + "\n")
+    return (
+        f"# {title}\n\n{what}\n\n{provenance_block(result['provenance'])}\n\n{body}\n\n"
+        + _FOOTER.format(source=f"data/{name}.json")
+        + "\n"
+    )
 
 
 def _headline_rows(results: dict[str, dict[str, Any]], names: tuple[str, ...]) -> list[list[str]]:
@@ -226,20 +311,32 @@ def _headline_rows(results: dict[str, dict[str, Any]], names: tuple[str, ...]) -
             parts = []
             for k, v in r["summary"].items():
                 if "nees_per_dim" in v and k in ("landmarks", "knots", "camera", "cameras", "state"):
-                    parts.append(f"{k} {v['nees_per_dim']:.2f} ({'inside' if v['inside'] else 'outside'} "
-                                 f"[{v['band'][0]:.2f}, {v['band'][1]:.2f}])")
+                    parts.append(
+                        f"{k} {v['nees_per_dim']:.2f} ({'inside' if v['inside'] else 'outside'} "
+                        f"[{v['band'][0]:.2f}, {v['band'][1]:.2f}])"
+                    )
                 elif k.startswith("checkpoint_rms_over_predicted") and "rms_of_runs" in v:
                     parts.append(f"check points actual/predicted {_ci(v['rms_of_runs'], 'rms')}")
             what = f"{r['study']}: NEES/dim over {r['runs']} {r['size']} runs, {r['truth']} truth"
             rows.append([link, what, "; ".join(parts)])
         elif bench == "incremental":
             last = r["per_pass"][-1]
-            rows.append([link, f"iSAM2 update of pass {last['pass']} vs a warm batch re-solve",
-                         f"{last['update_seconds'] / last['batch_seconds']:.2f}x the batch's time, "
-                         f"within {r['max_difference_sigma_worst']:.1e} sigma of it"])
+            rows.append(
+                [
+                    link,
+                    f"iSAM2 update of pass {last['pass']} vs a warm batch re-solve",
+                    f"{last['update_seconds'] / last['batch_seconds']:.2f}x the batch's time, "
+                    f"within {r['max_difference_sigma_worst']:.1e} sigma of it",
+                ]
+            )
         elif bench == "solver":
-            rows.append([link, "solver core vs gtsam.LevenbergMarquardtOptimizer, same graph",
-                         f"{r['ratio_gtsam_lm_over_core']:.1f}x faster"])
+            rows.append(
+                [
+                    link,
+                    "solver core vs gtsam.LevenbergMarquardtOptimizer, same graph",
+                    f"{r['ratio_gtsam_lm_over_core']:.1f}x faster",
+                ]
+            )
     return rows
 
 
@@ -252,25 +349,35 @@ def render_report(cfg: ReportConfig) -> dict[Path, str]:
     out: dict[Path, str] = {}
     for name, r in results.items():
         out[Path(cfg.pages) / f"{name}.md"] = render_page(name, r)
-    index = ["# Results", "",
-             "Every page is rendered by `misrgraph bench report` from a stored result in `data/`, written by the "
-             "command named at its head; rerun that command with `--save` and then the report to refresh it.", ""]
-    index += [f"- [{TITLES.get(r['provenance'].get('bench'), (n,))[0]}: {n.replace('_', ' ')}]({n}.md)"
-              for n, r in results.items()]
+    index = [
+        "# Results",
+        "",
+        "Every page is rendered by `misrgraph bench report` from a stored result in `data/`, written by the "
+        "command named at its head; rerun that command with `--save` and then the report to refresh it.",
+        "",
+    ]
+    index += [
+        f"- [{TITLES.get(r['provenance'].get('bench'), (n,))[0]}: {n.replace('_', ' ')}]({n}.md)"
+        for n, r in results.items()
+    ]
     out[Path(cfg.pages) / "index.md"] = "\n".join(index) + "\n"
     if cfg.readme is not None:
         text = Path(cfg.readme).read_text()
         blocks: dict[str, str] = {}
         if "demo" in results:
             d = results["demo"]
-            blocks["demo"] = (f"{_render_demo(d)}\n\nMeasured by `{d['provenance']['command']}` at commit "
-                              f"`{d['provenance']['commit']}` on {_machine(d['provenance']['machine'])}.")
+            blocks["demo"] = (
+                f"{_render_demo(d)}\n\nMeasured by `{d['provenance']['command']}` at commit "
+                f"`{d['provenance']['commit']}` on {_machine(d['provenance']['machine'])}."
+            )
         rows = _headline_rows(results, cfg.headline)
         if rows:
             commits = sorted({results[n]["provenance"]["commit"] for n in cfg.headline if n in results})
-            blocks["results"] = (_table(["result", "what", "figures"], rows)
-                                 + f"\n\nFrom the stored results of commit(s) {', '.join(f'`{c}`' for c in commits)}; "
-                                 "each page names its command and machine.")
+            blocks["results"] = (
+                _table(["result", "what", "figures"], rows)
+                + f"\n\nFrom the stored results of commit(s) {', '.join(f'`{c}`' for c in commits)}; "
+                "each page names its command and machine."
+            )
         for name, body in blocks.items():
             begin, end = _BEGIN.format(name=name), _END.format(name=name)
             pattern = re.compile(re.escape(begin) + r".*?" + re.escape(end), re.S)

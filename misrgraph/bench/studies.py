@@ -18,11 +18,20 @@ import numpy as np
 
 from misrgraph.bench.work import bench_workdir
 from misrgraph.estimate.graph import GraphConfig, build_pass_graph
-from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 from misrgraph.estimate.solver import SolverParams, linearize, solve, solve_gtsam_lm
+from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
-__all__ = ["run_bench_solver", "run_bench_scaling", "run_bench_nees", "pool_bench_nees", "run_bench_sources", "standard_pass",
-           "MODEL_TRUTH_ADJUST", "POOL_KEYS", "SOURCE_CLASSES"]
+__all__ = [
+    "run_bench_solver",
+    "run_bench_scaling",
+    "run_bench_nees",
+    "pool_bench_nees",
+    "run_bench_sources",
+    "standard_pass",
+    "MODEL_TRUTH_ADJUST",
+    "POOL_KEYS",
+    "SOURCE_CLASSES",
+]
 
 log = logging.getLogger(__name__)
 
@@ -32,8 +41,17 @@ def standard_pass(tie_points: int, seed: int, workdir: Path, duration_s: float =
     ``check_points`` check points, which only score the products)."""
     out = workdir / (f"pass_{tie_points}_{seed}_{int(duration_s)}" + (f"_c{check_points}" if check_points else ""))
     if not (out / "scenario.json").exists():
-        run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=seed, n_tie_points=tie_points, n_check_points=check_points,
-                                    duration_s=duration_s), out)
+        run_simulate(
+            ScenarioConfig(
+                truth="model",
+                scenario="pass",
+                seed=seed,
+                n_tie_points=tie_points,
+                n_check_points=check_points,
+                duration_s=duration_s,
+            ),
+            out,
+        )
     sc = load_scenario(out)
     return sc, sc.load_pass(0)
 
@@ -47,8 +65,9 @@ def _time(fn: Callable[[], Any], repeat: int = 3) -> float:
     return float(best)
 
 
-def run_bench_solver(tie_points: int = 1000, seed: int = 0, workdir: str | Path | None = None,
-                     skip_gtsam: bool = False) -> dict[str, Any]:
+def run_bench_solver(
+    tie_points: int = 1000, seed: int = 0, workdir: str | Path | None = None, skip_gtsam: bool = False
+) -> dict[str, Any]:
     """Core vs ``gtsam.LevenbergMarquardtOptimizer`` on one simulated pass, same graph and criterion.
 
     Also measures the linearisation strategies: GTSAM calling live per-observation and
@@ -68,9 +87,13 @@ def run_bench_solver(tie_points: int = 1000, seed: int = 0, workdir: str | Path 
         "variables": len(prob.dims),
         "factors": int(prob.graph.size()),
         "observations": len(pg.collinearity),
-        "core": {"seconds": core.seconds, "final_cost": core.final_error, "iterations": core.iterations,
-                 "seconds_per_linearize": core.linearize_seconds / max(core.n_linearize, 1),
-                 "seconds_per_iteration": core.seconds / max(core.iterations, 1)},
+        "core": {
+            "seconds": core.seconds,
+            "final_cost": core.final_error,
+            "iterations": core.iterations,
+            "seconds_per_linearize": core.linearize_seconds / max(core.n_linearize, 1),
+            "seconds_per_iteration": core.seconds / max(core.iterations, 1),
+        },
     }
     # linearisation strategies on the same values
     v = prob.initial
@@ -83,8 +106,12 @@ def run_bench_solver(tie_points: int = 1000, seed: int = 0, workdir: str | Path 
     out["linearize_seconds"] = strategies
     if not skip_gtsam:
         ref = solve_gtsam_lm(prob, params)
-        out["gtsam_lm"] = {"seconds": ref.seconds, "final_cost": ref.final_error, "iterations": ref.iterations,
-                           "seconds_per_iteration": ref.seconds / max(ref.iterations, 1)}
+        out["gtsam_lm"] = {
+            "seconds": ref.seconds,
+            "final_cost": ref.final_error,
+            "iterations": ref.iterations,
+            "seconds_per_iteration": ref.seconds / max(ref.iterations, 1),
+        }
         out["ratio_gtsam_lm_over_core"] = ref.seconds / core.seconds
         out["relative_cost_difference"] = abs(ref.final_error - core.final_error) / ref.final_error
     if tmp is not None:
@@ -92,8 +119,12 @@ def run_bench_solver(tie_points: int = 1000, seed: int = 0, workdir: str | Path 
     return out
 
 
-def run_bench_scaling(sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000), seed: int = 0,
-                      workdir: str | Path | None = None, duration_s: float = 2700.0) -> dict[str, Any]:
+def run_bench_scaling(
+    sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000),
+    seed: int = 0,
+    workdir: str | Path | None = None,
+    duration_s: float = 2700.0,
+) -> dict[str, Any]:
     """Time per pass (solve + knot marginals, Schur backend) against tie points, fitted exponent, memory.
 
     Each size is solved twice from the same start: once timed, and once under ``tracemalloc`` for
@@ -133,24 +164,40 @@ def run_bench_scaling(sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000), see
             _, peak = tracemalloc.get_traced_memory()
         finally:
             tracemalloc.stop()
-        rows.append({"tie_points": n, "observations": len(pg.collinearity), "seconds": dt, "iterations": res.iterations,
-                     "seconds_per_iteration": dt / max(res.iterations, 1), "peak_python_mb": peak / 2**20})
+        rows.append(
+            {
+                "tie_points": n,
+                "observations": len(pg.collinearity),
+                "seconds": dt,
+                "iterations": res.iterations,
+                "seconds_per_iteration": dt / max(res.iterations, 1),
+                "peak_python_mb": peak / 2**20,
+            }
+        )
     x = np.log([r["observations"] for r in rows])
     y = np.log([r["seconds_per_iteration"] for r in rows])
     slope = float(np.polyfit(x, y, 1)[0]) if len(rows) > 1 else float("nan")
     yt = np.log([r["seconds"] for r in rows])
-    slope_total = float(np.polyfit(np.log([r["tie_points"] for r in rows]), yt, 1)[0]) if len(rows) > 1 else float("nan")
+    slope_total = (
+        float(np.polyfit(np.log([r["tie_points"] for r in rows]), yt, 1)[0]) if len(rows) > 1 else float("nan")
+    )
     if tmp is not None:
         tmp.cleanup()
-    return {"rows": rows, "exponent_per_iteration_vs_observations": slope, "exponent_total_vs_tie_points": slope_total,
-            "process_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    return {
+        "rows": rows,
+        "exponent_per_iteration_vs_observations": slope,
+        "exponent_total_vs_tie_points": slope_total,
+        "process_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
 
 
 #: the scenario of each study and size: reduced (the suite's size) and standard (what users run)
 NEES_SCENARIOS = {
     ("calibration", "reduced"): dict(scenario="month", n_gcps=24, month_days=16),
     ("calibration", "standard"): dict(scenario="month"),
-    ("adjust", "reduced"): dict(scenario="pass", n_tie_points=80, n_check_points=20, duration_s=600.0, start_lat_deg=50.0),
+    ("adjust", "reduced"): dict(
+        scenario="pass", n_tie_points=80, n_check_points=20, duration_s=600.0, start_lat_deg=50.0
+    ),
     ("adjust", "standard"): dict(scenario="pass", n_tie_points=600, n_check_points=20, duration_s=2700.0),
 }
 
@@ -162,8 +209,10 @@ def _rms_interval(values: list[float]) -> dict[str, Any]:
     points share one navigation error has few effective degrees of freedom ``k``, and
     ``E[sqrt(chi2_k / k)]`` is 0.92 for ``k = 3``), so the mean of the ratios is biased low."""
     iv = _interval([float(v) ** 2 for v in values])
-    return {"rms": float(np.sqrt(iv["mean"])), "ci95": [float(np.sqrt(max(b, 0.0))) if np.isfinite(b) else float("nan")
-                                                         for b in iv["ci95"]]}
+    return {
+        "rms": float(np.sqrt(iv["mean"])),
+        "ci95": [float(np.sqrt(max(b, 0.0))) if np.isfinite(b) else float("nan") for b in iv["ci95"]],
+    }
 
 
 def _interval(values: list[float]) -> dict[str, float]:
@@ -187,13 +236,29 @@ MODEL_TRUTH_ADJUST: dict[str, Any] = {"attitude_jitter_arcsec": 0.0}
 #: state also split exactly into the landmarks given the other variables and those jointly, and
 #: the landmarks into what those seen within 300 s of each other share and what each has alone
 #: (:mod:`misrgraph.evaluate.landmarks`)
-NEES_CLASSES = ("knots", "ephemeris", "camera", "landmarks", "landmarks_common", "landmarks_within", "state",
-                "state_landmarks_given_rest", "state_rest")
+NEES_CLASSES = (
+    "knots",
+    "ephemeris",
+    "camera",
+    "landmarks",
+    "landmarks_common",
+    "landmarks_within",
+    "state",
+    "state_landmarks_given_rest",
+    "state_rest",
+)
 
 
-def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
-                   workdir: str | Path | None = None, size: str = "reduced", truth: str = "model",
-                   overrides: dict[str, Any] | None = None, calibrate_params: tuple[str, ...] | None = None) -> dict[str, Any]:
+def run_bench_nees(
+    study: str = "calibration",
+    runs: int = 20,
+    seed: int = 1000,
+    workdir: str | Path | None = None,
+    size: str = "reduced",
+    truth: str = "model",
+    overrides: dict[str, Any] | None = None,
+    calibrate_params: tuple[str, ...] | None = None,
+) -> dict[str, Any]:
     """NEES over seeded runs against its two-sided 95 % chi-square band, per class of variables.
 
     ``calibration``: months (reduced: 24 GCPs over 16 days; standard: 120 GCPs over 30 days), NEES
@@ -243,11 +308,15 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
         tag = "" if not extra else "_" + hashlib.sha256(json.dumps(extra, sort_keys=True).encode()).hexdigest()[:10]
         out = Path(workdir) / f"nees_{study}_{size}_{truth}{tag}_{seed + i}"
         if not (out / "scenario.json").exists():
-            run_simulate(ScenarioConfig.from_dict(dict(NEES_SCENARIOS[(study, size)], seed=seed + i, truth=truth, **extra)), out)
+            run_simulate(
+                ScenarioConfig.from_dict(dict(NEES_SCENARIOS[(study, size)], seed=seed + i, truth=truth, **extra)), out
+            )
         if study == "calibration":
             from misrgraph.estimate.calibrate import CalibrateConfig
 
-            s = run_calibrate(out, cfg=CalibrateConfig(params=tuple(calibrate_params)) if calibrate_params else CalibrateConfig())
+            s = run_calibrate(
+                out, cfg=CalibrateConfig(params=tuple(calibrate_params)) if calibrate_params else CalibrateConfig()
+            )
             vals = {"camera": (s["nees"], s["nees_dim"])}
             per_run.append({"seed": seed + i, "nees": s["nees"], "max_pointing_error_px": s["max_pointing_error_px"]})
         else:
@@ -259,7 +328,9 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
                 per_run[-1]["checkpoint_rms_over_predicted"] = s["checkpoint_rms_over_predicted"]
                 per_run[-1]["checkpoint_by_camera"] = {
                     c: {"rms_m": v["after"]["rms"], "predicted_rms_m": v["after"]["predicted_rms"]}
-                    for c, v in s.get("checkpoint_geolocation_m", {}).items() if "predicted_rms" in v["after"]}
+                    for c, v in s.get("checkpoint_geolocation_m", {}).items()
+                    if "predicted_rms" in v["after"]
+                }
             cp = _checkpoint_rms_after(s)
             if cp is not None:
                 per_class.setdefault("checkpoint_rms_m", []).append(cp)
@@ -271,14 +342,22 @@ def run_bench_nees(study: str = "calibration", runs: int = 20, seed: int = 1000,
             per_class.setdefault(k, []).append(v)
     if tmp is not None:
         tmp.cleanup()
-    return {"study": study, "size": size, "truth": truth, "overrides": dict(overrides or {}),
-            "adjust_overrides": adjust_overrides if study == "adjust" else {},
-            "calibrate_params": list(calibrate_params) if calibrate_params else None, "runs": runs,
-            "summary": _nees_summary(totals, per_class, per_run), "per_run": per_run}
+    return {
+        "study": study,
+        "size": size,
+        "truth": truth,
+        "overrides": dict(overrides or {}),
+        "adjust_overrides": adjust_overrides if study == "adjust" else {},
+        "calibrate_params": list(calibrate_params) if calibrate_params else None,
+        "runs": runs,
+        "summary": _nees_summary(totals, per_class, per_run),
+        "per_run": per_run,
+    }
 
 
-def _nees_summary(totals: dict[str, list[float]], per_class: dict[str, list[float]],
-                  per_run: list[dict[str, Any]]) -> dict[str, Any]:
+def _nees_summary(
+    totals: dict[str, list[float]], per_class: dict[str, list[float]], per_run: list[dict[str, Any]]
+) -> dict[str, Any]:
     """``bench nees``'s summary: per class the pooled NEES/dim (``totals[k]`` = [sum of chi-square,
     sum of dof]) with its chi-square band, and the runs' mean with its interval (``per_class``);
     the check points' ratio also as the RMS of the runs, over all cameras and per camera."""
@@ -287,19 +366,27 @@ def _nees_summary(totals: dict[str, list[float]], per_class: dict[str, list[floa
     summary: dict[str, Any] = {}
     for k, (chi2, dof) in totals.items():
         lo, hi = stats.chi2.ppf([0.025, 0.975], dof)
-        summary[k] = {"nees_per_dim": chi2 / dof, "band": [lo / dof, hi / dof], "inside": bool(lo < chi2 < hi),
-                      "dof": int(dof), "per_run": _interval(per_class[k])}
+        summary[k] = {
+            "nees_per_dim": chi2 / dof,
+            "band": [lo / dof, hi / dof],
+            "inside": bool(lo < chi2 < hi),
+            "dof": int(dof),
+            "per_run": _interval(per_class[k]),
+        }
     for k in ("checkpoint_rms_over_predicted", "checkpoint_rms_m"):
         if k in per_class:
             summary[k] = {"per_run": _interval(per_class[k])}
     if "checkpoint_rms_over_predicted" in per_class:
-        summary["checkpoint_rms_over_predicted"]["rms_of_runs"] = _rms_interval(per_class["checkpoint_rms_over_predicted"])
+        summary["checkpoint_rms_over_predicted"]["rms_of_runs"] = _rms_interval(
+            per_class["checkpoint_rms_over_predicted"]
+        )
         by_cam: dict[str, list[float]] = {}
         for r in per_run:
             for c, v in r.get("checkpoint_by_camera", {}).items():
                 by_cam.setdefault(c, []).append(v["rms_m"] / v["predicted_rms_m"])
         summary["checkpoint_rms_over_predicted"]["by_camera"] = {
-            c: {"runs": len(v), **_rms_interval(v)} for c, v in by_cam.items()}
+            c: {"runs": len(v), **_rms_interval(v)} for c, v in by_cam.items()
+        }
     return summary
 
 
@@ -324,7 +411,9 @@ def pool_bench_nees(results: list[dict[str, Any]]) -> dict[str, Any]:
             raise InputError(f"results[{i}]", missing, "a bench nees result (--json) with these fields")
         bad = [j for j, run in enumerate(r["per_run"]) if not (isinstance(run, dict) and "seed" in run)]
         if bad:
-            raise InputError(f"results[{i}].per_run", bad, "runs that each name their seed (a bench nees --json output)")
+            raise InputError(
+                f"results[{i}].per_run", bad, "runs that each name their seed (a bench nees --json output)"
+            )
     for k in POOL_KEYS:
         vals = [r[k] for r in results]
         if any(v != vals[0] for v in vals[1:]):
@@ -350,8 +439,13 @@ def pool_bench_nees(results: list[dict[str, Any]]) -> dict[str, Any]:
     short = {k: n for k, n in counts.items() if n != len(per_run)}
     if short:
         raise InputError("per_run", short, f"every class in every one of the {len(per_run)} runs")
-    return {**{k: results[0][k] for k in POOL_KEYS}, "runs": len(per_run), "pooled_from": len(results),
-            "summary": _nees_summary(totals, per_class, per_run), "per_run": per_run}
+    return {
+        **{k: results[0][k] for k in POOL_KEYS},
+        "runs": len(per_run),
+        "pooled_from": len(results),
+        "summary": _nees_summary(totals, per_class, per_run),
+        "per_run": per_run,
+    }
 
 
 def _checkpoint_rms_after(summary: dict[str, Any]) -> float | None:
@@ -366,9 +460,14 @@ def _checkpoint_rms_after(summary: dict[str, Any]) -> float | None:
 SOURCE_CLASSES = ("knots", "landmarks", "camera", "checkpoint_rms_over_predicted", "checkpoint_rms_m")
 
 
-def run_bench_sources(runs: int = 10, seed: int = 3000, workdir: str | Path | None = None,
-                      size: str = "reduced", progress: Callable[[str], None] | None = None,
-                      mode: str = "alone") -> dict[str, Any]:
+def run_bench_sources(
+    runs: int = 10,
+    seed: int = 3000,
+    workdir: str | Path | None = None,
+    size: str = "reduced",
+    progress: Callable[[str], None] | None = None,
+    mode: str = "alone",
+) -> dict[str, Any]:
     """The error-source table: the adjustment under the independent truth, per row the NEES of
     knots, landmarks and camera, the check points' actual/predicted RMS and their RMS error (m),
     each the mean of ``runs`` seeded passes with its 95 % interval. The same seeds in every row.
@@ -405,7 +504,9 @@ def run_bench_sources(runs: int = 10, seed: int = 3000, workdir: str | Path | No
         r = run_bench_nees("adjust", runs, seed, workdir, size, "independent", ov)
         rows[name] = {k: v["per_run"] for k, v in r["summary"].items() if k in SOURCE_CLASSES}
         if "checkpoint_rms_over_predicted" in r["summary"]:
-            rows[name]["checkpoint_rms_over_predicted_rms_of_runs"] = r["summary"]["checkpoint_rms_over_predicted"]["rms_of_runs"]
+            rows[name]["checkpoint_rms_over_predicted_rms_of_runs"] = r["summary"]["checkpoint_rms_over_predicted"][
+                "rms_of_runs"
+            ]
         rows[name]["paired"] = paired
         runs_of[name] = {int(run["seed"]): run for run in r["per_run"]}
     for name in rows:
@@ -424,13 +525,22 @@ def _paired_difference(row: dict[int, dict[str, Any]], base: dict[int, dict[str,
         if len(both) < 2:
             continue
         p = 2 if k == "checkpoint_rms_over_predicted" else 1
-        out[k if p == 1 else f"{k}_squared"] = {"runs": len(both), **_interval(
-            [float(row[s][k]) ** p - float(base[s][k]) ** p for s in both])}
+        out[k if p == 1 else f"{k}_squared"] = {
+            "runs": len(both),
+            **_interval([float(row[s][k]) ** p - float(base[s][k]) ** p for s in both]),
+        }
     return out
 
 
-def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = None, size: str = "reduced",
-                 truth: str = "model", blocks_per_pass: int = 2, block_range: str | None = None) -> dict[str, Any]:
+def run_bench_pp(
+    runs: int = 20,
+    seed: int = 5000,
+    workdir: str | Path | None = None,
+    size: str = "reduced",
+    truth: str = "model",
+    blocks_per_pass: int = 2,
+    block_range: str | None = None,
+) -> dict[str, Any]:
     """Honesty of the Projection Parameters' 1-sigma over seeded passes (the passes of
     ``bench nees --study adjust`` at ``size``): per run, each camera's PP geolocation RMS against
     the truth over the RMS its 1-sigma predicts, and the mean NEES (per 2 dof) of its pixel
@@ -461,10 +571,16 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
         for i in range(runs):
             out = Path(workdir) / f"nees_adjust_{size}_{truth}_{seed + i}"
             if not (out / "scenario.json").exists():
-                run_simulate(ScenarioConfig.from_dict(dict(NEES_SCENARIOS[("adjust", size)], seed=seed + i, truth=truth)), out)
+                run_simulate(
+                    ScenarioConfig.from_dict(dict(NEES_SCENARIOS[("adjust", size)], seed=seed + i, truth=truth)), out
+                )
             tag = f"_{block_range.replace(' ', '')}" if block_range else ""
-            s = run_products(out, Path(workdir) / f"pp_{size}_{truth}_{seed + i}{tag}", blocks=block_range,
-                             default_blocks=blocks_per_pass)
+            s = run_products(
+                out,
+                Path(workdir) / f"pp_{size}_{truth}_{seed + i}{tag}",
+                blocks=block_range,
+                default_blocks=blocks_per_pass,
+            )
             for cam, bb in s.get("pp_error_by_block", {}).items():
                 for b, v in bb.items():
                     by_block.setdefault(cam, {}).setdefault(b, []).append((v["error_px_rms"], v["predicted_px_rms"]))
@@ -474,32 +590,54 @@ def run_bench_pp(runs: int = 20, seed: int = 5000, workdir: str | Path | None = 
                 ratio.setdefault(cam, []).append(v["rms_over_predicted"])
                 nees.setdefault(cam, []).append(v["nees"])
                 improvement.setdefault(cam, []).append(v["supplied_rms"] / v["rms"])
-            per_run.append({"seed": seed + i, "blocks": s["blocks"],
-                            "rms_over_predicted": {c: v["rms_over_predicted"] for c, v in err.items()},
-                            "nees": {c: v["nees"] for c, v in err.items()},
-                            "rms_m": {c: v["rms"] for c, v in err.items()}})
+            per_run.append(
+                {
+                    "seed": seed + i,
+                    "blocks": s["blocks"],
+                    "rms_over_predicted": {c: v["rms_over_predicted"] for c, v in err.items()},
+                    "nees": {c: v["nees"] for c, v in err.items()},
+                    "rms_m": {c: v["rms"] for c, v in err.items()},
+                }
+            )
         all_nees = [float(np.mean([r["nees"][c] for c in r["nees"]])) for r in per_run]
-        all_ratio = [float(np.sqrt(np.mean([r["rms_over_predicted"][c] ** 2 for c in r["rms_over_predicted"]]))) for r in per_run]
+        all_ratio = [
+            float(np.sqrt(np.mean([r["rms_over_predicted"][c] ** 2 for c in r["rms_over_predicted"]]))) for r in per_run
+        ]
     result: dict[str, Any] = {
-        "size": size, "truth": truth, "runs": runs, "blocks_per_pass": blocks_per_pass,
-        "summary": {"nees_all_cameras": _interval(all_nees), "rms_over_predicted_all_cameras": _interval(all_ratio),
-                    "rms_over_predicted_all_cameras_rms_of_runs": _rms_interval(all_ratio),
-                    "per_camera": {c: {"passes": len(ratio[c]), "rms_over_predicted": _interval(ratio[c]),
-                                       "rms_over_predicted_rms_of_runs": _rms_interval(ratio[c]),
-                                       "nees": _interval(nees[c]),
-                                       "improvement_over_supplied": _interval(improvement[c])} for c in ratio},
-                    "pp_seconds_per_pass": _interval(seconds)},
-        "per_run": per_run}
+        "size": size,
+        "truth": truth,
+        "runs": runs,
+        "blocks_per_pass": blocks_per_pass,
+        "summary": {
+            "nees_all_cameras": _interval(all_nees),
+            "rms_over_predicted_all_cameras": _interval(all_ratio),
+            "rms_over_predicted_all_cameras_rms_of_runs": _rms_interval(all_ratio),
+            "per_camera": {
+                c: {
+                    "passes": len(ratio[c]),
+                    "rms_over_predicted": _interval(ratio[c]),
+                    "rms_over_predicted_rms_of_runs": _rms_interval(ratio[c]),
+                    "nees": _interval(nees[c]),
+                    "improvement_over_supplied": _interval(improvement[c]),
+                }
+                for c in ratio
+            },
+            "pp_seconds_per_pass": _interval(seconds),
+        },
+        "per_run": per_run,
+    }
     if block_range:
         out_blocks: dict[str, dict[int, Any]] = {}
         for cam, bb in by_block.items():
             for b, pairs in bb.items():
                 e, p = np.array(pairs).T
                 out_blocks.setdefault(cam, {})[b] = {
-                    "passes": int(e.size), "error_px_rms": float(np.sqrt(np.mean(e**2))),
+                    "passes": int(e.size),
+                    "error_px_rms": float(np.sqrt(np.mean(e**2))),
                     "predicted_px_rms": float(np.sqrt(np.mean(p**2))),
                     "rms_over_predicted": float(np.sqrt(np.sum(e**2) / np.sum(p**2))),
-                    "rms_over_predicted_rms_of_runs": _rms_interval((e / p).tolist())}
+                    "rms_over_predicted_rms_of_runs": _rms_interval((e / p).tolist()),
+                }
         result["summary"]["per_block"] = out_blocks
         result["block_range"] = block_range
     return result

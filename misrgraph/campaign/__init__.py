@@ -6,4 +6,11 @@ from __future__ import annotations
 from misrgraph.campaign.plan import CampaignConfig, CampaignPlan, plan_campaign
 from misrgraph.campaign.run import campaign_difference, campaign_fingerprint, run_campaign
 
-__all__ = ["CampaignConfig", "CampaignPlan", "plan_campaign", "run_campaign", "campaign_fingerprint", "campaign_difference"]
+__all__ = [
+    "CampaignConfig",
+    "CampaignPlan",
+    "plan_campaign",
+    "run_campaign",
+    "campaign_fingerprint",
+    "campaign_difference",
+]

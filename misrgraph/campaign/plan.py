@@ -30,8 +30,19 @@ from misrgraph.io.imagery import OBSERVATION_SETS
 from misrgraph.misr.som import N_BLOCKS
 from misrgraph.model.orbit import REPEAT_PATHS
 
-__all__ = ["CampaignConfig", "CampaignPlan", "PathPlan", "SIZES", "plan_campaign", "choose", "simulated_pass_id", "digest",
-           "parse_paths", "DAYS_PER_MONTH", "REPEAT_DAYS"]
+__all__ = [
+    "CampaignConfig",
+    "CampaignPlan",
+    "PathPlan",
+    "SIZES",
+    "plan_campaign",
+    "choose",
+    "simulated_pass_id",
+    "digest",
+    "parse_paths",
+    "DAYS_PER_MONTH",
+    "REPEAT_DAYS",
+]
 
 #: mean month (days) and Terra's repeat cycle (days)
 DAYS_PER_MONTH = 30.4375
@@ -41,11 +52,16 @@ REPEAT_DAYS = 16
 #: each path's Projection Parameters. ``standard`` is what users run; ``reduced`` is the test
 #: suite's and the benchmarks' size.
 SIZES: dict[str, dict[str, Any]] = {
-    "standard": {"month": {}, "path": {"n_tie_points": 600, "n_check_points": 20, "duration_s": 2700.0},
-                 "pp_blocks": 10},
-    "reduced": {"month": {"n_gcps": 24, "month_days": 16},
-                "path": {"n_tie_points": 80, "n_check_points": 20, "duration_s": 600.0, "start_lat_deg": 50.0},
-                "pp_blocks": 2},
+    "standard": {
+        "month": {},
+        "path": {"n_tie_points": 600, "n_check_points": 20, "duration_s": 2700.0},
+        "pp_blocks": 10,
+    },
+    "reduced": {
+        "month": {"n_gcps": 24, "month_days": 16},
+        "path": {"n_tie_points": 80, "n_check_points": 20, "duration_s": 600.0, "start_lat_deg": 50.0},
+        "pp_blocks": 2,
+    },
 }
 
 
@@ -132,10 +148,14 @@ class CampaignPlan:
         return sum(len(p.cycles) for p in self.paths)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"config": self.config.to_dict(),
-                "paths": {str(p.path): {"available": p.available, "cycles": list(p.cycles), "pass_ids": list(p.pass_ids)}
-                          for p in self.paths},
-                "passes_planned": self.n_passes}
+        return {
+            "config": self.config.to_dict(),
+            "paths": {
+                str(p.path): {"available": p.available, "cycles": list(p.cycles), "pass_ids": list(p.pass_ids)}
+                for p in self.paths
+            },
+            "passes_planned": self.n_passes,
+        }
 
 
 def parse_paths(text: str) -> tuple[int, ...]:
@@ -174,8 +194,9 @@ def plan_campaign(cfg: CampaignConfig) -> CampaignPlan:
     available = max(1, math.ceil(cfg.months * DAYS_PER_MONTH / REPEAT_DAYS - 1e-9))
     cycles = choose(available, cfg)
     paths = cfg.paths or tuple(range(1, REPEAT_PATHS + 1))
-    return CampaignPlan(cfg, [PathPlan(int(p), available, cycles, tuple(simulated_pass_id(int(p), k) for k in cycles))
-                              for p in paths])
+    return CampaignPlan(
+        cfg, [PathPlan(int(p), available, cycles, tuple(simulated_pass_id(int(p), k) for k in cycles)) for p in paths]
+    )
 
 
 def digest(*parts: Any) -> str:

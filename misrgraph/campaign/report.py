@@ -39,7 +39,9 @@ def _land_background() -> tuple[Any, tuple[float, float, float, float]] | None:
     return mask.astype(float), (-180.0, 180.0, -90.0, 90.0)
 
 
-def write_report(report_dir: Path, plan: dict[str, Any], summary: dict[str, Any], records: list[dict[str, Any]]) -> Path:
+def write_report(
+    report_dir: Path, plan: dict[str, Any], summary: dict[str, Any], records: list[dict[str, Any]]
+) -> Path:
     """Write ``campaign.md`` and its figures into ``report_dir``; return the Markdown file."""
     report_dir.mkdir(parents=True, exist_ok=True)
     pts: dict[str, list[float]] = {"lat": [], "lon": [], "rms_m": []}
@@ -55,14 +57,24 @@ def write_report(report_dir: Path, plan: dict[str, Any], summary: dict[str, Any]
     except MisrGraphError as exc:  # matplotlib is an optional extra: the tables still say everything
         log.warning("campaign report without figures: %s", exc)
     cfg = plan["config"]
-    L = ["# misrgraph campaign", "",
-         f"{len(plan['paths'])} paths, {cfg['months']} months of data, {cfg['fraction']:.0%} of each path's repeat passes "
-         f"(at least {cfg['passes_per_path']}), {cfg['size']} size, {cfg['truth']} truth; inputs: {plan['inputs']}; "
-         f"{cfg.get('observations', 'simulated')} observations"
-         + (" (measured in the imagery by image matching)." if cfg.get("observations") == "matched" else "."),
-         f"Ran on: {summary['cluster'].get('kind')} ({summary['cluster'].get('workers')} workers) in {summary['seconds']:.0f} s.", "",
-         "## Passes", "", "| planned | done | failed |", "|---:|---:|---:|",
-         f"| {summary['passes']['planned']} | {summary['passes']['done']} | {summary['passes']['failed']} |", ""]
+    L = [
+        "# misrgraph campaign",
+        "",
+        f"{len(plan['paths'])} paths, {cfg['months']} months of data, {cfg['fraction']:.0%} of each path's repeat "
+        "passes "
+        f"(at least {cfg['passes_per_path']}), {cfg['size']} size, {cfg['truth']} truth; inputs: {plan['inputs']}; "
+        f"{cfg.get('observations', 'simulated')} observations"
+        + (" (measured in the imagery by image matching)." if cfg.get("observations") == "matched" else "."),
+        f"Ran on: {summary['cluster'].get('kind')} ({summary['cluster'].get('workers')} workers) in "
+        f"{summary['seconds']:.0f} s.",
+        "",
+        "## Passes",
+        "",
+        "| planned | done | failed |",
+        "|---:|---:|---:|",
+        f"| {summary['passes']['planned']} | {summary['passes']['done']} | {summary['passes']['failed']} |",
+        "",
+    ]
     if summary["failed"]:
         L += ["Failures (each reported, none stopped the others):", ""]
         L += [f"- {f['stage']} {f['name']}: {f['reason']}" for f in summary["failed"]] + [""]
@@ -70,34 +82,68 @@ def write_report(report_dir: Path, plan: dict[str, Any], summary: dict[str, Any]
     L += ["## Calibration (GCP month)", ""]
     if cal.get("status") == "done" and cal.get("pointing_error_px"):
         L += ["| camera | pointing error (px) | 1σ (px) |", "|---|---:|---:|"]
-        L += [f"| {c} | {_f(cal['pointing_error_px'].get(c), '.3f')} | {_f((cal.get('sigma_px') or {}).get(c), '.3f')} |"
-              for c in CAMERAS if c in cal["pointing_error_px"]]
-        L += ["", f"Largest pointing error {_f(cal.get('max_pointing_error_px'), '.3f')} px (requirement 0.125); "
-                  f"NEES/dim {_f(cal.get('nees'), '.2f')}. File: `{cal['file']}`.", ""]
+        L += [
+            f"| {c} | {_f(cal['pointing_error_px'].get(c), '.3f')} | {_f((cal.get('sigma_px') or {}).get(c), '.3f')} |"
+            for c in CAMERAS
+            if c in cal["pointing_error_px"]
+        ]
+        L += [
+            "",
+            f"Largest pointing error {_f(cal.get('max_pointing_error_px'), '.3f')} px (requirement 0.125); "
+            f"NEES/dim {_f(cal.get('nees'), '.2f')}. File: `{cal['file']}`.",
+            "",
+        ]
     elif cal.get("status") == "done":
         L += [f"Camera model: `{cal['file']}` (no truth to score it against).", ""]
     else:
         L += [f"Failed: {cal.get('reason')}", ""]
     if summary["cameras"]:
-        L += ["## Check-point accuracy per camera", "",
-              "| camera | passes | RMS after (m) | predicted RMS (m) | supplied navigation, mean (m) |", "|---|---:|---:|---:|---:|"]
-        L += [f"| {c} | {v['passes']} | {_f(v['checkpoint_rms_m'])} | {_f(v['predicted_rms_m'])} | {_f(v['supplied_mean_m'])} |"
-              for c, v in summary["cameras"].items()] + [""]
-    L += ["## Per path", "", "| path | passes done/planned | check-point RMS (m) | co-registration max (px) | PP error RMS (m) | ROI |",
-          "|---:|---:|---:|---:|---:|---|"]
+        L += [
+            "## Check-point accuracy per camera",
+            "",
+            "| camera | passes | RMS after (m) | predicted RMS (m) | supplied navigation, mean (m) |",
+            "|---|---:|---:|---:|---:|",
+        ]
+        L += [
+            f"| {c} | {v['passes']} | {_f(v['checkpoint_rms_m'])} | {_f(v['predicted_rms_m'])} | "
+            f"{_f(v['supplied_mean_m'])} |"
+            for c, v in summary["cameras"].items()
+        ] + [""]
+    L += [
+        "## Per path",
+        "",
+        "| path | passes done/planned | check-point RMS (m) | co-registration max (px) | PP error RMS (m) | ROI |",
+        "|---:|---:|---:|---:|---:|---|",
+    ]
     for p, v in summary["paths"].items():
         prod = v.get("products") or {}
         pp = _f(prod.get("pp_error_rms_m")) if prod.get("status") == "done" else ("failed" if prod else "not built")
         roi = prod.get("roi")
-        roi_txt = (f"co-registration ≤ {_f(roi['coregistration_px_max'], '.2f')} px (blocks {roi['blocks'][0]}–{roi['blocks'][1]})"
-                   if roi else "not built (campaign --roi; needs imagery)")
-        L.append(f"| {p} | {v['passes']['done']}/{v['passes']['planned']} | {_f(v['checkpoint_rms_m'])} | "
-                 f"{_f(v['coregistration_px_max'], '.3f')} | {pp} | {roi_txt} |")
-    L += ["", "## Time per stage", "", "Task seconds are summed over the workers; wall seconds run from the stage's first task "
-          "start to its last task's end (stages overlap).", "",
-          "| stage | tasks | found done | failed | task seconds | wall seconds |", "|---|---:|---:|---:|---:|---:|"]
-    L += [f"| {s} | {v['tasks']} | {v['found_done']} | {v['failed']} | {v['task_seconds']:.1f} | {v['wall_seconds']:.1f} |"
-          for s, v in summary["stages"].items()]
+        roi_txt = (
+            f"co-registration ≤ {_f(roi['coregistration_px_max'], '.2f')} px (blocks "
+            f"{roi['blocks'][0]}–{roi['blocks'][1]})"
+            if roi
+            else "not built (campaign --roi; needs imagery)"
+        )
+        L.append(
+            f"| {p} | {v['passes']['done']}/{v['passes']['planned']} | {_f(v['checkpoint_rms_m'])} | "
+            f"{_f(v['coregistration_px_max'], '.3f')} | {pp} | {roi_txt} |"
+        )
+    L += [
+        "",
+        "## Time per stage",
+        "",
+        "Task seconds are summed over the workers; wall seconds run from the stage's first task "
+        "start to its last task's end (stages overlap).",
+        "",
+        "| stage | tasks | found done | failed | task seconds | wall seconds |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    L += [
+        f"| {s} | {v['tasks']} | {v['found_done']} | {v['failed']} | {v['task_seconds']:.1f} | "
+        f"{v['wall_seconds']:.1f} |"
+        for s, v in summary["stages"].items()
+    ]
     rss = summary["cluster"].get("peak_rss_mb") or {}
     if rss:
         L += ["", "Peak memory per process (MB): " + ", ".join(f"{k}: {v:.0f}" for k, v in rss.items())]

@@ -38,13 +38,20 @@ from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
+import misrgraph.campaign.tasks as tasks
 from misrgraph.campaign.plan import CampaignConfig, CampaignPlan, PathPlan, choose, digest, plan_campaign
 from misrgraph.campaign.report import write_report
-import misrgraph.campaign.tasks as tasks
 from misrgraph.errors import InputError, require_extra
 from misrgraph.io.h5 import atomic_file
 
-__all__ = ["run_campaign", "campaign_fingerprint", "campaign_difference", "plan_from_inputs", "PLAN_FILE", "SUMMARY_FILE"]
+__all__ = [
+    "run_campaign",
+    "campaign_fingerprint",
+    "campaign_difference",
+    "plan_from_inputs",
+    "PLAN_FILE",
+    "SUMMARY_FILE",
+]
 
 log = logging.getLogger(__name__)
 
@@ -100,8 +107,12 @@ class _Dask:
 
     def describe(self) -> dict[str, Any]:
         info = self.client.scheduler_info()
-        return {"kind": "dask", "scheduler": self.client.scheduler.address, "workers": len(info.get("workers", {})),
-                "dashboard": self.client.dashboard_link if _has_dashboard() else None}
+        return {
+            "kind": "dask",
+            "scheduler": self.client.scheduler.address,
+            "workers": len(info.get("workers", {})),
+            "dashboard": self.client.dashboard_link if _has_dashboard() else None,
+        }
 
     def peak_rss_mb(self) -> dict[str, float]:
         """Peak resident memory of each worker process (MB) over its life (a restarted worker
@@ -153,8 +164,9 @@ def _executor(workers: int | None, scheduler: str | None, client: Any) -> Any:
     n = workers if workers is not None else (os.cpu_count() or 1)
     if n < 0:
         raise InputError("--workers", n, "a number of worker processes >= 0 (0: no Dask, this process)")
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=":0", silence_logs=logging.ERROR)  # any free port
+    cluster = LocalCluster(
+        n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=logging.ERROR
+    )  # any free port
     c = Client(cluster)
     return _Dask(c, [c, cluster])
 
@@ -167,8 +179,11 @@ def plan_from_inputs(cfg: CampaignConfig, inputs: Path) -> tuple[CampaignPlan, P
     files in name order, of which :func:`misrgraph.campaign.plan.choose` picks."""
     month = inputs / "month"
     if not (month / "passes").is_dir():
-        raise InputError("--inputs", str(inputs), "a directory holding month/ (misrgraph simulate --scenario month) "
-                                                   "and path_PPP/ scenario directories")
+        raise InputError(
+            "--inputs",
+            str(inputs),
+            "a directory holding month/ (misrgraph simulate --scenario month) and path_PPP/ scenario directories",
+        )
     found = {int(p.name[5:]): p for p in sorted(inputs.glob("path_[0-9][0-9][0-9]")) if (p / "passes").is_dir()}
     want = cfg.paths or tuple(sorted(found))
     missing = [p for p in want if p not in found]
@@ -245,11 +260,19 @@ def run_campaign(
                 new_cfg = json.loads(json.dumps(plan_doc["config"]))  # as stored (tuples as lists)
                 missing = sorted(set(new_cfg) - set(old_cfg))
                 if missing and all(old_cfg.get(k) == v for k, v in new_cfg.items() if k in old_cfg):
-                    raise InputError("--out", str(out_dir), "a new directory: the campaign in it was planned by an earlier "
-                                                            f"misrgraph (its plan has no {', '.join(missing)}), whose "
-                                                            "outputs this version does not reuse")
-                raise InputError("--out", str(out_dir), "a new directory, or the options of the campaign already in it "
-                                                        f"(its plan: {json.dumps(old.get('config'))})")
+                    raise InputError(
+                        "--out",
+                        str(out_dir),
+                        "a new directory: the campaign in it was planned by an earlier "
+                        f"misrgraph (its plan has no {', '.join(missing)}), whose "
+                        "outputs this version does not reuse",
+                    )
+                raise InputError(
+                    "--out",
+                    str(out_dir),
+                    "a new directory, or the options of the campaign already in it "
+                    f"(its plan: {json.dumps(old.get('config'))})",
+                )
         else:
             with atomic_file(f) as fh:
                 fh.write(json.dumps(plan_doc, indent=2))
@@ -268,8 +291,9 @@ def run_campaign(
     return summary
 
 
-def _execute(ex: Any, plan: CampaignPlan, out: str, month_dir: Path | None, path_dirs: dict[int, Path],
-             progress: Progress | None) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+def _execute(
+    ex: Any, plan: CampaignPlan, out: str, month_dir: Path | None, path_dirs: dict[int, Path], progress: Progress | None
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     cfg = plan.config
     run_id = uuid.uuid4().hex[:8]  # task keys unique to this run (a client may run several)
     futs: list[Any] = []
@@ -288,13 +312,33 @@ def _execute(ex: Any, plan: CampaignPlan, out: str, month_dir: Path | None, path
     cal = submit("calibration", "month", tasks.calibrate, out, month, cfg.observations, priority=9)
     for pp in plan.paths:
         if pp.path in path_dirs:
-            pin = submit("inputs", f"path {pp.path}", tasks.existing_inputs, f"path {pp.path}", str(path_dirs[pp.path]),
-                         cfg.observations)
+            pin = submit(
+                "inputs",
+                f"path {pp.path}",
+                tasks.existing_inputs,
+                f"path {pp.path}",
+                str(path_dirs[pp.path]),
+                cfg.observations,
+            )
         else:
-            pin = submit("inputs", f"path {pp.path}", tasks.simulate_path, out, cfg, pp.path, pp.cycles, month, priority=5)
+            pin = submit(
+                "inputs", f"path {pp.path}", tasks.simulate_path, out, cfg, pp.path, pp.cycles, month, priority=5
+            )
         if cfg.products:  # the longest tasks first, so that they do not end the campaign alone
-            submit("path", f"path {pp.path}", tasks.path_products, out, pp.path, pp.pass_ids, pin, cal, cfg.blocks, cfg.roi,
-                   cfg.observations, priority=2)
+            submit(
+                "path",
+                f"path {pp.path}",
+                tasks.path_products,
+                out,
+                pp.path,
+                pp.pass_ids,
+                pin,
+                cal,
+                cfg.blocks,
+                cfg.roi,
+                cfg.observations,
+                priority=2,
+            )
         for pid in pp.pass_ids:
             submit("adjust", pid, tasks.adjust, out, pp.path, pid, pin, cal, cfg.observations)
     cluster = ex.describe()
@@ -308,8 +352,15 @@ def _execute(ex: Any, plan: CampaignPlan, out: str, month_dir: Path | None, path
         try:
             rec = f.result()
         except Exception as exc:  # the task's worker died too often (KilledWorker) or the cluster failed
-            rec = {"stage": stage, "name": name, "status": "failed", "skipped": False, "output": None, "seconds": 0.0,
-                   "reason": f"{exc.__class__.__name__}: {exc}"}
+            rec = {
+                "stage": stage,
+                "name": name,
+                "status": "failed",
+                "skipped": False,
+                "output": None,
+                "seconds": 0.0,
+                "reason": f"{exc.__class__.__name__}: {exc}",
+            }
         records[i] = rec
         if progress:
             progress(n, len(futs), f"{stage} {name}: {rec['status']}{' (found done)' if rec.get('skipped') else ''}")
@@ -330,17 +381,26 @@ def _roi_entry(path_dir: str, roi: dict[str, Any] | None) -> dict[str, Any] | No
         return None
     truth = roi.get("truth_px") or {}
     worst_truth = [v for kind in ("between_cameras_px", "between_passes_px") for v in (truth.get(kind) or {}).values()]
-    return {"file": str(Path(path_dir) / roi["file"]), "blocks": roi["blocks"],
-            "coregistration_px_max": max(roi["coregistration_px"].values()) if roi["coregistration_px"] else None,
-            "truth_coregistration_px_max": max(worst_truth) if worst_truth else None}
+    return {
+        "file": str(Path(path_dir) / roi["file"]),
+        "blocks": roi["blocks"],
+        "coregistration_px_max": max(roi["coregistration_px"].values()) if roi["coregistration_px"] else None,
+        "truth_coregistration_px_max": max(worst_truth) if worst_truth else None,
+    }
 
 
-def _summarise(plan: CampaignPlan, records: list[dict[str, Any]], cluster: dict[str, Any], seconds: float) -> dict[str, Any]:
+def _summarise(
+    plan: CampaignPlan, records: list[dict[str, Any]], cluster: dict[str, Any], seconds: float
+) -> dict[str, Any]:
     by = {(r["stage"], r["name"]): r for r in records}
     planned = [(pp.path, pid) for pp in plan.paths for pid in pp.pass_ids]
     adj = {pid: by.get(("adjust", pid)) for _, pid in planned}
     done = sorted(pid for pid, r in adj.items() if r and r["status"] == "done")
-    failed = [{"stage": r["stage"], "name": r["name"], "reason": r.get("reason", "")} for r in records if r["status"] != "done"]
+    failed = [
+        {"stage": r["stage"], "name": r["name"], "reason": r.get("reason", "")}
+        for r in records
+        if r["status"] != "done"
+    ]
     cal = by.get(("calibration", "month"), {})
     cameras: dict[str, dict[str, Any]] = {}
     for pid in done:
@@ -360,21 +420,33 @@ def _summarise(plan: CampaignPlan, records: list[dict[str, Any]], cluster: dict[
         ok = [r for r in rs if r and r["status"] == "done"]
         cp = [v["rms"] for r in ok for v in (r["summary"].get("checkpoint_m") or {}).values()]
         coreg = [x for r in ok for x in (r["summary"].get("coregistration_px") or {}).values()]
-        entry: dict[str, Any] = {"passes": {"planned": len(pp.pass_ids), "done": len(ok), "failed": len(rs) - len(ok)},
-                                 "checkpoint_rms_m": _rms(cp), "coregistration_px_max": max(coreg) if coreg else None,
-                                 "adjusted": [r["output"] for r in ok]}
+        entry: dict[str, Any] = {
+            "passes": {"planned": len(pp.pass_ids), "done": len(ok), "failed": len(rs) - len(ok)},
+            "checkpoint_rms_m": _rms(cp),
+            "coregistration_px_max": max(coreg) if coreg else None,
+            "adjusted": [r["output"] for r in ok],
+        }
         pr = by.get(("path", f"path {pp.path}"))
         if pr is not None:
-            entry["products"] = ({"status": "done", "dir": pr["output"],
-                                  "pp_error_rms_m": _rms(v["rms"] for v in (pr["summary"]["products"].get("pp_error_m") or {}).values()),
-                                  "pp_blocks": pr["summary"]["products"]["blocks"],
-                                  "roi": _roi_entry(pr["output"], pr["summary"]["products"].get("roi"))}
-                                 if pr["status"] == "done" else {"status": "failed", "reason": pr.get("reason")})
+            entry["products"] = (
+                {
+                    "status": "done",
+                    "dir": pr["output"],
+                    "pp_error_rms_m": _rms(
+                        v["rms"] for v in (pr["summary"]["products"].get("pp_error_m") or {}).values()
+                    ),
+                    "pp_blocks": pr["summary"]["products"]["blocks"],
+                    "roi": _roi_entry(pr["output"], pr["summary"]["products"].get("roi")),
+                }
+                if pr["status"] == "done"
+                else {"status": "failed", "reason": pr.get("reason")}
+            )
         paths[str(pp.path)] = entry
     stages: dict[str, Any] = {}
     for r in records:
-        s = stages.setdefault(r["stage"], {"tasks": 0, "done": 0, "found_done": 0, "failed": 0, "task_seconds": 0.0,
-                                           "_t": []})
+        s = stages.setdefault(
+            r["stage"], {"tasks": 0, "done": 0, "found_done": 0, "failed": 0, "task_seconds": 0.0, "_t": []}
+        )
         s["tasks"] += 1
         if "started" in r:
             s["_t"] += [r["started"], r["ended"]]
@@ -386,8 +458,11 @@ def _summarise(plan: CampaignPlan, records: list[dict[str, Any]], cluster: dict[
         s["wall_seconds"] = float(max(t) - min(t)) if t else 0.0
     return {
         "passes": {"planned": len(planned), "done": len(done), "failed": len(planned) - len(done)},
-        "calibration": ({"status": "done", "file": cal["output"], **cal["summary"]} if cal.get("status") == "done"
-                        else {"status": "failed", "reason": cal.get("reason")}),
+        "calibration": (
+            {"status": "done", "file": cal["output"], **cal["summary"]}
+            if cal.get("status") == "done"
+            else {"status": "failed", "reason": cal.get("reason")}
+        ),
         "cameras": cameras,
         "paths": paths,
         "failed": failed,
@@ -403,9 +478,16 @@ def _outputs(out: str | os.PathLike[str]) -> dict[str, Path]:
     keyed by its path relative to ``out`` with the 12-digit digest suffixes taken out (they
     depend on provenance such as the directory)."""
     root = Path(out)
-    files = sorted(root.glob("calibration/*.h5")) + sorted(root.glob("adjusted/*/*.h5")) + sorted(root.glob("paths/*/**/*.h5"))
-    return {re.sub(r"-[0-9a-f]{12}(?=[./]|$)", "", str(f.relative_to(root))): f for f in files
-            if not any(part.startswith(".") for part in f.relative_to(root).parts)}
+    files = (
+        sorted(root.glob("calibration/*.h5"))
+        + sorted(root.glob("adjusted/*/*.h5"))
+        + sorted(root.glob("paths/*/**/*.h5"))
+    )
+    return {
+        re.sub(r"-[0-9a-f]{12}(?=[./]|$)", "", str(f.relative_to(root))): f
+        for f in files
+        if not any(part.startswith(".") for part in f.relative_to(root).parts)
+    }
 
 
 def _datasets(f: Path) -> dict[str, Any]:
@@ -425,8 +507,11 @@ def campaign_fingerprint(out: str | os.PathLike[str]) -> dict[str, str]:
         h = hashlib.sha256()
         for name, v in sorted(_datasets(f).items()):
             h.update(name.encode())
-            h.update(np.ascontiguousarray(v).tobytes() if getattr(v, "dtype", None) is not None and v.dtype.kind != "O"
-                     else repr(np.asarray(v).tolist()).encode())
+            h.update(
+                np.ascontiguousarray(v).tobytes()
+                if getattr(v, "dtype", None) is not None and v.dtype.kind != "O"
+                else repr(np.asarray(v).tolist()).encode()
+            )
         fp[key] = h.hexdigest()
     return fp
 

@@ -36,8 +36,7 @@ from misrgraph.campaign.plan import SIZES, CampaignConfig, digest
 from misrgraph.errors import FileFormatError, MisrGraphError
 from misrgraph.io.h5 import make_temp_dir
 
-__all__ = ["simulate_month", "simulate_path", "existing_inputs", "calibrate", "adjust", "path_products",
-           "SUMMARY_FILE"]
+__all__ = ["simulate_month", "simulate_path", "existing_inputs", "calibrate", "adjust", "path_products", "SUMMARY_FILE"]
 
 log = logging.getLogger(__name__)
 
@@ -45,11 +44,20 @@ log = logging.getLogger(__name__)
 SUMMARY_FILE = "path.json"
 
 
-def _task(stage: str, name: str, needs: tuple[dict[str, Any], ...], body: Callable[[], tuple[Path, bool, dict[str, Any]]]) -> dict[str, Any]:
+def _task(
+    stage: str, name: str, needs: tuple[dict[str, Any], ...], body: Callable[[], tuple[Path, bool, dict[str, Any]]]
+) -> dict[str, Any]:
     """Run ``body`` (returning output, skipped, summary) into a record; never raises."""
     t0 = time.perf_counter()
-    rec: dict[str, Any] = {"stage": stage, "name": name, "status": "failed", "skipped": False, "output": None,
-                           "started": time.time(), "worker_pid": os.getpid()}
+    rec: dict[str, Any] = {
+        "stage": stage,
+        "name": name,
+        "status": "failed",
+        "skipped": False,
+        "output": None,
+        "started": time.time(),
+        "worker_pid": os.getpid(),
+    }
     failed = [n for n in needs if n.get("status") != "done"]
     if failed:
         rec["reason"] = "needs " + ", ".join(f"{n['stage']} {n['name']}" for n in failed) + ", which failed"
@@ -85,8 +93,10 @@ def _sha(path: Path) -> str:
 
 def _scenario_sha(d: Path) -> dict[str, Any]:
     """The SHA-256 of every file of a scenario directory misrgraph reads."""
-    return {"passes": {f.name: _sha(f) for f in sorted((d / "passes").glob("*.h5"))},
-            **{n: _sha(d / n) for n in ("camera_model.h5", "gcp.h5", "dem.h5") if (d / n).exists()}}
+    return {
+        "passes": {f.name: _sha(f) for f in sorted((d / "passes").glob("*.h5"))},
+        **{n: _sha(d / n) for n in ("camera_model.h5", "gcp.h5", "dem.h5") if (d / n).exists()},
+    }
 
 
 @contextlib.contextmanager
@@ -119,7 +129,11 @@ def _simulate(out_dir: Path, scfg: dict[str, Any], match: bool = False) -> tuple
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     skipped = (out_dir / "scenario.json").exists()
-    s = json.loads((out_dir / "scenario.json").read_text()) if skipped else run_simulate(ScenarioConfig.from_dict(scfg), out_dir)
+    s = (
+        json.loads((out_dir / "scenario.json").read_text())
+        if skipped
+        else run_simulate(ScenarioConfig.from_dict(scfg), out_dir)
+    )
     summary = {"passes": s["passes"], "observations": s["observations"]}
     if match:
         skipped = _match_missing(out_dir, summary) and skipped
@@ -163,13 +177,17 @@ def mid_pass_block(scfg: dict[str, Any]) -> int:
     from misrgraph.sim.simulate import ScenarioConfig
 
     sc = ScenarioConfig.from_dict(scfg)
-    eph = terra_like_orbit(epoch_date=sc.epoch_date, path=sc.path, start_lat_deg=sc.start_lat_deg, duration_s=sc.duration_s)
+    eph = terra_like_orbit(
+        epoch_date=sc.epoch_date, path=sc.path, start_lat_deg=sc.start_lat_deg, duration_s=sc.duration_s
+    )
     t = np.array([eph.t[0] + 0.5 * sc.duration_s])
     lat, lon, _ = ecef_to_geodetic(EarthOrientation(eph.epoch_utc).eci_to_ecef(t)[0] @ eph.interpolate(t)[0][0])
     return int(np.ravel(SomGrid(sc.path, 1100).latlon_to_bls(lat, lon)[0])[0])
 
 
-def simulate_path(out: str, cfg: CampaignConfig, path: int, cycles: tuple[int, ...], month: dict[str, Any]) -> dict[str, Any]:
+def simulate_path(
+    out: str, cfg: CampaignConfig, path: int, cycles: tuple[int, ...], month: dict[str, Any]
+) -> dict[str, Any]:
     """Simulate the chosen repeat passes of ``path`` (the month's instrument: its true camera
     model) into ``OUT/inputs/path_PPP-<digest>``; with ``cfg.roi``, with whole-swath strips of
     ``cfg.roi_blocks`` blocks from the one under the middle of the pass (clouds over 20 % of the
@@ -185,7 +203,9 @@ def simulate_path(out: str, cfg: CampaignConfig, path: int, cycles: tuple[int, .
             scfg.update(imagery=True)
         if cfg.roi:
             b0 = mid_pass_block(scfg)
-            scfg.update(imagery=True, cloud_fraction=0.2, feature_windows=matched, roi_blocks=[b0, b0 + cfg.roi_blocks - 1])
+            scfg.update(
+                imagery=True, cloud_fraction=0.2, feature_windows=matched, roi_blocks=[b0, b0 + cfg.roi_blocks - 1]
+            )
         d = Path(out) / "inputs" / f"path_{path:03d}-{digest(scfg, _sha(truth))[:12]}"
         return _simulate(d, scfg, matched)
 
@@ -206,8 +226,11 @@ def existing_inputs(name: str, directory: str, observations: str = "simulated") 
         if observations == "matched":
             bare = [f.name for f in files if not has_matched(f)]
             if bare:
-                raise FileFormatError(d / "passes" / bare[0], f"no matched observations ({len(bare)} of {len(files)} passes "
-                                                              "lack them); run 'misrgraph match' on the scenario first")
+                raise FileFormatError(
+                    d / "passes" / bare[0],
+                    f"no matched observations ({len(bare)} of {len(files)} passes "
+                    "lack them); run 'misrgraph match' on the scenario first",
+                )
         return d, True, {"passes": len(files)}
 
     return _task("inputs", name, (), body)
@@ -225,7 +248,7 @@ def calibrate(out: str, month: dict[str, Any], observations: str = "simulated") 
 
         d = Path(month["output"])
         cfg = CalibrateConfig()
-        key = digest('calibrate', _scenario_sha(d), cfg.to_dict(), {"observations": observations})
+        key = digest("calibrate", _scenario_sha(d), cfg.to_dict(), {"observations": observations})
         f = Path(out) / "calibration" / f"camera_model-{key[:12]}.h5"
         if f.exists():
             with open_h5(f, "camera_model") as h:
@@ -245,8 +268,14 @@ def _calibration_summary(s: dict[str, Any]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- per pass
-def adjust(out: str, path: int, pass_id: str, inputs: dict[str, Any], calibration: dict[str, Any],
-           observations: str = "simulated") -> dict[str, Any]:
+def adjust(
+    out: str,
+    path: int,
+    pass_id: str,
+    inputs: dict[str, Any],
+    calibration: dict[str, Any],
+    observations: str = "simulated",
+) -> dict[str, Any]:
     """Adjust one pass with the calibrated model into ``OUT/adjusted/path_PPP/<pass id>-<digest>.h5``
     (RESULT.h5), from the ``observations`` set; the graph is built and solved here, on the worker."""
     from misrgraph.estimate.adjust import AdjustConfig
@@ -261,26 +290,54 @@ def adjust(out: str, path: int, pass_id: str, inputs: dict[str, Any], calibratio
             raise FileFormatError(pass_file, "the planned pass is not in the scenario")
         cam = Path(calibration["output"])
         cfg = AdjustConfig()
-        key = digest("adjust", _sha(pass_file), _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"), cfg.to_dict(),
-                     {"observations": observations})
+        key = digest(
+            "adjust",
+            _sha(pass_file),
+            _sha(cam),
+            _sha(d / "gcp.h5"),
+            _sha(d / "dem.h5"),
+            cfg.to_dict(),
+            {"observations": observations},
+        )
         f = Path(out) / "adjusted" / f"path_{path:03d}" / f"{pass_id}-{key[:12]}.h5"
         if f.exists():
             with open_h5(f, "adjustment_result") as h:
                 return f, True, _pass_summary(json.loads(h.attrs["summary_json"]))
         f.parent.mkdir(parents=True, exist_ok=True)
-        s = run_adjust(d, camera_model=cam, pass_file=pass_file, out=f, cfg=cfg, score_points=True, observations=observations)
+        s = run_adjust(
+            d, camera_model=cam, pass_file=pass_file, out=f, cfg=cfg, score_points=True, observations=observations
+        )
         return f, False, _pass_summary(s)
 
     return _task("adjust", pass_id, (inputs, calibration), body)
 
 
 def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
-    out = {k: s[k] for k in ("pass_id", "observation_set", "solver_status", "iterations", "seconds", "variance_factor",
-                             "coregistration_px", "checkpoint_points", "checkpoint_rms_over_predicted") if k in s}
+    out = {
+        k: s[k]
+        for k in (
+            "pass_id",
+            "observation_set",
+            "solver_status",
+            "iterations",
+            "seconds",
+            "variance_factor",
+            "coregistration_px",
+            "checkpoint_points",
+            "checkpoint_rms_over_predicted",
+        )
+        if k in s
+    }
     if "checkpoint_geolocation_m" in s:
-        out["checkpoint_m"] = {c: {"n": v["n"], "rms": v["after"].get("rms"), "before_mean": v["before"]["mean"],
-                                   "predicted_rms": v["after"].get("predicted_rms")}
-                               for c, v in s["checkpoint_geolocation_m"].items()}
+        out["checkpoint_m"] = {
+            c: {
+                "n": v["n"],
+                "rms": v["after"].get("rms"),
+                "before_mean": v["before"]["mean"],
+                "predicted_rms": v["after"].get("predicted_rms"),
+            }
+            for c, v in s["checkpoint_geolocation_m"].items()
+        }
     if "nees" in s:
         out["nees"] = {k: s["nees"][k] for k in ("knots", "landmarks", "camera", "camera_dim") if k in s["nees"]}
     out["rejected_observations"] = s.get("rejected_observations", {}).get("count")
@@ -288,8 +345,16 @@ def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- per path
-def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[str, Any], calibration: dict[str, Any],
-                  blocks: int, roi: bool = False, observations: str = "simulated") -> dict[str, Any]:
+def path_products(
+    out: str,
+    path: int,
+    pass_ids: tuple[str, ...],
+    inputs: dict[str, Any],
+    calibration: dict[str, Any],
+    blocks: int,
+    roi: bool = False,
+    observations: str = "simulated",
+) -> dict[str, Any]:
     """The path's incremental state over its passes (``misrgraph update``, one pass at a time)
     and the Projection Parameters of its first pass (``misrgraph products``) into
     ``OUT/paths/path_PPP-<digest>/{state/, products/, path.json}``, both from the
@@ -308,18 +373,39 @@ def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[s
         if missing:
             raise FileFormatError(d / "passes", f"planned passes missing: {', '.join(missing)}")
         cam = Path(calibration["output"])
-        key = digest("path", [_sha(f) for f in files], _sha(cam), _sha(d / "gcp.h5"), _sha(d / "dem.h5"),
-                     AdjustConfig().to_dict(), blocks, {"roi": True} if roi else {}, {"observations": observations})
+        key = digest(
+            "path",
+            [_sha(f) for f in files],
+            _sha(cam),
+            _sha(d / "gcp.h5"),
+            _sha(d / "dem.h5"),
+            AdjustConfig().to_dict(),
+            blocks,
+            {"roi": True} if roi else {},
+            {"observations": observations},
+        )
         final = Path(out) / "paths" / f"path_{path:03d}-{key[:12]}"
         if (final / SUMMARY_FILE).exists():
             return final, True, json.loads((final / SUMMARY_FILE).read_text())
         with _building(final) as tmp:
             t0 = time.perf_counter()
-            upd = run_update(tmp / "state", [str(f) for f in files], camera_model=cam, gcp_file=d / "gcp.h5",
-                             dem_file=d / "dem.h5", observations=observations)
+            upd = run_update(
+                tmp / "state",
+                [str(f) for f in files],
+                camera_model=cam,
+                gcp_file=d / "gcp.h5",
+                dem_file=d / "dem.h5",
+                observations=observations,
+            )
             t_update = time.perf_counter() - t0
-            prod = run_products(d, tmp / "products", pass_file=files[0], camera_model=cam, default_blocks=blocks,
-                                observations=observations)
+            prod = run_products(
+                d,
+                tmp / "products",
+                pass_file=files[0],
+                camera_model=cam,
+                default_blocks=blocks,
+                observations=observations,
+            )
             pp_name = Path(prod["files"]["pp"]).name
             prod["files"]["pp"] = str(final / "products" / pp_name)  # where it will be after the rename
             (tmp / "products" / "products.json").write_text(json.dumps(prod, indent=2))
@@ -327,20 +413,45 @@ def path_products(out: str, path: int, pass_ids: tuple[str, ...], inputs: dict[s
             if roi:
                 from misrgraph.runs.products import RoiOptions
 
-                r = run_products(tmp / "state", tmp / "products" / "roi", roi=True, roi_options=RoiOptions(quicklooks=True))
-                roi_summary = {"file": f"products/roi/{Path(r['roi']['file']).name}", "blocks": r["blocks"],
-                               "passes": r["roi"]["passes"], "chosen_pass": r["roi"]["chosen_pass"],
-                               "coregistration_px": r["roi_coregistration_px"], "truth_px": r.get("roi_truth"),
-                               "obscured_fraction": r["roi"]["obscured_fraction"], "seconds": r["seconds"]["total"]}
+                r = run_products(
+                    tmp / "state", tmp / "products" / "roi", roi=True, roi_options=RoiOptions(quicklooks=True)
+                )
+                roi_summary = {
+                    "file": f"products/roi/{Path(r['roi']['file']).name}",
+                    "blocks": r["blocks"],
+                    "passes": r["roi"]["passes"],
+                    "chosen_pass": r["roi"]["chosen_pass"],
+                    "coregistration_px": r["roi_coregistration_px"],
+                    "truth_px": r.get("roi_truth"),
+                    "obscured_fraction": r["roi"]["obscured_fraction"],
+                    "seconds": r["seconds"]["total"],
+                }
             summary = {
-                "path": path, "passes": list(pass_ids), "observation_set": observations,
-                "update": [{k: u.get(k) for k in ("pass_id", "status", "update_seconds", "rejected_observations")}
-                           | ({"checkpoint_rms_m": {c: v["after"].get("rms") for c, v in u["checkpoint_geolocation_m"].items()}}
-                              if "checkpoint_geolocation_m" in u else {}) for u in upd["updates"]],
+                "path": path,
+                "passes": list(pass_ids),
+                "observation_set": observations,
+                "update": [
+                    {k: u.get(k) for k in ("pass_id", "status", "update_seconds", "rejected_observations")}
+                    | (
+                        {
+                            "checkpoint_rms_m": {
+                                c: v["after"].get("rms") for c, v in u["checkpoint_geolocation_m"].items()
+                            }
+                        }
+                        if "checkpoint_geolocation_m" in u
+                        else {}
+                    )
+                    for u in upd["updates"]
+                ],
                 "update_seconds": t_update,
-                "products": {"pass_id": prod["pass_id"], "blocks": prod["blocks"],
-                             "pp_file": f"products/{pp_name}",
-                             "pp_error_m": prod.get("pp_error_m"), "roi": roi_summary, "seconds": prod["seconds"]},
+                "products": {
+                    "pass_id": prod["pass_id"],
+                    "blocks": prod["blocks"],
+                    "pp_file": f"products/{pp_name}",
+                    "pp_error_m": prod.get("pp_error_m"),
+                    "roi": roi_summary,
+                    "seconds": prod["seconds"],
+                },
             }
             (tmp / SUMMARY_FILE).write_text(json.dumps(summary, indent=2))
         return final, False, summary

@@ -21,12 +21,29 @@ from misrgraph.commands.common import (
 
 SAVE_HELP = "Also write the result, with its provenance (command, commit, machine), as JSON to this file."
 
-__all__ = ["app", "bench_solver", "bench_calibration", "bench_sba", "bench_match", "bench_scaling", "bench_incremental", "bench_nees", "bench_nees_pool", "bench_pp", "bench_roi", "bench_sources", "bench_campaign", "bench_campaign_kill", "bench_kill", "bench_report"]
+__all__ = [
+    "app",
+    "bench_solver",
+    "bench_calibration",
+    "bench_sba",
+    "bench_match",
+    "bench_scaling",
+    "bench_incremental",
+    "bench_nees",
+    "bench_nees_pool",
+    "bench_pp",
+    "bench_roi",
+    "bench_sources",
+    "bench_campaign",
+    "bench_campaign_kill",
+    "bench_kill",
+    "bench_report",
+]
 
-app = typer.Typer(help="Speed, memory and statistical studies; each prints ratios and intervals measured in one run.",
-                  no_args_is_help=True)
-
-
+app = typer.Typer(
+    help="Speed, memory and statistical studies; each prints ratios and intervals measured in one run.",
+    no_args_is_help=True,
+)
 
 
 @app.command("solver")
@@ -49,15 +66,26 @@ def bench_solver(
     if as_json:
         print_json(res)
         return
-    t = Table(title=f"bench solver: {res['variables']} variables, {res['factors']} factors, {res['observations']} observations")
+    t = Table(
+        title=f"bench solver: {res['variables']} variables, {res['factors']} factors, {res['observations']} "
+        "observations"
+    )
     for col in ("solver", "seconds", "iterations", "s / iteration", "final cost"):
         t.add_column(col)
     for name in ("core", "gtsam_lm"):
         r = res[name]
-        t.add_row(name, f"{r['seconds']:.2f}", str(r["iterations"]), f"{r['seconds_per_iteration']:.3f}", f"{r['final_cost']:.6f}")
+        t.add_row(
+            name,
+            f"{r['seconds']:.2f}",
+            str(r["iterations"]),
+            f"{r['seconds_per_iteration']:.3f}",
+            f"{r['final_cost']:.6f}",
+        )
     console.print(t)
-    console.print(f"gtsam_lm / core = {res['ratio_gtsam_lm_over_core']:.1f}x; linearisation (s): "
-                  + ", ".join(f"{k} {v:.3f}" for k, v in res["linearize_seconds"].items()))
+    console.print(
+        f"gtsam_lm / core = {res['ratio_gtsam_lm_over_core']:.1f}x; linearisation (s): "
+        + ", ".join(f"{k} {v:.3f}" for k, v in res["linearize_seconds"].items())
+    )
 
 
 @app.command("calibration")
@@ -81,14 +109,23 @@ def bench_calibration(
     if as_json:
         print_json(res)
         return
-    t = Table(title=f"bench calibration: {res['size']} month, {res['passes']} passes, {res['variables']} variables "
-                    f"({res['landmarks']} GCP landmarks, {res['cameras']} cameras)")
+    t = Table(
+        title=f"bench calibration: {res['size']} month, {res['passes']} passes, {res['variables']} variables "
+        f"({res['landmarks']} GCP landmarks, {res['cameras']} cameras)"
+    )
     for col in ("part", "former", "s", "current", "s", "former / current", "relative difference"):
         t.add_column(col)
     for part in ("step", "camera_covariance"):
         r = res[part]
-        t.add_row(part.replace("_", " "), r["former"], f"{r['former_s']:.3f}", r["current"], f"{r['current_s']:.3f}",
-                  f"{r['ratio']:.1f}x", f"{r['relative_difference']:.1e}")
+        t.add_row(
+            part.replace("_", " "),
+            r["former"],
+            f"{r['former_s']:.3f}",
+            r["current"],
+            f"{r['current_s']:.3f}",
+            f"{r['ratio']:.1f}x",
+            f"{r['relative_difference']:.1e}",
+        )
     console.print(t)
 
 
@@ -98,9 +135,13 @@ def bench_sba(
     tie_points: int = typer.Option(2000, "--tie-points", min=20, help="Tie points in the simulated pass."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the simulated inputs."),
     workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep/reuse simulated scenarios here."),
-    skip: str = typer.Option("", "--skip", help="Comma list of solvers to leave out (names as in the table, e.g. gtsam_lm,ceres)."),
+    skip: str = typer.Option(
+        "", "--skip", help="Comma list of solvers to leave out (names as in the table, e.g. gtsam_lm,ceres)."
+    ),
     budget_s: float = typer.Option(60.0, "--budget", help="Seconds each solver may run at most."),
-    check_points: int = typer.Option(200, "--check-points", min=0, help="Check points of the simulated pass (for the products' errors)."),
+    check_points: int = typer.Option(
+        200, "--check-points", min=0, help="Check points of the simulated pass (for the products' errors)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -121,10 +162,21 @@ def bench_sba(
         print_json(res)
         return
     ref = res["reference"]
-    t = Table(title=f"bench sba: {res['tie_points']} tie points, {res['observations']} observations, {res['unknowns']} unknowns; "
-                    f"seconds until within a distance of the optimum (max over knots and ephemeris, in sigma)")
-    for col in ("solver", *(f"{lv} sigma" for lv in res["sigma_levels"]), "0.1 / core", "stop: s", "max sigma",
-                "check points (m)", "co-reg. (px)", "ended"):
+    t = Table(
+        title=f"bench sba: {res['tie_points']} tie points, {res['observations']} observations, {res['unknowns']} "
+        "unknowns; "
+        f"seconds until within a distance of the optimum (max over knots and ephemeris, in sigma)"
+    )
+    for col in (
+        "solver",
+        *(f"{lv} sigma" for lv in res["sigma_levels"]),
+        "0.1 / core",
+        "stop: s",
+        "max sigma",
+        "check points (m)",
+        "co-reg. (px)",
+        "ended",
+    ):
         t.add_column(col, no_wrap=col == "solver")
     for name, r in res["solvers"].items():
         if "skipped" in r:
@@ -133,17 +185,30 @@ def bench_sba(
         st = r["stop"]
         ratio = res["ratio_to_core_at_0.1_sigma"].get(name)
         bound = ">= " if name in res["ratios_that_are_lower_bounds"] else ""
-        fmt = (lambda v, f: "-" if v is None else format(v, f))
-        t.add_row(name, *(fmt(v, ".2f") for v in r["seconds_to_sigma"].values()),
-                  "1" if name == "misrgraph" else ("never" if ratio is None else f"{bound}{ratio:.1f}"),
-                  f"{st['seconds']:.1f}", f"{st['max_sigma']:.3g}", fmt(st["checkpoint_rms_m"], ".2f"),
-                  fmt(st["coregistration_px"], ".3f"), str(st["ended"])[:40])
+
+        def fmt(v, f):
+            return "-" if v is None else format(v, f)
+
+        t.add_row(
+            name,
+            *(fmt(v, ".2f") for v in r["seconds_to_sigma"].values()),
+            "1" if name == "misrgraph" else ("never" if ratio is None else f"{bound}{ratio:.1f}"),
+            f"{st['seconds']:.1f}",
+            f"{st['max_sigma']:.3g}",
+            fmt(st["checkpoint_rms_m"], ".2f"),
+            fmt(st["coregistration_px"], ".3f"),
+            str(st["ended"])[:40],
+        )
     console.print(t)
-    console.print(f"optimum: cost {ref['cost']:.3f}, Gauss-Newton step there {ref['gauss_newton_step_max_sigma']:.1e} sigma "
-                  f"({'verified' if ref['verified'] else 'NOT verified'}); its check points {ref['checkpoint_rms_m']} m. "
-                  f"Marginals (one routine for all): {res['marginals']['seconds']:.2f} s, not included above.")
-    console.print("'-': never within that distance before its own stop or its time budget "
-                  f"({res['budget_seconds']:.0f} s); '>=': the ratio is then a lower bound (its whole run).")
+    console.print(
+        f"optimum: cost {ref['cost']:.3f}, Gauss-Newton step there {ref['gauss_newton_step_max_sigma']:.1e} sigma "
+        f"({'verified' if ref['verified'] else 'NOT verified'}); its check points {ref['checkpoint_rms_m']} m. "
+        f"Marginals (one routine for all): {res['marginals']['seconds']:.2f} s, not included above."
+    )
+    console.print(
+        "'-': never within that distance before its own stop or its time budget "
+        f"({res['budget_seconds']:.0f} s); '>=': the ratio is then a lower bound (its whole run)."
+    )
 
 
 @app.command("match")
@@ -173,15 +238,21 @@ def bench_match(
     m, g, a = res["match"], res["gcp_chips"], res["adjust"]
     for kind in ("gcp", "tie"):
         v = m[kind]
-        console.print(f"{kind}: {v['matched']}/{v['candidates']} matched, error RMS {v['error_px']['rms']:.3f} px, "
-                      f"error/sigma {v['normalised_error_rms']:.2f}, wrong {v['wrong_matches']}, {v['seconds']:.1f} s")
+        console.print(
+            f"{kind}: {v['matched']}/{v['candidates']} matched, error RMS {v['error_px']['rms']:.3f} px, "
+            f"error/sigma {v['normalised_error_rms']:.2f}, wrong {v['wrong_matches']}, {v['seconds']:.1f} s"
+        )
     if "ncc_lsm" in g:
-        console.print(f"GCP chips: NCC+LSM {g['ncc_lsm']['error_rms_px']:.3f} px at {g['ncc_lsm']['chips_per_second']:.0f}/s; "
-                      f"skimage+parabola {g['skimage_parabola']['error_rms_px']:.3f} px at "
-                      f"{g['skimage_parabola']['chips_per_second']:.0f}/s")
-    console.print(f"rendering {res['simulate_seconds']['rendering']:.0f} s; check points matched/simulated "
-                  f"{a['checkpoint_ratio_matched_over_simulated']:.2f}, co-registration max "
-                  f"{a['matched']['coregistration_px_max']:.3f} px")
+        console.print(
+            f"GCP chips: NCC+LSM {g['ncc_lsm']['error_rms_px']:.3f} px at {g['ncc_lsm']['chips_per_second']:.0f}/s; "
+            f"skimage+parabola {g['skimage_parabola']['error_rms_px']:.3f} px at "
+            f"{g['skimage_parabola']['chips_per_second']:.0f}/s"
+        )
+    console.print(
+        f"rendering {res['simulate_seconds']['rendering']:.0f} s; check points matched/simulated "
+        f"{a['checkpoint_ratio_matched_over_simulated']:.2f}, co-registration max "
+        f"{a['matched']['coregistration_px_max']:.3f} px"
+    )
 
 
 @app.command("scaling")
@@ -189,7 +260,9 @@ def bench_match(
 def bench_scaling(
     sizes: str = typer.Option("250,500,1000,2000,4000", "--sizes", help="Comma list of tie-point counts."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the simulated inputs."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated inputs here (a rerun reuses them)."),
+    workdir: Optional[Path] = typer.Option(
+        None, "--workdir", help="Keep the simulated inputs here (a rerun reuses them)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -210,11 +283,19 @@ def bench_scaling(
     for col in ("tie points", "observations", "seconds", "iterations", "s / iteration", "peak Python MB"):
         t.add_column(col)
     for r in res["rows"]:
-        t.add_row(str(r["tie_points"]), str(r["observations"]), f"{r['seconds']:.2f}", str(r["iterations"]),
-                  f"{r['seconds_per_iteration']:.3f}", f"{r['peak_python_mb']:.0f}")
+        t.add_row(
+            str(r["tie_points"]),
+            str(r["observations"]),
+            f"{r['seconds']:.2f}",
+            str(r["iterations"]),
+            f"{r['seconds_per_iteration']:.3f}",
+            f"{r['peak_python_mb']:.0f}",
+        )
     console.print(t)
-    console.print(f"fitted exponent: per iteration vs observations {res['exponent_per_iteration_vs_observations']:.2f}, "
-                  f"total vs tie points {res['exponent_total_vs_tie_points']:.2f}; peak RSS {res['process_peak_rss_mb']:.0f} MB")
+    console.print(
+        f"fitted exponent: per iteration vs observations {res['exponent_per_iteration_vs_observations']:.2f}, "
+        f"total vs tie points {res['exponent_total_vs_tie_points']:.2f}; peak RSS {res['process_peak_rss_mb']:.0f} MB"
+    )
 
 
 @app.command("incremental")
@@ -223,12 +304,22 @@ def bench_incremental(
     passes: int = typer.Option(10, "--passes", min=1, help="Repeat passes added one after another."),
     tie_points: int = typer.Option(150, "--tie-points", min=20, help="Tie points per pass."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the simulated inputs."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated inputs here (a rerun reuses them)."),
-    linearization_tol: Optional[float] = typer.Option(None, "--linearization-tol", min=1e-6,
-                                                      help="iSAM2 re-linearisation tolerance in sigma [default: the library's]."),
-    settle_after: Optional[int] = typer.Option(None, "--settle-after", min=0,
-                                               help="Marginalise a pass out of iSAM2 once this many newer passes have arrived; 0: never "
-                                                    "[default: the library's, 3]."),
+    workdir: Optional[Path] = typer.Option(
+        None, "--workdir", help="Keep the simulated inputs here (a rerun reuses them)."
+    ),
+    linearization_tol: Optional[float] = typer.Option(
+        None,
+        "--linearization-tol",
+        min=1e-6,
+        help="iSAM2 re-linearisation tolerance in sigma [default: the library's].",
+    ),
+    settle_after: Optional[int] = typer.Option(
+        None,
+        "--settle-after",
+        min=0,
+        help="Marginalise a pass out of iSAM2 once this many newer passes have arrived; 0: never "
+        "[default: the library's, 3].",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -245,18 +336,35 @@ def bench_incremental(
         print_json(res)
         return
     t = Table(title=f"bench incremental: {res['passes']} repeat passes x {res['tie_points']} tie points")
-    for col in ("pass k", "iSAM2 update (s)", "warm batch, same accuracy (s)", "update / batch", "iSAM2 from optimum (sigma)", "rounds"):
+    for col in (
+        "pass k",
+        "iSAM2 update (s)",
+        "warm batch, same accuracy (s)",
+        "update / batch",
+        "iSAM2 from optimum (sigma)",
+        "rounds",
+    ):
         t.add_column(col)
     marks = {int(k) for k in res["at"]} | {1, res["passes"]}
     for r in res["per_pass"]:
         if r["pass"] in marks or r["pass"] % 10 == 0:
-            t.add_row(str(r["pass"]), f"{r['update_seconds']:.3f}", f"{r['batch_seconds']:.3f}",
-                      f"{r['update_seconds'] / r['batch_seconds']:.2f}", f"{r['max_difference_sigma']:.4f}",
-                      str(r["relinearization_rounds"]))
+            t.add_row(
+                str(r["pass"]),
+                f"{r['update_seconds']:.3f}",
+                f"{r['batch_seconds']:.3f}",
+                f"{r['update_seconds'] / r['batch_seconds']:.2f}",
+                f"{r['max_difference_sigma']:.4f}",
+                str(r["relinearization_rounds"]),
+            )
     console.print(t)
     if res["update_last_over_update_10"] is not None:
-        console.print(f"update at pass {res['passes']} / update at pass 10 = {res['update_last_over_update_10']:.2f}; ", end="")
-    console.print(f"iSAM2's largest distance from the converged batch over all passes: {res['max_difference_sigma_worst']:.4f} sigma")
+        console.print(
+            f"update at pass {res['passes']} / update at pass 10 = {res['update_last_over_update_10']:.2f}; ", end=""
+        )
+    console.print(
+        f"iSAM2's largest distance from the converged batch over all passes: {res['max_difference_sigma_worst']:.4f} "
+        "sigma"
+    )
 
 
 @app.command("nees")
@@ -265,10 +373,24 @@ def bench_nees(
     study: str = typer.Option("calibration", "--study", help="calibration or adjust."),
     runs: int = typer.Option(20, "--runs", help="Seeded runs."),
     seed: int = typer.Option(1000, "--seed", help="First seed."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated inputs here (a rerun reuses them)."),
-    size: str = typer.Option("reduced", "--size", help="reduced (the test suite's size) or standard (45-minute passes with 600 tie points and check points; full months)."),
-    truth: str = typer.Option("model", "--truth", help="The simulator's truth: model or independent (see misrgraph simulate --help)."),
-    calibrate_params: Optional[str] = typer.Option(None, "--calibrate-params", help="Calibration study: the parameters to estimate (as calibrate --params; default delta,beta,epsilon,alpha2,alpha3)."),
+    workdir: Optional[Path] = typer.Option(
+        None, "--workdir", help="Keep the simulated inputs here (a rerun reuses them)."
+    ),
+    size: str = typer.Option(
+        "reduced",
+        "--size",
+        help="reduced (the test suite's size) or standard (45-minute passes with 600 tie points and check points; "
+        "full months).",
+    ),
+    truth: str = typer.Option(
+        "model", "--truth", help="The simulator's truth: model or independent (see misrgraph simulate --help)."
+    ),
+    calibrate_params: Optional[str] = typer.Option(
+        None,
+        "--calibrate-params",
+        help="Calibration study: the parameters to estimate (as calibrate --params; default "
+        "delta,beta,epsilon,alpha2,alpha3).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -282,8 +404,15 @@ def bench_nees(
     if runs < 1:
         fail(f"--runs: got {runs}; expected at least 1")
     with err_console.status(f"{runs} seeded {study} runs..."):
-        res = run_bench_nees(study, runs, seed, workdir, size, truth,
-                             calibrate_params=tuple(p.strip() for p in calibrate_params.split(",")) if calibrate_params else None)
+        res = run_bench_nees(
+            study,
+            runs,
+            seed,
+            workdir,
+            size,
+            truth,
+            calibrate_params=tuple(p.strip() for p in calibrate_params.split(",")) if calibrate_params else None,
+        )
     res = finish(res, save)
     if as_json:
         print_json(res)
@@ -304,16 +433,22 @@ def _print_nees(res: dict) -> None:
             rms = f"; RMS of runs {rr['rms']:.3f} [{rr['ci95'][0]:.3f}, {rr['ci95'][1]:.3f}]" if rr else ""
             console.print(f"{study} {k}: {scatter}{rms}")
             for c, bc in v.get("by_camera", {}).items():
-                console.print(f"    {c}: RMS of {bc['runs']} runs {bc['rms']:.3f} [{bc['ci95'][0]:.3f}, {bc['ci95'][1]:.3f}]")
+                console.print(
+                    f"    {c}: RMS of {bc['runs']} runs {bc['rms']:.3f} [{bc['ci95'][0]:.3f}, {bc['ci95'][1]:.3f}]"
+                )
             continue
-        console.print(f"{study} {k}: NEES/dim {v['nees_per_dim']:.3f}, 95 % band [{v['band'][0]:.3f}, {v['band'][1]:.3f}] "
-                      f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}; {scatter}")
+        console.print(
+            f"{study} {k}: NEES/dim {v['nees_per_dim']:.3f}, 95 % band [{v['band'][0]:.3f}, {v['band'][1]:.3f}] "
+            f"({v['dof']} dof) -> {'inside' if v['inside'] else 'OUTSIDE'}; {scatter}"
+        )
 
 
 @app.command("nees-pool")
 @handle_errors
 def bench_nees_pool(
-    files: list[Path] = typer.Argument(..., help="bench nees --json outputs of the same study, size, truth and settings."),
+    files: list[Path] = typer.Argument(
+        ..., help="bench nees --json outputs of the same study, size, truth and settings."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -339,8 +474,10 @@ def bench_nees_pool(
         print_json(res)
         return
     seeds = sorted(int(r["seed"]) for r in res["per_run"])
-    console.print(f"pooled {res['runs']} runs from {res['pooled_from']} results ({res['study']}, {res['size']}, "
-                  f"{res['truth']} truth; seeds {seeds[0]}-{seeds[-1]})")
+    console.print(
+        f"pooled {res['runs']} runs from {res['pooled_from']} results ({res['study']}, {res['size']}, "
+        f"{res['truth']} truth; seeds {seeds[0]}-{seeds[-1]})"
+    )
     _print_nees(res)
 
 
@@ -349,11 +486,15 @@ def bench_nees_pool(
 def bench_pp(
     runs: int = typer.Option(20, "--runs", help="Seeded passes."),
     seed: int = typer.Option(5000, "--seed", help="First seed."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated passes and PP here (reused by a rerun)."),
+    workdir: Optional[Path] = typer.Option(
+        None, "--workdir", help="Keep the simulated passes and PP here (reused by a rerun)."
+    ),
     size: str = typer.Option("reduced", "--size", help="reduced or standard (as bench nees --study adjust)."),
     truth: str = typer.Option("model", "--truth", help="model or independent (see misrgraph simulate --help)."),
     blocks: int = typer.Option(2, "--blocks", help="SOM blocks per pass, around its features."),
-    block_range: Optional[str] = typer.Option(None, "--block-range", help="Score these blocks (A-B) in every pass instead of --blocks, and also per block."),
+    block_range: Optional[str] = typer.Option(
+        None, "--block-range", help="Score these blocks (A-B) in every pass instead of --blocks, and also per block."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -373,15 +514,34 @@ def bench_pp(
         print_json(res)
         return
     table = Table(title=f"PP honesty over {runs} {size} passes ({truth} truth): mean and 95 % interval of the runs")
-    for col in ("camera", "passes", "RMS / predicted (mean)", "RMS / predicted (RMS of runs)", "NEES", "better than supplied"):
+    for col in (
+        "camera",
+        "passes",
+        "RMS / predicted (mean)",
+        "RMS / predicted (RMS of runs)",
+        "NEES",
+        "better than supplied",
+    ):
         table.add_column(col, justify="right")
     fmt = lambda v: f"{v['mean']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]"  # noqa: E731
     fmr = lambda v: f"{v['rms']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]"  # noqa: E731
     for cam, v in res["summary"]["per_camera"].items():
-        table.add_row(cam, str(v["passes"]), fmt(v["rms_over_predicted"]), fmr(v["rms_over_predicted_rms_of_runs"]),
-                      fmt(v["nees"]), f"{v['improvement_over_supplied']['mean']:.1f}x")
-    table.add_row("all", str(runs), fmt(res["summary"]["rms_over_predicted_all_cameras"]),
-                  fmr(res["summary"]["rms_over_predicted_all_cameras_rms_of_runs"]), fmt(res["summary"]["nees_all_cameras"]), "")
+        table.add_row(
+            cam,
+            str(v["passes"]),
+            fmt(v["rms_over_predicted"]),
+            fmr(v["rms_over_predicted_rms_of_runs"]),
+            fmt(v["nees"]),
+            f"{v['improvement_over_supplied']['mean']:.1f}x",
+        )
+    table.add_row(
+        "all",
+        str(runs),
+        fmt(res["summary"]["rms_over_predicted_all_cameras"]),
+        fmr(res["summary"]["rms_over_predicted_all_cameras_rms_of_runs"]),
+        fmt(res["summary"]["nees_all_cameras"]),
+        "",
+    )
     console.print(table)
     per_block = res["summary"].get("per_block")
     if per_block:
@@ -391,7 +551,9 @@ def bench_pp(
         for b in names:
             bt.add_column(f"block {b}", justify="right")
         for cam, v in per_block.items():
-            bt.add_row(cam, *(f"{v[b]['error_px_rms']:.2f} / {v[b]['predicted_px_rms']:.2f}" if b in v else "-" for b in names))
+            bt.add_row(
+                cam, *(f"{v[b]['error_px_rms']:.2f} / {v[b]['predicted_px_rms']:.2f}" if b in v else "-" for b in names)
+            )
         console.print(bt)
 
 
@@ -399,10 +561,19 @@ def bench_pp(
 @handle_errors
 def bench_roi(
     passes: int = typer.Option(4, "--passes", help="Standard repeat passes of path 37 (at least 4)."),
-    blocks: int = typer.Option(2, "--blocks", help="Consecutive SOM blocks from --first-block (whole-line imagery of 9 cameras: ~80 s of rendering a block and pass on 2 cores)."),
-    first_block: int = typer.Option(62, "--first-block", help="The first block (path 37's passes have their last tie points in block 69)."),
+    blocks: int = typer.Option(
+        2,
+        "--blocks",
+        help="Consecutive SOM blocks from --first-block (whole-line imagery of 9 cameras: ~80 s of rendering a "
+        "block and pass on 2 cores).",
+    ),
+    first_block: int = typer.Option(
+        62, "--first-block", help="The first block (path 37's passes have their last tie points in block 69)."
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed of the simulated inputs."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the scenario and products here (a rerun reuses the scenario)."),
+    workdir: Optional[Path] = typer.Option(
+        None, "--workdir", help="Keep the scenario and products here (a rerun reuses the scenario)."
+    ),
     tie_points: int = typer.Option(1000, "--tie-points", help="Tie points per pass (1000: the standard size)."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
@@ -415,18 +586,30 @@ def bench_roi(
 
     from misrgraph.bench.roi import run_bench_roi
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err_console,
-                  disable=as_json) as bar:
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err_console, disable=as_json
+    ) as bar:
         task = bar.add_task("bench roi", total=None)
-        res = run_bench_roi(passes, blocks, seed, workdir, tie_points=tie_points, first_block=first_block,
-                            progress=lambda d, k, n: bar.update(task, description=d, completed=k, total=max(n, 1)))
+        res = run_bench_roi(
+            passes,
+            blocks,
+            seed,
+            workdir,
+            tie_points=tie_points,
+            first_block=first_block,
+            progress=lambda d, k, n: bar.update(task, description=d, completed=k, total=max(n, 1)),
+        )
     res = finish(res, save)
     if as_json:
         print_json(res)
         return
-    print_coregistration(f"ROI of {passes} passes x {blocks} blocks x 9 cameras: co-registration (px)",
-                          list(res["roi_coregistration_px"]), res["roi_coregistration_px"], res["roi_truth"],
-                          res.get("roi_predicted_px"))
+    print_coregistration(
+        f"ROI of {passes} passes x {blocks} blocks x 9 cameras: co-registration (px)",
+        list(res["roi_coregistration_px"]),
+        res["roi_coregistration_px"],
+        res["roi_truth"],
+        res.get("roi_predicted_px"),
+    )
     console.print("seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in res["seconds"].items() if v is not None))
 
 
@@ -435,10 +618,16 @@ def bench_roi(
 def bench_sources(
     runs: int = typer.Option(10, "--runs", help="Seeded passes per row (the same seeds in every row)."),
     seed: int = typer.Option(3000, "--seed", help="First seed."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated passes here (reused by a rerun)."),
+    workdir: Optional[Path] = typer.Option(
+        None, "--workdir", help="Keep the simulated passes here (reused by a rerun)."
+    ),
     size: str = typer.Option("reduced", "--size", help="reduced or standard (as bench nees)."),
-    mode: str = typer.Option("alone", "--mode", help="alone: each source switched on alone (base row: none); "
-                             "without: each source switched off from all of them (base row: all)."),
+    mode: str = typer.Option(
+        "alone",
+        "--mode",
+        help="alone: each source switched on alone (base row: none); "
+        "without: each source switched off from all of them (base row: all).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -464,9 +653,18 @@ def bench_sources(
     def fmt_diff(v: dict) -> str:
         return f"{v['mean']:+.3f} [{v['ci95'][0]:+.3f}, {v['ci95'][1]:+.3f}]"
 
-    cols = ("knots", "landmarks", "checkpoint_rms_over_predicted", "checkpoint_rms_over_predicted_rms_of_runs", "checkpoint_rms_m")
-    table = Table(title=f"independent truth, {size} passes, {runs} seeds: mean (the ratio also as the RMS of runs) [95 % interval]; "
-                        f"landmarks' per-seed difference from {res['base']!r} (paired: the row differs by its source alone)")
+    cols = (
+        "knots",
+        "landmarks",
+        "checkpoint_rms_over_predicted",
+        "checkpoint_rms_over_predicted_rms_of_runs",
+        "checkpoint_rms_m",
+    )
+    table = Table(
+        title=f"independent truth, {size} passes, {runs} seeds: mean (the ratio also as the RMS of runs) [95 % "
+        "interval]; "
+        f"landmarks' per-seed difference from {res['base']!r} (paired: the row differs by its source alone)"
+    )
     table.add_column("source")
     for c in cols:
         table.add_column(c)
@@ -474,8 +672,12 @@ def bench_sources(
     table.add_column("paired")
     for name, row in res["rows"].items():
         d = row.get("difference", {}).get("landmarks")
-        table.add_row(name, *[fmt(row[c]) if c in row else "-" for c in cols], fmt_diff(d) if d else "-",
-                      "base" if name == res["base"] else "yes" if row["paired"] else "no")
+        table.add_row(
+            name,
+            *[fmt(row[c]) if c in row else "-" for c in cols],
+            fmt_diff(d) if d else "-",
+            "base" if name == res["base"] else "yes" if row["paired"] else "no",
+        )
     console.print(table)
 
 
@@ -506,22 +708,34 @@ def bench_campaign(
     for col in ("workers", "passes/minute", "task s/pass", "peak MB per worker"):
         table.add_column(col, justify="right")
     for n, v in res["workers"].items():
-        table.add_row(n, f"{v['passes_per_minute']:.1f}", f"{v['task_seconds_per_pass']:.2f}",
-                      ", ".join(f"{m:.0f}" for m in v["peak_rss_mb_per_worker"].values()))
+        table.add_row(
+            n,
+            f"{v['passes_per_minute']:.1f}",
+            f"{v['task_seconds_per_pass']:.2f}",
+            ", ".join(f"{m:.0f}" for m in v["peak_rss_mb_per_worker"].values()),
+        )
     console.print(table)
     fp = res["full_plan"]
-    console.print(f"scaling 1 -> 2 workers: {res['scaling_1_to_2']:.2f}x; full plan ({fp['passes']} passes): "
-                  f"{fp['adjust_hours_at_2_workers']:.1f} h of adjustment on 2 workers ({fp['note']})")
+    console.print(
+        f"scaling 1 -> 2 workers: {res['scaling_1_to_2']:.2f}x; full plan ({fp['passes']} passes): "
+        f"{fp['adjust_hours_at_2_workers']:.1f} h of adjustment on 2 workers ({fp['note']})"
+    )
 
 
 @app.command("campaign-kill")
 @handle_errors
 def bench_campaign_kill(
     trials: int = typer.Option(10, "--trials", help="Trials of each kind."),
-    kinds: str = typer.Option("client,worker", "--kinds", help="client (SIGKILL the whole campaign, then rerun) and/or worker (SIGKILL one worker mid-run)."),
+    kinds: str = typer.Option(
+        "client,worker",
+        "--kinds",
+        help="client (SIGKILL the whole campaign, then rerun) and/or worker (SIGKILL one worker mid-run).",
+    ),
     paths: int = typer.Option(2, "--paths", help="Paths of the reduced campaign."),
     seed: int = typer.Option(0, "--seed", help="Seed of the inputs and the kill times."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the simulated inputs here (a rerun reuses them)."),
+    workdir: Optional[Path] = typer.Option(
+        None, "--workdir", help="Keep the simulated inputs here (a rerun reuses them)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -533,8 +747,14 @@ def bench_campaign_kill(
     from misrgraph.bench.campaign import run_campaign_kill_trials
 
     with err_console.status("campaign kill trials...") as st:
-        res = run_campaign_kill_trials(trials, tuple(k.strip() for k in kinds.split(",") if k.strip()), seed, workdir,
-                                       paths=paths, progress=lambda m: st.update(m))
+        res = run_campaign_kill_trials(
+            trials,
+            tuple(k.strip() for k in kinds.split(",") if k.strip()),
+            seed,
+            workdir,
+            paths=paths,
+            progress=lambda m: st.update(m),
+        )
     res = finish(res, save)
     if as_json:
         print_json(res)
@@ -544,10 +764,15 @@ def bench_campaign_kill(
             table.add_column(col, justify="right")
         for kind in sorted({t["kind"] for t in res["trials"]}):
             ts = [t for t in res["trials"] if t["kind"] == kind]
-            table.add_row(kind, str(len(ts)), str(sum(bool(t["killed_while_running"]) for t in ts)),
-                          str(sum(bool(t.get("identical")) for t in ts)), str(sum(t.get("duplicates", 0) for t in ts)),
-                          str(sum(max(0, t.get("counted", 0) - t.get("planned", 0)) for t in ts)),
-                          str(sum(t in res["failures"] for t in ts)))
+            table.add_row(
+                kind,
+                str(len(ts)),
+                str(sum(bool(t["killed_while_running"]) for t in ts)),
+                str(sum(bool(t.get("identical")) for t in ts)),
+                str(sum(t.get("duplicates", 0) for t in ts)),
+                str(sum(max(0, t.get("counted", 0) - t.get("planned", 0)) for t in ts)),
+                str(sum(t in res["failures"] for t in ts)),
+            )
         console.print(table)
     if res["failures"]:
         raise typer.Exit(1)
@@ -556,8 +781,11 @@ def bench_campaign_kill(
 @app.command("kill")
 @handle_errors
 def bench_kill(
-    commands: str = typer.Option(",".join(("simulate", "calibrate", "adjust", "update")), "--commands",
-                                 help="Comma list of simulate, calibrate, adjust, update."),
+    commands: str = typer.Option(
+        ",".join(("simulate", "calibrate", "adjust", "update")),
+        "--commands",
+        help="Comma list of simulate, calibrate, adjust, update.",
+    ),
     trials: int = typer.Option(20, "--trials", help="SIGKILL trials per command."),
     seed: int = typer.Option(0, "--seed", help="Seed of the kill times."),
     workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the scenarios and outputs here."),
@@ -569,15 +797,30 @@ def bench_kill(
     from misrgraph.bench.faults import run_kill_trials
 
     with err_console.status("kill trials...") as st:
-        res = run_kill_trials(tuple(c.strip() for c in commands.split(",") if c.strip()), trials, seed, workdir,
-                              progress=lambda m: st.update(m))
+        res = run_kill_trials(
+            tuple(c.strip() for c in commands.split(",") if c.strip()),
+            trials,
+            seed,
+            workdir,
+            progress=lambda m: st.update(m),
+        )
     res = finish(res, save)
     if as_json:
         print_json(res)
     else:
         table = Table(title=f"SIGKILL trials ({trials} per command)")
-        cols = ("trials", "killed_while_running", "old", "new", "none", "half_written", "lost", "counted_twice",
-                "rerun_failed", "debris")
+        cols = (
+            "trials",
+            "killed_while_running",
+            "old",
+            "new",
+            "none",
+            "half_written",
+            "lost",
+            "counted_twice",
+            "rerun_failed",
+            "debris",
+        )
         heads = ("trials", "killed", "old", "new", "none", "half", "lost", "twice", "rerun✗", "debris")
         table.add_column("command")
         for c in heads:
@@ -589,16 +832,17 @@ def bench_kill(
         raise typer.Exit(1)
 
 
-
 @app.command("report")
 @handle_errors
 def bench_report(
     data: Path = typer.Option(Path("docs/results/data"), "--data", help="Directory of stored results (*.json)."),
     pages: Path = typer.Option(Path("docs/results"), "--pages", help="Directory of the generated results pages."),
     readme: Optional[Path] = typer.Option(
-        Path("README.md"), "--readme", help="README whose generated blocks are rendered ('-': leave it alone)."),
+        Path("README.md"), "--readme", help="README whose generated blocks are rendered ('-': leave it alone)."
+    ),
     check: bool = typer.Option(
-        False, "--check", help="Write nothing; exit 1 when a page differs from what the stored results render."),
+        False, "--check", help="Write nothing; exit 1 when a page differs from what the stored results render."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print what was rendered as JSON."),
 ) -> None:
     """Render the results pages and the README's figures from stored bench results.

@@ -33,13 +33,19 @@ from misrgraph.commands.common import (
 
 __all__ = ["app", "main"]
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_show_locals=False,
-                  help="In-flight geometric calibration of MISR as a GTSAM factor graph.")
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_show_locals=False,
+    help="In-flight geometric calibration of MISR as a GTSAM factor graph.",
+)
 
 
 @app.callback()
-def _root(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log progress details on stderr."),
-          debug: bool = typer.Option(False, "--debug", help="Show the full traceback of an error instead of one line.")) -> None:
+def _root(
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Log progress details on stderr."),
+    debug: bool = typer.Option(False, "--debug", help="Show the full traceback of an error instead of one line."),
+) -> None:
     set_debug(debug)
     configure_logging(verbose)
 

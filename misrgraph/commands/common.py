@@ -76,7 +76,9 @@ def set_debug(debug: bool) -> None:
 def configure_logging(verbose: bool) -> None:
     """Log at INFO with ``--verbose``, else WARNING, on stderr; HDF5 objects that fail to close
     after a failed write are logged at DEBUG instead of printed as tracebacks."""
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+    )
     default_hook = sys.unraisablehook
 
     def hook(unraisable: Any) -> None:
@@ -149,14 +151,20 @@ def handle_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
                 raise
             line = _io_message(exc)
             if line is None:
-                fail(f"internal error in {fn.__name__} ({exc.__class__.__name__}: {exc}). "
-                     "Rerun with 'misrgraph --debug ...' for the traceback", 1)
+                fail(
+                    f"internal error in {fn.__name__} ({exc.__class__.__name__}: {exc}). "
+                    "Rerun with 'misrgraph --debug ...' for the traceback",
+                    1,
+                )
             fail(line, 1)
         except Exception as exc:
             if _STATE["debug"]:
                 raise
-            fail(f"internal error in {fn.__name__} ({exc.__class__.__name__}: {exc}). "
-                 "Rerun with 'misrgraph --debug ...' for the traceback", 1)
+            fail(
+                f"internal error in {fn.__name__} ({exc.__class__.__name__}: {exc}). "
+                "Rerun with 'misrgraph --debug ...' for the traceback",
+                1,
+            )
 
     return wrapper
 
@@ -232,15 +240,27 @@ def parse_comma_list(option: str, value: str, kind: Callable[[str], Any], exampl
         raise InputError(option, value, f"a comma-separated list such as {example}") from None
 
 
-def print_coregistration(title: str, cameras: list[str], matched: dict[str, float], truth: dict[str, dict[str, float]],
-                         predicted: dict[str, dict[str, float]] | None = None) -> None:
+def print_coregistration(
+    title: str,
+    cameras: list[str],
+    matched: dict[str, float],
+    truth: dict[str, dict[str, float]],
+    predicted: dict[str, dict[str, float]] | None = None,
+) -> None:
     """The ROI's co-registration per camera (pixels, worst block): matched on the ROI (beyond
     matching noise, a block's pairs pooled), what the adjustment's own uncertainty allows and,
     when simulated, the truth against An and between passes (pooled as the matches are) and of
     the worst single pair of images."""
     table = Table(title=title)
-    for col in ("camera", "matched, beyond noise", "allowed: vs An", "allowed: between passes", "truth: vs An",
-                "truth: between passes", "truth: worst pair"):
+    for col in (
+        "camera",
+        "matched, beyond noise",
+        "allowed: vs An",
+        "allowed: between passes",
+        "truth: vs An",
+        "truth: between passes",
+        "truth: worst pair",
+    ):
         table.add_column(col, justify="right")
 
     def fmt(v: float | None) -> str:
@@ -249,8 +269,13 @@ def print_coregistration(title: str, cameras: list[str], matched: dict[str, floa
     predicted = predicted or {}
     for cam in cameras:
         worst = [v for k in ("between_cameras_px", "between_passes_px") if (v := truth.get(k, {}).get(cam)) is not None]
-        table.add_row(cam, fmt(matched.get(cam)), fmt(predicted.get(cam, {}).get("vs_An")),
-                      fmt(predicted.get(cam, {}).get("between_passes")),
-                      fmt(truth.get("between_cameras_pooled_px", {}).get(cam)),
-                      fmt(truth.get("between_passes_pooled_px", {}).get(cam)), fmt(max(worst) if worst else None))
+        table.add_row(
+            cam,
+            fmt(matched.get(cam)),
+            fmt(predicted.get(cam, {}).get("vs_An")),
+            fmt(predicted.get(cam, {}).get("between_passes")),
+            fmt(truth.get("between_cameras_pooled_px", {}).get(cam)),
+            fmt(truth.get("between_passes_pooled_px", {}).get(cam)),
+            fmt(max(worst) if worst else None),
+        )
     console.print(table)

@@ -18,7 +18,8 @@ def demo(
     out: Path = typer.Option(Path("demo-output"), "--out", help="Directory for the demo's products."),
     small: bool = typer.Option(False, "--small", help="Reduced sizes (about a minute)."),
     save: Optional[Path] = typer.Option(
-        None, "--save", help="Also write the stages' results, with their provenance, as JSON to this file."),
+        None, "--save", help="Also write the stages' results, with their provenance, as JSON to this file."
+    ),
 ) -> None:
     """The whole workflow on simulated data: calibrate, adjust, match, update, record; prints a summary."""
     from misrgraph.bench.provenance import finish

@@ -15,8 +15,10 @@ from misrgraph.commands.common import (
 
 __all__ = ["app", "import_gcps", "import_dem"]
 
-app = typer.Typer(help="Real inputs: GCP lists (CSV, GeoJSON) and DEM rasters (any GDAL raster) into misrgraph's files.",
-                  no_args_is_help=True)
+app = typer.Typer(
+    help="Real inputs: GCP lists (CSV, GeoJSON) and DEM rasters (any GDAL raster) into misrgraph's files.",
+    no_args_is_help=True,
+)
 
 
 @app.command("gcps")
@@ -24,8 +26,12 @@ app = typer.Typer(help="Real inputs: GCP lists (CSV, GeoJSON) and DEM rasters (a
 def import_gcps(
     source: Path = typer.Argument(..., help="GCP list: .csv (header row) or .geojson (Point features)."),
     out: Path = typer.Option(..., "--out", help="GCP database to write (HDF5), e.g. SCENARIO_DIR/gcp.h5."),
-    sigma_m: Optional[float] = typer.Option(None, "--sigma-m", help="1-sigma (m, every ENU axis) where the list has no sigma column."),
-    geoid: Optional[Path] = typer.Option(None, "--geoid", help="Geoid grid raster (e.g. us_nga_egm96_15.tif) for heights above the geoid."),
+    sigma_m: Optional[float] = typer.Option(
+        None, "--sigma-m", help="1-sigma (m, every ENU axis) where the list has no sigma column."
+    ),
+    geoid: Optional[Path] = typer.Option(
+        None, "--geoid", help="Geoid grid raster (e.g. us_nga_egm96_15.tif) for heights above the geoid."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
     """Import a GCP list with its sigmas (columns: lat, lon, height [m ellipsoidal] or height_msl,
@@ -36,7 +42,9 @@ def import_gcps(
     if as_json:
         print_json(res)
         return
-    console.print(f"{res['gcps']} GCPs -> {res['out']} (sigma {res['sigma_m']['min']:.3g}..{res['sigma_m']['max']:.3g} m)")
+    console.print(
+        f"{res['gcps']} GCPs -> {res['out']} (sigma {res['sigma_m']['min']:.3g}..{res['sigma_m']['max']:.3g} m)"
+    )
 
 
 @app.command("dem")
@@ -47,7 +55,9 @@ def import_dem(
     posting_arcsec: float = typer.Option(3.0, "--posting-arcsec", help="Posting of the geographic grid (arc seconds)."),
     tile_postings: int = typer.Option(1201, "--tile-postings", help="Postings per tile side (>= 32)."),
     quality: int = typer.Option(1, "--quality", help="Accuracy class: 1 (30 m), 2 (60 m), 3 (120 m) 1-sigma."),
-    geoid: Optional[Path] = typer.Option(None, "--geoid", help="Geoid grid raster; heights above it become ellipsoidal."),
+    geoid: Optional[Path] = typer.Option(
+        None, "--geoid", help="Geoid grid raster; heights above it become ellipsoidal."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
     """Import DEM rasters as square geographic tiles (bilinear onto the posting grid)."""
@@ -57,6 +67,7 @@ def import_dem(
     if as_json:
         print_json(res)
         return
-    console.print(f"{res['tiles']} tiles of {res['tile_postings']} postings -> {res['out']} "
-                  f"(heights {res['height_m']['min']:.0f}..{res['height_m']['max']:.0f} m, {res['height_reference']})")
-
+    console.print(
+        f"{res['tiles']} tiles of {res['tile_postings']} postings -> {res['out']} "
+        f"(heights {res['height_m']['min']:.0f}..{res['height_m']['max']:.0f} m, {res['height_reference']})"
+    )

@@ -16,9 +16,12 @@ from misrgraph.commands.common import (
 
 __all__ = ["info"]
 
+
 @handle_errors
-def info(file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
-         as_json: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+def info(
+    file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
     """Validate a misrgraph HDF5 file and print what it holds."""
     from misrgraph.io.info import run_info
 
@@ -30,4 +33,3 @@ def info(file: Path = typer.Argument(..., help="A misrgraph HDF5 file."),
     for k, v in res.items():
         table.add_row(k, json.dumps(v) if isinstance(v, (dict, list)) else str(v))
     console.print(table)
-

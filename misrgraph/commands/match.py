@@ -23,12 +23,18 @@ __all__ = ["match"]
 @handle_errors
 def match(
     scenario_dir: Path = typer.Argument(..., help="Scenario directory with imagery (misrgraph simulate --imagery)."),
-    pass_file: Optional[Path] = typer.Option(None, "--pass", help="Match only this pass file (default: every pass with imagery)."),
+    pass_file: Optional[Path] = typer.Option(
+        None, "--pass", help="Match only this pass file (default: every pass with imagery)."
+    ),
     search: Optional[int] = typer.Option(
-        None, "--search-px",
+        None,
+        "--search-px",
         help="Search range (px) each side of the predicted position; it must cover the navigation's 3-sigma error. "
-             "Default: the range the windows were rendered for."),
-    min_cameras: int = typer.Option(3, "--min-cameras", help="Keep a tie point matched in at least this many cameras (An included)."),
+        "Default: the range the windows were rendered for.",
+    ),
+    min_cameras: int = typer.Option(
+        3, "--min-cameras", help="Keep a tie point matched in at least this many cameras (An included)."
+    ),
     config: Optional[Path] = typer.Option(None, "--config", help=CONFIG_HELP.format(cls="MatchConfig")),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -50,26 +56,57 @@ def match(
         print_json(out)
         return
     t = Table(title=f"matching in {scenario_dir}")
-    for col in ("kind", "candidates", "matched", "error RMS (px)", "error p95 (px)", "error / sigma RMS",
-                "error / sigma RMS, correct matches", "wrong", "s"):
+    for col in (
+        "kind",
+        "candidates",
+        "matched",
+        "error RMS (px)",
+        "error p95 (px)",
+        "error / sigma RMS",
+        "error / sigma RMS, correct matches",
+        "wrong",
+        "s",
+    ):
         t.add_column(col, justify="right")
     for kind in ("gcp", "tie"):
         v = out[kind]
         e = v.get("error_px") or {}
-        fmt = (lambda x: f"{x:.3f}" if isinstance(x, float) else "-")
-        t.add_row(kind, str(v["candidates"]), str(v["matched"]), fmt(e.get("rms")), fmt(e.get("p95")),
-                  fmt(v.get("normalised_error_rms")), fmt(v.get("normalised_error_rms_correct")),
-                  str(v.get("wrong_matches", "-")), f"{v['seconds']:.1f}")
+
+        def fmt(x):
+            return f"{x:.3f}" if isinstance(x, float) else "-"
+
+        t.add_row(
+            kind,
+            str(v["candidates"]),
+            str(v["matched"]),
+            fmt(e.get("rms")),
+            fmt(e.get("p95")),
+            fmt(v.get("normalised_error_rms")),
+            fmt(v.get("normalised_error_rms_correct")),
+            str(v.get("wrong_matches", "-")),
+            f"{v['seconds']:.1f}",
+        )
     console.print(t)
     for p in res["passes"]:
         scales = (p.get("tie") or {}).get("sigma_scale")
         if scales:
-            console.print(f"{p['pass_id']} tie sigma scale (redundancy): " + ", ".join(
-                f"{c} {v['scale']:.2f} ({v['redundancy']:.0f}"
-                + ("" if v["estimated"] else f", {v['scale_from']}'s" if "scale_from" in v else ", LSM sigma kept") + ")"
-                for c, v in scales.items()), soft_wrap=True, highlight=False)
+            console.print(
+                f"{p['pass_id']} tie sigma scale (redundancy): "
+                + ", ".join(
+                    f"{c} {v['scale']:.2f} ({v['redundancy']:.0f}"
+                    + ("" if v["estimated"] else f", {v['scale_from']}'s" if "scale_from" in v else ", LSM sigma kept")
+                    + ")"
+                    for c, v in scales.items()
+                ),
+                soft_wrap=True,
+                highlight=False,
+            )
         g = (p.get("gcp") or {}).get("sigma_scale")
         if g:
-            console.print(f"{p['pass_id']} GCP sigma scale (redundancy): {g['scale']:.2f} ({g['redundancy']:.0f}"
-                          + ("" if g["estimated"] else ", LSM sigma kept") + ")", soft_wrap=True, highlight=False)
-
+            console.print(
+                f"{p['pass_id']} GCP sigma scale (redundancy): {g['scale']:.2f} ({g['redundancy']:.0f}"
+                + ("" if g["estimated"] else ", LSM sigma kept")
+                + ")",
+                soft_wrap=True,
+                highlight=False,
+            )

@@ -85,8 +85,9 @@ def _section(cmd: Any, path: list[str], level: int, out: list[str]) -> None:
     params = [p for p in cmd.params if p.name not in ("help",) and not getattr(p, "hidden", False)]
     sub = getattr(cmd, "commands", None)
     usage = " ".join(path) + (" [OPTIONS]" if any(p.param_type_name == "option" for p in params) else "")
-    usage += "".join(f" {p.name.upper()}" + ("..." if p.nargs == -1 else "")
-                     for p in params if p.param_type_name == "argument")
+    usage += "".join(
+        f" {p.name.upper()}" + ("..." if p.nargs == -1 else "") for p in params if p.param_type_name == "argument"
+    )
     if sub:
         usage += " COMMAND [ARGS]..."
     out.append(f"```text\n{usage}\n```\n")
@@ -96,7 +97,7 @@ def _section(cmd: Any, path: list[str], level: int, out: list[str]) -> None:
         for p in params:
             out.append(f"| {_name(p)} | {_cell(_type(p))} | {_default(p)} | {_cell(getattr(p, 'help', '') or '')} |")
         out.append("")
-    for name in (sub or {}):
+    for name in sub or {}:
         _section(sub[name], [*path, name], min(level + 1, 4), out)
 
 

@@ -29,7 +29,9 @@ def sensitivity(
     arcsec: float = typer.Option(10.0, "--arcsec", help="Attitude perturbation (arcsec)."),
     pixel: float = typer.Option(0.0, "--pixel", help="Sample number, 0..1503."),
     band: str = typer.Option("red", "--band", help="blue, green, red or nir."),
-    ephemeris_m: Optional[float] = typer.Option(None, "--ephemeris-m", help="Also perturb the position by this many metres along, cross and radial."),
+    ephemeris_m: Optional[float] = typer.Option(
+        None, "--ephemeris-m", help="Also perturb the position by this many metres along, cross and radial."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
     from misrgraph.evaluate.sensitivity import run_sensitivity
@@ -56,4 +58,3 @@ def sensitivity(
             e = v["ephemeris"]
             eph.add_row(cam, *[f"{e[a][d]:.1f}" for a in ("along", "cross", "radial") for d in ("along_m", "cross_m")])
         console.print(eph)
-

@@ -22,9 +22,13 @@ app = typer.Typer(help="MISR space: a path's SOM grid and blocks, and orbit <-> 
 @handle_errors
 def som_convert(
     path: int = typer.Option(..., "--path", help="MISR/WRS-2 path, 1..233."),
-    resolution: int = typer.Option(1100, "--resolution", help="Grid resolution (m): 275 or 1100 (also 2200, 4400, 8800, 17600)."),
+    resolution: int = typer.Option(
+        1100, "--resolution", help="Grid resolution (m): 275 or 1100 (also 2200, 4400, 8800, 17600)."
+    ),
     block: Optional[int] = typer.Option(None, "--block", help="Block, 1..180 (with --line and --sample)."),
-    line: Optional[float] = typer.Option(None, "--line", help="Fractional line in the block (-0.5 is the edge of the first pixel)."),
+    line: Optional[float] = typer.Option(
+        None, "--line", help="Fractional line in the block (-0.5 is the edge of the first pixel)."
+    ),
     sample: Optional[float] = typer.Option(None, "--sample", help="Fractional sample in the block."),
     lat: Optional[float] = typer.Option(None, "--lat", help="Geodetic WGS84 latitude (deg), with --lon."),
     lon: Optional[float] = typer.Option(None, "--lon", help="Longitude (deg), with --lat."),
@@ -35,7 +39,9 @@ def som_convert(
     """Print one point as block/line/sample, lat/lon and SOM x/y, given any one of them."""
     from misrgraph.runs.som import run_som_convert
 
-    res = run_som_convert(path, resolution, block=block, line=line, sample=sample, lat=lat, lon=lon, som_x=som_x, som_y=som_y)
+    res = run_som_convert(
+        path, resolution, block=block, line=line, sample=sample, lat=lat, lon=lon, som_x=som_x, som_y=som_y
+    )
     if as_json:
         print_json(res)
         return
@@ -61,4 +67,3 @@ def som_orbit(
         print_json(res)
         return
     console.print(f"orbit {res['orbit']}  path {res['path']}  {res['start']} .. {res['end']}")
-

@@ -25,24 +25,34 @@ def update(
     state: Path = typer.Argument(..., help="State directory (created on first use)."),
     passes: Optional[list[Path]] = typer.Argument(None, help="New pass files (HDF5) to add, in order."),
     camera_model: Optional[Path] = typer.Option(
-        None, "--camera-model", help="Camera model HDF5, 'preflight' or 'nominal' (needed when creating the state)."),
+        None, "--camera-model", help="Camera model HDF5, 'preflight' or 'nominal' (needed when creating the state)."
+    ),
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (needed when creating the state)."),
     dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (recommended when creating the state)."),
     compare_batch: bool = typer.Option(
-        False, "--compare-batch",
-        help="Also re-solve all passes in batch and report the cost ratio and the difference in sigma."),
+        False,
+        "--compare-batch",
+        help="Also re-solve all passes in batch and report the cost ratio and the difference in sigma.",
+    ),
     report: Optional[str] = typer.Option(
-        None, "--report", help="Also report error models, marginals and scores of this earlier pass id."),
+        None, "--report", help="Also report error models, marginals and scores of this earlier pass id."
+    ),
     linearization_tol: Optional[float] = typer.Option(
-        None, "--linearization-tol", min=1e-6,
+        None,
+        "--linearization-tol",
+        min=1e-6,
         help="Re-linearise until the linear model's error is at most this many sigma (smaller: closer to the optimum, "
-             "slower). Default: 0.01."),
+        "slower). Default: 0.01.",
+    ),
     observations: Optional[str] = typer.Option(
-        None, "--observations",
+        None,
+        "--observations",
         help="simulated (each pass's observations) or matched (those 'misrgraph match' measured). Fixed when the "
-             "state is created (default: simulated); a later update may repeat it, not change it."),
+        "state is created (default: simulated); a later update may repeat it, not change it.",
+    ),
     config: Optional[Path] = typer.Option(
-        None, "--config", help=CONFIG_HELP.format(cls="AdjustConfig") + " Fixed when the state is created."),
+        None, "--config", help=CONFIG_HELP.format(cls="AdjustConfig") + " Fixed when the state is created."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON."),
 ) -> None:
     """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
@@ -59,31 +69,55 @@ def update(
     if not passes and report is None:
         fail("PASSES: give new pass files to add, or --report PASS_ID for an earlier pass")
     with err_console.status("updating...") as st:
-        out = run_update(state, [str(p) for p in passes or []], camera_model, gcp_file, dem_file, cfg=cfg,
-                         compare_batch=compare_batch, progress=lambda m: st.update(m), report=report,
-                         linearization_tol=linearization_tol, observations=observations)  # None: the library default
+        out = run_update(
+            state,
+            [str(p) for p in passes or []],
+            camera_model,
+            gcp_file,
+            dem_file,
+            cfg=cfg,
+            compare_batch=compare_batch,
+            progress=lambda m: st.update(m),
+            report=report,
+            linearization_tol=linearization_tol,
+            observations=observations,
+        )  # None: the library default
     if as_json:
         print_json(out)
         return
     console.print(f"state {out['state']}: {out['passes_in_state']} passes ({out['observation_set']} observations)")
     if "report" in out:
         r = out["report"]
-        console.print(f"{r['pass_id']}: knots kept/removed " + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in r["knots"].items())
-                      + "; mean knot sigma (arcsec) " + ", ".join(f"{a} {np.mean(v):.2f}" for a, v in r["attitude_knot_sigma_arcsec"].items()))
+        console.print(
+            f"{r['pass_id']}: knots kept/removed "
+            + ", ".join(f"{a} {v['kept']}/{v['removed']}" for a, v in r["knots"].items())
+            + "; mean knot sigma (arcsec) "
+            + ", ".join(f"{a} {np.mean(v):.2f}" for a, v in r["attitude_knot_sigma_arcsec"].items())
+        )
     for u in out["updates"]:
         if u["status"] != "added":
             console.print(f"{u['pass_id']}: {u['status']}")
             continue
-        line = (f"{u['pass_id']}: added in {u['update_seconds']:.2f} s ({u['relinearization_rounds']} re-linearisation rounds)")
+        line = (
+            f"{u['pass_id']}: added in {u['update_seconds']:.2f} s "
+            f"({u['relinearization_rounds']} re-linearisation rounds)"
+        )
         if "batch" in u:
             b = u["batch"]
-            line += f"; batch re-solve {b['seconds']:.2f} s (update/batch {b['ratio_update_over_batch']:.2f}), max difference {b['max_difference_in_sigma']:.1e} sigma"
+            line += (
+                f"; batch re-solve {b['seconds']:.2f} s (update/batch {b['ratio_update_over_batch']:.2f}), "
+                f"max difference {b['max_difference_in_sigma']:.1e} sigma"
+            )
         console.print(line)
         th, to = u["tie_height"], u["tie_offset"]
         if th["source"] != "off" or to["source"] != "off":
-            console.print(f"   tie points: shared height error {th['sigma_m']:.1f} m ({th['source']}), conjugates' shared offset "
-                          f"{to['sigma_px']:.3f} px ({to['source']}), both in their covariance")
+            console.print(
+                f"   tie points: shared height error {th['sigma_m']:.1f} m ({th['source']}), conjugates' shared offset "
+                f"{to['sigma_px']:.3f} px ({to['source']}), both in their covariance"
+            )
         if "nees" in u:
-            console.print(f"   NEES/dim knots {u['nees']['knots']:.2f}, landmarks {u['nees']['landmarks']:.2f}; "
-                          "attitude RMS where observed (arcsec) " + ", ".join(f"{k} {v:.1f}" for k, v in u["attitude_rms_arcsec_observed"].items()))
-
+            console.print(
+                f"   NEES/dim knots {u['nees']['knots']:.2f}, landmarks {u['nees']['landmarks']:.2f}; "
+                "attitude RMS where observed (arcsec) "
+                + ", ".join(f"{k} {v:.1f}" for k, v in u["attitude_rms_arcsec_observed"].items())
+            )

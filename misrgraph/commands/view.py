@@ -14,6 +14,7 @@ from misrgraph.commands.common import (
 
 __all__ = ["view"]
 
+
 @handle_errors
 def view(
     result: Path = typer.Argument(..., help="RESULT.h5 from adjust, or a camera model written by calibrate."),
@@ -25,5 +26,6 @@ def view(
     from misrgraph.viz.viewer import run_view
 
     out = run_view(result, save, spawn, exaggeration)
-    console.print(f"logged {len(out['entities'])} entities ({out['kind']})" + (f" to {out['rrd']}" if out["rrd"] else ""))
-
+    console.print(
+        f"logged {len(out['entities'])} entities ({out['kind']})" + (f" to {out['rrd']}" if out["rrd"] else "")
+    )

@@ -32,7 +32,7 @@ if HAVE_NUMBA:
         gc = np.zeros(n_c)
         n_obs, rows, d_nav = bc.shape
         for n in range(n_obs):
-            l = lm[n]
+            l = lm[n]  # noqa: E741 - the landmark index, as in the equations
             for k in range(rows):
                 rk = r[n, k]
                 for i in range(3):
@@ -61,5 +61,12 @@ def accumulate(bl, bc, r, lm, cc, nl3: int, n_c: int):
     """``(H_ll, H_lc, H_cc, g_l, g_c)`` from whitened per-observation blocks, or None without numba."""
     if not HAVE_NUMBA:
         return None
-    return _accumulate(np.ascontiguousarray(bl), np.ascontiguousarray(bc), np.ascontiguousarray(r),
-                       np.ascontiguousarray(lm, dtype=np.int64), np.ascontiguousarray(cc, dtype=np.int64), nl3, n_c)
+    return _accumulate(
+        np.ascontiguousarray(bl),
+        np.ascontiguousarray(bc),
+        np.ascontiguousarray(r),
+        np.ascontiguousarray(lm, dtype=np.int64),
+        np.ascontiguousarray(cc, dtype=np.int64),
+        nl3,
+        n_c,
+    )

@@ -34,25 +34,39 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from misrgraph.model.camera import CameraModel
 from misrgraph.config import Config
 from misrgraph.errors import DegenerateProblemError, InputError
+from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph, check_jitter
+from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
+from misrgraph.estimate.reliability import Reliability, critical_T, reliability
+from misrgraph.estimate.solver import SolverParams, check_converged, solve
+from misrgraph.estimate.tieheight import TIE_HEIGHT_MODES, inflate_along, shared_height_variance
+from misrgraph.estimate.tieoffset import TIE_OFFSET_MODES, counted_covariance, offset_covariance, offset_response
+from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
+from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles
 from misrgraph.model.errormodels import JITTER_PERIODS_S, AttitudeErrorModel, EphemerisErrorModel, unresolved_attitude
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
-from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph, check_jitter
-from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
-from misrgraph.estimate.solver import SolverParams, check_converged, solve
-from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
-from misrgraph.estimate.reliability import Reliability, critical_T, reliability
-from misrgraph.estimate.tieheight import TIE_HEIGHT_MODES, inflate_along, shared_height_variance
-from misrgraph.estimate.tieoffset import TIE_OFFSET_MODES, counted_covariance, offset_covariance, offset_response
 
-__all__ = ["AdjustConfig", "AdjustResult", "adjust_pass", "corrected_geometry", "find_blunders", "estimated_models",
-           "supplied_camera_of", "drop_unsupported_landmarks", "snoop", "attitude_sigma_summary", "adjustment_marginals",
-           "unresolved_attitude", "tie_point_terms", "tie_height_term", "tie_offset_term"]
+__all__ = [
+    "AdjustConfig",
+    "AdjustResult",
+    "adjust_pass",
+    "corrected_geometry",
+    "find_blunders",
+    "estimated_models",
+    "supplied_camera_of",
+    "drop_unsupported_landmarks",
+    "snoop",
+    "attitude_sigma_summary",
+    "adjustment_marginals",
+    "unresolved_attitude",
+    "tie_point_terms",
+    "tie_height_term",
+    "tie_offset_term",
+]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -157,23 +171,39 @@ class AdjustConfig(Config):
         check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
-        for name, modes, unit in (("tie_height_sigma_m", TIE_HEIGHT_MODES, "m"), ("tie_offset_sigma_px", TIE_OFFSET_MODES, "px")):
+        for name, modes, unit in (
+            ("tie_height_sigma_m", TIE_HEIGHT_MODES, "m"),
+            ("tie_offset_sigma_px", TIE_OFFSET_MODES, "px"),
+        ):
             v = getattr(self, name)
-            if not (v in modes if isinstance(v, str) else
-                    isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v >= 0):
+            if not (
+                v in modes
+                if isinstance(v, str)
+                else isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v >= 0
+            ):
                 raise InputError(name, v, f"one of {modes} or a finite 1 sigma >= 0 ({unit})")
         self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
-        base = dict(knot_spacing_s=self.knot_spacing_s, threshold1=self.threshold1, threshold2=self.threshold2,
-                    knot_rule=self.knot_rule, knot_prior=self.knot_prior, knot_prior_damping=self.knot_prior_damping,
-                    ephemeris_segments=self.ephemeris_segments, ephemeris_once_per_rev_m=self.ephemeris_once_per_rev_m,
-                    camera_prior_px=self.camera_prior_px,
-                    camera_params=tuple(self.camera_params), camera_focal_prior_px=self.camera_focal_prior_px,
-                    use_dem=self.use_dem, dem_sigma_scale=self.dem_sigma_scale,
-                    dem_smoothing_postings=self.dem_smoothing_postings, gcp_scenes=self.gcp_scenes,
-                    attitude_jitter_arcsec=self.attitude_jitter_arcsec if self.jitter_in_weights else 0.0,
-                    attitude_jitter_periods_s=tuple(self.attitude_jitter_periods_s))
+        base = dict(
+            knot_spacing_s=self.knot_spacing_s,
+            threshold1=self.threshold1,
+            threshold2=self.threshold2,
+            knot_rule=self.knot_rule,
+            knot_prior=self.knot_prior,
+            knot_prior_damping=self.knot_prior_damping,
+            ephemeris_segments=self.ephemeris_segments,
+            ephemeris_once_per_rev_m=self.ephemeris_once_per_rev_m,
+            camera_prior_px=self.camera_prior_px,
+            camera_params=tuple(self.camera_params),
+            camera_focal_prior_px=self.camera_focal_prior_px,
+            use_dem=self.use_dem,
+            dem_sigma_scale=self.dem_sigma_scale,
+            dem_smoothing_postings=self.dem_smoothing_postings,
+            gcp_scenes=self.gcp_scenes,
+            attitude_jitter_arcsec=self.attitude_jitter_arcsec if self.jitter_in_weights else 0.0,
+            attitude_jitter_periods_s=tuple(self.attitude_jitter_periods_s),
+        )
         base.update(overrides)
         return GraphConfig.from_dict(base)
 
@@ -221,25 +251,42 @@ class AdjustResult:
     tie_offset: dict = dataclasses.field(default_factory=lambda: {"source": "off", "sigma_px": 0.0})
 
 
-def estimated_models(pg: PassGraph, values: gtsam.Values, camera: CameraModel) -> tuple[AttitudeErrorModel, EphemerisErrorModel, CameraModel]:
-    att = AttitudeErrorModel([t.copy() for t in pg.attitude_model.knot_times],
-                             [np.array([values.atVector(k) for k in pg.knot_keys(a)]) for a in range(3)])
-    eph = EphemerisErrorModel(pg.ephemeris_model.boundaries.copy(), np.array([values.atVector(k) for k in pg.ephemeris_keys()]))
+def estimated_models(
+    pg: PassGraph, values: gtsam.Values, camera: CameraModel
+) -> tuple[AttitudeErrorModel, EphemerisErrorModel, CameraModel]:
+    att = AttitudeErrorModel(
+        [t.copy() for t in pg.attitude_model.knot_times],
+        [np.array([values.atVector(k) for k in pg.knot_keys(a)]) for a in range(3)],
+    )
+    eph = EphemerisErrorModel(
+        pg.ephemeris_model.boundaries.copy(), np.array([values.atVector(k) for k in pg.ephemeris_keys()])
+    )
     cam = camera.corrected(pg.camera_corrections(values), pg.camera_params)
     cam.provenance = dict(camera.provenance, adjusted="camera corrections estimated by misrgraph adjust")
     return att, eph, cam
 
 
-def corrected_geometry(orbit_pass: OrbitPass, att: AttitudeErrorModel, eph: EphemerisErrorModel, camera: CameraModel,
-                       attitude_extra: Callable[[Array], Array] | None = None) -> PassGeometry:
+def corrected_geometry(
+    orbit_pass: OrbitPass,
+    att: AttitudeErrorModel,
+    eph: EphemerisErrorModel,
+    camera: CameraModel,
+    attitude_extra: Callable[[Array], Array] | None = None,
+) -> PassGeometry:
     """Pass geometry with the estimated error models removed (true = measured - error);
     ``attitude_extra(t)`` (rad, ``(N, 3)``) is a further attitude error removed with them."""
     if attitude_extra is None:
         delta = lambda t: -att.evaluate(t)  # noqa: E731
     else:
         delta = lambda t: -(att.evaluate(t) + attitude_extra(t))  # noqa: E731
-    return PassGeometry(orbit_pass.ephemeris, orbit_pass.attitude, camera, t0=orbit_pass.t0,
-                        attitude_delta=delta, position_delta=lambda t: -eph.evaluate(t))
+    return PassGeometry(
+        orbit_pass.ephemeris,
+        orbit_pass.attitude,
+        camera,
+        t0=orbit_pass.t0,
+        attitude_delta=delta,
+        position_delta=lambda t: -eph.evaluate(t),
+    )
 
 
 def adjust_pass(
@@ -273,15 +320,17 @@ def adjust_pass(
     rejected, dropped = drop_unsupported_landmarks(orbit_pass, rejected, cfg.drop_rejected_tie_points)
     if progress:
         progress("least-squares solve")
-    pg = build_pass_graph(orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected,
-                          camera_prior=camera_prior)
+    pg = build_pass_graph(
+        orbit_pass, camera, dem, gcps, cfg.graph_config(), exclude_observations=rejected, camera_prior=camera_prior
+    )
     res = solve(pg.problem, params.replace(backend=cfg.backend))
     check_converged(res, "the least-squares solve", cfg.accept_unconverged)
 
     def resolve(op: OrbitPass, excluded: NDArray[np.bool_], previous: gtsam.Values, after: str):
         """Rebuild and re-solve, warm-started from the previous optimum."""
-        g = build_pass_graph(op, camera, dem, gcps, cfg.graph_config(), exclude_observations=excluded,
-                             camera_prior=camera_prior)
+        g = build_pass_graph(
+            op, camera, dem, gcps, cfg.graph_config(), exclude_observations=excluded, camera_prior=camera_prior
+        )
         g.problem.warm_start(previous)
         r = solve(g.problem, params.replace(backend=cfg.backend))
         check_converged(r, f"the least-squares solve after {after}", cfg.accept_unconverged)
@@ -312,16 +361,19 @@ def adjust_pass(
         for k, v in moved.items():
             vc_scale[k] *= v
         if progress:
-            progress(f"variance components: round {rnd + 1}, sigma scale " +
-                     ", ".join(f"{k} {v:.3f}" for k, v in vc_scale.items()))
+            progress(
+                f"variance components: round {rnd + 1}, sigma scale "
+                + ", ".join(f"{k} {v:.3f}" for k, v in vc_scale.items())
+            )
         orbit_pass = _with_sigma_scale(orbit_pass, stated, vc_scale)
         pg, res = resolve(orbit_pass, rejected, res.values, "variance-component estimation")
         at = _reliability_at(orbit_pass, pg, res.values)
     if progress:
         progress("marginal covariances")
     marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
-    tie_height, offset, extra = tie_point_terms(orbit_pass, camera, pg, res.values, marg, cfg, ties_matched,
-                                                tie_offset_px, tie_offset_own_ratio, at)
+    tie_height, offset, extra = tie_point_terms(
+        orbit_pass, camera, pg, res.values, marg, cfg, ties_matched, tie_offset_px, tie_offset_own_ratio, at
+    )
     if progress and tie_height["source"] == "estimated":
         progress(f"tie points' shared height error: {tie_height['sigma_m']:.1f} m")
     r, _ = pg.collinearity.residuals(res.values)
@@ -333,17 +385,44 @@ def adjust_pass(
     if cfg.variance_component_rounds:
         rel["sigma_scale_applied"] = vc_scale
     rel["covariance"] = cov_used
-    return AdjustResult(pg, res.values, marg, att, eph, cam, rej, norm[rej], resid, res.iterations, res.final_error,
-                        res.history, time.perf_counter() - t0, dropped, res.status,
-                        variance_factor(pg.problem, res.final_error), rel,
-                        unresolved_attitude(pg.attitude_model.knot_times, cfg.attitude_jitter_arcsec, cfg.attitude_jitter_periods_s),
-                        np.flatnonzero(snooped), tie_height, extra, offset)
+    return AdjustResult(
+        pg,
+        res.values,
+        marg,
+        att,
+        eph,
+        cam,
+        rej,
+        norm[rej],
+        resid,
+        res.iterations,
+        res.final_error,
+        res.history,
+        time.perf_counter() - t0,
+        dropped,
+        res.status,
+        variance_factor(pg.problem, res.final_error),
+        rel,
+        unresolved_attitude(pg.attitude_model.knot_times, cfg.attitude_jitter_arcsec, cfg.attitude_jitter_periods_s),
+        np.flatnonzero(snooped),
+        tie_height,
+        extra,
+        offset,
+    )
 
 
-def tie_point_terms(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, values: gtsam.Values, marginals: Marginals,
-                    cfg: AdjustConfig, ties_matched: bool, tie_offset_px: float | None = None,
-                    tie_offset_own_ratio: dict[str, float] | None = None, at: "_ReliabilityAt | None" = None,
-                    ) -> tuple[dict[str, Any], dict[str, Any], dict[int, Array]]:
+def tie_point_terms(
+    orbit_pass: OrbitPass,
+    camera: CameraModel,
+    pg: PassGraph,
+    values: gtsam.Values,
+    marginals: Marginals,
+    cfg: AdjustConfig,
+    ties_matched: bool,
+    tie_offset_px: float | None = None,
+    tie_offset_own_ratio: dict[str, float] | None = None,
+    at: "_ReliabilityAt | None" = None,
+) -> tuple[dict[str, Any], dict[str, Any], dict[int, Array]]:
     """The tie points' shared height error (:func:`tie_height_term`) and their conjugates' shared
     offset (:func:`tie_offset_term`), each set by ``cfg``, added to the tie landmarks' blocks of
     ``marginals`` in place (m^2). Returns the two terms' summaries and, per tie landmark key, the
@@ -354,8 +433,9 @@ def tie_point_terms(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
     if at is None and _tie_height_mode(cfg.tie_height_sigma_m, ties_matched) == "estimate":
         at = _reliability_at(orbit_pass, pg, values)
     tie_height, extra = tie_height_term(orbit_pass, camera, pg, values, at, cfg.tie_height_sigma_m, ties_matched)
-    offset, extra_o = tie_offset_term(orbit_pass, pg, values, cfg.tie_offset_sigma_px,
-                                      tie_offset_px if ties_matched else None, tie_offset_own_ratio)
+    offset, extra_o = tie_offset_term(
+        orbit_pass, pg, values, cfg.tie_offset_sigma_px, tie_offset_px if ties_matched else None, tie_offset_own_ratio
+    )
     extra = {k: extra.get(k, 0) + extra_o.get(k, 0) for k in set(extra) | set(extra_o)}
     for k, c in extra.items():
         marginals.cov[k] = marginals.cov[k] + c
@@ -367,8 +447,15 @@ def _tie_height_mode(setting: float | str, ties_matched: bool) -> float | str:
     return ("estimate" if ties_matched else 0.0) if setting == "auto" else setting
 
 
-def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, values: gtsam.Values,
-                    at: "_ReliabilityAt | None", setting: float | str, ties_matched: bool) -> tuple[dict[str, Any], dict[int, Array]]:
+def tie_height_term(
+    orbit_pass: OrbitPass,
+    camera: CameraModel,
+    pg: PassGraph,
+    values: gtsam.Values,
+    at: "_ReliabilityAt | None",
+    setting: float | str,
+    ties_matched: bool,
+) -> tuple[dict[str, Any], dict[int, Array]]:
     """The shared height error of the tie points (:mod:`misrgraph.estimate.tieheight`): its summary
     and, per tie landmark key, ``s^2 u u^T`` (m^2) with ``u`` along An's ray (the local vertical
     for a tie point An does not see). ``setting``: ``AdjustConfig.tie_height_sigma_m``.
@@ -378,7 +465,11 @@ def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
     mode = _tie_height_mode(setting, ties_matched)
     if mode == "estimate":
         if at is None:
-            return {"source": "off", "sigma_m": 0.0, "reason": "no redundancy numbers (problem outside the flat form)"}, {}
+            return {
+                "source": "off",
+                "sigma_m": 0.0,
+                "reason": "no redundancy numbers (problem outside the flat form)",
+            }, {}
         flat = pg.problem.flat()
         fam = at[0].families["dem"]
         if flat.dem is None or fam.stop <= fam.start:
@@ -386,9 +477,14 @@ def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
         e, q = at[0].e[fam], at[0].r[fam]
         est = shared_height_variance(e * flat.dem.sigma_m, flat.dem.sigma_m, np.clip(q, 1e-9, 1.0))
         s2 = est.variance_m2
-        info: dict[str, Any] = {"source": "estimated", "sigma_m": est.sigma_m, "variance_m2": s2,
-                                "unclipped_variance_m2": est.unclipped_m2, "standard_error_m2": est.standard_error_m2,
-                                "dem_factors": est.n}
+        info: dict[str, Any] = {
+            "source": "estimated",
+            "sigma_m": est.sigma_m,
+            "variance_m2": s2,
+            "unclipped_variance_m2": est.unclipped_m2,
+            "standard_error_m2": est.standard_error_m2,
+            "dem_factors": est.n,
+        }
     else:
         s2 = float(mode) ** 2
         info = {"source": "fixed" if s2 > 0 else "off", "sigma_m": float(mode)}
@@ -404,16 +500,23 @@ def tie_height_term(orbit_pass: OrbitPass, camera: CameraModel, pg: PassGraph, v
     has = np.isin(rows, seen)
     if has.any():
         idx = an[first[np.searchsorted(seen, rows[has])]]
-        _, d = orbit_pass.geometry(camera).pixel_rays(obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx],
-                                                      exposure=obs.exposure_index[idx])
+        _, d = orbit_pass.geometry(camera).pixel_rays(
+            obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx], exposure=obs.exposure_index[idx]
+        )
         u[has] = -d
     cov = inflate_along(np.zeros((keys.size, 3, 3)), u, s2)
     info["tie_points"] = int(keys.size)
     return info, {int(k): c for k, c in zip(keys, cov)}
 
 
-def tie_offset_term(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values, setting: float | str,
-                    measured_px: float | None, own_ratio: dict[str, float] | None = None) -> tuple[dict[str, Any], dict[int, Array]]:
+def tie_offset_term(
+    orbit_pass: OrbitPass,
+    pg: PassGraph,
+    values: gtsam.Values,
+    setting: float | str,
+    measured_px: float | None,
+    own_ratio: dict[str, float] | None = None,
+) -> tuple[dict[str, Any], dict[int, Array]]:
     """The offset a matched tie point's conjugates share (:mod:`misrgraph.estimate.tieoffset`): its
     summary and, per tie landmark key, ``s_o^2 R R^T - sum_c a_c R_c R_c^T`` (m^2). ``setting``:
     ``AdjustConfig.tie_offset_sigma_px``; ``measured_px``: the matcher's ``s_o`` (None: none);
@@ -448,7 +551,9 @@ def tie_offset_term(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values, 
     blk = flat.normal_equations(x)[0]
     rho = np.array([(own_ratio or {}).get(c, 1.0) for c in CAMERAS])[obs.camera[rows]]
     counted = np.where(shared, np.minimum(obs.sigma_px[rows] ** 2 * np.clip(1.0 - rho**2, 0.0, None), s_o**2), 0.0)
-    cov = offset_covariance(offset_response(blk, jac, sigma, lm, shared), s_o) - counted_covariance(blk, jac, sigma, lm, counted)
+    cov = offset_covariance(offset_response(blk, jac, sigma, lm, shared), s_o) - counted_covariance(
+        blk, jac, sigma, lm, counted
+    )
     info["tie_points"] = len(keys)
     if own_ratio:
         info["own_scale_ratio"] = dict(own_ratio)
@@ -491,7 +596,9 @@ def _with_sigma_scale(orbit_pass: OrbitPass, stated: Array, scale: dict[str, flo
     """The pass with the ``stated`` tie-point and GCP observation sigmas multiplied by ``scale``."""
     obs = orbit_pass.observations
     kind = orbit_pass.landmarks.kind[obs.landmark]
-    sig = np.where(kind == KIND_TIE, stated * scale["tie-point"], np.where(kind == KIND_GCP, stated * scale["GCP"], stated))
+    sig = np.where(
+        kind == KIND_TIE, stated * scale["tie-point"], np.where(kind == KIND_GCP, stated * scale["GCP"], stated)
+    )
     return dataclasses.replace(orbit_pass, observations=dataclasses.replace(obs, sigma_px=sig))
 
 
@@ -509,9 +616,13 @@ def attitude_sigma_summary(res: AdjustResult, prior_arcsec: tuple, step_s: float
         t = np.arange(kt[0], kt[-1] + step_s / 2, step_s)  # the spline's own span (no extrapolation)
         sig = pg.attitude_sigma(res.marginals, a, t) / ARCSEC
         i = int(np.argmax(sig))
-        out[name] = {"max_sigma_arcsec": float(sig[i]), "at_s": float(t[i] - t0), "prior_sigma_arcsec": float(prior_arcsec[a]),
-                     "max_over_prior": float(sig[i] / prior_arcsec[a]),
-                     "unresolved_sigma_arcsec": float(res.unresolved_attitude_rad / ARCSEC)}
+        out[name] = {
+            "max_sigma_arcsec": float(sig[i]),
+            "at_s": float(t[i] - t0),
+            "prior_sigma_arcsec": float(prior_arcsec[a]),
+            "max_over_prior": float(sig[i] / prior_arcsec[a]),
+            "unresolved_sigma_arcsec": float(res.unresolved_attitude_rad / ARCSEC),
+        }
     return out
 
 
@@ -531,8 +642,9 @@ def _reliability_at(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values) 
     return rel, obs_of_row, orbit_pass.landmarks.kind[orbit_pass.observations.landmark[obs_of_row]]
 
 
-def snoop(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values,
-          at: _ReliabilityAt | None = None) -> NDArray[np.int64]:
+def snoop(
+    orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values, at: _ReliabilityAt | None = None
+) -> NDArray[np.int64]:
     """One round of iterated data snooping (Baarda): the observation indices whose statistic
     ``T`` exceeds the critical value at :data:`W_TEST_ALPHA`, at most one per landmark (its
     largest: a mismatch also inflates its landmark's other residuals). ``at``: the reliability at
@@ -550,8 +662,9 @@ def snoop(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values,
     return np.sort(obs_of_row[bad[order[first]]]).astype(np.int64)
 
 
-def reliability_summary(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values,
-                        at: _ReliabilityAt | None = None) -> dict[str, Any]:
+def reliability_summary(
+    orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values, at: _ReliabilityAt | None = None
+) -> dict[str, Any]:
     """Redundancy, Baarda's data snooping and variance components per observation class (tie
     points, GCPs), DEM and priors at the least-squares optimum (:mod:`misrgraph.estimate.reliability`);
     ``flagged``: the observations whose statistic exceeds the critical value, largest first.
@@ -565,13 +678,25 @@ def reliability_summary(orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Valu
     bad = np.flatnonzero(rel.T > crit)
     bad = bad[np.argsort(-rel.T[bad])]
     out["data_snooping"]["flagged_observations"] = [
-        {"index": int(obs_of_row[i]), "camera": CAMERAS[int(orbit_pass.observations.camera[obs_of_row[i]])],
-         "T": float(rel.T[i]), "redundancy": float(np.trace(rel.R_obs[i]) / 2)} for i in bad[:20]]
+        {
+            "index": int(obs_of_row[i]),
+            "camera": CAMERAS[int(orbit_pass.observations.camera[obs_of_row[i]])],
+            "T": float(rel.T[i]),
+            "redundancy": float(np.trace(rel.R_obs[i]) / 2),
+        }
+        for i in bad[:20]
+    ]
     return out
 
 
-def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | None, gcps: GcpDatabase | None,
-                  cfg: AdjustConfig, camera_prior: tuple[list[str], Array] | None = None) -> tuple[NDArray[np.bool_], Array]:
+def find_blunders(
+    orbit_pass: OrbitPass,
+    camera: CameraModel,
+    dem: DemTiles | None,
+    gcps: GcpDatabase | None,
+    cfg: AdjustConfig,
+    camera_prior: tuple[list[str], Array] | None = None,
+) -> tuple[NDArray[np.bool_], Array]:
     """Robust (per-observation) solve of one pass; observations whose whitened residual norm
     exceeds ``reject_sigma`` are blunders. Returns (rejected mask, normalised residual) per
     observation. ``camera_prior``: as :func:`adjust_pass`."""
@@ -580,9 +705,14 @@ def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | No
     norm = np.zeros(len(obs))
     if cfg.robust == "none":
         return rejected, norm
-    pg_r = build_pass_graph(orbit_pass, camera, dem, gcps,
-                            cfg.graph_config(group_by="observation", robust=cfg.robust, robust_k=cfg.robust_k),
-                            camera_prior=camera_prior)
+    pg_r = build_pass_graph(
+        orbit_pass,
+        camera,
+        dem,
+        gcps,
+        cfg.graph_config(group_by="observation", robust=cfg.robust, robust_k=cfg.robust_k),
+        camera_prior=camera_prior,
+    )
     res_r = solve(pg_r.problem, SolverParams(max_iterations=cfg.max_iterations))
     check_converged(res_r, "the robust solve (blunder screening)", cfg.accept_unconverged)
     r, _ = pg_r.collinearity.residuals(res_r.values)
@@ -590,13 +720,18 @@ def find_blunders(orbit_pass: OrbitPass, camera: CameraModel, dem: DemTiles | No
     idx = pg_r.obs_index[pg_r.collinearity.order]
     norm[idx] = whit
     rejected[idx] = whit > cfg.reject_sigma
-    log.info("robust solve: %d iterations; %d observations rejected (> %.1f sigma)", res_r.iterations,
-             int(rejected.sum()), cfg.reject_sigma)
+    log.info(
+        "robust solve: %d iterations; %d observations rejected (> %.1f sigma)",
+        res_r.iterations,
+        int(rejected.sum()),
+        cfg.reject_sigma,
+    )
     return rejected, norm
 
 
-def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_],
-                               any_rejection: bool = False) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+def drop_unsupported_landmarks(
+    orbit_pass: OrbitPass, rejected: NDArray[np.bool_], any_rejection: bool = False
+) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
     """Exclude every observation of a tie point that the blunder test left unsupported.
 
     A landmark is dropped when more than half of its observations were rejected, or when fewer
@@ -619,8 +754,12 @@ def drop_unsupported_landmarks(orbit_pass: OrbitPass, rejected: NDArray[np.bool_
     drop = (kinds == KIND_TIE) & (total > 0) & unsupported
     rows = np.flatnonzero(drop)
     if rows.size:
-        log.info("dropped %d tie points %s (rows %s)", rows.size,
-                 "with a rejected ray" if any_rejection else "whose rays were mostly rejected", rows[:20].tolist())
+        log.info(
+            "dropped %d tie points %s (rows %s)",
+            rows.size,
+            "with a rejected ray" if any_rejection else "whose rays were mostly rejected",
+            rows[:20].tolist(),
+        )
     return rejected | drop[obs.landmark], rows.astype(np.int64)
 
 
@@ -628,5 +767,3 @@ def supplied_camera_of(res: AdjustResult) -> CameraModel:
     """The camera model before this adjustment's corrections (corrections are stored in values)."""
     pg = res.pass_graph
     return res.camera.corrected(pg.camera_corrections(res.values), pg.camera_params, sign=-1.0)
-
-

@@ -23,17 +23,22 @@ from numpy.typing import NDArray
 
 from factors.collinearity import collinearity_residual
 from factors.dem_height import dem_residual
-from misrgraph.estimate.problem import FlatProblem
 from misrgraph.errors import InputError, require_extra
+from misrgraph.estimate.problem import FlatProblem
 
 __all__ = ["solve_scipy", "solve_scipy_newton", "solve_ceres"]
 
 Array = NDArray[np.float64]
 
 
-def solve_scipy(flat: FlatProblem, ftol: float = 1e-5, max_nfev: int = 200,
-                on_cost: Callable[[float], None] | None = None, x_scale: str | float = "jac",
-                on_point: Callable[[Array, float], None] | None = None) -> dict[str, Any]:
+def solve_scipy(
+    flat: FlatProblem,
+    ftol: float = 1e-5,
+    max_nfev: int = 200,
+    on_cost: Callable[[float], None] | None = None,
+    x_scale: str | float = "jac",
+    on_point: Callable[[Array, float], None] | None = None,
+) -> dict[str, Any]:
     """``scipy.optimize.least_squares`` (trust region reflective, sparse Jacobian, LSMR).
 
     ``on_cost(cost)`` is called with the cost of every evaluated point, ``on_point(x, cost)``
@@ -53,14 +58,33 @@ def solve_scipy(flat: FlatProblem, ftol: float = 1e-5, max_nfev: int = 200,
         return r
 
     t0 = time.perf_counter()
-    res = least_squares(fun, flat.initial(), jac=flat.jacobian, method="trf", ftol=ftol, xtol=1e-15, gtol=1e-15,
-                        x_scale=x_scale, max_nfev=max_nfev, tr_solver="lsmr")
-    return {"x": res.x, "cost": float(res.cost), "iterations": int(res.njev), "seconds": time.perf_counter() - t0,
-            "status": int(res.status)}
+    res = least_squares(
+        fun,
+        flat.initial(),
+        jac=flat.jacobian,
+        method="trf",
+        ftol=ftol,
+        xtol=1e-15,
+        gtol=1e-15,
+        x_scale=x_scale,
+        max_nfev=max_nfev,
+        tr_solver="lsmr",
+    )
+    return {
+        "x": res.x,
+        "cost": float(res.cost),
+        "iterations": int(res.njev),
+        "seconds": time.perf_counter() - t0,
+        "status": int(res.status),
+    }
 
 
-def solve_scipy_newton(flat: FlatProblem, gtol: float = 1e-8, max_iterations: int = 200,
-                       on_point: Callable[[Array, float], None] | None = None) -> dict[str, Any]:
+def solve_scipy_newton(
+    flat: FlatProblem,
+    gtol: float = 1e-8,
+    max_iterations: int = 200,
+    on_point: Callable[[Array, float], None] | None = None,
+) -> dict[str, Any]:
     """A second-order peer: ``scipy.optimize.minimize(method="trust-krylov")`` on the cost
     ``0.5 ||r(x)||^2`` with its gradient ``J^T r`` and Hessian-vector products of ``J^T J`` plus
     the DEM factors' second-order term (the same curvature the core adds near convergence,
@@ -89,8 +113,10 @@ def solve_scipy_newton(flat: FlatProblem, gtol: float = 1e-8, max_iterations: in
         if flat.dem is not None and len(flat.dem):
             li, corr = flat.dem_curvature(x)
             cols = flat._dem_cols
-            h = sp.csr_matrix((corr.ravel(), (np.repeat(cols, 3, axis=1).ravel(), np.tile(cols, (1, 3)).ravel())),
-                              shape=(flat.n, flat.n))
+            h = sp.csr_matrix(
+                (corr.ravel(), (np.repeat(cols, 3, axis=1).ravel(), np.tile(cols, (1, 3)).ravel())),
+                shape=(flat.n, flat.n),
+            )
         state.update(y=y.copy(), jac=jac, dem=h)
         if on_point is not None:
             on_point(x, cost)
@@ -104,11 +130,17 @@ def solve_scipy_newton(flat: FlatProblem, gtol: float = 1e-8, max_iterations: in
         return (out if state["dem"] is None else out + state["dem"] @ u) / s
 
     t0 = time.perf_counter()
-    res = minimize(fun, x0 * s, jac=True, hessp=hessp, method="trust-krylov",
-                   options={"gtol": gtol, "maxiter": max_iterations})
+    res = minimize(
+        fun, x0 * s, jac=True, hessp=hessp, method="trust-krylov", options={"gtol": gtol, "maxiter": max_iterations}
+    )
     res.x = res.x / s
-    return {"x": res.x, "cost": float(res.fun), "iterations": int(res.nit), "seconds": time.perf_counter() - t0,
-            "status": int(res.status)}
+    return {
+        "x": res.x,
+        "cost": float(res.fun),
+        "iterations": int(res.nit),
+        "seconds": time.perf_counter() - t0,
+        "status": int(res.status),
+    }
 
 
 class _CostRows:
@@ -173,10 +205,16 @@ class _CostRows:
         return res, jm
 
 
-def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100,
-                on_cost: Callable[[float], None] | None = None, max_seconds: float | None = None,
-                on_point: Callable[[Array, float], None] | None = None,
-                linear_solver: str = "DENSE_SCHUR", group: int = 1) -> dict[str, Any]:
+def solve_ceres(
+    flat: FlatProblem,
+    ftol: float = 1e-5,
+    max_iterations: int = 100,
+    on_cost: Callable[[float], None] | None = None,
+    max_seconds: float | None = None,
+    on_point: Callable[[Array, float], None] | None = None,
+    linear_solver: str = "DENSE_SCHUR",
+    group: int = 1,
+) -> dict[str, Any]:
     """Ceres (pyceres) on the same vectorised residuals: one cost function per ``group``
     consecutive landmarks (their collinearity observations and DEM rows, evaluated by the pure
     functions on numpy arrays in one call, :class:`_CostRows`) and one per linear prior;
@@ -194,21 +232,25 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
     if not (isinstance(group, int) and group >= 1):
         raise InputError("group", group, "a whole number of landmarks per cost function >= 1")
     if group > 1 and linear_solver.endswith("SCHUR"):
-        raise InputError("linear_solver", linear_solver, "a non-Schur solver (e.g. SPARSE_NORMAL_CHOLESKY) when group > 1: "
-                         "a cost function over several landmarks couples them, and Schur elimination needs them independent")
+        raise InputError(
+            "linear_solver",
+            linear_solver,
+            "a non-Schur solver (e.g. SPARSE_NORMAL_CHOLESKY) when group > 1: "
+            "a cost function over several landmarks couples them, and Schur elimination needs them independent",
+        )
     pyceres = require_extra("pyceres", "bench", "the Ceres comparison of misrgraph bench sba")
 
     problem = flat.problem
     b = flat.coll
     x = flat.initial()
-    params = {k: x[flat.offset[k]: flat.offset[k] + problem.dims[k]].copy() for k in flat.keys}
+    params = {k: x[flat.offset[k] : flat.offset[k] + problem.dims[k]].copy() for k in flat.keys}
     dem_of = {int(k): i for i, k in enumerate(flat.dem.keys)} if flat.dem is not None else {}
 
     class Landmarks(pyceres.CostFunction):
         def __init__(self, factors: range) -> None:
             super().__init__()
             lay = b.layout
-            lms = {int(k) for k in b.slot_keys[0][lay.obs_start[factors.start]:lay.obs_stop[factors.stop - 1]]}
+            lms = {int(k) for k in b.slot_keys[0][lay.obs_start[factors.start] : lay.obs_stop[factors.stop - 1]]}
             self.rows = _CostRows(flat, factors, {lm: dem_of.pop(lm) for lm in lms if lm in dem_of})
             self.keys = self.rows.keys
             self.set_num_residuals(self.rows.n_res)
@@ -225,7 +267,7 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
                 c = 0
                 for i, d in enumerate(self.rows.dims):
                     if jacobians[i] is not None:
-                        jacobians[i][:] = jm[:, c:c + d].ravel()
+                        jacobians[i][:] = jm[:, c : c + d].ravel()
                     c += d
             return True
 
@@ -282,7 +324,7 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
     def current() -> Array:
         xs = np.zeros(flat.n)
         for k, p in params.items():
-            xs[flat.offset[k]: flat.offset[k] + p.size] = p
+            xs[flat.offset[k] : flat.offset[k] + p.size] = p
         return xs
 
     if max_seconds is not None:
@@ -304,5 +346,10 @@ def solve_ceres(flat: FlatProblem, ftol: float = 1e-5, max_iterations: int = 100
     t0 = time.perf_counter()
     pyceres.solve(opts, prob, summary)
     seconds = time.perf_counter() - t0
-    return {"x": current(), "cost": float(summary.final_cost), "iterations": int(summary.num_successful_steps + summary.num_unsuccessful_steps),
-            "seconds": seconds, "report": summary.BriefReport()}
+    return {
+        "x": current(),
+        "cost": float(summary.final_cost),
+        "iterations": int(summary.num_successful_steps + summary.num_unsuccessful_steps),
+        "seconds": seconds,
+        "report": summary.BriefReport(),
+    }

@@ -38,22 +38,44 @@ from numpy.typing import NDArray
 from factors import keys as K
 from factors.collinearity import camera_param_scale
 from misrgraph import __version__
-from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.config import Config
-from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.errors import DegenerateProblemError, InputError
-from misrgraph.model.gcp import GcpDatabase
-from misrgraph.estimate.graph import GraphConfig, calibration_prior_sigma, check_jitter, PassGraph, build_pass_graph, merge_problems
-from misrgraph.model.errormodels import JITTER_PERIODS_S
-from misrgraph.io.results import capped_list
-from misrgraph.io.passes import KIND_GCP, OrbitPass
-from misrgraph.estimate.solver import SolverParams, check_converged, solve
+from misrgraph.estimate.graph import (
+    GraphConfig,
+    PassGraph,
+    build_pass_graph,
+    calibration_prior_sigma,
+    check_jitter,
+    merge_problems,
+)
 from misrgraph.estimate.problem import Problem, marginal_covariances, variance_factor
+from misrgraph.estimate.solver import SolverParams, check_converged, solve
+from misrgraph.io.passes import KIND_GCP, OrbitPass
+from misrgraph.io.results import capped_list
+from misrgraph.model.camera import CameraModel, TabulatedCameraModel
+from misrgraph.model.constants import BANDS, CAMERAS
+from misrgraph.model.errormodels import JITTER_PERIODS_S
+from misrgraph.model.gcp import GcpDatabase
 
-__all__ = ["CalibrateConfig", "CalibrationResult", "calibrate_passes", "pointing_error_px", "temperature_bins",
-           "thermal_slopes", "slope_estimates", "SlopeEstimates", "summarise", "evaluation_grid", "calibrated_models",
-           "supplied_models_at", "calibrated_bands", "camera_keys", "decode_camera_key", "param_value",
-           "camera_variance_components"]
+__all__ = [
+    "CalibrateConfig",
+    "CalibrationResult",
+    "calibrate_passes",
+    "pointing_error_px",
+    "temperature_bins",
+    "thermal_slopes",
+    "slope_estimates",
+    "SlopeEstimates",
+    "summarise",
+    "evaluation_grid",
+    "calibrated_models",
+    "supplied_models_at",
+    "calibrated_bands",
+    "camera_keys",
+    "decode_camera_key",
+    "param_value",
+    "camera_variance_components",
+]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -114,14 +136,26 @@ class CalibrateConfig(Config):
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
         if not (np.isfinite(self.focal_prior_px) and self.focal_prior_px >= 0):
-            raise InputError("focal_prior_px", self.focal_prior_px, "0 (the wide pre-flight prior) or a positive 1 sigma in pixels")
+            raise InputError(
+                "focal_prior_px", self.focal_prior_px, "0 (the wide pre-flight prior) or a positive 1 sigma in pixels"
+            )
 
     def graph_config(self, **kw: Any) -> GraphConfig:
-        base = dict(knot_spacing_s=self.knot_spacing_s, knot_prior=self.knot_prior, threshold1=0, threshold2=0, use_dem=False,
-                    estimate_camera=True, camera_params=tuple(self.params), camera_per_band=self.per_band,
-                    camera_prior_calibration=True, calibration_focal_prior_px=self.focal_prior_px,
-                    estimate_omega=self.estimate_omega, attitude_jitter_arcsec=self.attitude_jitter_arcsec,
-                    attitude_jitter_periods_s=tuple(self.attitude_jitter_periods_s))
+        base = dict(
+            knot_spacing_s=self.knot_spacing_s,
+            knot_prior=self.knot_prior,
+            threshold1=0,
+            threshold2=0,
+            use_dem=False,
+            estimate_camera=True,
+            camera_params=tuple(self.params),
+            camera_per_band=self.per_band,
+            camera_prior_calibration=True,
+            calibration_focal_prior_px=self.focal_prior_px,
+            estimate_omega=self.estimate_omega,
+            attitude_jitter_arcsec=self.attitude_jitter_arcsec,
+            attitude_jitter_periods_s=tuple(self.attitude_jitter_periods_s),
+        )
         base.update(kw)
         return GraphConfig.from_dict(base)
 
@@ -153,6 +187,7 @@ class CalibrationResult:
     def binned(self) -> bool:
         """Corrections estimated per temperature bin (more than one supplied model)."""
         return len(self.supplied_models) > 1
+
     #: a-posteriori variance factor and its chi-square test (:func:`misrgraph.estimate.problem.variance_factor`)
     variance_factor: dict = dataclasses.field(default_factory=dict)
     #: per round of variance-component estimation, each camera's ``{sigma0, redundancy, rows}``,
@@ -160,18 +195,33 @@ class CalibrationResult:
     variance_components: dict = dataclasses.field(default_factory=dict)
 
 
-def _build(passes: list[OrbitPass], camera: CameraModel, gcps: GcpDatabase, cfg: GraphConfig,
-           exclude: list[NDArray[np.bool_]] | None, progress: Callable[[str], None] | None,
-           table: Any = None, bins: NDArray[np.int64] | None = None) -> tuple[Problem, list[PassGraph]]:
+def _build(
+    passes: list[OrbitPass],
+    camera: CameraModel,
+    gcps: GcpDatabase,
+    cfg: GraphConfig,
+    exclude: list[NDArray[np.bool_]] | None,
+    progress: Callable[[str], None] | None,
+    table: Any = None,
+    bins: NDArray[np.int64] | None = None,
+) -> tuple[Problem, list[PassGraph]]:
     shared: set[int] = set()
     graphs = []
     for i, p in enumerate(passes):
         if progress and i % 20 == 0:
             progress(f"graph: pass {i + 1}/{len(passes)}")
-        pg = build_pass_graph(p, camera, None, gcps, cfg, pass_index=i, shared=shared,
-                              exclude_observations=exclude[i] if exclude else None,
-                              camera_for_pass=table.at_temperature(p.temperature_c) if table is not None else None,
-                              temperature_bin=int(bins[i]) if bins is not None else 0)
+        pg = build_pass_graph(
+            p,
+            camera,
+            None,
+            gcps,
+            cfg,
+            pass_index=i,
+            shared=shared,
+            exclude_observations=exclude[i] if exclude else None,
+            camera_for_pass=table.at_temperature(p.temperature_c) if table is not None else None,
+            temperature_bin=int(bins[i]) if bins is not None else 0,
+        )
         shared |= set(pg.problem.initial.keys()) & (set(pg.problem.eliminate_first) | set(pg.problem.eliminate_last))
         graphs.append(pg)
     return merge_problems([g.problem for g in graphs]), graphs
@@ -183,8 +233,9 @@ def decode_camera_key(ck: int, cfg: CalibrateConfig) -> tuple[int, int, int | No
     return ck // 1000, *((code // 10, code % 10) if cfg.per_band else (code, None))
 
 
-def _camera_keys_labels(graphs: list[PassGraph], cfg: CalibrateConfig,
-                        bin_temps: Array | None = None) -> tuple[list[int], list[str], list[int]]:
+def _camera_keys_labels(
+    graphs: list[PassGraph], cfg: CalibrateConfig, bin_temps: Array | None = None
+) -> tuple[list[int], list[str], list[int]]:
     keys: dict[int, int] = {}
     for g in graphs:
         keys.update(g.camera_keys)
@@ -203,7 +254,9 @@ def _camera_keys_labels(graphs: list[PassGraph], cfg: CalibrateConfig,
     return out_k, labels, cams
 
 
-def _apply(camera: CameraModel, cams: list[int], cfg: CalibrateConfig, x: Array, temperature_bin: int = 0) -> CameraModel:
+def _apply(
+    camera: CameraModel, cams: list[int], cfg: CalibrateConfig, x: Array, temperature_bin: int = 0
+) -> CameraModel:
     m = camera.copy()
     n = len(cfg.params)
     for i, ck in enumerate(cams):
@@ -213,12 +266,13 @@ def _apply(camera: CameraModel, cams: list[int], cfg: CalibrateConfig, x: Array,
         for j, p in enumerate(cfg.params):
             m.add_correction(p, c, band, x[i * n + j])
     if cfg.estimate_omega:
-        m.omega += x[len(cams) * n: len(cams) * n + 3]
+        m.omega += x[len(cams) * n : len(cams) * n + 3]
     return m
 
 
-def camera_variance_components(passes: list[OrbitPass], graphs: list[PassGraph],
-                               values: gtsam.Values) -> dict[int, dict[str, float]]:
+def camera_variance_components(
+    passes: list[OrbitPass], graphs: list[PassGraph], values: gtsam.Values
+) -> dict[int, dict[str, float]]:
     """Each camera's variance component at the solution ``values`` of a month's graphs:
     ``{camera index: {"sigma0", "redundancy", "rows"}}`` over its image coordinates (Foerstner:
     ``sigma0^2 = sum e^2 / sum r`` with ``e`` the whitened residuals and ``r`` the redundancy
@@ -273,8 +327,16 @@ def calibrate_passes(
     exclude = [np.zeros(len(p.observations), bool) for p in passes]
     rejected: list[tuple[int, int, float]] = []
     if cfg.robust != "none":
-        prob, graphs = _build(passes, camera, gcps, cfg.graph_config(group_by="observation", robust=cfg.robust,
-                                                                      robust_k=cfg.robust_k), None, progress, table, bins)
+        prob, graphs = _build(
+            passes,
+            camera,
+            gcps,
+            cfg.graph_config(group_by="observation", robust=cfg.robust, robust_k=cfg.robust_k),
+            None,
+            progress,
+            table,
+            bins,
+        )
         if progress:
             progress("robust solve")
         res = solve(prob, params)
@@ -299,17 +361,26 @@ def calibrate_passes(
         for rnd in range(cfg.variance_component_rounds):
             s0 = camera_variance_components(passes, graphs, res.values)
             vc["rounds"].append({CAMERAS[c]: v for c, v in s0.items()})
-            moved = {c: v["sigma0"] for c, v in s0.items()
-                     if v["redundancy"] >= 10.0 and abs(v["sigma0"] - 1.0) > cfg.variance_component_tol}
+            moved = {
+                c: v["sigma0"]
+                for c, v in s0.items()
+                if v["redundancy"] >= 10.0 and abs(v["sigma0"] - 1.0) > cfg.variance_component_tol
+            }
             if not moved:
                 break
             for c, v in moved.items():
                 scale[c] *= v
             if progress:
-                progress(f"variance components: round {rnd + 1}, sigma scale " +
-                         ", ".join(f"{CAMERAS[c]} {scale[c]:.2f}" for c in sorted(moved)))
-            passes = [dataclasses.replace(p, observations=dataclasses.replace(
-                p.observations, sigma_px=st * scale[p.observations.camera])) for p, st in zip(passes, stated)]
+                progress(
+                    f"variance components: round {rnd + 1}, sigma scale "
+                    + ", ".join(f"{CAMERAS[c]} {scale[c]:.2f}" for c in sorted(moved))
+                )
+            passes = [
+                dataclasses.replace(
+                    p, observations=dataclasses.replace(p.observations, sigma_px=st * scale[p.observations.camera])
+                )
+                for p, st in zip(passes, stated)
+            ]
             prob, graphs = _build(passes, camera, gcps, cfg.graph_config(), exclude, progress, table, bins)
             prob.warm_start(res.values)
             res = solve(prob, params)
@@ -321,24 +392,54 @@ def calibrate_passes(
     cov = marginal_covariances(prob, res.values, joint_keys=keys).joint
     x = np.concatenate([res.values.atVector(k) for k in keys])
     # from variable units (CAMERA_PARAM_SCALE) to SI
-    unit = np.concatenate([camera_param_scale(cfg.params)] * (len(keys) - cfg.estimate_omega)
-                          + ([np.ones(3)] if cfg.estimate_omega else []))
+    unit = np.concatenate(
+        [camera_param_scale(cfg.params)] * (len(keys) - cfg.estimate_omega)
+        + ([np.ones(3)] if cfg.estimate_omega else [])
+    )
     x = x * unit
     cov = cov * np.outer(unit, unit)
-    prior = np.concatenate([calibration_prior_sigma(supplied_models[0], decode_camera_key(ck, cfg)[1], tuple(cfg.params),
-                                                    cfg.focal_prior_px) for ck in cams]
-                           + [np.full(3 if cfg.estimate_omega else 0, GraphConfig().omega_prior_rad)])
-    prov = {"source": "misrgraph calibrate", "software": f"misrgraph {__version__}",
-            "passes": str(len(passes)), "params": ",".join(cfg.params)}
+    prior = np.concatenate(
+        [
+            calibration_prior_sigma(
+                supplied_models[0], decode_camera_key(ck, cfg)[1], tuple(cfg.params), cfg.focal_prior_px
+            )
+            for ck in cams
+        ]
+        + [np.full(3 if cfg.estimate_omega else 0, GraphConfig().omega_prior_rad)]
+    )
+    prov = {
+        "source": "misrgraph calibrate",
+        "software": f"misrgraph {__version__}",
+        "passes": str(len(passes)),
+        "params": ",".join(cfg.params),
+    }
     models = []
     for j, (base, t_bin) in enumerate(zip(supplied_models, bin_temps)):
         m = _apply(base, cams, cfg, x, j)
         m.temperature_c = float(t_bin)
         m.provenance = dict(prov)
         models.append(m)
-    out = CalibrationResult(models[0], keys, labels, x, cov, prior, rejected, res.iterations, res.final_error,
-                            time.perf_counter() - t0, graphs, bin_temps, supplied_models, None, temps, table, res.status,
-                            variance_factor(prob, res.final_error), vc)
+    out = CalibrationResult(
+        models[0],
+        keys,
+        labels,
+        x,
+        cov,
+        prior,
+        rejected,
+        res.iterations,
+        res.final_error,
+        time.perf_counter() - t0,
+        graphs,
+        bin_temps,
+        supplied_models,
+        None,
+        temps,
+        table,
+        res.status,
+        variance_factor(prob, res.final_error),
+        vc,
+    )
     if len(models) == 1 and table is not None:  # a supplied table: the common correction at every entry
         out.table = TabulatedCameraModel([_apply(m, cams, cfg, x, 0) for m in table.models], table.valid_range_c)
         for m in out.table.models:
@@ -371,7 +472,9 @@ def temperature_bins(passes: list[OrbitPass], n_bins: int) -> tuple[NDArray[np.i
     weight = np.array([np.sum(p.landmarks.kind[p.observations.landmark] == KIND_GCP) for p in passes], float)
     bin_temps = np.array([np.average(temps[bins == j], weights=weight[bins == j] + 1e-9) for j in range(n_bins)])
     if np.any(np.diff(bin_temps) <= 0):
-        raise DegenerateProblemError(f"temperature bins are not distinct ({bin_temps.round(3).tolist()} C); use fewer bins")
+        raise DegenerateProblemError(
+            f"temperature bins are not distinct ({bin_temps.round(3).tolist()} C); use fewer bins"
+        )
     return bins, bin_temps
 
 
@@ -400,11 +503,16 @@ def evaluation_grid(res: CalibrationResult, supplied: CameraModel, thermal: bool
     the passes' median (every temperature gives the same numbers)."""
     temps = res.pass_temperatures_c if res.pass_temperatures_c.size else np.array([supplied.temperature_c])
     thermal = thermal or res.binned or res.supplied_table is not None
-    return np.linspace(temps.min(), temps.max(), 5) if thermal and np.ptp(temps) > 0 else np.array([float(np.median(temps))])
+    return (
+        np.linspace(temps.min(), temps.max(), 5)
+        if thermal and np.ptp(temps) > 0
+        else np.array([float(np.median(temps))])
+    )
 
 
-def calibrated_models(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel, grid: Array,
-                      x: Array | None = None) -> list[CameraModel]:
+def calibrated_models(
+    res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel, grid: Array, x: Array | None = None
+) -> list[CameraModel]:
     """The calibrated model at each temperature of ``grid`` for corrections ``x`` (default: the
     estimate); with temperature bins, through the fitted thermal table."""
     x = res.values if x is None else x
@@ -424,7 +532,9 @@ def supplied_models_at(res: CalibrationResult, supplied: CameraModel, grid: Arra
 
 def calibrated_bands(res: CalibrationResult, cfg: CalibrateConfig, c: int) -> list[int]:
     """The bands of camera ``c`` that have their own corrections (``[red]`` for camera-level ones)."""
-    return sorted({decode_camera_key(ck, cfg)[2] for ck in camera_keys(res, cfg) if decode_camera_key(ck, cfg)[1] == c} - {None}) or [RED]
+    return sorted(
+        {decode_camera_key(ck, cfg)[2] for ck in camera_keys(res, cfg) if decode_camera_key(ck, cfg)[1] == c} - {None}
+    ) or [RED]
 
 
 def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel) -> dict[str, Any]:
@@ -432,8 +542,8 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
     corrections with sigma, each camera's posterior pointing spread ``sigma_px`` (RMS over the
     swath and the temperature grid of :func:`evaluation_grid` of the pointing's 1 sigma, propagated
     linearly from the posterior ``C = L L^T``: the sum over the columns ``l_i`` of ``L`` of the
-    squared pointing change when the corrections move by ``l_i``; no sampling error), poorly determined parameters, the correlation
-    matrix, and with temperature bins the thermal slopes (:func:`thermal_slopes`). Scores against a
+    squared pointing change when the corrections move by ``l_i``; no sampling error), poorly determined parameters,
+    the correlation matrix, and with temperature bins the thermal slopes (:func:`thermal_slopes`). Scores against a
     simulated truth are added by :func:`misrgraph.evaluate.calibration.score_calibration`.
     """
     sig = np.sqrt(np.diag(res.covariance))
@@ -446,30 +556,53 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
     poorly = []
     for i, label in enumerate(res.labels):
         if sig[i] > cfg.poorly_determined_ratio * res.prior_sigma[i]:
-            poorly.append({"parameter": label, "sigma": float(sig[i]), "prior_sigma": float(res.prior_sigma[i]),
-                           "ratio": float(sig[i] / res.prior_sigma[i])})
+            poorly.append(
+                {
+                    "parameter": label,
+                    "sigma": float(sig[i]),
+                    "prior_sigma": float(res.prior_sigma[i]),
+                    "ratio": float(sig[i] / res.prior_sigma[i]),
+                }
+            )
     for c, name in enumerate(CAMERAS):
         entry: dict[str, Any] = {"params": {}}
         for i, label in enumerate(res.labels):
             if label.startswith(name + ".") or label.startswith(name + "/") or label.startswith(name + "@"):
-                entry["params"][label[len(name) + 1:] if label[len(name)] in "./" else label[len(name):]] = {
-                    "value": float(res.values[i]), "sigma": float(sig[i])}
+                entry["params"][label[len(name) + 1 :] if label[len(name)] in "./" else label[len(name) :]] = {
+                    "value": float(res.values[i]),
+                    "sigma": float(sig[i]),
+                }
         if not entry["params"]:
             continue
         bands = calibrated_bands(res, cfg, c)
-        entry["sigma_px"] = float(np.sqrt(np.sum([np.mean([pointing_error_px(m[j], est_at[j], c, b) ** 2
-                                                           for j in range(grid.size) for b in bands]) for m in moved])))
+        entry["sigma_px"] = float(
+            np.sqrt(
+                np.sum(
+                    [
+                        np.mean(
+                            [pointing_error_px(m[j], est_at[j], c, b) ** 2 for j in range(grid.size) for b in bands]
+                        )
+                        for m in moved
+                    ]
+                )
+            )
+        )
         cams_out[name] = entry
-    out: dict[str, Any] = {"cameras": cams_out, "solver_status": res.status, "variance_factor": res.variance_factor,
-                           **({"variance_components": res.variance_components} if res.variance_components else {}),
-                           "iterations": res.iterations,
-                           "final_cost": res.final_cost,
-                           "seconds": res.seconds, "passes": len(res.graphs),
-                           "rejected_observations": capped_list(
-                               [{"pass": int(p), "observation": int(o), "normalised_residual": float(r)} for p, o, r in res.rejected],
-                               None),
-                           "poorly_determined": poorly,
-                           "correlation": {"labels": res.labels, "matrix": np.round(corr, 4).tolist()}}
+    out: dict[str, Any] = {
+        "cameras": cams_out,
+        "solver_status": res.status,
+        "variance_factor": res.variance_factor,
+        **({"variance_components": res.variance_components} if res.variance_components else {}),
+        "iterations": res.iterations,
+        "final_cost": res.final_cost,
+        "seconds": res.seconds,
+        "passes": len(res.graphs),
+        "rejected_observations": capped_list(
+            [{"pass": int(p), "observation": int(o), "normalised_residual": float(r)} for p, o, r in res.rejected], None
+        ),
+        "poorly_determined": poorly,
+        "correlation": {"labels": res.labels, "matrix": np.round(corr, 4).tolist()},
+    }
     if res.binned:
         out["temperature_bins_c"] = [float(t) for t in res.bin_temperatures_c]
         out["thermal"] = thermal_slopes(res, cfg)
@@ -485,7 +618,9 @@ def param_value(m: CameraModel, p: str, c: int, b: int) -> float:
     return float(m.alpha[c, b, int(p[-1])])
 
 
-def _gls_groups(res: CalibrationResult, cfg: CalibrateConfig) -> list[tuple[int, int | None, int, list[int], Array, Array]]:
+def _gls_groups(
+    res: CalibrationResult, cfg: CalibrateConfig
+) -> list[tuple[int, int | None, int, list[int], Array, Array]]:
     """Per (camera, band, parameter): (camera, band, param index, indices into ``res.values``,
     bin temperatures, GLS weights (2, k)) of the line ``a + s (T - mean T)`` through the bins."""
     cams = camera_keys(res, cfg)
@@ -506,8 +641,9 @@ def _gls_groups(res: CalibrationResult, cfg: CalibrateConfig) -> list[tuple[int,
     return out
 
 
-def _fit_table(res: CalibrationResult, cfg: CalibrateConfig, x: Array,
-               supplied: "CameraModel | TabulatedCameraModel") -> TabulatedCameraModel:
+def _fit_table(
+    res: CalibrationResult, cfg: CalibrateConfig, x: Array, supplied: "CameraModel | TabulatedCameraModel"
+) -> TabulatedCameraModel:
     """The calibrated thermal table: the supplied model at each end of the passes' temperature
     range plus the GLS line of the corrections through the bins, evaluated there (exact
     between the ends for corrections linear in temperature)."""
@@ -566,7 +702,9 @@ def slope_estimates(res: CalibrationResult, cfg: CalibrateConfig) -> SlopeEstima
             chi2 += float(r @ np.linalg.solve(res.covariance[np.ix_(idx, idx)], r))
             dof += len(t) - 2
     lmat = np.array(rows)
-    return SlopeEstimates(names, groups, lmat @ res.values + np.array(offsets), lmat @ res.covariance @ lmat.T, chi2, dof)
+    return SlopeEstimates(
+        names, groups, lmat @ res.values + np.array(offsets), lmat @ res.covariance @ lmat.T, chi2, dof
+    )
 
 
 def thermal_slopes(res: CalibrationResult, cfg: CalibrateConfig) -> dict[str, Any]:

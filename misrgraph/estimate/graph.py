@@ -21,25 +21,60 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors import keys as K
-from factors.collinearity import CAMERA_PARAMS, CollinearityBatch, CollinearityConstants, camera_param_scale, collinearity_residual
+from factors.collinearity import (
+    CAMERA_PARAMS,
+    CollinearityBatch,
+    CollinearityConstants,
+    camera_param_scale,
+    collinearity_residual,
+)
 from factors.dem_height import DemBatch
 from factors.geometry import enu_covariance
-from factors.priors import gcp_prior, gcp_scene_prior, joint_prior_factor, linear_factor, process_prior_factors, scene_offset_prior, vector_prior
-from misrgraph.model.camera import CameraModel
+from factors.priors import (
+    gcp_prior,
+    gcp_scene_prior,
+    joint_prior_factor,
+    linear_factor,
+    process_prior_factors,
+    scene_offset_prior,
+    vector_prior,
+)
 from misrgraph.config import Config
+from misrgraph.errors import DegenerateProblemError, InputError
+from misrgraph.estimate.problem import Problem
+from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
+from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
-from misrgraph.model.errormodels import (ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, JITTER_PERIODS_S, AttitudeErrorModel,
-                                         EphemerisErrorModel, ephemeris_prior_covariance, interval_counts, knots_to_remove,
-                                         unresolved_attitude)
-from misrgraph.errors import DegenerateProblemError, InputError
+from misrgraph.model.errormodels import (
+    ATTITUDE_DAMPING,
+    ATTITUDE_RATE_FACTOR,
+    JITTER_PERIODS_S,
+    AttitudeErrorModel,
+    EphemerisErrorModel,
+    ephemeris_prior_covariance,
+    interval_counts,
+    knots_to_remove,
+    unresolved_attitude,
+)
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
-from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
-from misrgraph.estimate.problem import Problem
 
-__all__ = ["GraphConfig", "calibrated_camera_sigma", "calibration_rows", "observation_sigma", "check_jitter", "KNOT_PRIORS", "PassGraph", "build_pass_graph", "camera_parameter_matrix",
-           "CAMERA_PRIOR_SIGMA", "calibration_prior_sigma", "merge_problems", "merge_flat"]
+__all__ = [
+    "GraphConfig",
+    "calibrated_camera_sigma",
+    "calibration_rows",
+    "observation_sigma",
+    "check_jitter",
+    "KNOT_PRIORS",
+    "PassGraph",
+    "build_pass_graph",
+    "camera_parameter_matrix",
+    "CAMERA_PRIOR_SIGMA",
+    "calibration_prior_sigma",
+    "merge_problems",
+    "merge_flat",
+]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -49,7 +84,9 @@ RED = BANDS.index("red")
 #: Default a-priori 1 sigma of each camera parameter correction when calibrating (pre-flight
 #: knowledge after launch and gravity release): angles 0.1 deg, f 0.2 mm, alpha_i ~ 1e-3 of the
 #: field-angle polynomial at the swath edge (|s - c_y| = 752 px).
-CAMERA_PRIOR_SIGMA = dict(zip(CAMERA_PARAMS, (1.745e-3, 1.745e-3, 1.745e-3, 2e-4) + tuple(1e-3 / 752.0**i for i in range(6))))
+CAMERA_PRIOR_SIGMA = dict(
+    zip(CAMERA_PARAMS, (1.745e-3, 1.745e-3, 1.745e-3, 2e-4) + tuple(1e-3 / 752.0**i for i in range(6)))
+)
 
 
 #: How the attitude knots are held a priori: ``"process"`` (default) ties consecutive knots by the
@@ -64,8 +101,12 @@ def check_jitter(jitter_arcsec: float, periods_s: Any) -> None:
     numbers ``0 < min < max``, naming the setting (``attitude_jitter_arcsec``/``_periods_s``)."""
     if not (np.isfinite(jitter_arcsec) and jitter_arcsec >= 0):
         raise InputError("attitude_jitter_arcsec", jitter_arcsec, "a number >= 0 (1 sigma, arcsec)")
-    if not (isinstance(periods_s, (tuple, list)) and len(periods_s) == 2
-            and all(isinstance(x, (int, float)) for x in periods_s) and 0 < periods_s[0] < periods_s[1] < np.inf):
+    if not (
+        isinstance(periods_s, (tuple, list))
+        and len(periods_s) == 2
+        and all(isinstance(x, (int, float)) for x in periods_s)
+        and 0 < periods_s[0] < periods_s[1] < np.inf
+    ):
         raise InputError("attitude_jitter_periods_s", periods_s, "two periods 0 < min < max in s")
 
 
@@ -160,16 +201,23 @@ class GraphConfig(Config):
         if int(self.ephemeris_segments) != self.ephemeris_segments or self.ephemeris_segments < 1:
             raise InputError("ephemeris_segments", self.ephemeris_segments, "an integer >= 1")
         if self.ephemeris_once_per_rev_m > 0 and self.ephemeris_segments > 2:
-            raise InputError("ephemeris_segments", self.ephemeris_segments,
-                             "1 or 2 with ephemeris_once_per_rev_m > 0 (an offset, a drift and the once-per-revolution "
-                             "term are 4 variables per axis)")
+            raise InputError(
+                "ephemeris_segments",
+                self.ephemeris_segments,
+                "1 or 2 with ephemeris_once_per_rev_m > 0 (an offset, a drift and the once-per-revolution "
+                "term are 4 variables per axis)",
+            )
         check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
         if not (np.isfinite(self.dem_sigma_scale) and self.dem_sigma_scale > 0):
             raise InputError("dem_sigma_scale", self.dem_sigma_scale, "a positive factor on the DEM's stated sigma")
         if not (np.isfinite(self.dem_smoothing_postings) and 0 <= self.dem_smoothing_postings <= 2):
             raise InputError("dem_smoothing_postings", self.dem_smoothing_postings, "a sigma in DEM postings, 0 to 2")
         if len(self.attitude_sigma_arcsec) != 3 or not min(self.attitude_sigma_arcsec) > 0:
-            raise InputError("attitude_sigma_arcsec", self.attitude_sigma_arcsec, "three positive sigmas (roll, pitch, yaw) in arcsec")
+            raise InputError(
+                "attitude_sigma_arcsec",
+                self.attitude_sigma_arcsec,
+                "three positive sigmas (roll, pitch, yaw) in arcsec",
+            )
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
             raise InputError("knot_spacing_s", self.knot_spacing_s, "three positive spacings (roll, pitch, yaw) in s")
         if len(set(self.camera_params)) != len(self.camera_params):
@@ -178,8 +226,11 @@ class GraphConfig(Config):
             if not getattr(self, name) > 0:
                 raise InputError(name, getattr(self, name), "a positive 1 sigma in pixels")
         if not (np.isfinite(self.calibration_focal_prior_px) and self.calibration_focal_prior_px >= 0):
-            raise InputError("calibration_focal_prior_px", self.calibration_focal_prior_px,
-                             "0 (the wide pre-flight prior) or a positive 1 sigma in pixels")
+            raise InputError(
+                "calibration_focal_prior_px",
+                self.calibration_focal_prior_px,
+                "0 (the wide pre-flight prior) or a positive 1 sigma in pixels",
+            )
 
 
 @dataclass
@@ -229,8 +280,9 @@ def camera_parameter_matrix(camera: CameraModel, cam: NDArray[np.int64], band: N
     """Per-observation 10-vector (delta, beta, eps, f, alpha_0..5) of the supplied model; the angles
     include each observation's band offsets."""
     d, b_, e = camera.angles(cam, band)
-    return np.concatenate([d[:, None], b_[:, None], e[:, None],
-                           camera.focal_length[cam, band][:, None], camera.alpha[cam, band]], axis=1)
+    return np.concatenate(
+        [d[:, None], b_[:, None], e[:, None], camera.focal_length[cam, band][:, None], camera.alpha[cam, band]], axis=1
+    )
 
 
 def dem_surface(dem: DemTiles, geoid: Geoid, method: str):
@@ -294,9 +346,11 @@ def build_pass_graph(
         n_db = len(gcps) if gcps is not None else 0
         bad = np.flatnonzero(is_gcp & (orbit_pass.landmarks.gcp_index >= n_db))
         if bad.size:
-            raise InputError(f"pass {orbit_pass.pass_id}: landmarks.gcp_index[{bad[0]}]",
-                             int(orbit_pass.landmarks.gcp_index[bad[0]]),
-                             f"a row of the GCP database ({n_db} GCPs); is this the pass's GCP database?")
+            raise InputError(
+                f"pass {orbit_pass.pass_id}: landmarks.gcp_index[{bad[0]}]",
+                int(orbit_pass.landmarks.gcp_index[bad[0]]),
+                f"a row of the GCP database ({n_db} GCPs); is this the pass's GCP database?",
+            )
     use = kinds[obs.landmark] != KIND_CHECK
     if exclude_observations is not None:
         use &= ~exclude_observations
@@ -304,14 +358,17 @@ def build_pass_graph(
     if idx.size == 0:
         n_all = int(np.sum(kinds[obs.landmark] != KIND_CHECK)) if len(obs) else 0
         if n_all:
-            raise DegenerateProblemError(f"pass {orbit_pass.pass_id}: all {n_all} tie-point and GCP observations were "
-                                         "excluded (rejected as blunders or unsupported); nothing is left to adjust")
+            raise DegenerateProblemError(
+                f"pass {orbit_pass.pass_id}: all {n_all} tie-point and GCP observations were "
+                "excluded (rejected as blunders or unsupported); nothing is left to adjust"
+            )
         raise DegenerateProblemError(f"pass {orbit_pass.pass_id}: no tie-point or GCP observations to adjust")
     cams_used = np.unique(obs.camera[idx])
     if cams_used.size < 2:
         raise DegenerateProblemError(
             f"pass {orbit_pass.pass_id}: observations from a single camera ({CAMERAS[cams_used[0]]}); "
-            "multi-angle adjustment needs at least two cameras")
+            "multi-angle adjustment needs at least two cameras"
+        )
     cam, band = obs.camera[idx], obs.band[idx]
     t_obs = orbit_pass.observation_times()[idx]
     t_lo, t_hi = orbit_pass.span
@@ -354,12 +411,24 @@ def build_pass_graph(
     lm_init = np.stack([init[int(r)] for r in obs.landmark[idx]])
     rate = geo.line_rate(cam, band, lm_init, t_obs)
     const = CollinearityConstants(
-        nav.eci_to_ecef, nav.position, nav.t_go, design, nav.angles, hermite,
-        camera.k[cam, band], obs.line[idx] - obs.exposure_index[idx], obs.sample[idx] - camera.cy[cam, band],
-        camera.focal_plane_dy_ds(cam, band, obs.sample[idx]), camera.dx, camera.dx * rate,
+        nav.eci_to_ecef,
+        nav.position,
+        nav.t_go,
+        design,
+        nav.angles,
+        hermite,
+        camera.k[cam, band],
+        obs.line[idx] - obs.exposure_index[idx],
+        obs.sample[idx] - camera.cy[cam, band],
+        camera.focal_plane_dy_ds(cam, band, obs.sample[idx]),
+        camera.dx,
+        camera.dx * rate,
     )
-    keys = {"landmark": obs_lm_key, "ephemeris": np.array([K.ephemeris_key(pass_index, int(s)) for s in seg]),
-            "knots": knot_keys}
+    keys = {
+        "landmark": obs_lm_key,
+        "ephemeris": np.array([K.ephemeris_key(pass_index, int(s)) for s in seg]),
+        "knots": knot_keys,
+    }
     camera_keys: dict[int, int] = {}
     if cfg.estimate_camera:
         if cfg.camera_per_band:
@@ -377,11 +446,15 @@ def build_pass_graph(
     group = obs.landmark[idx] if cfg.group_by == "landmark" else np.arange(idx.size)
     robust = None if cfg.robust == "none" else (cfg.robust, cfg.robust_k)
     cam_params = camera_parameter_matrix(camera, cam, band)
-    sigma = observation_sigma(obs.sigma_px[idx], const, lm_init, cam_params, camera.omega,
-                              unresolved_attitude(att_kept.knot_times, cfg.attitude_jitter_arcsec,
-                                                  tuple(cfg.attitude_jitter_periods_s)))
-    coll = CollinearityBatch(const, cam_params, camera.omega, sigma,
-                             group, keys, select, robust)
+    sigma = observation_sigma(
+        obs.sigma_px[idx],
+        const,
+        lm_init,
+        cam_params,
+        camera.omega,
+        unresolved_attitude(att_kept.knot_times, cfg.attitude_jitter_arcsec, tuple(cfg.attitude_jitter_periods_s)),
+    )
+    coll = CollinearityBatch(const, cam_params, camera.omega, sigma, group, keys, select, robust)
     graph = gtsam.NonlinearFactorGraph()
     problem = Problem(graph, gtsam.Values(), [], [], {})
     problem.add_batch(coll)
@@ -423,8 +496,11 @@ def build_pass_graph(
                 scene_keys.append(sk)
                 if add(sk, np.zeros(3)):  # its prior at the scene's mean position (a 2 deg scene: one ENU frame)
                     r = scenes[sc]
-                    c_s = enu_covariance(np.radians(gcps.lat[r].mean()), np.radians(gcps.lon[r].mean()),
-                                         np.full(3, gcps.scene_sigma_m[r[0]]))
+                    c_s = enu_covariance(
+                        np.radians(gcps.lat[r].mean()),
+                        np.radians(gcps.lon[r].mean()),
+                        np.full(3, gcps.scene_sigma_m[r[0]]),
+                    )
                     graph.add(scene_offset_prior(sk, c_s))
             if add(key, gcp_ecef[gi]):
                 graph.add(gcp_scene_prior(key, sk, gcp_ecef[gi], gcp_cov[gi]))
@@ -446,8 +522,9 @@ def build_pass_graph(
         for k in ks:
             add(k, np.zeros(2))
         if cfg.knot_prior == "process":
-            for f in process_prior_factors(ks, att_kept.knot_times[a], float(att_sig[a]), ATTITUDE_RATE_FACTOR,
-                                           cfg.knot_prior_damping):
+            for f in process_prior_factors(
+                ks, att_kept.knot_times[a], float(att_sig[a]), ATTITUDE_RATE_FACTOR, cfg.knot_prior_damping
+            ):
                 graph.add(f)
         else:
             for k in ks:
@@ -456,11 +533,15 @@ def build_pass_graph(
     for k in eph_keys:
         add(k, np.zeros(6))
     if cfg.ephemeris_once_per_rev_m > 0:  # one joint prior: the segments share the pass's process
-        cov = ephemeris_prior_covariance(eph.boundaries, cfg.ephemeris_a_sigma_mps, cfg.ephemeris_b_sigma_m,
-                                         cfg.ephemeris_once_per_rev_m)
+        cov = ephemeris_prior_covariance(
+            eph.boundaries, cfg.ephemeris_a_sigma_mps, cfg.ephemeris_b_sigma_m, cfg.ephemeris_once_per_rev_m
+        )
         sel = np.eye(6 * eph.n_segments)
-        graph.add(linear_factor(eph_keys, [sel[:, 6 * s:6 * s + 6] for s in range(eph.n_segments)],
-                                np.zeros(6 * eph.n_segments), cov))
+        graph.add(
+            linear_factor(
+                eph_keys, [sel[:, 6 * s : 6 * s + 6] for s in range(eph.n_segments)], np.zeros(6 * eph.n_segments), cov
+            )
+        )
     else:
         eph_sig = np.r_[np.asarray(cfg.ephemeris_a_sigma_mps, float), np.full(3, cfg.ephemeris_b_sigma_m)]
         for k in eph_keys:
@@ -474,7 +555,10 @@ def build_pass_graph(
         if cfg.camera_prior_calibration:
             sig = calibration_prior_sigma(camera, c, cfg.camera_params, cfg.calibration_focal_prior_px) / scale
         else:
-            sig = calibrated_camera_sigma(camera, c, cfg.camera_params, cfg.camera_prior_px, cfg.camera_focal_prior_px) / scale
+            sig = (
+                calibrated_camera_sigma(camera, c, cfg.camera_params, cfg.camera_prior_px, cfg.camera_focal_prior_px)
+                / scale
+            )
         if not add(k, np.zeros(len(cfg.camera_params))):
             continue
         rows = calibration_rows(camera_prior, c, cfg.camera_params) if use_calibration else None
@@ -496,14 +580,37 @@ def build_pass_graph(
     problem.eliminate_first = [int(lm_key_of[r]) for r in lm_rows]
     problem.dims = dims
     problem.eliminate_last = last
-    log.info("pass %s: %d observations, %d landmarks, knots kept %s (removed %s)", orbit_pass.pass_id, idx.size,
-             lm_rows.size, [t.size for t in att_kept.knot_times], [r.size for r in removed])
-    return PassGraph(problem, pass_index, att_kept, removed, eph, lm_rows,
-                     np.array([lm_key_of[r] for r in lm_rows], np.int64), idx, coll, camera_keys, tuple(cfg.camera_params))
+    log.info(
+        "pass %s: %d observations, %d landmarks, knots kept %s (removed %s)",
+        orbit_pass.pass_id,
+        idx.size,
+        lm_rows.size,
+        [t.size for t in att_kept.knot_times],
+        [r.size for r in removed],
+    )
+    return PassGraph(
+        problem,
+        pass_index,
+        att_kept,
+        removed,
+        eph,
+        lm_rows,
+        np.array([lm_key_of[r] for r in lm_rows], np.int64),
+        idx,
+        coll,
+        camera_keys,
+        tuple(cfg.camera_params),
+    )
 
 
-def observation_sigma(sigma_px: Array, const: CollinearityConstants, landmarks: Array, camera_params: Array,
-                      omega: Array, unresolved_rad: float) -> Array:
+def observation_sigma(
+    sigma_px: Array,
+    const: CollinearityConstants,
+    landmarks: Array,
+    camera_params: Array,
+    omega: Array,
+    unresolved_rad: float,
+) -> Array:
     """1 sigma ``(N, 2)`` (image lines, samples) of each observation: the matcher's ``sigma_px
     (N,)`` and an attitude error of ``unresolved_rad`` (rad, 1 sigma per angle, independent
     angles) that the knots cannot follow, carried by the observation's pointing sensitivity
@@ -518,15 +625,25 @@ def observation_sigma(sigma_px: Array, const: CollinearityConstants, landmarks: 
     sig = np.stack([np.asarray(sigma_px, float)] * 2, axis=1)
     if unresolved_rad == 0 or len(const) == 0:
         return sig
-    one = dataclasses.replace(const, hermite=np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), const.hermite.shape).copy())
-    _, jac = collinearity_residual(np.asarray(landmarks, float), np.zeros((len(const), 6)), np.zeros((len(const), 3, 4)),
-                                   np.asarray(camera_params, float), np.asarray(omega, float), one)
+    one = dataclasses.replace(
+        const, hermite=np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), const.hermite.shape).copy()
+    )
+    _, jac = collinearity_residual(
+        np.asarray(landmarks, float),
+        np.zeros((len(const), 6)),
+        np.zeros((len(const), 3, 4)),
+        np.asarray(camera_params, float),
+        np.asarray(omega, float),
+        one,
+    )
     assert jac is not None
     d_angles = -jac["knots"][:, :, :, 0]  # the attitude error enters with a minus sign
     return np.sqrt(sig**2 + unresolved_rad**2 * np.sum(d_angles**2, axis=2))
 
 
-def calibration_rows(camera_prior: tuple[list[str], Array] | None, cam: int, params: tuple[str, ...]) -> NDArray[np.int64] | None:
+def calibration_rows(
+    camera_prior: tuple[list[str], Array] | None, cam: int, params: tuple[str, ...]
+) -> NDArray[np.int64] | None:
     """Indices into a calibration's covariance (``(labels, covariance)``) of camera ``cam``'s
     ``params``, in their order; None when it lacks any of them (or there is none)."""
     if camera_prior is None:
@@ -554,8 +671,9 @@ def calibration_prior_sigma(camera: CameraModel, cam: int, params: tuple[str, ..
     return out
 
 
-def calibrated_camera_sigma(camera: CameraModel, cam: int, params: tuple[str, ...], angle_px: float,
-                            focal_px: float) -> Array:
+def calibrated_camera_sigma(
+    camera: CameraModel, cam: int, params: tuple[str, ...], angle_px: float, focal_px: float
+) -> Array:
     """A-priori 1 sigma (SI, ``(len(params),)``) of a calibrated model's parameters of camera
     ``cam`` (red band): the angles to ``angle_px`` cross-track pixels at the swath edge; each
     alpha_i to ``focal_px alpha_1 / 752^i``, which moves the swath edge (|s - c_y| = 752) by
@@ -570,7 +688,7 @@ def calibrated_camera_sigma(camera: CameraModel, cam: int, params: tuple[str, ..
         elif p == "f":
             out.append(focal_px * float(camera.focal_length[cam, RED]) / 752.0)
         else:
-            i = int(p[len("alpha"):])
+            i = int(p[len("alpha") :])
             out.append(focal_px * abs(float(camera.alpha[cam, RED, 1])) / 752.0**i)
     return np.array(out)
 
@@ -665,13 +783,20 @@ def _initial_landmarks(orbit_pass: OrbitPass, geo, idx, dem, geoid, method) -> d
     if idx.size == 0:
         return {}
     if dem is not None:
+
         def surface(lat: Array, lon: Array) -> Array:
             s = fit_local_surface(dem, lat, lon, method)
             return np.where(s.valid, s.height, 0.0) + geoid.undulation(lat, lon)
     else:
         surface = None
-    g = geo.pixel_to_ground(obs.camera[idx], obs.band[idx], obs.line[idx], obs.sample[idx],
-                            surface=surface, exposure=obs.exposure_index[idx])
+    g = geo.pixel_to_ground(
+        obs.camera[idx],
+        obs.band[idx],
+        obs.line[idx],
+        obs.sample[idx],
+        surface=surface,
+        exposure=obs.exposure_index[idx],
+    )
     lm = obs.landmark[idx]
     order = np.argsort(lm, kind="stable")
     rows, starts = np.unique(lm[order], return_index=True)

@@ -67,20 +67,19 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cho_factor, cho_solve
 from numpy.typing import NDArray
+from scipy.linalg import cho_factor, cho_solve
 
+from factors import keys as K
+from misrgraph.errors import InputError
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, estimated_models, unresolved_attitude
+from misrgraph.estimate.graph import PassGraph, build_pass_graph, merge_flat, merge_problems
+from misrgraph.estimate.problem import FlatProblem, Marginals, NotFlat
+from misrgraph.estimate.solver import SolverParams, solve
+from misrgraph.io.passes import OrbitPass
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.dem import DemTiles
-from misrgraph.errors import InputError
-from misrgraph.estimate.problem import FlatProblem, NotFlat
 from misrgraph.model.gcp import GcpDatabase
-from misrgraph.estimate.graph import PassGraph, build_pass_graph, merge_flat, merge_problems
-from misrgraph.io.passes import OrbitPass
-from misrgraph.estimate.solver import SolverParams, solve
-from misrgraph.estimate.problem import Marginals
-from factors import keys as K
 
 __all__ = ["IncrementalSolver", "batch_solution", "DEFAULT_LINEARIZATION_TOL", "DEFAULT_SETTLE_AFTER"]
 
@@ -165,9 +164,17 @@ class IncrementalSolver:
     (:func:`misrgraph.estimate.graph.build_pass_graph`; the first pass that has a camera adds it).
     """
 
-    def __init__(self, camera: CameraModel, gcps: GcpDatabase, dem: DemTiles | None, cfg: AdjustConfig = AdjustConfig(),
-                 linearization_tol: float = DEFAULT_LINEARIZATION_TOL, max_rounds: int = 20,
-                 settle_after: int | None = DEFAULT_SETTLE_AFTER, camera_prior: tuple[list[str], Array] | None = None) -> None:
+    def __init__(
+        self,
+        camera: CameraModel,
+        gcps: GcpDatabase,
+        dem: DemTiles | None,
+        cfg: AdjustConfig = AdjustConfig(),
+        linearization_tol: float = DEFAULT_LINEARIZATION_TOL,
+        max_rounds: int = 20,
+        settle_after: int | None = DEFAULT_SETTLE_AFTER,
+        camera_prior: tuple[list[str], Array] | None = None,
+    ) -> None:
         if not linearization_tol > 0:
             raise InputError("linearization_tol", linearization_tol, "a positive number (sigma units)")
         if settle_after is not None and not (isinstance(settle_after, int) and settle_after >= 1):
@@ -225,9 +232,18 @@ class IncrementalSolver:
 
     # ------------------------------------------------------------------ building
     def _graph(self, orbit_pass: OrbitPass, index: int, exclude: NDArray[np.bool_]) -> PassGraph:
-        pg = build_pass_graph(orbit_pass, self.camera, self.dem, self.gcps, self.cfg.graph_config(), pass_index=index,
-                              shared=self.owned, exclude_observations=exclude, known_landmarks=self._first_position,
-                              camera_prior=self.camera_prior)
+        pg = build_pass_graph(
+            orbit_pass,
+            self.camera,
+            self.dem,
+            self.gcps,
+            self.cfg.graph_config(),
+            pass_index=index,
+            shared=self.owned,
+            exclude_observations=exclude,
+            known_landmarks=self._first_position,
+            camera_prior=self.camera_prior,
+        )
         for k in pg.problem.initial.keys():
             self.owned.add(int(k))
             if gtsam.Symbol(int(k)).chr() in _POINT_LETTERS:
@@ -240,11 +256,21 @@ class IncrementalSolver:
         solver's own graph leaves the priors of variables an earlier pass owns to that pass, so on
         its own it may not determine them). For statistics of one pass at the joint estimate,
         such as its redundancy numbers; a tie point other passes also see keeps only this pass's rays."""
-        return build_pass_graph(self.passes[index], self.camera, self.dem, self.gcps, self.cfg.graph_config(),
-                                pass_index=index, exclude_observations=self.exclusions[index],
-                                known_landmarks=self._first_position, camera_prior=self.camera_prior)
+        return build_pass_graph(
+            self.passes[index],
+            self.camera,
+            self.dem,
+            self.gcps,
+            self.cfg.graph_config(),
+            pass_index=index,
+            exclude_observations=self.exclusions[index],
+            known_landmarks=self._first_position,
+            camera_prior=self.camera_prior,
+        )
 
-    def _linearize(self, pass_index: int, values: gtsam.Values, positions: NDArray[np.int64]) -> gtsam.NonlinearFactorGraph:
+    def _linearize(
+        self, pass_index: int, values: gtsam.Values, positions: NDArray[np.int64]
+    ) -> gtsam.NonlinearFactorGraph:
         """The factors at ``positions`` of a pass as ``LinearContainerFactor`` s at ``values``, and
         the same rows of the pass's flat linear model refreshed at ``values``. Each family these
         positions belong to is evaluated once, vectorised, and serves both; the others are not
@@ -282,10 +308,17 @@ class IncrementalSolver:
         except NotFlat as exc:  # pass graphs are plain least squares (blunders are screened before)
             raise InputError("pass graph", str(exc), "plain least-squares collinearity, DEM and prior factors") from exc
         pos = flat.row_positions()
-        return _PassModel(flat, {f: sp.csr_matrix((p.size, flat.n)) for f, p in pos.items()},
-                          {f: np.zeros(p.size) for f, p in pos.items()}, pos, {f: first_record + p for f, p in pos.items()})
+        return _PassModel(
+            flat,
+            {f: sp.csr_matrix((p.size, flat.n)) for f, p in pos.items()},
+            {f: np.zeros(p.size) for f, p in pos.items()},
+            pos,
+            {f: first_record + p for f, p in pos.items()},
+        )
 
-    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, remove: list[int] | None = None) -> gtsam.ISAM2Result:
+    def _update(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, remove: list[int] | None = None
+    ) -> gtsam.ISAM2Result:
         """One iSAM2 update with the shared variables constrained last (module docstring)."""
         for k in values.keys():
             if gtsam.Symbol(int(k)).chr() in _SHARED_LETTERS:
@@ -310,7 +343,9 @@ class IncrementalSolver:
         shared = [k for k in flat.keys if gtsam.Symbol(k).chr() in _SHARED_LETTERS]
 
         def cols(keys: list[int]) -> NDArray[np.int64]:
-            return np.concatenate([np.zeros(0, np.int64)] + [flat.offset[k] + np.arange(dims[k]) for k in keys]).astype(np.int64)
+            return np.concatenate([np.zeros(0, np.int64)] + [flat.offset[k] + np.arange(dims[k]) for k in keys]).astype(
+                np.int64
+            )
 
         oc, sc = cols(own), cols(shared)
         x = flat.from_values(self._live)
@@ -320,10 +355,13 @@ class IncrementalSolver:
         J = sp.vstack([m.J[f] for f in fams] + [J_p], format="csc")
         c = np.concatenate([m.c[f] for f in fams] + [r_p - J_p @ x])
         Jo, Js = J[:, oc], J[:, sc]
-        cond = _Conditional(own, [dims[k] for k in own], shared, sc, cho_factor((Jo.T @ Jo).toarray()),
-                            (Jo.T @ Js).tocsr(), Jo.T @ c)
+        cond = _Conditional(
+            own, [dims[k] for k in own], shared, sc, cho_factor((Jo.T @ Jo).toarray()), (Jo.T @ Js).tocsr(), Jo.T @ c
+        )
         k, b = self._landmark_information(m)
-        self._settled_info = _information_sum([self._settled_info[0], k], [self._settled_info[1], b[:, :, None] * b[:, None, :]])
+        self._settled_info = _information_sum(
+            [self._settled_info[0], k], [self._settled_info[1], b[:, :, None] * b[:, None, :]]
+        )
         leaves = gtsam.KeyList()
         for key in own:
             leaves.push_back(key)
@@ -360,8 +398,12 @@ class IncrementalSolver:
         keys = np.repeat(m.flat.coll.slot_keys[0], 2)
         return keys, m.J["collinearity"][np.arange(lm_cols.shape[0])[:, None], lm_cols].toarray()
 
-    def add_passes(self, passes: list[OrbitPass], exclusions: list[NDArray[np.bool_]] | None = None,
-                   initial: gtsam.Values | None = None) -> float:
+    def add_passes(
+        self,
+        passes: list[OrbitPass],
+        exclusions: list[NDArray[np.bool_]] | None = None,
+        initial: gtsam.Values | None = None,
+    ) -> float:
         """Add passes in one iSAM2 update (then re-linearise); return the seconds spent. Passes
         that ``settle_after`` newer passes have followed are marginalised out first, their
         marginals merged in the same update (module docstring)."""
@@ -369,7 +411,11 @@ class IncrementalSolver:
         new_values = gtsam.Values()
         batch = gtsam.NonlinearFactorGraph()
         remove: list[int] = []
-        due = [] if self.settle_after is None else [i for i in range(len(self.graphs) - self.settle_after) if i not in self.settled]
+        due = (
+            []
+            if self.settle_after is None
+            else [i for i in range(len(self.graphs) - self.settle_after) if i not in self.settled]
+        )
         first = len(self.graphs)
         for j, p in enumerate(passes):
             idx = len(self.graphs)
@@ -379,7 +425,11 @@ class IncrementalSolver:
             self.passes.append(p)
             self.exclusions.append(exclude)
             for k in pg.problem.initial.keys():
-                v = initial.atVector(int(k)) if initial is not None and initial.exists(int(k)) else pg.problem.initial.atVector(int(k))
+                v = (
+                    initial.atVector(int(k))
+                    if initial is not None and initial.exists(int(k))
+                    else pg.problem.initial.atVector(int(k))
+                )
                 new_values.insert(int(k), v)
         # the new graphs are built (bad input has been refused): settled passes leave the tree
         for i in due:
@@ -406,7 +456,9 @@ class IncrementalSolver:
         indices = list(res.getNewFactorsIndices())
         if marginal:
             self._merged = int(indices[0])
-        self.records.extend(_Record(pi, pos, int(fi)) for (pi, pos), fi in zip(pending, indices[1 if marginal else 0:]))
+        self.records.extend(
+            _Record(pi, pos, int(fi)) for (pi, pos), fi in zip(pending, indices[1 if marginal else 0 :])
+        )
         self._refresh()
         self._relinearize()
         return time.perf_counter() - t0
@@ -430,7 +482,7 @@ class IncrementalSolver:
             if settled and not m.record.get("dem", np.zeros(0)).size:
                 continue  # nothing of it is live
             x = m.flat.from_values(values, partial=settled)  # a settled pass: its DEM rows only
-            for f in (("dem",) if settled else FlatProblem.FAMILIES):
+            for f in ("dem",) if settled else FlatProblem.FAMILIES:
                 r, J1 = m.flat.family_rows(x, f, f == "dem")
                 cost += 0.5 * float(r @ r)
                 if f not in m.J:
@@ -461,7 +513,7 @@ class IncrementalSolver:
         total staleness is at most ``linearization_tol**2`` (or ``max_rounds`` is reached)."""
         self.last_rounds = 0
         self.last_costs = []
-        tol2 = self.linearization_tol ** 2
+        tol2 = self.linearization_tol**2
         while True:
             e2, cost = self.linearization_errors(self._live)
             self.last_costs.append(cost)
@@ -471,8 +523,12 @@ class IncrementalSolver:
             if total <= tol2:
                 return
             if self.last_rounds == self.max_rounds:
-                log.warning("re-linearisation did not settle in %d rounds (linearisation error %.3g sigma > %.3g)",
-                            self.max_rounds, np.sqrt(total), self.linearization_tol)
+                log.warning(
+                    "re-linearisation did not settle in %d rounds (linearisation error %.3g sigma > %.3g)",
+                    self.max_rounds,
+                    np.sqrt(total),
+                    self.linearization_tol,
+                )
                 return
             self.last_rounds += 1
             order = np.argsort(e2)[::-1]
@@ -511,15 +567,22 @@ class IncrementalSolver:
             if len(keys) == 1:
                 return np.asarray(self.isam.marginalCovariance(keys[0]))
             return np.asarray(self.isam.jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix())
-        held = list(dict.fromkeys([k for k in keys if k not in self._owner]
-                                  + [k for i in involved for k in self._conditionals[i].shared_keys]))
+        held = list(
+            dict.fromkeys(
+                [k for k in keys if k not in self._owner]
+                + [k for i in involved for k in self._conditionals[i].shared_keys]
+            )
+        )
         dim = {k: int(self._live.atVector(k).size) for k in held}
         for i in involved:
             dim.update(zip(self._conditionals[i].own_keys, self._conditionals[i].own_dims))
         off_s = dict(zip(held, np.concatenate([[0], np.cumsum([dim[k] for k in held])[:-1]]).astype(int)))
         n_s = sum(dim[k] for k in held)
-        S = (np.asarray(self.isam.marginalCovariance(held[0])) if len(held) == 1
-             else np.asarray(self.isam.jointMarginalCovariance(gtsam.KeyVector(held)).fullMatrix()))
+        S = (
+            np.asarray(self.isam.marginalCovariance(held[0]))
+            if len(held) == 1
+            else np.asarray(self.isam.jointMarginalCovariance(gtsam.KeyVector(held)).fullMatrix())
+        )
         A, Hinv, own_off, s_cols = {}, {}, {}, {}
         for i in involved:
             c = self._conditionals[i]
@@ -559,8 +622,8 @@ class IncrementalSolver:
         order = list(dict.fromkeys(joint_keys + keys))
         full = self.joint_marginal_covariance(order)
         o = np.concatenate([[0], np.cumsum([pg.problem.dims[k] for k in order])]).astype(int)
-        cov = {k: full[o[i]:o[i + 1], o[i]:o[i + 1]] for i, k in enumerate(order)}
-        jm = full[:o[len(joint_keys)], :o[len(joint_keys)]]
+        cov = {k: full[o[i] : o[i + 1], o[i] : o[i + 1]] for i, k in enumerate(order)}
+        jm = full[: o[len(joint_keys)], : o[len(joint_keys)]]
         off, o = {}, 0
         for k in joint_keys:
             off[k] = o
@@ -571,10 +634,24 @@ class IncrementalSolver:
         resid = np.full((len(self.passes[index].observations), 2), np.nan)
         resid[pg.obs_index[pg.collinearity.order]] = r
         rej = np.flatnonzero(self.exclusions[index])
-        return AdjustResult(pg, v, marg, att, eph, cam, rej, np.zeros(rej.size), resid, self.last_rounds,
-                            float(self.isam.getFactorsUnsafe().error(v)), [], seconds,
-                            unresolved_attitude_rad=unresolved_attitude(pg.attitude_model.knot_times, self.cfg.attitude_jitter_arcsec,
-                                                                        self.cfg.attitude_jitter_periods_s))
+        return AdjustResult(
+            pg,
+            v,
+            marg,
+            att,
+            eph,
+            cam,
+            rej,
+            np.zeros(rej.size),
+            resid,
+            self.last_rounds,
+            float(self.isam.getFactorsUnsafe().error(v)),
+            [],
+            seconds,
+            unresolved_attitude_rad=unresolved_attitude(
+                pg.attitude_model.knot_times, self.cfg.attitude_jitter_arcsec, self.cfg.attitude_jitter_periods_s
+            ),
+        )
 
 
 def _information_sum(keys: list[NDArray[np.int64]], blocks: list[Array]) -> tuple[NDArray[np.int64], Array]:
@@ -586,7 +663,9 @@ def _information_sum(keys: list[NDArray[np.int64]], blocks: list[Array]) -> tupl
     return u, H
 
 
-def batch_solution(solver: IncrementalSolver, params: SolverParams = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12)):
+def batch_solution(
+    solver: IncrementalSolver, params: SolverParams = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12)
+):
     """The batch re-solve of every pass so far over the very pass graphs the solver built (LM
     core; one flat problem on the Schur backend, :func:`~misrgraph.estimate.graph.merge_flat`,
     where the passes allow it), from their initial values: the problem, the solve result and

@@ -32,8 +32,21 @@ from factors.collinearity import CollinearityBatch, collinearity_residual
 from factors.dem_height import DemBatch, dem_residual, dem_residual_hessian
 from misrgraph.errors import DegenerateProblemError, InputError
 
-__all__ = ["Problem", "FlatProblem", "NotFlat", "Marginals", "schur_reduce", "reduced_cholesky", "schur_marginals", "marginal_covariances", "flat_marginals", "SPD_SPLU_OPTIONS",
-           "error", "linearize", "variance_factor"]
+__all__ = [
+    "Problem",
+    "FlatProblem",
+    "NotFlat",
+    "Marginals",
+    "schur_reduce",
+    "reduced_cholesky",
+    "schur_marginals",
+    "marginal_covariances",
+    "flat_marginals",
+    "SPD_SPLU_OPTIONS",
+    "error",
+    "linearize",
+    "variance_factor",
+]
 
 Array = NDArray[np.float64]
 
@@ -66,8 +79,9 @@ class Problem:
         """Non-landmark keys: those not eliminated first, in insertion order, ``eliminate_last`` at the end."""
         first = set(self.eliminate_first)
         last = set(self.eliminate_last)
-        return [k for k in self.dims if k not in first and k not in last] + [k for k in self.eliminate_last if k in self.dims]
-
+        return [k for k in self.dims if k not in first and k not in last] + [
+            k for k in self.eliminate_last if k in self.dims
+        ]
 
     def warm_start(self, previous: gtsam.Values) -> None:
         """Start from ``previous`` (an earlier optimum) wherever it holds one of this problem's
@@ -123,7 +137,7 @@ class _Prior:
 
     def rows(self, x: Array, offset: dict[int, int]) -> Array:
         """Whitened residual rows at the flat vector ``x``."""
-        return sum(a @ x[offset[k]:offset[k] + a.shape[1]] for k, a in zip(self.keys, self.a)) - self.b
+        return sum(a @ x[offset[k] : offset[k] + a.shape[1]] for k, a in zip(self.keys, self.a)) - self.b
 
 
 class FlatProblem:
@@ -158,7 +172,9 @@ class FlatProblem:
             if isinstance(f, (gtsam.PriorFactorVector, gtsam.LinearContainerFactor)):
                 p = _Prior.from_factor(f, problem.dims)
                 if sum(self.offset[k] < landmark_cols for k in p.keys) > 1:
-                    raise NotFlat("a linear factor coupling two landmarks (the landmark block would not be block diagonal)")
+                    raise NotFlat(
+                        "a linear factor coupling two landmarks (the landmark block would not be block diagonal)"
+                    )
                 self.priors.append(p)
             elif isinstance(f, gtsam.CustomFactor):
                 n_custom += 1
@@ -178,8 +194,10 @@ class FlatProblem:
         # observations sharing the same navigation columns (camera, knot brackets, ephemeris
         # segment) are summed before the scatter into H_cc: a few hundred groups, not 10^4 rows
         n_l = 3 * len(problem.eliminate_first)
-        nav_cols = np.concatenate([np.where(self._slot_cols[s] >= 0, self._slot_cols[s] - n_l, -1)
-                                   for s in range(1, len(b.slot_dims))], axis=1)
+        nav_cols = np.concatenate(
+            [np.where(self._slot_cols[s] >= 0, self._slot_cols[s] - n_l, -1) for s in range(1, len(b.slot_dims))],
+            axis=1,
+        )
         keep = np.any(nav_cols >= 0, axis=0)
         self._nav_keep = keep
         nav_cols = nav_cols[:, keep]
@@ -200,7 +218,13 @@ class FlatProblem:
     @staticmethod
     def family_of(batch: object) -> str:
         """The :meth:`family_rows` name of a factor batch (``"other"`` for anything else)."""
-        return "collinearity" if isinstance(batch, CollinearityBatch) else "dem" if isinstance(batch, DemBatch) else "other"
+        return (
+            "collinearity"
+            if isinstance(batch, CollinearityBatch)
+            else "dem"
+            if isinstance(batch, DemBatch)
+            else "other"
+        )
 
     def row_positions(self) -> dict[str, NDArray[np.int64]]:
         """Graph position of the factor behind each row of the collinearity and DEM families:
@@ -221,7 +245,7 @@ class FlatProblem:
         for k in self.keys:
             if partial and not values.exists(k):
                 continue
-            x[self.offset[k]: self.offset[k] + self.problem.dims[k]] = values.atVector(k)
+            x[self.offset[k] : self.offset[k] + self.problem.dims[k]] = values.atVector(k)
         return x
 
     def _gather(self, x: Array) -> tuple[Array, ...]:
@@ -262,7 +286,9 @@ class FlatProblem:
             return dem_residual(x[self._dem_cols], self.dem.surface, jacobian)
         raise InputError("family", family, "collinearity, or dem when the problem has DEM factors")
 
-    def family_rows(self, x: Array, family: str, jacobian: bool, raw: tuple[Array, Any] | None = None) -> tuple[Array, sp.csr_matrix | None]:
+    def family_rows(
+        self, x: Array, family: str, jacobian: bool, raw: tuple[Array, Any] | None = None
+    ) -> tuple[Array, sp.csr_matrix | None]:
         """One factor family's block of rows of :meth:`residual` (and :meth:`jacobian` when asked):
         ``family`` is ``"collinearity"`` (``m_coll`` rows), ``"dem"`` (``m_dem``) or ``"priors"``.
         ``raw``: :meth:`raw` of this family at ``x`` (with Jacobians if asked), when already made."""
@@ -312,15 +338,19 @@ class FlatProblem:
             m = row0
         if not jacobian:
             return r, None
-        cat = (lambda a, t: np.concatenate(a) if a else np.zeros(0, t))
+
+        def cat(a, t):
+            return np.concatenate(a) if a else np.zeros(0, t)
+
         return r, sp.csr_matrix((cat(vals, float), (cat(rows, np.int64), cat(cols, np.int64))), shape=(m, self.n))
 
     def cost(self, x: Array) -> float:
         r = self.residual(x)
         return float(0.5 * r @ r)
 
-    def normal_equations(self, x: Array, use_numba: bool = True, second_order: bool = False,
-                         curvature_floor: float = 0.0) -> tuple[Array, Array, Array, Array, float]:
+    def normal_equations(
+        self, x: Array, use_numba: bool = True, second_order: bool = False, curvature_floor: float = 0.0
+    ) -> tuple[Array, Array, Array, Array, float]:
         """``J^T J`` and ``J^T r`` accumulated from the per-observation blocks, in Schur form.
 
         Returns ``(H_ll (L,3,3), H_lc (L,3,n_c) dense, H_cc (n_c,n_c), g (n,), cost)`` with the
@@ -362,12 +392,16 @@ class FlatProblem:
             blt, bct = np.swapaxes(bl, 1, 2), np.swapaxes(bc, 1, 2)
             idx9 = (lm[:, None, None] * 9 + np.arange(3)[None, :, None] * 3 + np.arange(3)[None, None, :]).ravel()
             blk = np.bincount(idx9, weights=(blt @ bl).ravel(), minlength=nl3 * 9).reshape(nl3, 3, 3)
-            hlc = np.bincount(((lm[:, None, None] * 3 + np.arange(3)[None, :, None]) * n_c + cc[:, None, :]).ravel(),
-                              weights=(blt @ bc).ravel(), minlength=nl3 * 3 * n_c).reshape(nl3, 3, n_c)
+            hlc = np.bincount(
+                ((lm[:, None, None] * 3 + np.arange(3)[None, :, None]) * n_c + cc[:, None, :]).ravel(),
+                weights=(blt @ bc).ravel(),
+                minlength=nl3 * 3 * n_c,
+            ).reshape(nl3, 3, n_c)
             grouped = np.add.reduceat((bct @ bc)[self._grp_order], self._grp_starts, axis=0)
             gc_ = np.where(self._grp_cols >= 0, self._grp_cols, 0)
-            hcc = np.bincount((gc_[:, :, None] * n_c + gc_[:, None, :]).ravel(), weights=grouped.ravel(),
-                              minlength=n_c * n_c).reshape(n_c, n_c)
+            hcc = np.bincount(
+                (gc_[:, :, None] * n_c + gc_[:, None, :]).ravel(), weights=grouped.ravel(), minlength=n_c * n_c
+            ).reshape(n_c, n_c)
             gl = (blt @ r[:, :, None])[:, :, 0]
             g[:n_l] += np.bincount((lm[:, None] * 3 + np.arange(3)).ravel(), weights=gl.ravel(), minlength=n_l)
             g[n_l:] += np.bincount(cc.ravel(), weights=(bct @ r[:, :, None]).ravel(), minlength=n_c)
@@ -385,15 +419,15 @@ class FlatProblem:
             cost += float(0.5 * rp @ rp)
             for k, a in zip(p.keys, p.a):
                 o, d = self.offset[k], a.shape[1]
-                g[o:o + d] += a.T @ rp
+                g[o : o + d] += a.T @ rp
                 for k2, a2 in zip(p.keys, p.a):
                     o2 = self.offset[k2]
                     if o < n_l and o2 < n_l:  # a landmark with itself (at most one landmark per factor)
                         blk[o // 3] += a.T @ a2
                     elif o < n_l:  # landmark x other (a GCP and its scene's offset)
-                        hlc[o // 3, :, o2 - n_l:o2 - n_l + a2.shape[1]] += a.T @ a2
+                        hlc[o // 3, :, o2 - n_l : o2 - n_l + a2.shape[1]] += a.T @ a2
                     elif o2 >= n_l:  # other x other (H_lc holds the landmark rows only)
-                        hcc[o - n_l:o - n_l + d, o2 - n_l:o2 - n_l + a2.shape[1]] += a.T @ a2
+                        hcc[o - n_l : o - n_l + d, o2 - n_l : o2 - n_l + a2.shape[1]] += a.T @ a2
         if second_order and self.dem is not None and len(self.dem):
             li, corr = self.dem_curvature(x)
             per_lm = np.zeros_like(blk)
@@ -422,7 +456,7 @@ class FlatProblem:
     def to_values(self, x: Array) -> gtsam.Values:
         v = gtsam.Values()
         for k in self.keys:
-            v.insert(int(k), x[self.offset[k]: self.offset[k] + self.problem.dims[k]].copy())
+            v.insert(int(k), x[self.offset[k] : self.offset[k] + self.problem.dims[k]].copy())
         return v
 
 
@@ -447,11 +481,17 @@ class Marginals:
         """``(n, 3, n_c)``: the landmarks' responses ``G_i`` (columns in ``joint`` order); two
         landmarks ``i != j`` have the cross-covariance ``G_i joint G_j^T``."""
         if self.landmark_response is None:
-            raise InputError("marginals", "joint-only", "marginals of every variable (schur_marginals without joint_keys)")
+            raise InputError(
+                "marginals", "joint-only", "marginals of every variable (schur_marginals without joint_keys)"
+            )
         missing = [int(k) for k in keys if int(k) not in self.landmark_index]
         if missing:
             raise InputError("keys", missing[:3], "landmark keys of the problem")
-        rows = np.concatenate([3 * self.landmark_index[int(k)] + np.arange(3) for k in keys]) if keys else np.zeros(0, np.int64)
+        rows = (
+            np.concatenate([3 * self.landmark_index[int(k)] + np.arange(3) for k in keys])
+            if keys
+            else np.zeros(0, np.int64)
+        )
         return self.landmark_response[rows].toarray().reshape(len(keys), 3, -1)
 
     def __getitem__(self, key: int) -> Array:
@@ -459,7 +499,9 @@ class Marginals:
 
     def joint_of(self, keys: list[int]) -> Array:
         """Joint covariance of several non-landmark variables."""
-        idx = np.concatenate([np.arange(self.joint_offsets[k], self.joint_offsets[k] + self.cov[k].shape[0]) for k in keys])
+        idx = np.concatenate(
+            [np.arange(self.joint_offsets[k], self.joint_offsets[k] + self.cov[k].shape[0]) for k in keys]
+        )
         return self.joint[np.ix_(idx, idx)]
 
 
@@ -521,13 +563,15 @@ def _blocks_from_linear(problem: Problem, lin: gtsam.GaussianFactorGraph) -> tup
         for k in (int(k) for k in f.keys()):
             d = problem.dims[k]
             if k in lm_index:
-                lms.append((lm_index[k], a[:, c0:c0 + d]))
+                lms.append((lm_index[k], a[:, c0 : c0 + d]))
             else:
                 oth_cols.append(np.arange(off[k], off[k] + d))
-                oth_blocks.append(a[:, c0:c0 + d])
+                oth_blocks.append(a[:, c0 : c0 + d])
             c0 += d
         if len(lms) > 1:
-            raise DegenerateProblemError("marginals: a factor couples two landmarks (the Schur form needs one per factor)")
+            raise DegenerateProblemError(
+                "marginals: a factor couples two landmarks (the Schur form needs one per factor)"
+            )
         if oth_cols:
             cols = np.concatenate(oth_cols)
             a_o = np.concatenate(oth_blocks, axis=1)
@@ -541,7 +585,10 @@ def _blocks_from_linear(problem: Problem, lin: gtsam.GaussianFactorGraph) -> tup
                 lc_r.append(np.repeat(3 * j + np.arange(3), cols.size))
                 lc_c.append(np.tile(cols, 3))
                 lc_v.append((a_l.T @ a_o).ravel())
-    cat = (lambda x, t: np.concatenate(x) if x else np.zeros(0, t))
+
+    def cat(x, t):
+        return np.concatenate(x) if x else np.zeros(0, t)
+
     n_l = 3 * len(lm_index)
     h_lc = sp.csr_matrix((cat(lc_v, float), (cat(lc_r, np.int64), cat(lc_c, np.int64))), shape=(n_l, n_c))
     h_cc = sp.csr_matrix((cat(cc_v, float), (cat(cc_r, np.int64), cat(cc_c, np.int64))), shape=(n_c, n_c))
@@ -577,7 +624,9 @@ def reduced_cholesky(s: sp.spmatrix) -> Array:
     try:
         return np.linalg.cholesky(0.5 * (s_dense + s_dense.T))
     except np.linalg.LinAlgError as exc:
-        raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)") from exc
+        raise DegenerateProblemError(
+            "the navigation/camera variables are not determined (reduced system not positive definite)"
+        ) from exc
 
 
 #: ``scipy.sparse.linalg.splu`` options for the reduced system ``S`` (symmetric positive
@@ -587,8 +636,15 @@ def reduced_cholesky(s: sp.spmatrix) -> Array:
 SPD_SPLU_OPTIONS: dict = {"permc_spec": "COLAMD", "diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
 
 
-def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_keys: list[int], other_keys: list[int],
-                    dims: dict[int, int], joint_keys: list[int] | None = None) -> Marginals:
+def schur_marginals(
+    h_ll: Array,
+    h_lc: sp.spmatrix,
+    h_cc: sp.spmatrix,
+    landmark_keys: list[int],
+    other_keys: list[int],
+    dims: dict[int, int],
+    joint_keys: list[int] | None = None,
+) -> Marginals:
     """The project's one marginal-covariance routine (eq. 34 at convergence), from ``J^T J`` in
     Schur form: landmark blocks ``h_ll (L, 3, 3)``, ``h_lc (3L, n_c)`` and ``h_cc (n_c, n_c)``.
 
@@ -613,52 +669,74 @@ def schur_marginals(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, landmark_
             rhs[idx, np.arange(idx.size)] = 1.0
             joint = lu.solve(rhs)[idx]
         except RuntimeError as exc:
-            raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system singular)") from exc
+            raise DegenerateProblemError(
+                "the navigation/camera variables are not determined (reduced system singular)"
+            ) from exc
         joint = 0.5 * (joint + joint.T)
         if not np.all(np.isfinite(joint)) or not np.all(np.diag(joint) > 0):
-            raise DegenerateProblemError("the navigation/camera variables are not determined (reduced system not positive definite)")
+            raise DegenerateProblemError(
+                "the navigation/camera variables are not determined (reduced system not positive definite)"
+            )
         j_off, o = {}, 0
         cov = {}
         for k in joint_keys:
             j_off[int(k)] = o
-            cov[int(k)] = joint[o:o + dims[int(k)], o:o + dims[int(k)]].copy()
+            cov[int(k)] = joint[o : o + dims[int(k)], o : o + dims[int(k)]].copy()
             o += dims[int(k)]
         return Marginals(cov, joint, [int(k) for k in joint_keys], j_off)
     inv_l = np.linalg.inv(reduced_cholesky(s))
     sigma_cc = inv_l.T @ inv_l
-    cov = {int(k): sigma_cc[off[int(k)]:off[int(k)] + dims[int(k)], off[int(k)]:off[int(k)] + dims[int(k)]].copy()
-           for k in other_keys}
+    cov = {
+        int(k): sigma_cc[off[int(k)] : off[int(k)] + dims[int(k)], off[int(k)] : off[int(k)] + dims[int(k)]].copy()
+        for k in other_keys
+    }
     if n_l:
         gd = g.toarray().reshape(n_l, 3, n_c)
         gs = (gd.reshape(3 * n_l, n_c) @ sigma_cc).reshape(n_l, 3, n_c)
         sl = h_ll_inv + np.einsum("lib,ljb->lij", gs, gd)
         for j, k in enumerate(landmark_keys):
             cov[int(k)] = sl[j]
-    return Marginals(cov, sigma_cc, [int(k) for k in other_keys], off, g.tocsr(),
-                     {int(k): j for j, k in enumerate(landmark_keys)})
+    return Marginals(
+        cov, sigma_cc, [int(k) for k in other_keys], off, g.tocsr(), {int(k): j for j, k in enumerate(landmark_keys)}
+    )
 
 
-def marginal_covariances(problem: Problem, values: gtsam.Values, lin: gtsam.GaussianFactorGraph | None = None,
-                         joint_keys: list[int] | None = None) -> Marginals:
+def marginal_covariances(
+    problem: Problem,
+    values: gtsam.Values,
+    lin: gtsam.GaussianFactorGraph | None = None,
+    joint_keys: list[int] | None = None,
+) -> Marginals:
     """Marginal covariances at ``values`` from the problem's linearised graph (any factor types
     with at most one landmark each): :func:`schur_marginals` of its ``J^T J``."""
     if lin is None:
         lin = linearize(problem, values)
     h_ll, h_lc, h_cc = _blocks_from_linear(problem, lin)
-    return schur_marginals(h_ll, h_lc, h_cc, [int(k) for k in problem.eliminate_first], problem.other_keys,
-                           problem.dims, joint_keys)
+    return schur_marginals(
+        h_ll, h_lc, h_cc, [int(k) for k in problem.eliminate_first], problem.other_keys, problem.dims, joint_keys
+    )
 
 
-def flat_marginals(flat: "FlatProblem", x: Array, joint_keys: list[int] | None = None,
-                   second_order: bool = False) -> Marginals:
+def flat_marginals(
+    flat: "FlatProblem", x: Array, joint_keys: list[int] | None = None, second_order: bool = False
+) -> Marginals:
     """Marginal covariances at the flat vector ``x``: :func:`schur_marginals` of the normal
     equations the flat form accumulates (the same ``J^T J``; no GTSAM linearisation), or with
     ``second_order=True`` of the exact Hessian of the cost: ``J^T J`` plus the DEM residuals'
     curvature (:meth:`FlatProblem.dem_curvature`) wherever a landmark's block stays positive
     definite with it -- the Laplace approximation at the optimum, which differs from ``J^T J``
     where a landmark sits on terrain curved at the scale of its uncertainty."""
-    blk, hlc, hcc, _, _ = flat.normal_equations(x, second_order=second_order, curvature_floor=0.5 if second_order else 0.0)
+    blk, hlc, hcc, _, _ = flat.normal_equations(
+        x, second_order=second_order, curvature_floor=0.5 if second_order else 0.0
+    )
     n_l = blk.shape[0]
     prob = flat.problem
-    return schur_marginals(blk, sp.csr_matrix(hlc.reshape(3 * n_l, -1)), sp.csr_matrix(hcc),
-                           [int(k) for k in prob.eliminate_first], prob.other_keys, prob.dims, joint_keys)
+    return schur_marginals(
+        blk,
+        sp.csr_matrix(hlc.reshape(3 * n_l, -1)),
+        sp.csr_matrix(hcc),
+        [int(k) for k in prob.eliminate_first],
+        prob.other_keys,
+        prob.dims,
+        joint_keys,
+    )

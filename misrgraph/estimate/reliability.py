@@ -63,21 +63,37 @@ class Reliability:
     def variance_component(self, rows: NDArray[np.bool_] | slice) -> dict[str, float]:
         """``sigma0`` of a class of rows from its residuals and redundancy."""
         e2, rr = float(np.sum(self.e[rows] ** 2)), float(np.sum(self.r[rows]))
-        return {"sigma0": float(np.sqrt(e2 / rr)) if rr > 0 else float("nan"), "redundancy": rr,
-                "rows": int(np.size(self.e[rows]))}
+        return {
+            "sigma0": float(np.sqrt(e2 / rr)) if rr > 0 else float("nan"),
+            "redundancy": rr,
+            "rows": int(np.size(self.e[rows])),
+        }
 
-    def summary(self, observation_class: NDArray[np.int64] | None = None, class_names: dict[int, str] | None = None,
-                alpha: float = W_TEST_ALPHA) -> dict[str, Any]:
+    def summary(
+        self,
+        observation_class: NDArray[np.int64] | None = None,
+        class_names: dict[int, str] | None = None,
+        alpha: float = W_TEST_ALPHA,
+    ) -> dict[str, Any]:
         """JSON-ready: redundancy (total, per-observation quantiles), the data-snooping test (critical
         value, how many observations exceed it), variance components per class."""
         crit = critical_T(alpha)
         r_obs = np.trace(self.R_obs, axis1=1, axis2=2) / 2.0
         out: dict[str, Any] = {
             "redundancy_total": float(np.sum(self.r)),
-            "observation_redundancy": {"min": float(r_obs.min()), "median": float(np.median(r_obs)),
-                                       "below_0.1": int(np.sum(r_obs < 0.1))} if r_obs.size else {},
-            "data_snooping": {"alpha": alpha, "critical_T": crit, "flagged": int(np.sum(self.T > crit)),
-                              "max_T": float(self.T.max()) if self.T.size else 0.0},
+            "observation_redundancy": {
+                "min": float(r_obs.min()),
+                "median": float(np.median(r_obs)),
+                "below_0.1": int(np.sum(r_obs < 0.1)),
+            }
+            if r_obs.size
+            else {},
+            "data_snooping": {
+                "alpha": alpha,
+                "critical_T": crit,
+                "flagged": int(np.sum(self.T > crit)),
+                "max_T": float(self.T.max()) if self.T.size else 0.0,
+            },
             "variance_components": {},
         }
         fam = self.families
@@ -136,8 +152,11 @@ def reliability(flat: FlatProblem, x: Array, chunk: int = 2048) -> Reliability:
         same = (lm[ev] >= 0) & (lm[ev] == lm[ev + 1])
         cross[same] += np.einsum("ri,rij,rj->r", a_l[ev[same]], d_inv[lm[ev[same]]], a_l[ev[same] + 1])
         h_pair[ev] = cross
-    fam = {"collinearity": slice(0, flat.m_coll), "dem": slice(flat.m_coll, flat.m_coll + flat.m_dem),
-           "priors": slice(flat.m_coll + flat.m_dem, m)}
+    fam = {
+        "collinearity": slice(0, flat.m_coll),
+        "dem": slice(flat.m_coll, flat.m_coll + flat.m_dem),
+        "priors": slice(flat.m_coll + flat.m_dem, m),
+    }
     k = np.arange(0, flat.m_coll, 2)
     r_obs = np.empty((k.size, 2, 2))
     r_obs[:, 0, 0] = 1.0 - h[k]

@@ -12,8 +12,8 @@ copy. So the core:
    (``GaussianFactorGraph.optimize(ordering)``, COLAMD with the shared cameras last,
    the ordering computed once and reused); or, with ``backend="schur"`` (``"auto"``, the
    default, where the problem allows it), accumulates the normal
-   equations directly from the per-observation blocks (:meth:`misrgraph.estimate.problem.Problem.flat`) and solves them by a
-   numpy Schur complement on the 3x3 landmark blocks -- no Python callback at all, ~4x faster
+   equations directly from the per-observation blocks (:meth:`misrgraph.estimate.problem.Problem.flat`) and solves
+   them by a numpy Schur complement on the 3x3 landmark blocks -- no Python callback at all, ~4x faster
    than GTSAM's elimination at 2000 tie points, identical iterates with
    ``dem_second_order=False``; by default it adds the DEM factors' second-order term near the
    minimum (``SolverParams.dem_second_order``; docs/conventions.md), where Gauss-Newton creeps;
@@ -39,8 +39,19 @@ from misrgraph.config import Config
 from misrgraph.errors import ConvergenceError, DegenerateProblemError, InputError
 from misrgraph.estimate.problem import Problem, error, linearize
 
-__all__ = ["gauss_newton_step", "SolverParams", "SolveResult", "STATUSES", "solve", "error", "linearize", "solve_gtsam_lm", "gtsam_lm_params",
-           "information_norm_split", "check_converged"]
+__all__ = [
+    "gauss_newton_step",
+    "SolverParams",
+    "SolveResult",
+    "STATUSES",
+    "solve",
+    "error",
+    "linearize",
+    "solve_gtsam_lm",
+    "gtsam_lm_params",
+    "information_norm_split",
+    "check_converged",
+]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -77,8 +88,11 @@ class SolverParams(Config):
         if self.backend not in BACKENDS:
             raise InputError("backend", self.backend, BACKENDS)
         if self.backend == "gtsam" and self.dem_second_order:
-            raise InputError("dem_second_order", self.dem_second_order,
-                             "False or None with backend 'gtsam' (only the Schur backend has the second-order DEM term)")
+            raise InputError(
+                "dem_second_order",
+                self.dem_second_order,
+                "False or None with backend 'gtsam' (only the Schur backend has the second-order DEM term)",
+            )
 
 
 #: How a solve ended (:attr:`SolveResult.status`).
@@ -120,8 +134,9 @@ def _ordering(problem: Problem) -> gtsam.Ordering:
     for one pass, but where GCP landmarks are shared by many passes (a month of calibration)
     eliminating them first couples every pass's knots: a standard month's step took 1.78 s that
     way and 0.16 s with COLAMD, the same step to 3e-14 (``misrgraph bench calibration``)."""
-    return gtsam.Ordering.ColamdConstrainedLastNonlinearFactorGraph(problem.graph,
-                                                                   [int(k) for k in problem.eliminate_last])
+    return gtsam.Ordering.ColamdConstrainedLastNonlinearFactorGraph(
+        problem.graph, [int(k) for k in problem.eliminate_last]
+    )
 
 
 def _damped(lin: gtsam.GaussianFactorGraph, problem: Problem, lam: float) -> gtsam.GaussianFactorGraph:
@@ -164,24 +179,37 @@ class _NonFiniteStart(DegenerateProblemError):
     """The cost is not finite at the initial values (explained by :func:`_explain_nonfinite_start`)."""
 
 
-def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
-           progress: Callable[[int, float, float], None] | None,
-           on_iterate: Callable[[Any], None] | None = None) -> SolveResult:
+def _solve(
+    problem: Problem,
+    params: SolverParams,
+    initial: gtsam.Values | None,
+    progress: Callable[[int, float, float], None] | None,
+    on_iterate: Callable[[Any], None] | None = None,
+) -> SolveResult:
     if params.backend in ("schur", "auto"):
         from misrgraph.estimate.problem import NotFlat
 
         try:
-            res = _solve_schur(problem, params.replace(dem_second_order=params.dem_second_order is not False),
-                               initial, progress, on_iterate)
+            res = _solve_schur(
+                problem,
+                params.replace(dem_second_order=params.dem_second_order is not False),
+                initial,
+                progress,
+                on_iterate,
+            )
             res.backend = "schur"
             return res
         except NotFlat as exc:
             if params.backend == "schur":
-                raise InputError("backend", "schur", f"'auto' or 'gtsam' for this problem (the Schur backend "
-                                                     f"cannot solve it: {exc})") from exc
+                raise InputError(
+                    "backend", "schur", f"'auto' or 'gtsam' for this problem (the Schur backend cannot solve it: {exc})"
+                ) from exc
             if params.dem_second_order:
-                raise InputError("dem_second_order", True, f"False or None for this problem (it needs the Schur "
-                                                           f"backend, which cannot solve it: {exc})") from exc
+                raise InputError(
+                    "dem_second_order",
+                    True,
+                    f"False or None for this problem (it needs the Schur backend, which cannot solve it: {exc})",
+                ) from exc
             log.info("backend auto: GTSAM elimination (the Schur backend cannot solve this problem: %s)", exc)
     params = params.replace(dem_second_order=False)
     values = gtsam.Values(initial if initial is not None else problem.initial)
@@ -191,7 +219,9 @@ def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
         try:
             return x.retract(_damped(lin, problem, lam).optimize(ordering))
         except RuntimeError as exc:  # indeterminant system
-            raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
+            raise DegenerateProblemError(
+                f"the linear system is singular ({exc}); some variables are not observed"
+            ) from exc
 
     def model_decrease(x: gtsam.Values, lin: gtsam.GaussianFactorGraph) -> float:
         """``0.5 ||b||^2 - 0.5 ||A d - b||^2`` for the undamped Gauss-Newton step ``d``."""
@@ -206,8 +236,18 @@ def _solve(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
 
     # a robust loss's reweighted quadratic model over-predicts near its optimum: no stall check there
     robust = any(getattr(b, "robust", None) is not None for b in problem.batches)
-    res = _levenberg_marquardt(values, lambda x: error(problem, x), lambda x, _: linearize(problem, x), step, params,
-                               progress, lambda x: x, model_decrease, on_iterate, check_small_decrease=not robust)
+    res = _levenberg_marquardt(
+        values,
+        lambda x: error(problem, x),
+        lambda x, _: linearize(problem, x),
+        step,
+        params,
+        progress,
+        lambda x: x,
+        model_decrease,
+        on_iterate,
+        check_small_decrease=not robust,
+    )
     res.backend = "gtsam"
     return res
 
@@ -227,20 +267,29 @@ def _explain_nonfinite_start(problem: Problem, values: gtsam.Values) -> None:
         n = int(bad.sum())
         if isinstance(b, DemBatch):  # one landmark per row
             first = describe(int(np.asarray(b.keys)[bad][0]))
-            raise DegenerateProblemError(f"{n} landmark(s) start off the DEM tiles (first: {first}); their rays "
-                                         "do not meet the terrain covered by the DEM (wild observations or the "
-                                         "wrong DEM)")
-        raise DegenerateProblemError(f"{n} collinearity residual(s) are not finite at the initial values; "
-                                     "check the observations and the camera model")
+            raise DegenerateProblemError(
+                f"{n} landmark(s) start off the DEM tiles (first: {first}); their rays "
+                "do not meet the terrain covered by the DEM (wild observations or the "
+                "wrong DEM)"
+            )
+        raise DegenerateProblemError(
+            f"{n} collinearity residual(s) are not finite at the initial values; "
+            "check the observations and the camera model"
+        )
 
 
-def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at: Callable[[object, bool], object],
-                         step: Callable[[object, object, float], object], params: SolverParams,
-                         progress: Callable[[int, float, float], None] | None,
-                         to_values: Callable[[object], gtsam.Values],
-                         model_decrease: Callable[[object, object], float],
-                         on_iterate: Callable[[Any], None] | None = None,
-                         check_small_decrease: bool = True) -> SolveResult:
+def _levenberg_marquardt(
+    x0: object,
+    cost: Callable[[object], float],
+    system_at: Callable[[object, bool], object],
+    step: Callable[[object, object, float], object],
+    params: SolverParams,
+    progress: Callable[[int, float, float], None] | None,
+    to_values: Callable[[object], gtsam.Values],
+    model_decrease: Callable[[object, object], float],
+    on_iterate: Callable[[Any], None] | None = None,
+    check_small_decrease: bool = True,
+) -> SolveResult:
     """The LM loop shared by both backends, with ``gtsam.LevenbergMarquardtOptimizer``'s rules:
     lambda divided by ``lambda_factor`` after an accepted step, multiplied after a rejected one;
     stop when the decrease is below the absolute or relative tolerance or lambda exceeds its bound.
@@ -308,10 +357,25 @@ def _levenberg_marquardt(x0: object, cost: Callable[[object], float], system_at:
         second = second or (params.dem_second_order and decrease < params.second_order_below * err)
         err = new_err
     if status != "converged":
-        log.info("Levenberg-Marquardt ended %s after %d iterations (cost %.9g%s)", status.replace("_", " "), it, err,
-                    "" if predicted is None else f", the model still predicts a decrease of {predicted:.3g}")
-    return SolveResult(to_values(x), it, status == "converged", err, history, time.perf_counter() - t_start, lin_time, it,
-                       status=status, predicted_decrease=predicted)
+        log.info(
+            "Levenberg-Marquardt ended %s after %d iterations (cost %.9g%s)",
+            status.replace("_", " "),
+            it,
+            err,
+            "" if predicted is None else f", the model still predicts a decrease of {predicted:.3g}",
+        )
+    return SolveResult(
+        to_values(x),
+        it,
+        status == "converged",
+        err,
+        history,
+        time.perf_counter() - t_start,
+        lin_time,
+        it,
+        status=status,
+        predicted_decrease=predicted,
+    )
 
 
 @dataclass
@@ -344,9 +408,13 @@ def _schur_step(sys: _SchurSystem, lam: float, n_l: int) -> Array:
     return np.concatenate([dl.ravel(), dc])
 
 
-def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values | None,
-                 progress: Callable[[int, float, float], None] | None,
-                 on_iterate: Callable[[Any], None] | None = None) -> SolveResult:
+def _solve_schur(
+    problem: Problem,
+    params: SolverParams,
+    initial: gtsam.Values | None,
+    progress: Callable[[int, float, float], None] | None,
+    on_iterate: Callable[[Any], None] | None = None,
+) -> SolveResult:
     flat = problem.flat()
     n_l = 3 * len(problem.eliminate_first)
 
@@ -354,7 +422,9 @@ def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values |
         try:
             return x + _schur_step(system, lam, n_l)
         except np.linalg.LinAlgError as exc:
-            raise DegenerateProblemError(f"the linear system is singular ({exc}); some variables are not observed") from exc
+            raise DegenerateProblemError(
+                f"the linear system is singular ({exc}); some variables are not observed"
+            ) from exc
 
     def model_decrease(x: Array, system: _SchurSystem) -> float:
         """``-g.d / 2`` for the undamped step ``d = -H^-1 g`` of the system at ``x`` (``H`` as
@@ -366,8 +436,17 @@ def _solve_schur(problem: Problem, params: SolverParams, initial: gtsam.Values |
         return float(-0.5 * system.g @ d)
 
     x0 = flat.from_values(initial if initial is not None else problem.initial)
-    return _levenberg_marquardt(x0, flat.cost, lambda x, second: _schur_system(flat, x, n_l, second), step, params,
-                                progress, flat.to_values, model_decrease, on_iterate)
+    return _levenberg_marquardt(
+        x0,
+        flat.cost,
+        lambda x, second: _schur_system(flat, x, n_l, second),
+        step,
+        params,
+        progress,
+        flat.to_values,
+        model_decrease,
+        on_iterate,
+    )
 
 
 def gauss_newton_step(flat: Any, x: Array) -> Array:
@@ -401,13 +480,23 @@ def solve_gtsam_lm(problem: Problem, params: SolverParams = SolverParams()) -> S
     opt = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.initial, p)
     values = opt.optimize()
     # GTSAM's own stopping rule (which also stops at lambda's bound); benches only
-    return SolveResult(values, opt.iterations(), True, float(problem.graph.error(values)), [], time.perf_counter() - t0,
-                       status="converged")
+    return SolveResult(
+        values,
+        opt.iterations(),
+        True,
+        float(problem.graph.error(values)),
+        [],
+        time.perf_counter() - t0,
+        status="converged",
+    )
 
 
-def information_norm_split(lin: gtsam.GaussianFactorGraph, delta: dict[int, Array],
-                           local_keys: "list[int] | NDArray[np.int64]",
-                           local_extra: "dict[int, Array] | None" = None) -> tuple[float, float]:
+def information_norm_split(
+    lin: gtsam.GaussianFactorGraph,
+    delta: dict[int, Array],
+    local_keys: "list[int] | NDArray[np.int64]",
+    local_extra: "dict[int, Array] | None" = None,
+) -> tuple[float, float]:
     """``e^T H e`` split exactly into ``(local part, rest)`` for variables ``local_keys`` that no
     factor shares (the landmarks: each factor touches at most one), so that ``H_LL`` is block
     diagonal.
@@ -435,12 +524,14 @@ def information_norm_split(lin: gtsam.GaussianFactorGraph, delta: dict[int, Arra
         if not mine:
             continue
         if len(mine) > 1:
-            raise ValueError(f"information_norm_split: factor {i} touches {len(mine)} local variables "
-                             f"{[keys[j] for j in mine]}; H_LL would not be block diagonal")
+            raise ValueError(
+                f"information_norm_split: factor {i} touches {len(mine)} local variables "
+                f"{[keys[j] for j in mine]}; H_LL would not be block diagonal"
+            )
         cols = np.cumsum([0] + [b.size for b in blocks])
         j = mine[0]
-        a_l = a[:, cols[j]:cols[j + 1]]
-        a_o_e = sum((a[:, cols[m]:cols[m + 1]] @ blocks[m] for m in range(len(keys)) if m != j), np.zeros(a.shape[0]))
+        a_l = a[:, cols[j] : cols[j + 1]]
+        a_o_e = sum((a[:, cols[m] : cols[m + 1]] @ blocks[m] for m in range(len(keys)) if m != j), np.zeros(a.shape[0]))
         k = keys[j]
         h_ll[k] = h_ll.get(k, 0.0) + a_l.T @ a_l
         g[k] = g.get(k, 0.0) + a_l.T @ a_o_e
@@ -460,10 +551,13 @@ def check_converged(result: SolveResult, what: str = "the solve", accept: bool =
     then only a warning is logged; the caller flags the result)."""
     if result.converged:
         return
-    why = ("it stalled (lambda at its bound, or damped steps decreasing the cost by almost nothing) while "
-           f"the Gauss-Newton model still predicts a decrease of {result.predicted_decrease:.3g} -- e.g. steps "
-           "that would take a landmark off the DEM tiles" if result.status == "stalled" else
-           f"the iteration limit ({result.iterations}) was reached")
+    why = (
+        "it stalled (lambda at its bound, or damped steps decreasing the cost by almost nothing) while "
+        f"the Gauss-Newton model still predicts a decrease of {result.predicted_decrease:.3g} -- e.g. steps "
+        "that would take a landmark off the DEM tiles"
+        if result.status == "stalled"
+        else f"the iteration limit ({result.iterations}) was reached"
+    )
     msg = f"{what} did not converge: {why} (cost {result.final_error:.6g})"
     if accept:
         log.warning("%s; accepted: its covariances are not those of an optimum", msg)

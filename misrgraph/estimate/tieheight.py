@@ -60,8 +60,9 @@ class SharedHeight:
         return float(np.sqrt(self.variance_m2))
 
 
-def shared_height_variance(residual_m: ArrayLike, sigma_m: ArrayLike, redundancy: ArrayLike,
-                           iterations: int = 10) -> SharedHeight:
+def shared_height_variance(
+    residual_m: ArrayLike, sigma_m: ArrayLike, redundancy: ArrayLike, iterations: int = 10
+) -> SharedHeight:
     """``s^2`` (m^2) from DEM-factor residuals (see the module docstring).
 
     ``residual_m (n,)``: each DEM factor's residual at the optimum (m, landmark height minus DEM);
@@ -84,12 +85,12 @@ def shared_height_variance(residual_m: ArrayLike, sigma_m: ArrayLike, redundancy
         raise InputError("redundancy", [float(q.min()), float(q.max())], "redundancy numbers in (0, 1]")
     if r.size < 2:
         return SharedHeight(0.0, float("nan"), float("inf"), int(r.size))
-    y = r ** 2 - q * sig ** 2
-    a = q ** 2
+    y = r**2 - q * sig**2
+    a = q**2
     s2 = 0.0
     est = 0.0
     for _ in range(iterations):
-        w = 0.5 / (q * sig ** 2 + a * s2) ** 2
+        w = 0.5 / (q * sig**2 + a * s2) ** 2
         info = float(np.sum(w * a * a))
         est = float(np.sum(w * a * y)) / info
         new = max(est, 0.0)
@@ -97,7 +98,7 @@ def shared_height_variance(residual_m: ArrayLike, sigma_m: ArrayLike, redundancy
             s2 = new
             break
         s2 = new
-    w = 0.5 / (q * sig ** 2 + a * s2) ** 2
+    w = 0.5 / (q * sig**2 + a * s2) ** 2
     return SharedHeight(s2, est, float(1.0 / np.sqrt(np.sum(w * a * a))), int(r.size))
 
 
@@ -124,7 +125,7 @@ def pool_shared_height(unclipped_m2: ArrayLike, n: ArrayLike) -> SharedHeight:
         raise InputError("n", float(m.min()), "positive numbers of DEM rows")
     w = m / m.sum()
     mean = float(np.sum(w * u))
-    se = float(np.sqrt(u.size / (u.size - 1.0) * np.sum(w ** 2 * (u - mean) ** 2)))
+    se = float(np.sqrt(u.size / (u.size - 1.0) * np.sum(w**2 * (u - mean) ** 2)))
     return SharedHeight(max(mean, 0.0), mean, se, int(m.sum()))
 
 
@@ -141,7 +142,10 @@ def inflate_along(cov: ArrayLike, direction: ArrayLike, variance_m2: float) -> A
         raise InputError("variance_m2", variance_m2, "a variance >= 0 (m^2)")
     n = np.linalg.norm(u, axis=1, keepdims=True)
     if np.any(~np.isfinite(n) | (n <= 0)):
-        raise InputError("direction", u[np.flatnonzero(~np.isfinite(n[:, 0]) | (n[:, 0] <= 0))[0]].tolist(),
-                         "non-zero finite vectors")
+        raise InputError(
+            "direction",
+            u[np.flatnonzero(~np.isfinite(n[:, 0]) | (n[:, 0] <= 0))[0]].tolist(),
+            "non-zero finite vectors",
+        )
     u = u / n
     return c + variance_m2 * np.einsum("ni,nj->nij", u, u)

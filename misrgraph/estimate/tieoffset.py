@@ -51,8 +51,9 @@ Array = NDArray[np.float64]
 TIE_OFFSET_MODES = ("auto",)
 
 
-def offset_response(h_ll: ArrayLike, jacobian: ArrayLike, sigma_px: ArrayLike, landmark: ArrayLike,
-                    shared: ArrayLike) -> Array:
+def offset_response(
+    h_ll: ArrayLike, jacobian: ArrayLike, sigma_px: ArrayLike, landmark: ArrayLike, shared: ArrayLike
+) -> Array:
     """``R (L, 3, 2)`` m/px: each landmark's response to a common (line, sample) shift of its
     ``shared`` observations (module docstring). ``h_ll (L, 3, 3)``; per observation ``jacobian (N,
     2, 3)`` px/m, ``sigma_px (N, 2)``, ``landmark (N,)`` index into ``h_ll``, ``shared (N,)`` bool
@@ -63,9 +64,19 @@ def offset_response(h_ll: ArrayLike, jacobian: ArrayLike, sigma_px: ArrayLike, l
     lm = np.asarray(landmark)
     sh = np.asarray(shared, bool)
     n = j.shape[0]
-    if h.ndim != 3 or h.shape[1:] != (3, 3) or j.shape != (n, 2, 3) or sig.shape != (n, 2) or lm.shape != (n,) or sh.shape != (n,):
-        raise InputError("(h_ll, jacobian, sigma_px, landmark, shared)", (h.shape, j.shape, sig.shape, lm.shape, sh.shape),
-                         "shapes (L, 3, 3), (N, 2, 3), (N, 2), (N,), (N,)")
+    if (
+        h.ndim != 3
+        or h.shape[1:] != (3, 3)
+        or j.shape != (n, 2, 3)
+        or sig.shape != (n, 2)
+        or lm.shape != (n,)
+        or sh.shape != (n,)
+    ):
+        raise InputError(
+            "(h_ll, jacobian, sigma_px, landmark, shared)",
+            (h.shape, j.shape, sig.shape, lm.shape, sh.shape),
+            "shapes (L, 3, 3), (N, 2, 3), (N, 2), (N,), (N,)",
+        )
     if not np.all(sig[sh] > 0):
         raise InputError("sigma_px", float(np.min(sig[sh])), "positive sigmas (px)")
     s = np.zeros((h.shape[0], 3, 2))
@@ -81,8 +92,9 @@ def offset_covariance(response: ArrayLike, sigma_px: float) -> Array:
     return sigma_px**2 * np.einsum("lij,lkj->lik", r, r)
 
 
-def counted_covariance(h_ll: ArrayLike, jacobian: ArrayLike, sigma_px: ArrayLike, landmark: ArrayLike,
-                       counted_px2: ArrayLike) -> Array:
+def counted_covariance(
+    h_ll: ArrayLike, jacobian: ArrayLike, sigma_px: ArrayLike, landmark: ArrayLike, counted_px2: ArrayLike
+) -> Array:
     """``sum_c a_c R_c R_c^T`` ``(L, 3, 3)`` m^2: the shared variance ``a_c`` (px^2, ``(N,)``; 0 for
     observations that are not conjugates) that each observation's own sigma already carries into
     its landmark's covariance, ``R_c = H_ll^-1 J_c^T W_c``. Arguments as :func:`offset_response`."""
@@ -92,7 +104,9 @@ def counted_covariance(h_ll: ArrayLike, jacobian: ArrayLike, sigma_px: ArrayLike
     lm = np.asarray(landmark)
     a = np.asarray(counted_px2, float)
     if a.shape != (j.shape[0],) or not np.all(a >= 0):
-        raise InputError("counted_px2", a.shape if a.shape != (j.shape[0],) else float(a.min()), "(N,) variances >= 0 (px^2)")
+        raise InputError(
+            "counted_px2", a.shape if a.shape != (j.shape[0],) else float(a.min()), "(N,) variances >= 0 (px^2)"
+        )
     use = a > 0
     out = np.zeros((h.shape[0], 3, 3))
     if use.any():

@@ -16,9 +16,20 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from misrgraph.estimate.calibrate import (RED, CalibrateConfig, CalibrationResult, calibrated_bands, calibrated_models,
-                                          camera_keys, decode_camera_key, evaluation_grid, param_value, pointing_error_px,
-                                          slope_estimates, supplied_models_at)
+from misrgraph.estimate.calibrate import (
+    RED,
+    CalibrateConfig,
+    CalibrationResult,
+    calibrated_bands,
+    calibrated_models,
+    camera_keys,
+    decode_camera_key,
+    evaluation_grid,
+    param_value,
+    pointing_error_px,
+    slope_estimates,
+    supplied_models_at,
+)
 from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.model.constants import CAMERAS
 
@@ -27,8 +38,13 @@ __all__ = ["score_calibration", "true_corrections"]
 Array = NDArray[np.float64]
 
 
-def score_calibration(summary: dict[str, Any], res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel,
-                      truth: CameraModel | TabulatedCameraModel) -> dict[str, Any]:
+def score_calibration(
+    summary: dict[str, Any],
+    res: CalibrationResult,
+    cfg: CalibrateConfig,
+    supplied: CameraModel,
+    truth: CameraModel | TabulatedCameraModel,
+) -> dict[str, Any]:
     """``summary`` with the scores against ``truth`` added (in place; also returned)."""
     grid = evaluation_grid(res, supplied, thermal=isinstance(truth, TabulatedCameraModel))
     est_at = calibrated_models(res, cfg, supplied, grid)
@@ -36,10 +52,12 @@ def score_calibration(summary: dict[str, Any], res: CalibrationResult, cfg: Cali
     for name, entry in summary["cameras"].items():
         c = CAMERAS.index(name)
         bands = calibrated_bands(res, cfg, c)
-        entry["pointing_error_px"] = max(pointing_error_px(e, truth.at_temperature(t), c, b)
-                                         for e, t in zip(est_at, grid) for b in bands)
-        entry["pointing_error_before_px"] = max(pointing_error_px(m, truth.at_temperature(t), c, b)
-                                                for m, t in zip(sup_at, grid) for b in bands)
+        entry["pointing_error_px"] = max(
+            pointing_error_px(e, truth.at_temperature(t), c, b) for e, t in zip(est_at, grid) for b in bands
+        )
+        entry["pointing_error_before_px"] = max(
+            pointing_error_px(m, truth.at_temperature(t), c, b) for m, t in zip(sup_at, grid) for b in bands
+        )
     if "thermal" in summary:
         _score_slopes(summary["thermal"], res, cfg, truth)
     summary["max_pointing_error_px"] = max(v["pointing_error_px"] for v in summary["cameras"].values())
@@ -49,8 +67,9 @@ def score_calibration(summary: dict[str, Any], res: CalibrationResult, cfg: Cali
     return summary
 
 
-def _score_slopes(thermal: dict[str, Any], res: CalibrationResult, cfg: CalibrateConfig,
-                  truth: CameraModel | TabulatedCameraModel) -> None:
+def _score_slopes(
+    thermal: dict[str, Any], res: CalibrationResult, cfg: CalibrateConfig, truth: CameraModel | TabulatedCameraModel
+) -> None:
     est = slope_estimates(res, cfg)
     sig_s = np.sqrt(np.diag(est.cov))
     true_s = []
@@ -59,14 +78,17 @@ def _score_slopes(thermal: dict[str, Any], res: CalibrationResult, cfg: Calibrat
         lo, hi = truth.at_temperature(float(t.min())), truth.at_temperature(float(t.max()))
         true_s.append((param_value(hi, p, c, b) - param_value(lo, p, c, b)) / (t.max() - t.min()))
     for i, (cam, p) in enumerate(est.names):
-        thermal["slopes"][cam][p].update(true_slope_per_c=float(true_s[i]), z=float((est.slope[i] - true_s[i]) / sig_s[i]))
+        thermal["slopes"][cam][p].update(
+            true_slope_per_c=float(true_s[i]), z=float((est.slope[i] - true_s[i]) / sig_s[i])
+        )
     err = est.slope - np.array(true_s)
     thermal["nees"] = float(err @ np.linalg.solve(est.cov, err) / err.size)
     thermal["nees_dim"] = int(err.size)
 
 
-def true_corrections(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel,
-                      truth: "CameraModel | TabulatedCameraModel") -> Array:
+def true_corrections(
+    res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel, truth: "CameraModel | TabulatedCameraModel"
+) -> Array:
     """Truth minus supplied model for every estimated correction, each bin at its temperature."""
     out = []
     bases = res.supplied_models or [supplied]

@@ -55,14 +55,17 @@ def time_groups(time_s: ArrayLike, window_s: float = LANDMARK_GROUP_S) -> NDArra
     if not (np.isfinite(window_s) and window_s > 0):
         raise InputError("window_s", window_s, "a positive number of seconds")
     if t.ndim != 1 or not np.all(np.isfinite(t)):
-        raise InputError("time_s", t.shape if t.ndim != 1 else float(t[~np.isfinite(t)][0]), "finite times (s), one per landmark")
+        raise InputError(
+            "time_s", t.shape if t.ndim != 1 else float(t[~np.isfinite(t)][0]), "finite times (s), one per landmark"
+        )
     if t.size == 0:
         return np.zeros(0, np.int64)
     return np.floor((t - t.min()) / window_s).astype(np.int64)
 
 
-def landmark_nees_split(error: ArrayLike, cov: ArrayLike, response: ArrayLike, joint: ArrayLike,
-                        group: ArrayLike) -> dict[str, Any]:
+def landmark_nees_split(
+    error: ArrayLike, cov: ArrayLike, response: ArrayLike, joint: ArrayLike, group: ArrayLike
+) -> dict[str, Any]:
     """The common and within-group landmark NEES (module docstring).
 
     ``error (L, 3)`` m: estimate minus truth; ``cov (L, 3, 3)`` m^2: each landmark's marginal
@@ -80,35 +83,45 @@ def landmark_nees_split(error: ArrayLike, cov: ArrayLike, response: ArrayLike, j
     grp = np.asarray(group)
     n = e.shape[0]
     if e.shape != (n, 3) or p.shape != (n, 3, 3) or g.ndim != 3 or g.shape[:2] != (n, 3) or grp.shape != (n,):
-        raise InputError("(error, cov, response, group)", (e.shape, p.shape, g.shape, grp.shape),
-                         "shapes (L, 3), (L, 3, 3), (L, 3, n_c), (L,)")
+        raise InputError(
+            "(error, cov, response, group)",
+            (e.shape, p.shape, g.shape, grp.shape),
+            "shapes (L, 3), (L, 3, 3), (L, 3, n_c), (L,)",
+        )
     if s.shape != (g.shape[2], g.shape[2]):
         raise InputError("joint", s.shape, f"shape ({g.shape[2]}, {g.shape[2]}) (the response's columns)")
     if n == 0:
         raise InputError("error", 0, "at least one landmark")
-    gs = g @ s                                               # (L, 3, n_c)
-    own = p - np.einsum("lic,ljc->lij", gs, g)               # C_i
+    gs = g @ s  # (L, 3, n_c)
+    own = p - np.einsum("lic,ljc->lij", gs, g)  # C_i
     common, common_axes, within, within_axes = [], [], [], []
     for label in np.unique(grp):
         idx = np.flatnonzero(grp == label)
         m = idx.size
-        a = g[idx].mean(axis=0)                              # (3, n_c)
+        a = g[idx].mean(axis=0)  # (3, n_c)
         cov_mean = a @ s @ a.T + own[idx].sum(axis=0) / m**2
         mean = e[idx].mean(axis=0)
         common.append(float(mean @ np.linalg.solve(cov_mean, mean)))
         common_axes.append(mean**2 / np.diag(cov_mean))
         if m < 2:
             continue
-        b = gs[idx] @ a.T + own[idx] / m                     # Cov(e_i, e_g), (m, 3, 3)
+        b = gs[idx] @ a.T + own[idx] / m  # Cov(e_i, e_g), (m, 3, 3)
         cov_dev = p[idx] - b - np.swapaxes(b, 1, 2) + cov_mean
         d = e[idx] - mean
         within.extend(np.einsum("li,li->l", d, np.linalg.solve(cov_dev, d[:, :, None])[:, :, 0]).tolist())
         within_axes.append(d**2 / np.einsum("lii->li", cov_dev))
-    out: dict[str, Any] = {"groups": len(common), "common": float(np.sum(common) / (3 * len(common))),
-                           "common_dim": 3 * len(common), "common_enu": np.mean(common_axes, axis=0).tolist()}
+    out: dict[str, Any] = {
+        "groups": len(common),
+        "common": float(np.sum(common) / (3 * len(common))),
+        "common_dim": 3 * len(common),
+        "common_enu": np.mean(common_axes, axis=0).tolist(),
+    }
     if within:
-        out.update(within=float(np.mean(within) / 3), within_dim=3 * len(within),
-                   within_enu=np.concatenate(within_axes).mean(axis=0).tolist())
+        out.update(
+            within=float(np.mean(within) / 3),
+            within_dim=3 * len(within),
+            within_enu=np.concatenate(within_axes).mean(axis=0).tolist(),
+        )
     else:
         out.update(within=float("nan"), within_dim=0, within_enu=[float("nan")] * 3)
     return out

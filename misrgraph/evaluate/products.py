@@ -21,11 +21,11 @@ from numpy.typing import NDArray
 
 from misrgraph.errors import InputError
 from misrgraph.io.passes import OrbitPass
+from misrgraph.io.products import ProjectionParameters
 from misrgraph.io.truth import PassTruth
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.frames import enu_basis, geodetic_to_ecef
-from misrgraph.io.products import ProjectionParameters
 from misrgraph.products.pp import crossing, ground_derivatives
 
 __all__ = ["score_pp", "score_roi", "score_roi_matches", "truth_hidden"]
@@ -33,8 +33,13 @@ __all__ = ["score_pp", "score_roi", "score_roi_matches", "truth_hidden"]
 Array = NDArray[np.float64]
 
 
-def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, step: int = 8,
-             supplied_camera: CameraModel | None = None) -> dict[str, Any]:
+def score_pp(
+    pp: ProjectionParameters,
+    orbit_pass: OrbitPass,
+    truth: PassTruth,
+    step: int = 8,
+    supplied_camera: CameraModel | None = None,
+) -> dict[str, Any]:
     """``{"pp_error_m": {camera: {"n", "rms", "predicted_rms", "rms_over_predicted", "nees",
     "error_px_rms"[, "supplied_rms"]}}, "pp_error_by_block": {camera: {block: {"n", "rms",
     "predicted_rms", "error_px_rms", "predicted_px_rms"}}}}`` (module docstring; ``rms`` m,
@@ -47,8 +52,9 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
     bi = BANDS.index(pp.band)
     sub = (slice(None, None, step), slice(None, None, step))
     seen = pp.seen()
-    per_cam: dict[str, dict[str, list[Array]]] = {c: {"e_m": [], "s_m": [], "nees": [], "e_px": [], "sup_m": [], "s_px": []}
-                                                  for c in pp.cameras}
+    per_cam: dict[str, dict[str, list[Array]]] = {
+        c: {"e_m": [], "s_m": [], "nees": [], "e_px": [], "sup_m": [], "s_px": []} for c in pp.cameras
+    }
     blocks_of: dict[str, list[int]] = {c: [] for c in pp.cameras}
     for j, block in enumerate(pp.blocks):
         x, y = grid.block_centres(int(block), step=step)
@@ -92,9 +98,14 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
             continue
         e_m, s_m = np.concatenate(v["e_m"]), np.concatenate(v["s_m"])
         rms, pred = float(np.sqrt(np.mean(e_m**2))), float(np.sqrt(np.nanmean(s_m**2)))
-        out[name] = {"n": int(e_m.size), "rms": rms, "predicted_rms": pred, "rms_over_predicted": rms / pred,
-                     "nees": float(np.mean(np.concatenate(v["nees"]))),
-                     "error_px_rms": float(np.sqrt(np.mean(np.concatenate(v["e_px"]) ** 2)))}
+        out[name] = {
+            "n": int(e_m.size),
+            "rms": rms,
+            "predicted_rms": pred,
+            "rms_over_predicted": rms / pred,
+            "nees": float(np.mean(np.concatenate(v["nees"]))),
+            "error_px_rms": float(np.sqrt(np.mean(np.concatenate(v["e_px"]) ** 2))),
+        }
         if v["sup_m"]:
             sup = np.concatenate(v["sup_m"])
             out[name]["supplied_rms"] = float(np.sqrt(np.nanmean(sup**2)))
@@ -103,13 +114,18 @@ def score_pp(pp: ProjectionParameters, orbit_pass: OrbitPass, truth: PassTruth, 
         for b, e_m, s_m, e_px, s_px in zip(blocks_of[name], v["e_m"], v["s_m"], v["e_px"], v["s_px"]):
             if e_m.size:
                 by_block.setdefault(name, {})[b] = {
-                    "n": int(e_m.size), "rms": float(np.sqrt(np.mean(e_m**2))), "predicted_rms": float(np.sqrt(np.nanmean(s_m**2))),
-                    "error_px_rms": float(np.sqrt(np.mean(e_px**2))), "predicted_px_rms": float(np.sqrt(np.nanmean(s_px**2)))}
+                    "n": int(e_m.size),
+                    "rms": float(np.sqrt(np.mean(e_m**2))),
+                    "predicted_rms": float(np.sqrt(np.nanmean(s_m**2))),
+                    "error_px_rms": float(np.sqrt(np.mean(e_px**2))),
+                    "predicted_px_rms": float(np.sqrt(np.nanmean(s_px**2))),
+                }
     return {"pp_error_m": out, "pp_error_by_block": by_block}
 
 
-def _seen_ground(geo: Any, cam: int, band: int, line: Array, sample: Array,
-                 surface: Callable[[Array, Array], Array]) -> Array:
+def _seen_ground(
+    geo: Any, cam: int, band: int, line: Array, sample: Array, surface: Callable[[Array, Array], Array]
+) -> Array:
     """The true ground ``(N, 3)`` ECEF that image positions show: the first crossing of their rays
     with ``surface`` from the camera (:func:`misrgraph.model.geolocation.cast_seen`)."""
     from misrgraph.model.geolocation import cast_seen
@@ -119,8 +135,14 @@ def _seen_ground(geo: Any, cam: int, band: int, line: Array, sample: Array,
     return cast_seen(origin, direction, surface)
 
 
-def truth_hidden(geo: Any, cam: int, band: int, ground: Array, surface: Callable[[Array, Array], Array],
-                 min_distance_m: float = 137.5) -> NDArray[np.bool_]:
+def truth_hidden(
+    geo: Any,
+    cam: int,
+    band: int,
+    ground: Array,
+    surface: Callable[[Array, Array], Array],
+    min_distance_m: float = 137.5,
+) -> NDArray[np.bool_]:
     """``(N,)`` bool: which ECEF points ``ground (N, 3)`` on the true ``surface`` camera ``cam``
     cannot see under the geometry ``geo`` -- the ray from the camera at the moment it images the
     point meets the surface first more than ``min_distance_m`` (half a 275 m pixel) before it.
@@ -132,9 +154,17 @@ def truth_hidden(geo: Any, cam: int, band: int, ground: Array, surface: Callable
     return hidden_in_image(geo, cams, band, ip, ground, surface, min_distance_m)
 
 
-def _seen_error(grid: Any, block: int, geo: Any, pp: ProjectionParameters, cam: str, pl: NDArray[np.int64],
-                ps: NDArray[np.int64], heights: NDArray[np.float32],
-                surface: Callable[[Array, Array], Array]) -> tuple[Array, Array, Array]:
+def _seen_error(
+    grid: Any,
+    block: int,
+    geo: Any,
+    pp: ProjectionParameters,
+    cam: str,
+    pl: NDArray[np.int64],
+    ps: NDArray[np.int64],
+    heights: NDArray[np.float32],
+    surface: Callable[[Array, Array], Array],
+) -> tuple[Array, Array, Array]:
     """The true geolocation error ``(n, 2)`` (SOM line, sample; 275 m px; NaN where the PP do not
     image the point) of what camera ``cam``'s image, resampled by ``pp`` at the SOM DEM's
     ``heights``, shows at grid points ``(pl, ps)`` of ``block``: where the true geometry ``geo``'s
@@ -153,9 +183,14 @@ def _seen_error(grid: Any, block: int, geo: Any, pp: ProjectionParameters, cam: 
     return e, ln, sm
 
 
-def score_roi_matches(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]],
-                      heights: NDArray[np.float32], cameras: tuple[str, ...], surface: Callable[[Array, Array], Array],
-                      matches: list[Any]) -> dict[str, dict[str, dict[str, float | int]]]:
+def score_roi_matches(
+    block: int,
+    passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]],
+    heights: NDArray[np.float32],
+    cameras: tuple[str, ...],
+    surface: Callable[[Array, Array], Array],
+    matches: list[Any],
+) -> dict[str, dict[str, dict[str, float | int]]]:
     """The truth at the very points co-registration matched and kept (simulated passes only): per
     camera and kind (:class:`misrgraph.products.roi.PairMatches`, pairs of at least 3), the
     pooled radial RMS of the true misregistration there, ``truth_px`` -- what the matched
@@ -178,8 +213,9 @@ def score_roi_matches(block: int, passes: list[tuple[OrbitPass, PassTruth, Proje
     for (k, c), pts in need.items():
         u = np.unique(np.concatenate(pts), axis=0)
         orbit_pass, truth, pp = passes[k]
-        e, _, _ = _seen_error(grid, block, truth.geometry(orbit_pass), pp, cameras[c], u[:, 0], u[:, 1], heights,
-                              surface)
+        e, _, _ = _seen_error(
+            grid, block, truth.geometry(orbit_pass), pp, cameras[c], u[:, 0], u[:, 1], heights, surface
+        )
         err[(k, c)] = {(int(r), int(q)): e[i] for i, (r, q) in enumerate(u)}
     acc: dict[tuple[str, str], list[Array]] = {}
     for m in matches:
@@ -195,19 +231,28 @@ def score_roi_matches(block: int, passes: list[tuple[OrbitPass, PassTruth, Proje
         t, d, sd = kept[:, :2], kept[:, 2:4], kept[:, 4:6]
         st: dict[str, float | int] = {
             "truth_px": float(np.sqrt(np.mean(np.sum(t**2, 1)))),
-            "error_px": float(np.sqrt(np.mean(np.sum((d - t)**2, 1)))),
-            "error_over_sigma": float(np.sqrt(np.mean(((d - t) / sd)**2))), "matches": int(kept.shape[0]),
-            "rejected": int(gone.shape[0])}
+            "error_px": float(np.sqrt(np.mean(np.sum((d - t) ** 2, 1)))),
+            "error_over_sigma": float(np.sqrt(np.mean(((d - t) / sd) ** 2))),
+            "matches": int(kept.shape[0]),
+            "rejected": int(gone.shape[0]),
+        }
         if gone.shape[0]:
-            st["rejected_error_px"] = float(np.sqrt(np.mean(np.sum((gone[:, 2:4] - gone[:, :2])**2, 1))))
+            st["rejected_error_px"] = float(np.sqrt(np.mean(np.sum((gone[:, 2:4] - gone[:, :2]) ** 2, 1))))
         out.setdefault(cam, {})[kind] = st
     return out
 
 
-def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]], heights: NDArray[np.float32],
-              cameras: tuple[str, ...], surface: Callable[[Array, Array], Array], n_points: int = 300,
-              seed: int = 0, reference: int | None = None,
-              obscured: NDArray[np.bool_] | None = None) -> dict[str, dict[str, Any]]:
+def score_roi(
+    block: int,
+    passes: list[tuple[OrbitPass, PassTruth, ProjectionParameters]],
+    heights: NDArray[np.float32],
+    cameras: tuple[str, ...],
+    surface: Callable[[Array, Array], Array],
+    n_points: int = 300,
+    seed: int = 0,
+    reference: int | None = None,
+    obscured: NDArray[np.bool_] | None = None,
+) -> dict[str, dict[str, Any]]:
     """The ROI's true misregistration on ``block`` (simulated passes only), in 275 m pixels.
 
     At ``n_points`` random grid points (fixed ``seed``) and for each pass, the ground point a
@@ -234,13 +279,17 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
     pl = rng.integers(8, grid.nline - 8, n_points)
     ps = rng.integers(8, grid.nsample - 8, n_points)
     if obscured is not None and obscured.shape != (len(passes), len(cameras), grid.nline, grid.nsample):
-        raise InputError("obscured", obscured.shape, f"(passes, cameras, lines, samples) = "
-                                                     f"{(len(passes), len(cameras), grid.nline, grid.nsample)}")
+        raise InputError(
+            "obscured",
+            obscured.shape,
+            f"(passes, cameras, lines, samples) = {(len(passes), len(cameras), grid.nline, grid.nsample)}",
+        )
     lat_g, lon_g = grid.bls_to_latlon(np.full(n_points, block), pl, ps)
     ground_true = geodetic_to_ecef(lat_g, lon_g, np.asarray(surface(lat_g, lon_g), dtype=float))
     err: dict[tuple[int, str], Array] = {}
-    counts: dict[str, dict[str, int]] = {c: {"points": 0, "flagged": 0, "hidden": 0, "missed": 0, "false": 0}
-                                         for c in cameras}
+    counts: dict[str, dict[str, int]] = {
+        c: {"points": 0, "flagged": 0, "hidden": 0, "missed": 0, "false": 0} for c in cameras
+    }
     for k, (orbit_pass, truth, pp) in enumerate(passes):
         geo = truth.geometry(orbit_pass)
         bi = BANDS.index(pp.band)
@@ -278,17 +327,29 @@ def score_roi(block: int, passes: list[tuple[OrbitPass, PassTruth, ProjectionPar
         return float(np.sqrt(np.mean(np.concatenate(sq)))) if sq else None
 
     n_p = len(passes)
-    out: dict[str, dict[str, Any]] = {"geolocation_px": {}, "between_cameras_px": {}, "between_passes_px": {},
-                                      "geolocation_pooled_px": {}, "between_cameras_pooled_px": {},
-                                      "between_passes_pooled_px": {},
-                                      "obscured": counts}
+    out: dict[str, dict[str, Any]] = {
+        "geolocation_px": {},
+        "between_cameras_px": {},
+        "between_passes_px": {},
+        "geolocation_pooled_px": {},
+        "between_cameras_pooled_px": {},
+        "between_passes_pooled_px": {},
+        "obscured": counts,
+    }
     for cam in cameras:
-        for kind, pairs in (("geolocation_px", [(err[(k, cam)], None) for k in range(n_p)]),
-                            ("between_cameras_px", [(err[(k, cam)], err[(k, "An")]) for k in range(n_p)]
-                             if cam != "An" and "An" in cameras else []),
-                            ("between_passes_px", [(err[(k, cam)], err[(q, cam)]) for k in range(n_p) for q in range(k)]
-                             if reference is None else [(err[(k, cam)], err[(reference, cam)]) for k in range(n_p)
-                                                        if k != reference])):
+        for kind, pairs in (
+            ("geolocation_px", [(err[(k, cam)], None) for k in range(n_p)]),
+            (
+                "between_cameras_px",
+                [(err[(k, cam)], err[(k, "An")]) for k in range(n_p)] if cam != "An" and "An" in cameras else [],
+            ),
+            (
+                "between_passes_px",
+                [(err[(k, cam)], err[(q, cam)]) for k in range(n_p) for q in range(k)]
+                if reference is None
+                else [(err[(k, cam)], err[(reference, cam)]) for k in range(n_p) if k != reference],
+            ),
+        ):
             w, p = worst(pairs), pooled(pairs)
             if w is not None:
                 out[kind][cam] = w

@@ -29,7 +29,14 @@ from misrgraph.model.errormodels import AttitudeErrorModel, spline_design
 from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import PassGeometry
 
-__all__ = ["score_pass", "geolocation_errors", "predicted_checkpoint_rms", "landmark_split", "horizontal_error", "true_knots"]
+__all__ = [
+    "score_pass",
+    "geolocation_errors",
+    "predicted_checkpoint_rms",
+    "landmark_split",
+    "horizontal_error",
+    "true_knots",
+]
 
 Array = NDArray[np.float64]
 RED = BANDS.index("red")
@@ -41,8 +48,14 @@ def horizontal_error(est: Array, truth: Array) -> Array:
     return np.hypot(enu[:, 0], enu[:, 1])
 
 
-def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel,
-               whole_state: bool = True, points: bool = False) -> dict[str, Any]:
+def score_pass(
+    orbit_pass: OrbitPass,
+    truth: PassTruth,
+    res: AdjustResult,
+    supplied_camera: CameraModel,
+    whole_state: bool = True,
+    points: bool = False,
+) -> dict[str, Any]:
     """Accuracy against the simulator's truth (see the module docstring). ``whole_state``: also the
     joint NEES of the pass's whole state (only meaningful when the pass is the whole problem).
     ``points``: also ``checkpoint_points`` -- each check point's geodetic ``lat``/``lon`` (deg) and
@@ -57,11 +70,15 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
     t_obs = np.sort(orbit_pass.observation_times()[pg.obs_index])
     j = np.clip(np.searchsorted(t_obs, t), 1, t_obs.size - 1)
     near = np.minimum(np.abs(t - t_obs[j - 1]), np.abs(t - t_obs[j])) < 30.0
-    out["attitude_rms_arcsec_observed"] = {a: float(np.sqrt(np.mean(d_att[near, i] ** 2)) / ARCSEC) for i, a in enumerate(ANGLES)}
+    out["attitude_rms_arcsec_observed"] = {
+        a: float(np.sqrt(np.mean(d_att[near, i] ** 2)) / ARCSEC) for i, a in enumerate(ANGLES)
+    }
     out["observed_fraction_of_pass"] = float(near.mean())
     d_eph = res.ephemeris.evaluate(t) - truth.ephemeris_error.evaluate(t)
     out["ephemeris_rms_m"] = float(np.sqrt(np.mean(np.sum(d_eph**2, axis=1))))
-    out["ephemeris_rms_m_axis"] = {ax: float(np.sqrt(np.mean(d_eph[:, i] ** 2))) for i, ax in enumerate(("along", "cross", "nadir"))}
+    out["ephemeris_rms_m_axis"] = {
+        ax: float(np.sqrt(np.mean(d_eph[:, i] ** 2))) for i, ax in enumerate(("along", "cross", "nadir"))
+    }
     # check points: exact image coordinates from the truth geometry
     true_geo = truth.geometry(orbit_pass)
     supplied = orbit_pass.geometry(supplied_camera)
@@ -76,10 +93,13 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
         for c, name, vis, (before, after), co in _checkpoint_errors(true_geo, [supplied, corrected], g, h):
             sq_sum[vis] += after**2
             n_seen[vis] += 1
-            cp[name] = {"n": int(vis.sum()), "before": {"mean": float(before.mean()), "std": float(before.std())},
-                        "after": {"mean": float(after.mean()), "std": float(after.std())},
-                        "ratio_before_over_after": float(before.mean() / max(after.mean(), 1e-9)),
-                        "_after_rms": float(np.sqrt(np.mean(after**2)))}
+            cp[name] = {
+                "n": int(vis.sum()),
+                "before": {"mean": float(before.mean()), "std": float(before.std())},
+                "after": {"mean": float(after.mean()), "std": float(after.std())},
+                "ratio_before_over_after": float(before.mean() / max(after.mean(), 1e-9)),
+                "_after_rms": float(np.sqrt(np.mean(after**2))),
+            }
             if co is not None:
                 coreg[name] = float(np.sqrt(np.mean(co**2)))
     if chk.size and cp:
@@ -92,13 +112,17 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
     if points and chk.size:
         lat, lon, _ = ecef_to_geodetic(g)
         seen = n_seen > 0
-        out["checkpoint_points"] = {"lat": np.round(lat[seen], 5).tolist(), "lon": np.round(lon[seen], 5).tolist(),
-                                    "rms_m": np.round(np.sqrt(sq_sum[seen] / n_seen[seen]), 2).tolist()}
+        out["checkpoint_points"] = {
+            "lat": np.round(lat[seen], 5).tolist(),
+            "lon": np.round(lon[seen], 5).tolist(),
+            "rms_m": np.round(np.sqrt(sq_sum[seen] / n_seen[seen]), 2).tolist(),
+        }
     # NEES per class, each with its (joint) covariance. Parameter-wise ephemeris and whole-state
     # NEES need the truth in the estimator's own parameterisation (the same eq. 19 segments); an
     # independent truth has none.
-    same_eph = (truth.ephemeris_error.boundaries.shape == res.ephemeris.boundaries.shape
-                and np.allclose(truth.ephemeris_error.boundaries, res.ephemeris.boundaries))
+    same_eph = truth.ephemeris_error.boundaries.shape == res.ephemeris.boundaries.shape and np.allclose(
+        truth.ephemeris_error.boundaries, res.ephemeris.boundaries
+    )
     delta = _true_deltas(truth, res, supplied_camera, same_eph)
     knot_keys = [k for a in range(3) for k in pg.knot_keys(a)]
     out["nees"] = _joint_nees(res, delta, knot_keys, "knots")
@@ -127,18 +151,26 @@ def score_pass(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, suppl
         part, rest = information_norm_split(linearize(pg.problem, res.values), delta, lm_keys, res.landmark_extra_cov)
         # the whole state's NEES split exactly: the landmarks given the other variables' errors
         # (triangulation with exact navigation and camera) and the others jointly
-        out["nees"].update(state=(part + rest) / state_dim, state_dim=int(state_dim),
-                           state_landmarks_given_rest=part / max(lm_dim, 1), state_landmarks_given_rest_dim=int(lm_dim),
-                           state_rest=rest / max(state_dim - lm_dim, 1), state_rest_dim=int(state_dim - lm_dim))
+        out["nees"].update(
+            state=(part + rest) / state_dim,
+            state_dim=int(state_dim),
+            state_landmarks_given_rest=part / max(lm_dim, 1),
+            state_landmarks_given_rest_dim=int(lm_dim),
+            state_rest=rest / max(state_dim - lm_dim, 1),
+            state_rest_dim=int(state_dim - lm_dim),
+        )
     blunders = truth.blunder
     if blunders.any() or res.rejected.size:
         rej = np.zeros(blunders.size, bool)
         rej[res.rejected] = True
         # observations of a tie point dropped whole (most of its rays rejected) are out of the solution too
         excluded = rej | np.isin(orbit_pass.observations.landmark, res.dropped_landmarks)
-        out["blunders"] = {"injected": int(blunders.sum()), "rejected": int(rej.sum()),
-                           "rejected_that_were_blunders": int((rej & blunders).sum()),
-                           "left_in_solution": int((blunders & ~excluded).sum())}
+        out["blunders"] = {
+            "injected": int(blunders.sum()),
+            "rejected": int(rej.sum()),
+            "rejected_that_were_blunders": int((rej & blunders).sum()),
+            "left_in_solution": int((blunders & ~excluded).sum()),
+        }
     return out
 
 
@@ -158,8 +190,10 @@ def _checkpoint_errors(true_geo: PassGeometry, geometries: list[PassGeometry], g
         ln, sm, vis, ex, cross_true = true_geo.ground_to_pixel(c, RED, g)
         if not vis.any():
             continue
-        errs = [horizontal_error(geo.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
-                for geo in geometries]
+        errs = [
+            horizontal_error(geo.pixel_to_ground(c, RED, ln[vis], sm[vis], height=h[vis], exposure=ex[vis]), g[vis])
+            for geo in geometries
+        ]
         co = None
         both = vis & vis_an
         if name != "An" and both.any():
@@ -169,8 +203,9 @@ def _checkpoint_errors(true_geo: PassGeometry, geometries: list[PassGeometry], g
         yield c, name, vis, errs, co
 
 
-def geolocation_errors(orbit_pass: OrbitPass, truth: PassTruth, attitude: AttitudeErrorModel, ephemeris: Any,
-                       camera: CameraModel) -> dict[str, float | None]:
+def geolocation_errors(
+    orbit_pass: OrbitPass, truth: PassTruth, attitude: AttitudeErrorModel, ephemeris: Any, camera: CameraModel
+) -> dict[str, float | None]:
     """Check-point geolocation and co-registration of a pass corrected with the given error
     models (as :func:`score_pass` measures them), pooled over cameras: ``checkpoint_rms_m`` (RMS
     horizontal error, m, over every camera's view of every check point) and ``coregistration_px``
@@ -186,7 +221,10 @@ def geolocation_errors(orbit_pass: OrbitPass, truth: PassTruth, attitude: Attitu
         after.append(err)
         if c is not None:
             co.append(c)
-    rms = (lambda a: float(np.sqrt(np.mean(np.concatenate(a) ** 2))) if a else None)
+
+    def rms(a):
+        return float(np.sqrt(np.mean(np.concatenate(a) ** 2))) if a else None
+
     return {"checkpoint_rms_m": rms(after), "coregistration_px": rms(co)}
 
 
@@ -207,7 +245,9 @@ def true_knots(truth: PassTruth, knot_times: Array, angle: int, step_s: float = 
     return sol.reshape(-1, 2)
 
 
-def _true_deltas(truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel, with_ephemeris: bool) -> dict[int, Array]:
+def _true_deltas(
+    truth: PassTruth, res: AdjustResult, supplied_camera: CameraModel, with_ephemeris: bool
+) -> dict[int, Array]:
     """Estimate minus truth for every knot (against :func:`true_knots`), camera correction
     (truth minus supplied model), landmark and, ``with_ephemeris``, ephemeris segment."""
     pg = res.pass_graph
@@ -241,8 +281,13 @@ def _joint_nees(res: AdjustResult, delta: dict[int, Array], keys: list[int], nam
     return {name: float(e @ np.linalg.solve(res.marginals.joint_of(keys), e) / e.size), f"{name}_dim": int(e.size)}
 
 
-def landmark_split(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, delta: dict[int, Array],
-                   window_s: float = LANDMARK_GROUP_S) -> dict[str, Any] | None:
+def landmark_split(
+    orbit_pass: OrbitPass,
+    truth: PassTruth,
+    res: AdjustResult,
+    delta: dict[int, Array],
+    window_s: float = LANDMARK_GROUP_S,
+) -> dict[str, Any] | None:
     """The landmark NEES split into the part landmarks seen within ``window_s`` of each other
     share and the part each has alone (:func:`misrgraph.evaluate.landmarks.landmark_nees_split`),
     in each landmark's local east, north, up, over the landmarks with adjusted observations
@@ -263,7 +308,7 @@ def landmark_split(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, d
     if not keys:
         return None
     lat, lon, _ = ecef_to_geodetic(truth.landmark_ecef[lm_rows[seen]])
-    enu = enu_basis(lat, lon)                                            # (L, 3, 3), columns east, north, up
+    enu = enu_basis(lat, lon)  # (L, 3, 3), columns east, north, up
     err = np.einsum("lij,li->lj", enu, np.array([delta[k] for k in keys]))
     cov = np.einsum("lji,ljk,lkm->lim", enu, np.array([res.marginals[k] for k in keys]), enu)
     resp = np.einsum("lji,ljc->lic", enu, res.marginals.landmark_response_of(keys))
@@ -271,8 +316,9 @@ def landmark_split(orbit_pass: OrbitPass, truth: PassTruth, res: AdjustResult, d
     return {"window_s": float(window_s), "landmarks": len(keys), **out}
 
 
-def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array, h: Array, true_geo: PassGeometry,
-                             rel_step: float = 1.0) -> dict[str, float]:
+def predicted_checkpoint_rms(
+    orbit_pass: OrbitPass, res: AdjustResult, g: Array, h: Array, true_geo: PassGeometry, rel_step: float = 1.0
+) -> dict[str, float]:
     """Per camera, the horizontal RMS geolocation error (m) of the check points ``g`` (ECEF m,
     ``(P, 3)``, ellipsoidal heights ``h`` m, seen at their true image positions) that the
     posterior predicts: the joint covariance ``S = L L^T`` of the knots, ephemeris and camera
@@ -297,15 +343,22 @@ def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array,
     chol = np.linalg.cholesky(0.5 * (cov + cov.T) + 1e-30 * np.eye(cov.shape[0]))
     supplied = supplied_camera_of(res)
     # every camera's views of the check points, stacked: one geolocation call per state column
-    views = [(c, p, np.flatnonzero(p.visible)) for c, p in ((c, true_geo.ground_to_pixel(c, RED, g)) for c in range(len(CAMERAS)))
-             if p.visible.any()]
+    views = [
+        (c, p, np.flatnonzero(p.visible))
+        for c, p in ((c, true_geo.ground_to_pixel(c, RED, g)) for c in range(len(CAMERAS)))
+        if p.visible.any()
+    ]
     if not views:
         return {}
     cam_of = np.concatenate([np.full(i.size, c) for c, _, i in views])
-    line, sample, expo = (np.concatenate([getattr(p, a)[i] for _, p, i in views]) for a in ("line", "sample", "exposure"))
+    line, sample, expo = (
+        np.concatenate([getattr(p, a)[i] for _, p, i in views]) for a in ("line", "sample", "exposure")
+    )
     height = np.concatenate([h[i] for _, _, i in views])
 
-    def ground(att: AttitudeErrorModel, eph: Any, cam: CameraModel, extra: Callable[[Array], Array] | None = None) -> Array:
+    def ground(
+        att: AttitudeErrorModel, eph: Any, cam: CameraModel, extra: Callable[[Array], Array] | None = None
+    ) -> Array:
         geo = corrected_geometry(orbit_pass, att, eph, cam, attitude_extra=extra)
         return geo.pixel_to_ground(cam_of, RED, line, sample, height=height, exposure=expo)
 
@@ -324,7 +377,14 @@ def predicted_checkpoint_rms(orbit_pass: OrbitPass, res: AdjustResult, g: Array,
         for a in range(3):
             off = np.zeros(3)
             off[a] = sig * rel_step
-            sq += horizontal_error(ground(res.attitude, res.ephemeris, res.camera,
-                                          lambda t, o=off: np.broadcast_to(o, (np.size(t), 3))), base) ** 2
+            sq += (
+                horizontal_error(
+                    ground(
+                        res.attitude, res.ephemeris, res.camera, lambda t, o=off: np.broadcast_to(o, (np.size(t), 3))
+                    ),
+                    base,
+                )
+                ** 2
+            )
     sq /= rel_step**2
     return {CAMERAS[c]: float(np.sqrt(np.mean(sq[cam_of == c]))) for c, _, _ in views}

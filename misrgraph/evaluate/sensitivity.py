@@ -23,12 +23,12 @@ from typing import Any
 
 import numpy as np
 
-from misrgraph.model.camera import CameraModel, validate_pixel_inputs
-from misrgraph.model.constants import ARCSEC, ANGLES, CAMERAS
 from misrgraph.errors import InputError
+from misrgraph.model.camera import CameraModel, validate_pixel_inputs
+from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
 from misrgraph.model.geolocation import PassGeometry
-from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 from misrgraph.model.nominal import nominal_camera_model
+from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 
 __all__ = ["run_sensitivity", "reference_geometry"]
 
@@ -85,7 +85,11 @@ def run_sensitivity(
                 perturb.append(("eph", name, float(ephemeris_m) * np.array(v, float)))
         for kind, name, v in perturb:
             geo = PassGeometry(
-                base.ephemeris, base.attitude, base.camera, base.earth, base.t0,
+                base.ephemeris,
+                base.attitude,
+                base.camera,
+                base.earth,
+                base.t0,
                 attitude_delta=_const(v) if kind == "att" else None,
                 position_delta=_const(v) if kind == "eph" else None,
             )

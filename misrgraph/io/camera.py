@@ -22,9 +22,17 @@ from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.nominal import MODEL_NAMES, builtin_camera_model
 
-__all__ = ["save_camera_model", "load_camera_model", "read_camera_file", "read_calibration_prior", "is_builtin_model",
-           "write_camera_group",
-           "read_camera_group", "write_camera_groups", "MODEL_NAMES"]
+__all__ = [
+    "save_camera_model",
+    "load_camera_model",
+    "read_camera_file",
+    "read_calibration_prior",
+    "is_builtin_model",
+    "write_camera_group",
+    "read_camera_group",
+    "write_camera_groups",
+    "MODEL_NAMES",
+]
 
 _UNITS = {"focal_length": "m", "k": "m", "cy": "pixel", "alpha": "pixel^-i", "omega": "rad"}
 

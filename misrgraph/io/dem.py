@@ -11,11 +11,9 @@ raster imported with a geoid), ``flags (T, n, n)`` (1 land, 2 water, 3 boundary)
 from __future__ import annotations
 
 import os
-
-import numpy as np
-
 from dataclasses import dataclass
 
+import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph.errors import FileFormatError, InputError
@@ -106,17 +104,17 @@ class SomDem:
             raise InputError("margin", margin, f"an integer number of pixels in 0..{grid.nline}")
         nl, ns, m = grid.nline, grid.nsample, int(margin)
         out = np.full((nl + 2 * m, ns + 2 * m), np.nan, np.float32)
-        out[m:m + nl, m:m + ns] = self.block(block)
+        out[m : m + nl, m : m + ns] = self.block(block)
         off = grid.block_offsets
         for nb, rows in ((int(block) - 1, slice(0, m)), (int(block) + 1, slice(m + nl, 2 * m + nl))):
             if m == 0 or not 1 <= nb <= N_BLOCKS or not np.any(self.blocks == nb):
                 continue
             h = self.block(nb)
-            part = h[nl - m:] if nb < block else h[:m]
+            part = h[nl - m :] if nb < block else h[:m]
             shift = int(off[nb - 1] - off[int(block) - 1])  # column of the neighbour's sample 0 in this block's frame
             lo, hi = max(0, shift + m), min(ns + 2 * m, shift + m + ns)
             if lo < hi:
-                out[rows, lo:hi] = part[:, lo - shift - m:hi - shift - m]
+                out[rows, lo:hi] = part[:, lo - shift - m : hi - shift - m]
         return out
 
 

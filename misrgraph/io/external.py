@@ -94,8 +94,10 @@ def _records_csv(path: Path) -> list[dict[str, Any]]:
             reader = csv.DictReader(row for row in fh if row.strip() and not row.lstrip().startswith("#"))
             if reader.fieldnames is None:
                 raise FileFormatError(path, "no header row (expected columns lat, lon, height, sigma_m, ...)")
-            return [{(k or "").strip().lower(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
-                    for row in reader]
+            return [
+                {(k or "").strip().lower(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
+                for row in reader
+            ]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise FileFormatError(path, f"cannot read as CSV: {exc}") from exc
 
@@ -133,8 +135,7 @@ def _column(records: list[dict[str, Any]], name: str) -> str | None:
     return None
 
 
-def _numbers(records: list[dict[str, Any]], alias: str, where: str, what: str,
-             empty: Array | None = None) -> Array:
+def _numbers(records: list[dict[str, Any]], alias: str, where: str, what: str, empty: Array | None = None) -> Array:
     """Column ``alias`` as floats; every bad value is reported with its row. ``empty`` (one per
     row): the value of an empty cell, where finite (NaN: the cell is required)."""
     out = np.empty(len(records))
@@ -153,8 +154,9 @@ def _numbers(records: list[dict[str, Any]], alias: str, where: str, what: str,
     return out
 
 
-def _whole_numbers(records: list[dict[str, Any]], alias: str, where: str, what: str,
-                   empty: Array | None = None) -> NDArray[np.int64]:
+def _whole_numbers(
+    records: list[dict[str, Any]], alias: str, where: str, what: str, empty: Array | None = None
+) -> NDArray[np.int64]:
     """:func:`_numbers` that must be whole numbers."""
     raw = _numbers(records, alias, where, what, empty)
     if not np.all(raw == np.round(raw)):
@@ -163,8 +165,9 @@ def _whole_numbers(records: list[dict[str, Any]], alias: str, where: str, what: 
     return raw.astype(np.int64)
 
 
-def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None = None,
-                   geoid: Geoid | None = None) -> GcpDatabase:
+def read_gcp_table(
+    path: str | os.PathLike[str], default_sigma_m: float | None = None, geoid: Geoid | None = None
+) -> GcpDatabase:
     """A GCP database from a CSV or GeoJSON list (module docstring for the columns).
 
     ``default_sigma_m`` (m): the 1-sigma on every ENU axis where the file has no sigma column.
@@ -187,28 +190,43 @@ def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None =
     cols = {k: _column(records, k) for k in _ALIASES}
     for need in ("lat", "lon"):
         if cols[need] is None:
-            raise InputError(f"{where}: column {need}", sorted(records[0]), f"a column named one of {', '.join(_ALIASES[need])}")
+            raise InputError(
+                f"{where}: column {need}", sorted(records[0]), f"a column named one of {', '.join(_ALIASES[need])}"
+            )
     lat = _numbers(records, cols["lat"], where, "a latitude in degrees")  # type: ignore[arg-type]
     lon = _numbers(records, cols["lon"], where, "a longitude in degrees")  # type: ignore[arg-type]
     bad = np.flatnonzero(np.abs(lat) > 90)
     if bad.size:
-        raise InputError(f"{where}: row {bad[0]} (column {cols['lat']})", float(lat[bad[0]]), "a latitude within -90..90 deg")
+        raise InputError(
+            f"{where}: row {bad[0]} (column {cols['lat']})", float(lat[bad[0]]), "a latitude within -90..90 deg"
+        )
     lon = wrap_deg(lon)
     if cols["height"] is not None:
         height = _numbers(records, cols["height"], where, "a height in metres above the WGS84 ellipsoid")
     elif cols["height_msl"] is not None:
         if geoid is None:
-            raise InputError(f"{where}: column {cols['height_msl']}", "heights above the geoid",
-                             "a geoid to make them ellipsoidal (--geoid GRID), or an ellipsoidal 'height' column")
+            raise InputError(
+                f"{where}: column {cols['height_msl']}",
+                "heights above the geoid",
+                "a geoid to make them ellipsoidal (--geoid GRID), or an ellipsoidal 'height' column",
+            )
         height = _numbers(records, cols["height_msl"], where, "a height in metres above the geoid")
         height = height + geoid.undulation(lat, lon)
     else:
-        raise InputError(f"{where}: column height", sorted(records[0]),
-                         "a height column (height: m above the WGS84 ellipsoid, or height_msl with a geoid)")
+        raise InputError(
+            f"{where}: column height",
+            sorted(records[0]),
+            "a height column (height: m above the WGS84 ellipsoid, or height_msl with a geoid)",
+        )
     n = lat.size
     if cols["sigma_e_m"] and cols["sigma_n_m"] and cols["sigma_u_m"]:
-        sigma = np.stack([_numbers(records, cols[c], where, "a positive 1-sigma in metres")  # type: ignore[arg-type]
-                          for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m")], axis=1)
+        sigma = np.stack(
+            [
+                _numbers(records, cols[c], where, "a positive 1-sigma in metres")  # type: ignore[arg-type]
+                for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m")
+            ],
+            axis=1,
+        )
     elif cols["sigma_h_m"] and cols["sigma_v_m"]:
         h = _numbers(records, cols["sigma_h_m"], where, "a positive 1-sigma in metres")
         v = _numbers(records, cols["sigma_v_m"], where, "a positive 1-sigma in metres")
@@ -220,12 +238,17 @@ def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None =
             raise InputError("default_sigma_m", default_sigma_m, "a positive number of metres")
         sigma = np.full(n, float(default_sigma_m))
     else:
-        raise InputError(f"{where}: column sigma_m", sorted(records[0]),
-                         "a sigma column (sigma_m, sigma_h_m + sigma_v_m or sigma_e_m + sigma_n_m + sigma_u_m) "
-                         "or a default sigma (--sigma-m)")
+        raise InputError(
+            f"{where}: column sigma_m",
+            sorted(records[0]),
+            "a sigma column (sigma_m, sigma_h_m + sigma_v_m or sigma_e_m + sigma_n_m + sigma_u_m) "
+            "or a default sigma (--sigma-m)",
+        )
     bad = np.flatnonzero(~np.all(np.reshape(sigma, (n, -1)) > 0, axis=1))
     if bad.size:
-        raise InputError(f"{where}: row {bad[0]} (sigma)", np.reshape(sigma, (n, -1))[bad[0]].tolist(), "positive metres")
+        raise InputError(
+            f"{where}: row {bad[0]} (sigma)", np.reshape(sigma, (n, -1))[bad[0]].tolist(), "positive metres"
+        )
     if cols["id"] is not None:
         ids = _whole_numbers(records, cols["id"], where, "a whole number")
         u, counts = np.unique(ids, return_counts=True)
@@ -239,10 +262,20 @@ def read_gcp_table(path: str | os.PathLike[str], default_sigma_m: float | None =
         have, need = ("scene", "scene_sigma_m") if cols["scene"] else ("scene_sigma_m", "scene")
         raise InputError(f"{where}: column {need}", f"only {have}", "scene and scene_sigma_m together (or neither)")
     if cols["scene"] is not None:
-        scene = _whole_numbers(records, cols["scene"], where, "a whole number (the source scene; empty or -1: none)",
-                               empty=np.full(n, -1.0))
-        scene_sigma = _numbers(records, cols["scene_sigma_m"], where, "metres (the sigma the scene's GCPs share)",
-                               empty=np.where(scene < 0, 0.0, np.nan))  # required where the GCP has a scene
+        scene = _whole_numbers(
+            records,
+            cols["scene"],
+            where,
+            "a whole number (the source scene; empty or -1: none)",
+            empty=np.full(n, -1.0),
+        )
+        scene_sigma = _numbers(
+            records,
+            cols["scene_sigma_m"],
+            where,
+            "metres (the sigma the scene's GCPs share)",
+            empty=np.where(scene < 0, 0.0, np.nan),
+        )  # required where the GCP has a scene
     log.info("%s: %d GCPs", where, n)
     return GcpDatabase(ids, lat, lon, height, sigma, region, scene=scene, scene_sigma_m=scene_sigma)
 
@@ -313,8 +346,13 @@ def _tile_starts(n: int, size: int) -> list[int]:
     return starts
 
 
-def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: float = 3.0, tile_postings: int = 1201,
-                    quality: int = 1, geoid: Geoid | None = None) -> DemTiles:
+def read_raster_dem(
+    paths: Sequence[str | os.PathLike[str]],
+    posting_arcsec: float = 3.0,
+    tile_postings: int = 1201,
+    quality: int = 1,
+    geoid: Geoid | None = None,
+) -> DemTiles:
     """DEM tiles from rasters of height (m) in any CRS GDAL reads (module docstring).
 
     ``posting_arcsec``: the output grid's posting in latitude and longitude (arc seconds);
@@ -357,8 +395,11 @@ def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: flo
         j0, j1 = math.ceil(west / post - 1e-6), math.floor(east / post + 1e-6)
         n_rows, n_cols = i1 - i0 + 1, j1 - j0 + 1
         if n_rows < tile_postings or n_cols < tile_postings:
-            raise InputError(f"{p.name}: size on the {posting_arcsec:g}\" grid", (n_rows, n_cols),
-                             f"at least {tile_postings} x {tile_postings} postings (tile_postings)")
+            raise InputError(
+                f'{p.name}: size on the {posting_arcsec:g}" grid',
+                (n_rows, n_cols),
+                f"at least {tile_postings} x {tile_postings} postings (tile_postings)",
+            )
         lat_axis = np.arange(i0, i1 + 1) * post
         lon_axis = np.arange(j0, j1 + 1) * post
         # each posting in the raster's CRS (PROJ, exact), then bilinear in its pixel grid
@@ -375,18 +416,24 @@ def read_raster_dem(paths: Sequence[str | os.PathLike[str]], posting_arcsec: flo
             grid = grid + geoid.undulation(lat_axis[:, None], lon_axis[None, :])
         for r in _tile_starts(n_rows, tile_postings):
             for c in _tile_starts(n_cols, tile_postings):
-                t = grid[r:r + tile_postings, c:c + tile_postings]
+                t = grid[r : r + tile_postings, c : c + tile_postings]
                 if not np.all(np.isfinite(t)):
                     dropped += 1
                     continue
                 lat0s.append(lat_axis[r])
                 lon0s.append(lon_axis[c])
                 tiles.append(t)
-        log.info("%s: %d x %d postings at %g\"", p.name, n_rows, n_cols, posting_arcsec)
+        log.info('%s: %d x %d postings at %g"', p.name, n_rows, n_cols, posting_arcsec)
     if dropped:
         log.warning("%d DEM tiles with no-data postings left out (points there are not covered)", dropped)
     if not tiles:
         raise InputError("DEM rasters", [str(p) for p in paths], "a tile of postings without no-data values")
     heights = np.stack(tiles)
-    return DemTiles(np.array(lat0s), wrap_deg(np.array(lon0s)), heights,
-                    np.ones(heights.shape, np.uint8), np.full(len(tiles), int(quality), np.int64), post)
+    return DemTiles(
+        np.array(lat0s),
+        wrap_deg(np.array(lon0s)),
+        heights,
+        np.ones(heights.shape, np.uint8),
+        np.full(len(tiles), int(quality), np.int64),
+        post,
+    )

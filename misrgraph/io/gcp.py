@@ -1,8 +1,8 @@
 """GCP database files (HDF5 kind ``gcp_database``): the one reader and writer.
 
 Layout: group ``/gcp`` with datasets ``id (G,)``, ``lat, lon (G,)`` deg WGS84, ``height (G,)`` m
-ellipsoidal, ``sigma_m (G,)`` or ``(G, 3)`` m (1 sigma on every ENU axis, or per axis E, N, U), ``region (G,)`` strings and optional
-``chips (G, 9, 64, 64)`` uint8 (attribute ``cameras``), optional ``scene (G,)`` int (source scene,
+ellipsoidal, ``sigma_m (G,)`` or ``(G, 3)`` m (1 sigma on every ENU axis, or per axis E, N, U), ``region (G,)``
+strings and optional ``chips (G, 9, 64, 64)`` uint8 (attribute ``cameras``), optional ``scene (G,)`` int (source scene,
 -1 none) with ``scene_sigma_m (G,)`` m (the share of sigma common to a scene's GCPs). A simulated database also holds
 ``/truth/ecef (G, 3)`` m, the true positions, read only by :mod:`misrgraph.io.truth`.
 """
@@ -39,16 +39,27 @@ def save_gcp_database(db: GcpDatabase, path: str | os.PathLike[str], truth_ecef:
         write_dataset(g, "lat", db.lat, units="deg", datum="WGS84")
         write_dataset(g, "lon", db.lon, units="deg", datum="WGS84")
         write_dataset(g, "height", db.height, units="m", reference="WGS84 ellipsoid")
-        write_dataset(g, "sigma_m", db.sigma_m, units="m",
-                      meaning="1 sigma per ENU axis" + (" (east, north, up)" if db.sigma_m.ndim == 2 else " (the same on all three)"))
+        write_dataset(
+            g,
+            "sigma_m",
+            db.sigma_m,
+            units="m",
+            meaning="1 sigma per ENU axis"
+            + (" (east, north, up)" if db.sigma_m.ndim == 2 else " (the same on all three)"),
+        )
         g.create_dataset("region", data=np.asarray(db.region, dtype=object), dtype=h5py.string_dtype())
         if db.chips is not None:
             create_dataset(g, "chips", db.chips, compression="gzip")
             g["chips"].attrs["cameras"] = "Df,Cf,Bf,Af,An,Aa,Ba,Ca,Da"
         if db.scene is not None and db.scene_sigma_m is not None:
             write_dataset(g, "scene", db.scene, meaning="source scene of each GCP (-1: none)")
-            write_dataset(g, "scene_sigma_m", db.scene_sigma_m, units="m",
-                          meaning="1 sigma per ENU axis of the error the GCPs of one scene share (part of sigma_m)")
+            write_dataset(
+                g,
+                "scene_sigma_m",
+                db.scene_sigma_m,
+                units="m",
+                meaning="1 sigma per ENU axis of the error the GCPs of one scene share (part of sigma_m)",
+            )
         if truth_ecef is not None:
             write_gcp_truth(f, truth_ecef, len(db))
 

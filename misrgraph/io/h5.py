@@ -37,9 +37,31 @@ import numpy as np
 
 from misrgraph.errors import FileFormatError, InputError, OutputError
 
-__all__ = ["check_writable", "make_temp_dir", "dir_mode", "os_reason", "is_write_failure", "atomic_h5", "open_h5", "read_dataset", "read_attr", "write_dataset", "create_dataset", "FORMAT_VERSIONS",
-           "require_group", "DIGEST_ATTR", "content_digest", "stamp_content_digest", "fsync_directory", "file_mode",
-           "USERBLOCK_SIZE", "file_checksum_ok", "reseal", "stored_file_sha256", "atomic_file"]
+__all__ = [
+    "check_writable",
+    "make_temp_dir",
+    "dir_mode",
+    "os_reason",
+    "is_write_failure",
+    "atomic_h5",
+    "open_h5",
+    "read_dataset",
+    "read_attr",
+    "write_dataset",
+    "create_dataset",
+    "FORMAT_VERSIONS",
+    "require_group",
+    "DIGEST_ATTR",
+    "content_digest",
+    "stamp_content_digest",
+    "fsync_directory",
+    "file_mode",
+    "USERBLOCK_SIZE",
+    "file_checksum_ok",
+    "reseal",
+    "stored_file_sha256",
+    "atomic_file",
+]
 
 FORMAT_VERSIONS: dict[str, int] = {
     "camera_model": 2,
@@ -57,17 +79,24 @@ FORMAT_VERSIONS: dict[str, int] = {
 #: Why an older version of a kind is refused, when the reason is known (one line each).
 _OLD_VERSION_REASON: dict[tuple[str, int], str] = {
     (kind, 1): "version 1 stored camera angles in the retired convention T_ic = Rz(delta) Ry(beta) "
-               "(delta as an azimuth); version 2 uses MISR's T_ic = Ry(beta) Rx(delta), and the same "
-               "numbers would geolocate kilometres apart. Re-create the file with this version"
+    "(delta as an azimuth); version 2 uses MISR's T_ic = Ry(beta) Rx(delta), and the same "
+    "numbers would geolocate kilometres apart. Re-create the file with this version"
     for kind in ("camera_model", "orbit_pass", "calibration_result", "adjustment_result", "update_state")
 }
-_OLD_VERSION_REASON.update({(kind, 1): "version 1 files carry no checksums or content digest; re-create the file "
-                                       "with this version" for kind in ("gcp_database", "dem")})
+_OLD_VERSION_REASON.update(
+    {
+        (kind, 1): "version 1 files carry no checksums or content digest; re-create the file with this version"
+        for kind in ("gcp_database", "dem")
+    }
+)
 _OLD_VERSION_REASON[("reference_orbit_imagery", 1)] = (
     "version 1 ROI files have no /obscured layer and hold pixels that terrain hides from the camera "
-    "(resampled from the terrain in front of them); rebuild the ROI with this version")
-_OLD_VERSION_REASON[("dem", 2)] = ("version 2 DEMs have 3-arcsecond longitude postings at every latitude (no "
-                                   "/tiles/lon_posting, DTED's zones); re-create the file with this version")
+    "(resampled from the terrain in front of them); rebuild the ROI with this version"
+)
+_OLD_VERSION_REASON[("dem", 2)] = (
+    "version 2 DEMs have 3-arcsecond longitude postings at every latitude (no "
+    "/tiles/lon_posting, DTED's zones); re-create the file with this version"
+)
 
 #: Root attribute holding the SHA-256 content digest (hex) of a file.
 DIGEST_ATTR = "content_sha256"
@@ -107,7 +136,7 @@ def _userblock_sha256(path: str | os.PathLike[str]) -> str | None:
         head = fh.read(USERBLOCK_SIZE)
     if len(head) < USERBLOCK_SIZE or not head.startswith(_USERBLOCK_MAGIC):
         return None
-    return head[len(_USERBLOCK_MAGIC): len(_USERBLOCK_MAGIC) + 64].decode("ascii", "replace")
+    return head[len(_USERBLOCK_MAGIC) : len(_USERBLOCK_MAGIC) + 64].decode("ascii", "replace")
 
 
 def stored_file_sha256(path: str | os.PathLike[str]) -> str:
@@ -125,8 +154,10 @@ def file_checksum_ok(path: str | os.PathLike[str]) -> tuple[bool, str]:
     Returns ``(ok, reason)``; ``reason`` says what is wrong (one line) when ``ok`` is False."""
     stored = _userblock_sha256(path)
     if stored is None:
-        return False, ("no misrgraph checksum block at the start of the file (damaged, not written by "
-                       "misrgraph, or written by a version before this check)")
+        return False, (
+            "no misrgraph checksum block at the start of the file (damaged, not written by "
+            "misrgraph, or written by a version before this check)"
+        )
     got = _sha256_after_userblock(path)
     if stored != got:
         return False, f"file checksum mismatch (stored {stored[:12]}..., computed {got[:12]}...): the file is damaged"
@@ -164,8 +195,9 @@ def content_digest(f: h5py.File) -> str:
             try:
                 data = obj[()]
             except OSError as exc:
-                raise FileFormatError(f.filename, f"dataset {obj.name} failed its checksum or cannot be read "
-                                                  f"({exc}); the file is damaged") from exc
+                raise FileFormatError(
+                    f.filename, f"dataset {obj.name} failed its checksum or cannot be read ({exc}); the file is damaged"
+                ) from exc
             h.update(f"#{obj.name}=".encode())
             h.update(_value_bytes(data))
             attrs(obj)
@@ -329,16 +361,20 @@ def _validate(f: h5py.File, p: Path, kind: str | None) -> None:
         raise FileFormatError(p, f"unknown misrgraph_kind {got_kind!r}; expected one of {sorted(FORMAT_VERSIONS)}")
     if version is None or int(version) != want:
         why = _OLD_VERSION_REASON.get((got_kind, int(version))) if version is not None else None
-        raise FileFormatError(p, f"format_version is {version!r}; expected {want} for kind {got_kind!r}"
-                                 + (f" ({why})" if why else ""))
+        raise FileFormatError(
+            p, f"format_version is {version!r}; expected {want} for kind {got_kind!r}" + (f" ({why})" if why else "")
+        )
     stored = f.attrs.get(DIGEST_ATTR)
     if stored is None:
         raise FileFormatError(p, f"no {DIGEST_ATTR} attribute: the file was not completed by misrgraph or was altered")
     stored = stored.decode() if isinstance(stored, bytes) else str(stored)
     got = content_digest(f)
     if got != stored:
-        raise FileFormatError(p, f"content digest mismatch (stored {stored[:12]}..., computed {got[:12]}...): "
-                                 "the file is damaged or was altered")
+        raise FileFormatError(
+            p,
+            f"content digest mismatch (stored {stored[:12]}..., computed {got[:12]}...): "
+            "the file is damaged or was altered",
+        )
 
 
 @contextlib.contextmanager
@@ -377,7 +413,9 @@ def require_group(parent: h5py.Group, name: str) -> h5py.Group:
     path = f"{parent.name.rstrip('/')}/{name}"
     obj = parent.get(name)
     if not isinstance(obj, h5py.Group):
-        raise FileFormatError(parent.file.filename, f"missing group {path}" if obj is None else f"{path} is not a group")
+        raise FileFormatError(
+            parent.file.filename, f"missing group {path}" if obj is None else f"{path} is not a group"
+        )
     return obj
 
 
@@ -402,7 +440,9 @@ def read_dataset(
         ok = len(arr.shape) == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape))
         if not ok:
             want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
-            raise FileFormatError(where.split(": ")[0], f"{group.name.rstrip('/')}/{name} has shape {arr.shape}; expected {want}")
+            raise FileFormatError(
+                where.split(": ")[0], f"{group.name.rstrip('/')}/{name} has shape {arr.shape}; expected {want}"
+            )
     return arr
 
 

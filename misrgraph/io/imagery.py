@@ -38,13 +38,39 @@ import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.io.h5 import (create_dataset, file_mode, fsync_directory, open_h5, read_dataset, reseal,
-                             stamp_content_digest, write_dataset)
+from misrgraph.io.h5 import (
+    create_dataset,
+    file_mode,
+    fsync_directory,
+    open_h5,
+    read_dataset,
+    reseal,
+    stamp_content_digest,
+    write_dataset,
+)
 from misrgraph.io.passes import Landmarks, Observations
 from misrgraph.model.constants import CAMERAS
 from misrgraph.model.dem import bilinear
-__all__ = ["ImageWindows", "ImageStrip", "PassImagery", "read_strip", "strip_cameras", "StripReader", "open_strips", "write_imagery", "read_imagery", "has_imagery", "MatchedSet",
-           "write_matched", "read_matched", "read_matched_summary", "has_matched", "OBSERVATION_SETS", "INTEREST_RADIUS_PX"]
+
+__all__ = [
+    "ImageWindows",
+    "ImageStrip",
+    "PassImagery",
+    "read_strip",
+    "strip_cameras",
+    "StripReader",
+    "open_strips",
+    "write_imagery",
+    "read_imagery",
+    "has_imagery",
+    "MatchedSet",
+    "write_matched",
+    "read_matched",
+    "read_matched_summary",
+    "has_matched",
+    "OBSERVATION_SETS",
+    "INTEREST_RADIUS_PX",
+]
 
 #: how far (px) from a tie window's centre the matcher may place its interest point (the renderer
 #: sizes tie windows for it)
@@ -156,8 +182,15 @@ def _write_windows(g: Any, w: ImageWindows) -> None:
     for name in ("landmark", "camera", "band", "line0", "sample0"):
         write_dataset(g, name, getattr(w, name))
     s = max(w.size, 1)
-    create_dataset(g, "pixels", w.pixels, chunks=(1, s, s) if len(w) else None, compression="gzip",
-                   compression_opts=4, shuffle=True)
+    create_dataset(
+        g,
+        "pixels",
+        w.pixels,
+        chunks=(1, s, s) if len(w) else None,
+        compression="gzip",
+        compression_opts=4,
+        shuffle=True,
+    )
     g["pixels"].attrs["units"] = "counts (14 bit)"
 
 
@@ -177,8 +210,13 @@ def write_imagery(f: Any, imagery: PassImagery) -> None:
     _write_windows(g.create_group("gcp"), imagery.gcp)
     c = g.create_group("chips")
     write_dataset(c, "landmark", imagery.chip_landmark)
-    write_dataset(c, "band", np.full(imagery.chip_landmark.size, imagery.band, np.int64) if imagery.chip_band is None
-                  else np.asarray(imagery.chip_band, np.int64))
+    write_dataset(
+        c,
+        "band",
+        np.full(imagery.chip_landmark.size, imagery.band, np.int64)
+        if imagery.chip_band is None
+        else np.asarray(imagery.chip_band, np.int64),
+    )
     create_dataset(c, "pixels", imagery.chips, compression="gzip", compression_opts=4, shuffle=True)
     if imagery.strips:
         sg = g.create_group("strips")
@@ -187,8 +225,15 @@ def write_imagery(f: Any, imagery: PassImagery) -> None:
             cg.attrs["band"] = int(st.band)
             cg.attrs["line0"] = int(st.line0)
             cg.attrs["sample0"] = int(st.sample0)
-            create_dataset(cg, "pixels", st.pixels, chunks=(min(64, st.pixels.shape[0]), min(256, st.pixels.shape[1])),
-                           compression="gzip", compression_opts=4, shuffle=True)
+            create_dataset(
+                cg,
+                "pixels",
+                st.pixels,
+                chunks=(min(64, st.pixels.shape[0]), min(256, st.pixels.shape[1])),
+                compression="gzip",
+                compression_opts=4,
+                shuffle=True,
+            )
             cg["pixels"].attrs["units"] = "counts (14 bit)"
 
 
@@ -231,7 +276,9 @@ class StripReader:
             raise FileFormatError(self.path, f"/imagery/strips/{camera} lacks the attribute {exc}") from None
         px = cg["pixels"]
         if px.ndim != 2:
-            raise FileFormatError(self.path, f"/imagery/strips/{camera}/pixels has shape {px.shape}; expected (lines, samples)")
+            raise FileFormatError(
+                self.path, f"/imagery/strips/{camera}/pixels has shape {px.shape}; expected (lines, samples)"
+            )
         if lines is None:
             return ImageStrip(camera, band, line0, sample0, np.asarray(px[...]))
         a, b = max(int(lines[0]) - line0, 0), min(int(lines[1]) - line0, px.shape[0])
@@ -271,10 +318,14 @@ def read_imagery(path: str | os.PathLike[str]) -> PassImagery:
         g = f["imagery"]
         c = g["chips"]
         n = c["landmark"].shape[0]
-        return PassImagery(_read_windows(g["tie"]), _read_windows(g["gcp"]),
-                           read_dataset(c, "landmark", (n,), dtype=np.int64), np.asarray(c["pixels"][...]),
-                           {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in g.attrs.items()},
-                           chip_band=read_dataset(c, "band", (n,), dtype=np.int64) if "band" in c else None)
+        return PassImagery(
+            _read_windows(g["tie"]),
+            _read_windows(g["gcp"]),
+            read_dataset(c, "landmark", (n,), dtype=np.int64),
+            np.asarray(c["pixels"][...]),
+            {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in g.attrs.items()},
+            chip_band=read_dataset(c, "band", (n,), dtype=np.int64) if "band" in c else None,
+        )
 
 
 # ---------------------------------------------------------------------------- matched observations
@@ -364,8 +415,12 @@ def read_matched(path: str | os.PathLike[str], with_truth: bool = False) -> Matc
         lg, og = m["landmarks"], m["observations"]
         nl, no = lg["id"].shape[0], og["landmark"].shape[0]
         lms = Landmarks(*(read_dataset(lg, k, (nl,), dtype=np.int64) for k in ("id", "kind", "gcp_index")))
-        obs = Observations(*(read_dataset(og, k, (no,), dtype=(np.int64 if k in ("landmark", "camera", "band") else float))
-                             for k in ("landmark", "camera", "band", "line", "sample", "exposure", "sigma_px")))
+        obs = Observations(
+            *(
+                read_dataset(og, k, (no,), dtype=(np.int64 if k in ("landmark", "camera", "band") else float))
+                for k in ("landmark", "camera", "band", "line", "sample", "exposure", "sigma_px")
+            )
+        )
         summary = _matched_summary(m)
         tl = tb = None
         if with_truth and "truth" in f and "matched" in f["truth"]:
@@ -373,4 +428,3 @@ def read_matched(path: str | os.PathLike[str], with_truth: bool = False) -> Matc
             tl = read_dataset(tg, "landmark_ecef", (nl, 3))
             tb = read_dataset(tg, "blunder", (no,), dtype=bool)
         return MatchedSet(lms, obs, tl, tb, summary)
-

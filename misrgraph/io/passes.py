@@ -18,20 +18,28 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
-
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import BANDS, CAMERAS
-from misrgraph.errors import FileFormatError, InputError
 from misrgraph.model.geolocation import PassGeometry
-from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, write_dataset
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris
 
-__all__ = ["PASS_ID_PATTERN", "Observations", "Landmarks", "OrbitPass", "KIND_TIE", "KIND_GCP", "KIND_CHECK", "KIND_NAMES"]
+__all__ = [
+    "PASS_ID_PATTERN",
+    "Observations",
+    "Landmarks",
+    "OrbitPass",
+    "KIND_TIE",
+    "KIND_GCP",
+    "KIND_CHECK",
+    "KIND_NAMES",
+]
 
 Array = NDArray[np.float64]
 KIND_TIE, KIND_GCP, KIND_CHECK = 0, 1, 2
@@ -70,25 +78,48 @@ class Observations:
 
     def __post_init__(self) -> None:
         n = np.asarray(self.landmark).size
-        for name, dt in (("landmark", np.int64), ("camera", np.int64), ("band", np.int64),
-                         ("line", float), ("sample", float), ("exposure", float), ("sigma_px", float)):
+        for name, dt in (
+            ("landmark", np.int64),
+            ("camera", np.int64),
+            ("band", np.int64),
+            ("line", float),
+            ("sample", float),
+            ("exposure", float),
+            ("sigma_px", float),
+        ):
             arr = np.asarray(getattr(self, name), dtype=dt).ravel()
             if arr.size != n:
                 raise InputError(f"observations.{name}", arr.size, f"{n} values (one per observation)")
             setattr(self, name, arr)
-        _check_rows("observations.camera", self.camera, (self.camera < 0) | (self.camera >= len(CAMERAS)),
-                    f"a camera index 0..{len(CAMERAS) - 1}")
-        _check_rows("observations.band", self.band, (self.band < 0) | (self.band >= len(BANDS)),
-                    f"a band index 0..{len(BANDS) - 1}")
+        _check_rows(
+            "observations.camera",
+            self.camera,
+            (self.camera < 0) | (self.camera >= len(CAMERAS)),
+            f"a camera index 0..{len(CAMERAS) - 1}",
+        )
+        _check_rows(
+            "observations.band",
+            self.band,
+            (self.band < 0) | (self.band >= len(BANDS)),
+            f"a band index 0..{len(BANDS) - 1}",
+        )
         _check_rows("observations.landmark", self.landmark, self.landmark < 0, "a landmark row >= 0")
         for name in ("line", "sample"):
             arr = getattr(self, name)
             _check_rows(f"observations.{name}", arr, ~np.isfinite(arr), "a finite number of pixels")
         e = self.exposure
-        _check_rows("observations.exposure", e, ~np.isnan(e) & (np.isinf(e) | (e != np.round(e))),
-                    "a whole exposure index (or NaN: a continuous position)")
-        _check_rows("observations.sigma_px", self.sigma_px, ~(np.isfinite(self.sigma_px) & (self.sigma_px > 0)),
-                    "a positive, finite sigma in pixels")
+        _check_rows(
+            "observations.exposure",
+            e,
+            ~np.isnan(e) & (np.isinf(e) | (e != np.round(e))),
+            "a whole exposure index (or NaN: a continuous position)",
+        )
+        _check_rows(
+            "observations.sigma_px",
+            self.sigma_px,
+            ~(np.isfinite(self.sigma_px) & (self.sigma_px > 0)),
+            "a positive, finite sigma in pixels",
+        )
 
     def __len__(self) -> int:
         return int(self.landmark.size)
@@ -121,10 +152,18 @@ class Landmarks:
         self.gcp_index = np.asarray(self.gcp_index, dtype=np.int64).ravel()
         if not (self.id.size == self.kind.size == self.gcp_index.size):
             raise InputError("landmarks", (self.id.size, self.kind.size, self.gcp_index.size), "equal lengths")
-        _check_rows("landmarks.kind", self.kind, ~np.isin(self.kind, list(KIND_NAMES)),
-                    "a kind code " + ", ".join(f"{k} ({v})" for k, v in KIND_NAMES.items()))
-        _check_rows("landmarks.gcp_index", self.gcp_index, (self.kind == KIND_GCP) & (self.gcp_index < 0),
-                    "a GCP database row >= 0 for a GCP")
+        _check_rows(
+            "landmarks.kind",
+            self.kind,
+            ~np.isin(self.kind, list(KIND_NAMES)),
+            "a kind code " + ", ".join(f"{k} ({v})" for k, v in KIND_NAMES.items()),
+        )
+        _check_rows(
+            "landmarks.gcp_index",
+            self.gcp_index,
+            (self.kind == KIND_GCP) & (self.gcp_index < 0),
+            "a GCP database row >= 0 for a GCP",
+        )
 
     def __len__(self) -> int:
         return int(self.id.size)
@@ -150,8 +189,12 @@ class OrbitPass:
         self.t0 = np.asarray(self.t0, dtype=float)
         if self.t0.shape != (len(CAMERAS), len(BANDS)):
             raise InputError("timing.t0", self.t0.shape, f"shape ({len(CAMERAS)}, {len(BANDS)})")
-        _check_rows("observations.landmark", self.observations.landmark, self.observations.landmark >= len(self.landmarks),
-                    f"a landmark row < {len(self.landmarks)}")
+        _check_rows(
+            "observations.landmark",
+            self.observations.landmark,
+            self.observations.landmark >= len(self.landmarks),
+            f"a landmark row < {len(self.landmarks)}",
+        )
         _check_rows("timing.t0", self.t0.ravel(), ~np.isfinite(self.t0.ravel()), "finite seconds")
         if not (np.isfinite(self.line_time) and self.line_time > 0):
             raise InputError("timing.line_time", self.line_time, "a positive number of seconds")
@@ -160,10 +203,18 @@ class OrbitPass:
         if len(self.observations):
             t = self.observation_times()
             t_lo, t_hi = self.span
-            _check_rows("observations.line", self.observations.line, (t < t_lo) | (t > t_hi),
-                        f"a line whose exposure time lies within the pass's navigation [{t_lo:.3f}, {t_hi:.3f}] s")
+            _check_rows(
+                "observations.line",
+                self.observations.line,
+                (t < t_lo) | (t > t_hi),
+                f"a line whose exposure time lies within the pass's navigation [{t_lo:.3f}, {t_hi:.3f}] s",
+            )
         if not PASS_ID_PATTERN.fullmatch(str(self.pass_id)):
-            raise InputError("pass_id", self.pass_id, "letters, digits, '_', '-' or '.' (1-64 characters, not starting with '.'; it names files)")
+            raise InputError(
+                "pass_id",
+                self.pass_id,
+                "letters, digits, '_', '-' or '.' (1-64 characters, not starting with '.'; it names files)",
+            )
 
     # ------------------------------------------------------------------ geometry
     def geometry(self, camera: CameraModel) -> PassGeometry:
@@ -181,14 +232,24 @@ class OrbitPass:
 
     # ------------------------------------------------------------------ I/O
     def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the pass atomically (a simulated pass with its truth: :func:`misrgraph.io.truth.save_pass_with_truth`)."""
+        """Write the pass atomically.
+
+        A simulated pass with its truth: :func:`misrgraph.io.truth.save_pass_with_truth`.
+        """
         with atomic_h5(path, "orbit_pass") as f:
             self.write_into(f)
 
     def write_into(self, f: Any) -> None:
         """Write the pass's groups into an open ``orbit_pass`` file."""
-        f.attrs.update({"pass_id": self.pass_id, "path": int(self.path), "orbit": int(self.orbit),
-                        "temperature_c": float(self.temperature_c), "epoch_utc": self.ephemeris.epoch_utc})
+        f.attrs.update(
+            {
+                "pass_id": self.pass_id,
+                "path": int(self.path),
+                "orbit": int(self.orbit),
+                "temperature_c": float(self.temperature_c),
+                "epoch_utc": self.ephemeris.epoch_utc,
+            }
+        )
         g = f.create_group("ephemeris")
         g.attrs["epoch_utc"] = self.ephemeris.epoch_utc
         g.attrs["frame"] = "J2000"
@@ -201,7 +262,9 @@ class OrbitPass:
         write_dataset(g, "angles", self.attitude.angles, units="rad")
         write_dataset(g, "rates", self.attitude.rates, units="rad/s")
         g = f.create_group("timing")
-        write_dataset(g, "t0", self.t0, units="s from epoch_utc", meaning="time of line 0 per camera (row) and band (column)")
+        write_dataset(
+            g, "t0", self.t0, units="s from epoch_utc", meaning="time of line 0 per camera (row) and band (column)"
+        )
         g.attrs["line_time"] = float(self.line_time)
         g = f.create_group("landmarks")
         write_dataset(g, "id", self.landmarks.id)
@@ -214,8 +277,13 @@ class OrbitPass:
         write_dataset(g, "band", o.band.astype(np.int8), order=",".join(BANDS))
         write_dataset(g, "line", o.line, units="pixel")
         write_dataset(g, "sample", o.sample, units="pixel")
-        write_dataset(g, "exposure", o.exposure, units="line",
-                      meaning="whole exposure index L (time t0 + L line_time), NaN for a continuous position (time from line)")
+        write_dataset(
+            g,
+            "exposure",
+            o.exposure,
+            units="line",
+            meaning="whole exposure index L (time t0 + L line_time), NaN for a continuous position (time from line)",
+        )
         write_dataset(g, "sigma_px", o.sigma_px, units="pixel")
 
     @classmethod
@@ -226,8 +294,12 @@ class OrbitPass:
                     raise FileFormatError(path, f"missing group /{grp}")
             g = f["ephemeris"]
             t = read_dataset(g, "t", (None,))
-            eph = Ephemeris(str(read_attr(g, "epoch_utc")), t, read_dataset(g, "position", (t.size, 3)),
-                            read_dataset(g, "velocity", (t.size, 3)))
+            eph = Ephemeris(
+                str(read_attr(g, "epoch_utc")),
+                t,
+                read_dataset(g, "position", (t.size, 3)),
+                read_dataset(g, "velocity", (t.size, 3)),
+            )
             g = f["attitude"]
             ta = read_dataset(g, "t", (None,))
             att = AttitudeSeries(ta, read_dataset(g, "angles", (ta.size, 3)), read_dataset(g, "rates", (ta.size, 3)))
@@ -236,12 +308,36 @@ class OrbitPass:
             line_time = float(read_attr(g, "line_time"))
             g = f["landmarks"]
             lid = read_dataset(g, "id", (None,), dtype=np.int64)
-            lm = Landmarks(lid, read_dataset(g, "kind", (lid.size,), dtype=np.int64),
-                           read_dataset(g, "gcp_index", (lid.size,), dtype=np.int64))
+            lm = Landmarks(
+                lid,
+                read_dataset(g, "kind", (lid.size,), dtype=np.int64),
+                read_dataset(g, "gcp_index", (lid.size,), dtype=np.int64),
+            )
             g = f["observations"]
             n = read_dataset(g, "landmark", (None,), dtype=np.int64)
-            obs = Observations(n, *(read_dataset(g, k, (n.size,), dtype=dt) for k, dt in (
-                ("camera", np.int64), ("band", np.int64), ("line", float), ("sample", float),
-                ("exposure", float), ("sigma_px", float))))
-            return cls(str(read_attr(f, "pass_id")), int(read_attr(f, "path")), int(read_attr(f, "orbit")), eph, att,
-                       t0, line_time, lm, obs, float(read_attr(f, "temperature_c")))
+            obs = Observations(
+                n,
+                *(
+                    read_dataset(g, k, (n.size,), dtype=dt)
+                    for k, dt in (
+                        ("camera", np.int64),
+                        ("band", np.int64),
+                        ("line", float),
+                        ("sample", float),
+                        ("exposure", float),
+                        ("sigma_px", float),
+                    )
+                ),
+            )
+            return cls(
+                str(read_attr(f, "pass_id")),
+                int(read_attr(f, "path")),
+                int(read_attr(f, "orbit")),
+                eph,
+                att,
+                t0,
+                line_time,
+                lm,
+                obs,
+                float(read_attr(f, "temperature_c")),
+            )

@@ -26,9 +26,18 @@ PP_COEFFICIENTS = ("line0", "dline_dh", "d2line_dh2", "sample0", "dsample_dh", "
 #: The uncertainty grids: 1-sigma of line and sample (pixels), their correlation, and the
 #: horizontal geolocation 1-sigma (m, radial RMS).
 PP_SIGMAS = ("sigma_line", "sigma_sample", "correlation", "sigma_m")
-_UNITS = {"line0": "pixel", "dline_dh": "pixel/m", "d2line_dh2": "pixel/m^2", "sample0": "pixel",
-          "dsample_dh": "pixel/m", "d2sample_dh2": "pixel/m^2", "sigma_line": "pixel", "sigma_sample": "pixel",
-          "correlation": "1", "sigma_m": "m"}
+_UNITS = {
+    "line0": "pixel",
+    "dline_dh": "pixel/m",
+    "d2line_dh2": "pixel/m^2",
+    "sample0": "pixel",
+    "dsample_dh": "pixel/m",
+    "d2sample_dh2": "pixel/m^2",
+    "sigma_line": "pixel",
+    "sigma_sample": "pixel",
+    "correlation": "1",
+    "sigma_m": "m",
+}
 
 
 @dataclass
@@ -65,8 +74,9 @@ class ProjectionParameters:
             raise InputError("coefficient", name, PP_COEFFICIENTS)
         return getattr(self, name)
 
-    def image_coords(self, camera: str, block: int, line: Array, sample: Array, height: Array,
-                     resolution_m: int = 1100) -> tuple[Array, Array]:
+    def image_coords(
+        self, camera: str, block: int, line: Array, sample: Array, height: Array, resolution_m: int = 1100
+    ) -> tuple[Array, Array]:
         """Image (line, sample) in ``camera`` of block points given at ``resolution_m`` (1100 or
         275: fractional block line/sample of that grid) at ellipsoidal ``height`` (m), by
         bilinear interpolation of the coefficient grids. NaN outside the camera's view."""
@@ -86,8 +96,12 @@ class ProjectionParameters:
         ln, sm = np.broadcast_arrays(np.clip(ln, 0, nl - 1), np.clip(sm, 0, ns - 1))
         coords = np.stack([ln.ravel(), sm.ravel()])
         # bilinear between grid points (order 1: a NaN corner makes the point NaN)
-        v = {k: map_coordinates(self.coefficient(k)[c, b], coords, order=1, mode="nearest", prefilter=False).reshape(ln.shape)
-             for k in PP_COEFFICIENTS}
+        v = {
+            k: map_coordinates(self.coefficient(k)[c, b], coords, order=1, mode="nearest", prefilter=False).reshape(
+                ln.shape
+            )
+            for k in PP_COEFFICIENTS
+        }
         line_h = v["line0"] + v["dline_dh"] * h + v["d2line_dh2"] * h**2
         sample_h = v["sample0"] + v["dsample_dh"] * h + v["d2sample_dh2"] * h**2
         off = ~((sample_h >= -0.5) & (sample_h <= N_PIXELS - 0.5))  # beyond the array: not imaged
@@ -101,9 +115,13 @@ class ProjectionParameters:
         """Per camera, the fraction of grid points the array images (``fraction_seen``) and the
         median horizontal 1-sigma in metres (``sigma_m_median``; None where there is none)."""
         seen = self.seen()
-        return {"fraction_seen": {c: float(np.mean(seen[i])) for i, c in enumerate(self.cameras)},
-                "sigma_m_median": {c: float(np.nanmedian(self.sigma_m[i])) if np.isfinite(self.sigma_m[i]).any() else None
-                                   for i, c in enumerate(self.cameras)}}
+        return {
+            "fraction_seen": {c: float(np.mean(seen[i])) for i, c in enumerate(self.cameras)},
+            "sigma_m_median": {
+                c: float(np.nanmedian(self.sigma_m[i])) if np.isfinite(self.sigma_m[i]).any() else None
+                for i, c in enumerate(self.cameras)
+            },
+        }
 
 
 def save_pp(pp: ProjectionParameters, path: str | os.PathLike[str]) -> None:
@@ -123,9 +141,15 @@ def save_pp(pp: ProjectionParameters, path: str | os.PathLike[str]) -> None:
         g.attrs["order"] = "camera, block, line, sample"
         for name in PP_COEFFICIENTS + PP_SIGMAS:
             a = np.asarray(getattr(pp, name))
-            ds = g.create_dataset(name, data=a.astype(np.float64 if name in ("line0", "sample0") else np.float32),
-                                  chunks=(1, 1) + a.shape[2:], compression="gzip", compression_opts=4, shuffle=True,
-                                  fletcher32=True)
+            ds = g.create_dataset(
+                name,
+                data=a.astype(np.float64 if name in ("line0", "sample0") else np.float32),
+                chunks=(1, 1) + a.shape[2:],
+                compression="gzip",
+                compression_opts=4,
+                shuffle=True,
+                fletcher32=True,
+            )
             ds.attrs["units"] = _UNITS[name]
 
 
@@ -143,5 +167,13 @@ def read_pp(path: str | os.PathLike[str]) -> ProjectionParameters:
         prov = {k: str(v) for k, v in f["provenance"].attrs.items()} if "provenance" in f else {}
         if np.any((blocks < 1) | (blocks > N_BLOCKS)):
             raise FileFormatError(path, f"/blocks holds {blocks.tolist()}; expected block numbers in 1..{N_BLOCKS}")
-        return ProjectionParameters(path=path_, blocks=blocks, cameras=cameras, band=str(read_attr(f, "band")),
-                                    pass_id=str(read_attr(f, "pass_id")), resolution_m=res, provenance=prov, **arrays)
+        return ProjectionParameters(
+            path=path_,
+            blocks=blocks,
+            cameras=cameras,
+            band=str(read_attr(f, "band")),
+            pass_id=str(read_attr(f, "pass_id")),
+            resolution_m=res,
+            provenance=prov,
+            **arrays,
+        )

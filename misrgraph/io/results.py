@@ -13,8 +13,13 @@ __all__ = ["summarise_result_file", "capped_list", "JSON_LIST_CAP"]
 JSON_LIST_CAP = 20
 
 
-def capped_list(items: list[dict[str, Any]], full_list: str | None, key: str = "normalised_residual",
-                group_by: tuple[str, ...] = (), cap: int = JSON_LIST_CAP) -> dict[str, Any]:
+def capped_list(
+    items: list[dict[str, Any]],
+    full_list: str | None,
+    key: str = "normalised_residual",
+    group_by: tuple[str, ...] = (),
+    cap: int = JSON_LIST_CAP,
+) -> dict[str, Any]:
     """A summary of a list that grows with the data: ``count``, counts per value of each field
     in ``group_by``, the ``cap`` entries with the largest ``key`` (``largest``, descending) and
     ``full_list``, where the whole list is (``FILE:/dataset``; None if nothing was written)."""
@@ -34,5 +39,8 @@ def capped_list(items: list[dict[str, Any]], full_list: str | None, key: str = "
 def summarise_result_file(path: str | os.PathLike[str], kind: str) -> dict[str, Any]:
     """Root attributes of a result file (kind-specific readers add more)."""
     with open_h5(path, kind) as f:
-        return {k: (v.decode() if isinstance(v, bytes) else v.item() if hasattr(v, "item") else v)
-                for k, v in f.attrs.items() if k not in ("misrgraph_kind", "format_version")}
+        return {
+            k: (v.decode() if isinstance(v, bytes) else v.item() if hasattr(v, "item") else v)
+            for k, v in f.attrs.items()
+            if k not in ("misrgraph_kind", "format_version")
+        }

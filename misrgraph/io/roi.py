@@ -93,8 +93,15 @@ class _Writer:
 
 
 @contextmanager
-def roi_writer(path: str | os.PathLike[str], sky_path: int, band: str, cameras: tuple[str, ...], pass_ids: list[str],
-               blocks: NDArray[np.int64], full_scale_dn: int) -> Iterator[_Writer]:
+def roi_writer(
+    path: str | os.PathLike[str],
+    sky_path: int,
+    band: str,
+    cameras: tuple[str, ...],
+    pass_ids: list[str],
+    blocks: NDArray[np.int64],
+    full_scale_dn: int,
+) -> Iterator[_Writer]:
     """A ROI file written block by block (``writer.write(roi_block)``); it appears at ``path`` only
     when every block has been written and the block completes."""
     grid = SomGrid(int(sky_path), 275)
@@ -128,12 +135,20 @@ def read_roi(path: str | os.PathLike[str]) -> RoiFile:
         pass_ids = tuple(str(read_attr(f, "pass_ids")).split(","))
         blocks = read_dataset(f, "blocks", (None,), dtype=np.int64)
         shape = (len(cameras), blocks.size, grid.nline, grid.nsample)
-        return RoiFile(p, str(read_attr(f, "band")), cameras, pass_ids, blocks,
-                       read_dataset(f, "pixels", shape, dtype=np.uint16), read_dataset(f, "source", shape, dtype=np.int8),
-                       read_dataset(f, "cloudy", shape, dtype=np.uint8).astype(bool),
-                       read_dataset(f, "obscured", shape, dtype=np.uint8).astype(bool),
-                       read_dataset(f, "clear_fraction", (blocks.size, len(pass_ids))),
-                       read_dataset(f, "chosen", (blocks.size,), dtype=np.int64), int(read_attr(f, "full_scale_dn")))
+        return RoiFile(
+            p,
+            str(read_attr(f, "band")),
+            cameras,
+            pass_ids,
+            blocks,
+            read_dataset(f, "pixels", shape, dtype=np.uint16),
+            read_dataset(f, "source", shape, dtype=np.int8),
+            read_dataset(f, "cloudy", shape, dtype=np.uint8).astype(bool),
+            read_dataset(f, "obscured", shape, dtype=np.uint8).astype(bool),
+            read_dataset(f, "clear_fraction", (blocks.size, len(pass_ids))),
+            read_dataset(f, "chosen", (blocks.size,), dtype=np.int64),
+            int(read_attr(f, "full_scale_dn")),
+        )
 
 
 def mosaic(roi: RoiFile, camera: str) -> tuple[NDArray[np.uint16], tuple[float, float]]:
@@ -152,7 +167,7 @@ def mosaic(roi: RoiFile, camera: str) -> tuple[NDArray[np.uint16], tuple[float, 
     for k, b in enumerate(roi.blocks):
         r0 = (int(b) - b0) * grid.nline
         c0 = int(off[k]) - s_lo
-        canvas[r0:r0 + grid.nline, c0:c0 + grid.nsample] = roi.pixels[c, k]
+        canvas[r0 : r0 + grid.nline, c0 : c0 + grid.nsample] = roi.pixels[c, k]
     r = float(roi.resolution_m)
     x0 = BLOCK1_CORNER_SOM[0] + (b0 - 1) * grid.nline * r
     y0 = BLOCK1_CORNER_SOM[1] + s_lo * r
@@ -183,8 +198,19 @@ def export_roi_geotiff(roi: RoiFile, out_dir: str | os.PathLike[str]) -> dict[st
         tmp = out / f".tmp.{name.name}"
         aux, tmp_aux = Path(f"{name}.aux.xml"), Path(f"{tmp}.aux.xml")
         try:
-            with rasterio.open(tmp, "w", driver="COG", width=img.shape[1], height=img.shape[0], count=1, dtype="uint16",
-                               crs=crs, transform=transform, nodata=0, compress="deflate") as dst:
+            with rasterio.open(
+                tmp,
+                "w",
+                driver="COG",
+                width=img.shape[1],
+                height=img.shape[0],
+                count=1,
+                dtype="uint16",
+                crs=crs,
+                transform=transform,
+                nodata=0,
+                compress="deflate",
+            ) as dst:
                 dst.write(img, 1)
                 dst.update_tags(camera=cam, band=roi.band, path=str(roi.path), units="counts (14 bit)")
             if tmp_aux.exists():
@@ -212,7 +238,7 @@ def write_quicklooks(roi: RoiFile, out_dir: str | os.PathLike[str], step: int = 
         canvas, _ = mosaic(roi, cam)
         small = canvas[::step, ::step].astype(float)
         valid = small > 0
-        lo, hi = (np.percentile(small[valid], [1, 99]) if valid.any() else (0.0, 1.0))
+        lo, hi = np.percentile(small[valid], [1, 99]) if valid.any() else (0.0, 1.0)
         img = np.clip((small - lo) / max(hi - lo, 1.0), 0, 1)
         img[~valid] = 0
         name = out / f"ROI_P{roi.path:03d}_{cam}.png"

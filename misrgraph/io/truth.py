@@ -33,8 +33,16 @@ from misrgraph.model.geolocation import PassGeometry
 if TYPE_CHECKING:
     from misrgraph.io.imagery import PassImagery
 
-__all__ = ["PassTruth", "write_pass_truth", "save_pass_with_truth", "read_pass_truth", "pass_truth_in", "read_gcp_truth", "has_truth",
-           "load_pass_observations"]
+__all__ = [
+    "PassTruth",
+    "write_pass_truth",
+    "save_pass_with_truth",
+    "read_pass_truth",
+    "pass_truth_in",
+    "read_gcp_truth",
+    "has_truth",
+    "load_pass_observations",
+]
 
 Array = NDArray[np.float64]
 
@@ -55,24 +63,40 @@ class PassTruth:
         """The pass's true geometry: supplied navigation with the injected errors removed, and the
         true camera model (or ``camera``)."""
         e, a = self.ephemeris_error, self.attitude_error
-        return PassGeometry(orbit_pass.ephemeris, orbit_pass.attitude, camera or self.camera_model, t0=orbit_pass.t0,
-                            attitude_delta=lambda t: -a.evaluate(t), position_delta=lambda t: -e.evaluate(t))
+        return PassGeometry(
+            orbit_pass.ephemeris,
+            orbit_pass.attitude,
+            camera or self.camera_model,
+            t0=orbit_pass.t0,
+            attitude_delta=lambda t: -a.evaluate(t),
+            position_delta=lambda t: -e.evaluate(t),
+        )
 
     def subset(self, keep: NDArray[np.bool_]) -> "PassTruth":
         """The truth of the pass whose observations are ``keep`` (landmarks unchanged)."""
-        return PassTruth(self.ephemeris_error, self.attitude_error, self.landmark_ecef, self.blunder[keep], self.camera_model)
+        return PassTruth(
+            self.ephemeris_error, self.attitude_error, self.landmark_ecef, self.blunder[keep], self.camera_model
+        )
 
 
 def write_pass_truth(f: Any, truth: PassTruth, n_landmarks: int, n_observations: int) -> None:
     """Write ``/truth`` into an open pass file."""
     if truth.landmark_ecef.shape != (n_landmarks, 3) or truth.blunder.shape != (n_observations,):
-        raise InputError("truth", (truth.landmark_ecef.shape, truth.blunder.shape),
-                         f"landmark_ecef ({n_landmarks}, 3) and blunder ({n_observations},)")
+        raise InputError(
+            "truth",
+            (truth.landmark_ecef.shape, truth.blunder.shape),
+            f"landmark_ecef ({n_landmarks}, 3) and blunder ({n_observations},)",
+        )
     t = f.create_group("truth")
     e = t.create_group("ephemeris_error")
     write_dataset(e, "boundaries", truth.ephemeris_error.boundaries, units="s")
-    write_dataset(e, "params", truth.ephemeris_error.params, units="m/s (a), m (b)",
-                  order="a_x,a_y,a_z,b_x,b_y,b_z (orbital frame; z toward nadir)")
+    write_dataset(
+        e,
+        "params",
+        truth.ephemeris_error.params,
+        units="m/s (a), m (b)",
+        order="a_x,a_y,a_z,b_x,b_y,b_z (orbital frame; z toward nadir)",
+    )
     a = t.create_group("attitude_error")
     for i, name in enumerate(ANGLES):
         ga = a.create_group(name)
@@ -83,8 +107,9 @@ def write_pass_truth(f: Any, truth: PassTruth, n_landmarks: int, n_observations:
     write_camera_group(t.create_group("camera_model"), truth.camera_model)
 
 
-def save_pass_with_truth(orbit_pass: OrbitPass, truth: PassTruth | None, path: str | os.PathLike[str],
-                         imagery: "PassImagery | None" = None) -> None:
+def save_pass_with_truth(
+    orbit_pass: OrbitPass, truth: PassTruth | None, path: str | os.PathLike[str], imagery: "PassImagery | None" = None
+) -> None:
     """Write a simulated pass, its truth and (optionally) its imagery atomically into one
     ``orbit_pass`` file."""
     with atomic_h5(path, "orbit_pass") as f:
@@ -117,9 +142,13 @@ def pass_truth_in(f: Any) -> PassTruth | None:
         [read_dataset(require_group(a, name), "knot_times", (None,)) for name in ANGLES],
         [read_dataset(require_group(a, name), "knots", (None, 2)) for name in ANGLES],
     )
-    return PassTruth(eem, aem, read_dataset(tg, "landmark_ecef", (n_lm, 3)),
-                     read_dataset(tg, "blunder", (n_obs,), dtype=bool),
-                     read_camera_group(require_group(tg, "camera_model")))
+    return PassTruth(
+        eem,
+        aem,
+        read_dataset(tg, "landmark_ecef", (n_lm, 3)),
+        read_dataset(tg, "blunder", (n_obs,), dtype=bool),
+        read_camera_group(require_group(tg, "camera_model")),
+    )
 
 
 def read_gcp_truth(path: str | os.PathLike[str]) -> Array | None:
@@ -137,7 +166,9 @@ def has_truth(path: str | os.PathLike[str], kind: str) -> bool:
         return "truth" in f
 
 
-def load_pass_observations(path: str | os.PathLike[str], observations: str = "simulated") -> tuple[OrbitPass, PassTruth | None]:
+def load_pass_observations(
+    path: str | os.PathLike[str], observations: str = "simulated"
+) -> tuple[OrbitPass, PassTruth | None]:
     """A pass with the chosen observation set, and its truth (None for real data): ``"simulated"``
     the pass's own; ``"matched"`` the ``/matched`` group (landmarks and observations replaced, the
     truth's landmarks and blunder flags those of the matched set)."""
@@ -154,6 +185,7 @@ def load_pass_observations(path: str | os.PathLike[str], observations: str = "si
     if truth is not None:
         if m.truth_landmark_ecef is None or m.truth_blunder is None:
             raise FileFormatError(path, "/matched has no /truth/matched (re-run 'misrgraph match')")
-        truth = PassTruth(truth.ephemeris_error, truth.attitude_error, m.truth_landmark_ecef, m.truth_blunder,
-                          truth.camera_model)
+        truth = PassTruth(
+            truth.ephemeris_error, truth.attitude_error, m.truth_landmark_ecef, m.truth_blunder, truth.camera_model
+        )
     return p, truth

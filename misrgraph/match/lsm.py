@@ -69,8 +69,12 @@ def _centre(n: int) -> float:
     return (n - 1) / 2.0
 
 
-def ncc_search(image: Array, template: Array, row_range: tuple[float, float] | None = None,
-               col_range: tuple[float, float] | None = None) -> NccPeak | None:
+def ncc_search(
+    image: Array,
+    template: Array,
+    row_range: tuple[float, float] | None = None,
+    col_range: tuple[float, float] | None = None,
+) -> NccPeak | None:
     """Best NCC position of ``template`` in ``image`` (template-centre coordinates), optionally
     restricted to centres within ``row_range``/``col_range``; None when nothing can be searched
     (the template does not fit, or the template or image is flat)."""
@@ -95,7 +99,7 @@ def ncc_search(image: Array, template: Array, row_range: tuple[float, float] | N
         return None
     i, j = np.unravel_index(int(np.argmax(cc)), cc.shape)
     best = float(cc[i, j])
-    rr, qq = np.ogrid[:cc.shape[0], :cc.shape[1]]
+    rr, qq = np.ogrid[: cc.shape[0], : cc.shape[1]]
     far = (np.abs(rr - i) > 2) | (np.abs(qq - j) > 2)
     others = cc[far & mask]
     second = float(np.max(others)) if others.size and np.isfinite(others).any() else -1.0
@@ -121,8 +125,16 @@ def hac_meat(e: Array, jac: Array, max_lag: int = 4) -> Array:
     return 0.5 * (meat + meat.T)
 
 
-def lsm(image: Array, template: Array, row0: float, col0: float, max_iter: int = 30, tol_px: float = 2e-3,
-        max_shift_px: float = 3.0, distortion: Array | None = None) -> LsmResult:
+def lsm(
+    image: Array,
+    template: Array,
+    row0: float,
+    col0: float,
+    max_iter: int = 30,
+    tol_px: float = 2e-3,
+    max_shift_px: float = 3.0,
+    distortion: Array | None = None,
+) -> LsmResult:
     """Least-squares matching of ``template`` in ``image`` from the template-centre position
     ``(row0, col0)`` (see the module docstring). Not converged when it leaves the image, moves more
     than ``max_shift_px`` from the start, the normal matrix is singular or ``max_iter`` is reached.

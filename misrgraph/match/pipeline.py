@@ -18,8 +18,8 @@
   before it, :func:`misrgraph.model.geolocation.cast_first` -- is not matched: "hidden by
   terrain"; its image shows the ridge in front, the D cameras' classic failure) -- blurred along track by the
   difference between the camera's footprint and An's (``1/rate`` lines each: the D cameras'
-  detector covers ~2.6 lines, An's one; Gaussian of the variances' difference) -- then **checked backwards**: the matched
-  patch is matched back into An and must land within ``back_tolerance_sigma`` times the two
+  detector covers ~2.6 lines, An's one; Gaussian of the variances' difference) -- then **checked backwards**: the
+  matched patch is matched back into An and must land within ``back_tolerance_sigma`` times the two
   matches' combined sigma (at least ``back_tolerance_px``, at most 1 px) of where it came
   from (the forward-backward check stands in for the seed's consistent labelling: a wrong match
   rarely maps back to its origin). A bright template (mean reflectance above
@@ -72,8 +72,19 @@ from misrgraph.model.constants import CAMERAS, N_PIXELS
 from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import ImagePoints, PassGeometry
 
-__all__ = ["AN_SIGMAS", "DEFAULT_SEARCH_PX", "SIGMA_MODELS", "MatchConfig", "MatchedObservations", "TieFeature", "gcp_fit_rows",
-           "match_gcps", "match_ties", "scale_gcp_sigmas", "search_range"]
+__all__ = [
+    "AN_SIGMAS",
+    "DEFAULT_SEARCH_PX",
+    "SIGMA_MODELS",
+    "MatchConfig",
+    "MatchedObservations",
+    "TieFeature",
+    "gcp_fit_rows",
+    "match_gcps",
+    "match_ties",
+    "scale_gcp_sigmas",
+    "search_range",
+]
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
@@ -144,8 +155,14 @@ class MatchConfig(Config):
         for name in ("min_ncc", "max_peak_ratio"):
             if not 0 < getattr(self, name) <= 1:
                 raise InputError(name, getattr(self, name), "a number in (0, 1]")
-        for name in ("max_sigma_px", "back_tolerance_px", "back_tolerance_sigma", "sigma_floor_px", "cloud_reflectance",
-                     "sigma_knot_s"):
+        for name in (
+            "max_sigma_px",
+            "back_tolerance_px",
+            "back_tolerance_sigma",
+            "sigma_floor_px",
+            "cloud_reflectance",
+            "sigma_knot_s",
+        ):
             if not getattr(self, name) > 0:
                 raise InputError(name, getattr(self, name), "a positive number")
         if self.sigma_model not in SIGMA_MODELS:
@@ -197,8 +214,9 @@ def _pixels(raw: NDArray) -> Array | None:
     return px if np.all(np.isfinite(px)) else None
 
 
-def _match_one(image: Array, template: Array, row_p: float, col_p: float, cfg: MatchConfig,
-               search: int) -> tuple[float, float, float] | str:
+def _match_one(
+    image: Array, template: Array, row_p: float, col_p: float, cfg: MatchConfig, search: int
+) -> tuple[float, float, float] | str:
     """NCC within ``+-search`` of the predicted template centre, then LSM; (row, col, sigma) or a reason."""
     peak = ncc_search(image, template, (row_p - search, row_p + search), (col_p - search, col_p + search))
     if peak is None:
@@ -210,14 +228,19 @@ def _match_one(image: Array, template: Array, row_p: float, col_p: float, cfg: M
     res = lsm(image, template, peak.row, peak.col)
     if not res.converged:
         return f"LSM: {res.reason}"
-    sigma = max(float(np.sqrt(0.5 * (res.sigma_row ** 2 + res.sigma_col ** 2))), cfg.sigma_floor_px)
+    sigma = max(float(np.sqrt(0.5 * (res.sigma_row**2 + res.sigma_col**2))), cfg.sigma_floor_px)
     if sigma > cfg.max_sigma_px:
         return "LSM sigma too large"
     return res.row, res.col, sigma
 
 
-def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef: Array, landmark_gcp_row: Callable[[int], int],
-               cfg: MatchConfig = MatchConfig()) -> MatchedObservations:
+def match_gcps(
+    imagery: PassImagery,
+    supplied_geo: PassGeometry,
+    catalogue_ecef: Array,
+    landmark_gcp_row: Callable[[int], int],
+    cfg: MatchConfig = MatchConfig(),
+) -> MatchedObservations:
     """Measure every GCP window (see the module docstring). ``catalogue_ecef (G, 3)`` m are the
     database positions; ``landmark_gcp_row(landmark row)`` gives a window's GCP database row."""
     out = MatchedObservations()
@@ -239,8 +262,14 @@ def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef:
         if not p.visible[0]:
             out.reasons["not predicted in the image"] += 1
             continue
-        got = _match_one(image, np.asarray(chip, float), float(p.line[0] - wins.line0[k]),
-                         float(p.sample[0] - wins.sample0[k]), cfg, search + 2)
+        got = _match_one(
+            image,
+            np.asarray(chip, float),
+            float(p.line[0] - wins.line0[k]),
+            float(p.sample[0] - wins.sample0[k]),
+            cfg,
+            search + 2,
+        )
         if isinstance(got, str):
             out.reasons[got] += 1
             continue
@@ -253,8 +282,13 @@ def match_gcps(imagery: PassImagery, supplied_geo: PassGeometry, catalogue_ecef:
 _GROUND_STEP_M = 10.0
 
 
-def gcp_fit_rows(gcps: MatchedObservations, supplied_geo: PassGeometry, catalogue_ecef: Array,
-                 landmark_gcp_row: Callable[[int], int], band: int) -> GcpRows:
+def gcp_fit_rows(
+    gcps: MatchedObservations,
+    supplied_geo: PassGeometry,
+    catalogue_ecef: Array,
+    landmark_gcp_row: Callable[[int], int],
+    band: int,
+) -> GcpRows:
     """The GCP observations of ``band`` (the tie points') as rows of the precision fit
     (:class:`misrgraph.match.precision.GcpRows`): matched minus the catalogue position's
     prediction, the observation time, and numerical ``J_c`` (:func:`_tilt_jacobian`) and ``G``
@@ -263,7 +297,9 @@ def gcp_fit_rows(gcps: MatchedObservations, supplied_geo: PassGeometry, catalogu
     idx = np.flatnonzero(np.asarray(gcps.band, np.int64) == band)
     cams = np.asarray(gcps.camera, np.int64)[idx]
     line, sample = np.asarray(gcps.line, float)[idx], np.asarray(gcps.sample, float)[idx]
-    ground = np.asarray(catalogue_ecef, float)[[landmark_gcp_row(int(r)) for r in np.asarray(gcps.feature)[idx]]].reshape(-1, 3)
+    ground = np.asarray(catalogue_ecef, float)[
+        [landmark_gcp_row(int(r)) for r in np.asarray(gcps.feature)[idx]]
+    ].reshape(-1, 3)
     pred = supplied_geo.ground_to_pixel(cams, band, ground, continuous=True)
     jac = _tilt_jacobian(supplied_geo, cams, band, ground, pred.line, pred.sample)
     lat, lon, _ = ecef_to_geodetic(ground)
@@ -274,8 +310,17 @@ def gcp_fit_rows(gcps: MatchedObservations, supplied_geo: PassGeometry, catalogu
         gjac[:, 0, k], gjac[:, 1, k] = (q.line - pred.line) / _GROUND_STEP_M, (q.sample - pred.sample) / _GROUND_STEP_M
     d = np.stack([line - pred.line, sample - pred.sample], axis=1)
     ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(jac), axis=(1, 2)) & np.all(np.isfinite(gjac), axis=(1, 2))
-    return GcpRows(np.asarray(gcps.feature, np.int64)[idx][ok], cams[ok], supplied_geo.line_time(cams, band, line)[ok],
-                   (sample[ok] - _CENTRE) / _CENTRE, d[ok], np.asarray(gcps.sigma_px, float)[idx][ok], jac[ok], gjac[ok], AN)
+    return GcpRows(
+        np.asarray(gcps.feature, np.int64)[idx][ok],
+        cams[ok],
+        supplied_geo.line_time(cams, band, line)[ok],
+        (sample[ok] - _CENTRE) / _CENTRE,
+        d[ok],
+        np.asarray(gcps.sigma_px, float)[idx][ok],
+        jac[ok],
+        gjac[ok],
+        AN,
+    )
 
 
 def scale_gcp_sigmas(gcps: MatchedObservations, fit: PrecisionFit | None, cfg: MatchConfig) -> None:
@@ -298,14 +343,28 @@ HIDDEN_DISTANCE_M = 137.5
 HIDDEN_CLIMB_M = 3000.0
 
 
-def _hidden_by_terrain(geo: PassGeometry, cams: NDArray[np.int64], band: int, pred: ImagePoints, ground: Array,
-                       surface: Callable[[Array, Array], Array]) -> NDArray[np.bool_]:
+def _hidden_by_terrain(
+    geo: PassGeometry,
+    cams: NDArray[np.int64],
+    band: int,
+    pred: ImagePoints,
+    ground: Array,
+    surface: Callable[[Array, Array], Array],
+) -> NDArray[np.bool_]:
     """``(len(cams),)``: whether the DEM hides ECEF ``ground (3,)`` from each camera at its
     predicted image position ``pred`` (an :class:`ImagePoints`; not visible: False)."""
     from misrgraph.model.geolocation import hidden_in_image
 
-    return hidden_in_image(geo, cams, band, pred, np.repeat(ground[None, :], cams.size, axis=0), _filled(surface),
-                           HIDDEN_DISTANCE_M, HIDDEN_CLIMB_M)
+    return hidden_in_image(
+        geo,
+        cams,
+        band,
+        pred,
+        np.repeat(ground[None, :], cams.size, axis=0),
+        _filled(surface),
+        HIDDEN_DISTANCE_M,
+        HIDDEN_CLIMB_M,
+    )
 
 
 @dataclass
@@ -327,7 +386,7 @@ def _interest_point(image: Array, margin: int, search: int) -> tuple[int, int] |
     lo, hi = max(h // 2 - search, margin), min(h // 2 + search, h - 1 - margin)
     if lo > hi:
         return None
-    sub_w = np.where(q[lo:hi + 1, lo:hi + 1] > 0.3, w[lo:hi + 1, lo:hi + 1], 0.0)
+    sub_w = np.where(q[lo : hi + 1, lo : hi + 1] > 0.3, w[lo : hi + 1, lo : hi + 1], 0.0)
     if not np.isfinite(sub_w).all() or sub_w.max() <= 0:
         return None
     i, j = np.unravel_index(int(np.argmax(sub_w)), sub_w.shape)
@@ -349,8 +408,9 @@ def _tilted(geo: PassGeometry, axis: int) -> PassGeometry:
     return dataclasses.replace(geo, attitude_delta=delta, _cache={})
 
 
-def _tilt_jacobian(geo: PassGeometry, cams: NDArray[np.int64], band: int, ground: Array, pred_line: Array,
-                   pred_sample: Array) -> Array:
+def _tilt_jacobian(
+    geo: PassGeometry, cams: NDArray[np.int64], band: int, ground: Array, pred_line: Array, pred_sample: Array
+) -> Array:
     """``J_c`` ``(n, 2, 3)`` px/rad: how the predictions ``pred_line, pred_sample (n,)`` of the
     fixed ECEF points ``ground (n, 3)`` move when the navigation turns about each axis (three calls)."""
     jac = np.empty((cams.size, 2, 3))
@@ -360,9 +420,18 @@ def _tilt_jacobian(geo: PassGeometry, cams: NDArray[np.int64], band: int, ground
     return jac / _ATTITUDE_STEP_RAD
 
 
-def _pointing_sensitivity(geo: PassGeometry, cams: NDArray[np.int64], band: int, ground: Array, pred_line: Array,
-                          pred_sample: Array, an_line: Array, an_sample: Array, row_feature: NDArray[np.int64],
-                          surface: Callable[[Array, Array], Array]) -> tuple[Array, Array]:
+def _pointing_sensitivity(
+    geo: PassGeometry,
+    cams: NDArray[np.int64],
+    band: int,
+    ground: Array,
+    pred_line: Array,
+    pred_sample: Array,
+    an_line: Array,
+    an_sample: Array,
+    row_feature: NDArray[np.int64],
+    surface: Callable[[Array, Array], Array],
+) -> tuple[Array, Array]:
     """Numerical ``J_c`` and ``K_c`` (px/rad, each ``(n, 2, 3)``) of ``n`` conjugates' predictions
     ``pred_line, pred_sample (n,)`` of their features' An ground points ``ground (n, 3)`` ECEF m
     (:class:`misrgraph.match.precision.Pointing`): the prediction of the fixed ground point by a
@@ -377,10 +446,15 @@ def _pointing_sensitivity(geo: PassGeometry, cams: NDArray[np.int64], band: int,
     return _tilt_jacobian(geo, cams, band, ground, pred_line, pred_sample), kan / _ATTITUDE_STEP_RAD
 
 
-def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callable[[Array, Array], Array],
-               rows: NDArray[np.int64], cfg: MatchConfig = MatchConfig(),
-               progress: Callable[[int, int], None] | None = None,
-               gcp: GcpRows | None = None) -> tuple[list[TieFeature], MatchedObservations]:
+def match_ties(
+    imagery: PassImagery,
+    supplied_geo: PassGeometry,
+    surface: Callable[[Array, Array], Array],
+    rows: NDArray[np.int64],
+    cfg: MatchConfig = MatchConfig(),
+    progress: Callable[[int, int], None] | None = None,
+    gcp: GcpRows | None = None,
+) -> tuple[list[TieFeature], MatchedObservations]:
     """Detect and match tie points in the windows of landmark ``rows`` (see the module docstring).
     ``surface(lat, lon)`` is the DEM's ellipsoidal height (m; NaN outside the DEM), for the
     conjugates' prediction; a feature whose An point falls outside the DEM is rejected. ``gcp``
@@ -390,7 +464,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
     band = imagery.band
     search = search_range(cfg, imagery)
     half = cfg.template_px // 2
-    full = float(imagery.attrs.get("full_scale_dn", 2 ** 14 - 1))
+    full = float(imagery.attrs.get("full_scale_dn", 2**14 - 1))
     features: list[TieFeature] = []
     out = MatchedObservations()
     pending: list[tuple] = []  # (row in out, feature, camera, time, sample, d_line, d_sample, epipolar line, sample)
@@ -411,7 +485,7 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             out.reasons["no interest point (low texture)"] += 1
             continue
         r0, c0 = ip
-        tpl = an_img[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]
+        tpl = an_img[r0 - half : r0 + half + 1, c0 - half : c0 + half + 1]
         if tpl.mean() / full > cfg.cloud_reflectance:
             out.reasons["cloud (bright template)"] += 1
             continue
@@ -431,8 +505,9 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
         cams = wins.camera[ks]
         pred = supplied_geo.ground_to_pixel(cams, band, np.repeat(ground, ks.size, axis=0), continuous=True)
         # the epipolar direction: where each conjugate moves per metre of height along An's ray
-        raised = supplied_geo.pixel_to_ground(AN, band, line_an, samp_an, exposure=np.nan,
-                                              height=h_g + _EPIPOLAR_STEP_M)
+        raised = supplied_geo.pixel_to_ground(
+            AN, band, line_an, samp_an, exposure=np.nan, height=h_g + _EPIPOLAR_STEP_M
+        )
         pred_up = supplied_geo.ground_to_pixel(cams, band, np.repeat(raised, ks.size, axis=0), continuous=True)
         hidden = _hidden_by_terrain(supplied_geo, cams, band, pred, ground[0], surface)
         rate_cams = np.concatenate([[AN], cams])
@@ -455,29 +530,36 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
             cam = int(cams[j])
             # the camera's along-track footprint (1/rate lines) is longer than An's in the C and D cameras:
             # blur An along track by the difference (variances of the box footprints) before matching
-            blur = np.sqrt(max(1.0 / float(rates[j + 1]) ** 2 - 1.0 / rate_an ** 2, 0.0) / 12.0)
+            blur = np.sqrt(max(1.0 / float(rates[j + 1]) ** 2 - 1.0 / rate_an**2, 0.0) / 12.0)
             ref = ndimage.gaussian_filter1d(an_img, blur, axis=0, mode="nearest") if blur > 0.05 else an_img
-            tpl_c = ref[r0 - half:r0 + half + 1, c0 - half:c0 + half + 1]
-            m = _match_one(img, tpl_c, float(pred.line[j] - wins.line0[k]), float(pred.sample[j] - wins.sample0[k]),
-                           cfg, search)
+            tpl_c = ref[r0 - half : r0 + half + 1, c0 - half : c0 + half + 1]
+            m = _match_one(
+                img, tpl_c, float(pred.line[j] - wins.line0[k]), float(pred.sample[j] - wins.sample0[k]), cfg, search
+            )
             if isinstance(m, str):
                 out.reasons[m] += 1
                 continue
             r, c, s = m
             # forward-backward check: the matched patch, matched back into An, must land where it came from
             ri, ci = int(round(r)), int(round(c))
-            back_tpl = img[ri - half:ri + half + 1, ci - half:ci + half + 1]
+            back_tpl = img[ri - half : ri + half + 1, ci - half : ci + half + 1]
             if back_tpl.shape != tpl.shape:
                 out.reasons["match at the window edge"] += 1
                 continue
             er, ec = r0 + (ri - r), c0 + (ci - c)
             b = _match_one(ref, back_tpl, er, ec, cfg, 2)
             if isinstance(b, str) or np.hypot(b[0] - er, b[1] - ec) > min(
-                    max(cfg.back_tolerance_px, cfg.back_tolerance_sigma * np.hypot(s, b[2])), 1.0):
+                max(cfg.back_tolerance_px, cfg.back_tolerance_sigma * np.hypot(s, b[2])), 1.0
+            ):
                 out.reasons["forward-backward check"] += 1
                 continue
-            epi = ((pred_up.line[j] - pred.line[j]) / _EPIPOLAR_STEP_M, (pred_up.sample[j] - pred.sample[j]) / _EPIPOLAR_STEP_M)
-            got.append((cam, wins.line0[k] + r, wins.sample0[k] + c, s, pred.line[j], pred.sample[j], float(times[j + 1]), epi))
+            epi = (
+                (pred_up.line[j] - pred.line[j]) / _EPIPOLAR_STEP_M,
+                (pred_up.sample[j] - pred.sample[j]) / _EPIPOLAR_STEP_M,
+            )
+            got.append(
+                (cam, wins.line0[k] + r, wins.sample0[k] + c, s, pred.line[j], pred.sample[j], float(times[j + 1]), epi)
+            )
         if len(got) + 1 < cfg.min_cameras:
             out.reasons[f"seen in fewer than {cfg.min_cameras} cameras"] += 1
             continue
@@ -491,9 +573,18 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
     if pending and cfg.shared_attitude_fit:
         a = np.asarray(pending, float)
         pg = np.asarray(pending_geo, float)
-        jac, kan = _pointing_sensitivity(supplied_geo, a[:, 2].astype(np.int64), band, pg[:, :3], pg[:, 3], pg[:, 4],
-                                         np.array([f.line for f in features]), np.array([f.sample for f in features]),
-                                         a[:, 1].astype(np.int64), surface)
+        jac, kan = _pointing_sensitivity(
+            supplied_geo,
+            a[:, 2].astype(np.int64),
+            band,
+            pg[:, :3],
+            pg[:, 3],
+            pg[:, 4],
+            np.array([f.line for f in features]),
+            np.array([f.sample for f in features]),
+            a[:, 1].astype(np.int64),
+            surface,
+        )
         pointing = Pointing(pg[:, 5], jac, kan)
     _rescale(out, pending, cfg, pointing, gcp)
     return _drop_inconsistent(features, out, cfg)
@@ -503,8 +594,9 @@ def match_ties(imagery: PassImagery, supplied_geo: PassGeometry, surface: Callab
 _EPIPOLAR_STEP_M = 100.0
 
 
-def _drop_inconsistent(features: list[TieFeature], out: MatchedObservations,
-                       cfg: MatchConfig) -> tuple[list[TieFeature], MatchedObservations]:
+def _drop_inconsistent(
+    features: list[TieFeature], out: MatchedObservations, cfg: MatchConfig
+) -> tuple[list[TieFeature], MatchedObservations]:
     """Remove the conjugates the redundancy fit found inconsistent with the pass (beyond its clip),
     then the features left in fewer than ``min_cameras`` cameras; renumber the features."""
     fit = out.precision
@@ -518,7 +610,9 @@ def _drop_inconsistent(features: list[TieFeature], out: MatchedObservations,
     cams = np.asarray(out.camera)
     n_seen = np.bincount(feat[keep], minlength=len(features))  # An included
     few = n_seen < cfg.min_cameras
-    out.reasons[f"seen in fewer than {cfg.min_cameras} cameras"] += int(np.sum(few & (np.bincount(feat, minlength=len(features)) > 0)))
+    out.reasons[f"seen in fewer than {cfg.min_cameras} cameras"] += int(
+        np.sum(few & (np.bincount(feat, minlength=len(features)) > 0))
+    )
     keep &= ~few[feat]
     new_index = np.cumsum(~few) - 1
     kept = MatchedObservations(candidates=out.candidates, reasons=out.reasons, precision=fit)
@@ -527,8 +621,13 @@ def _drop_inconsistent(features: list[TieFeature], out: MatchedObservations,
     return [f for f, drop in zip(features, few) if not drop], kept
 
 
-def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, pointing: Pointing | None = None,
-             gcp: GcpRows | None = None) -> None:
+def _rescale(
+    out: MatchedObservations,
+    pending: list[tuple],
+    cfg: MatchConfig,
+    pointing: Pointing | None = None,
+    gcp: GcpRows | None = None,
+) -> None:
     """Scale each camera's tie sigmas by its precision from the pass's redundancy
     (:func:`misrgraph.match.precision.camera_sigma_scales`; with ``pointing``, one row per
     ``pending`` row, the shared-attitude fit, joined by the ``gcp`` rows when given; without
@@ -542,15 +641,27 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
         cam = a[:, 2].astype(np.int64)
         fitted = np.ones(idx.size, bool)
         if pointing is not None:  # a prediction the tilt moved off the image stays out of the fit
-            fitted = np.isfinite(pointing.an_time_s) & np.all(np.isfinite(pointing.camera_px_per_rad), axis=(1, 2)) \
+            fitted = (
+                np.isfinite(pointing.an_time_s)
+                & np.all(np.isfinite(pointing.camera_px_per_rad), axis=(1, 2))
                 & np.all(np.isfinite(pointing.an_px_per_rad), axis=(1, 2))
+            )
             if not fitted.all():
-                log.info("%d tie observations without a pointing sensitivity left out of the precision fit",
-                         int(np.sum(~fitted)))
+                log.info(
+                    "%d tie observations without a pointing sensitivity left out of the precision fit",
+                    int(np.sum(~fitted)),
+                )
             a = a[fitted]
             pointing = Pointing(*(v[fitted] for v in pointing))
-        args = (a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3], (a[:, 4] - _CENTRE) / _CENTRE,
-                a[:, 5:7], a[:, 7:9], sig[idx[fitted]])
+        args = (
+            a[:, 1].astype(np.int64),
+            a[:, 2].astype(np.int64),
+            a[:, 3],
+            (a[:, 4] - _CENTRE) / _CENTRE,
+            a[:, 5:7],
+            a[:, 7:9],
+            sig[idx[fitted]],
+        )
         kw = dict(knot_s=cfg.sigma_knot_s, pointing=pointing, twin=_TWIN, gcp=gcp if pointing is not None else None)
         fit = camera_sigma_scales(*args, **kw, shared_offset=cfg.an_sigma == "shared-offset" and pointing is not None)
         if pointing is not None and cfg.an_sigma != "shared-offset":
@@ -558,8 +669,9 @@ def _rescale(out: MatchedObservations, pending: list[tuple], cfg: MatchConfig, p
             # are not used here): the adjustment adds its effect to each tie point's covariance
             second = camera_sigma_scales(*args, **kw, shared_offset=True)
             if second.shared_offset is not None:
-                second.shared_offset.own_scale_ratio = {c: second.scale[c] / fit.scale[c] for c in fit.scale
-                                                        if c in second.scale and fit.scale[c] > 0}
+                second.shared_offset.own_scale_ratio = {
+                    c: second.scale[c] / fit.scale[c] for c in fit.scale if c in second.scale and fit.scale[c] > 0
+                }
             fit.shared_offset = second.shared_offset
         sig[idx] = np.maximum(sig[idx] * np.array([fit.scale.get(int(c), 1.0) for c in cam]), cfg.sigma_floor_px)
         out.precision = fit

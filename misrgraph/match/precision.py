@@ -151,8 +151,13 @@ class GcpScale:
     estimated: bool = False
 
     def as_dict(self) -> dict[str, float | int | bool]:
-        return {"scale": self.scale, "redundancy": self.redundancy, "kept": self.kept, "clipped": self.clipped,
-                "estimated": self.estimated}
+        return {
+            "scale": self.scale,
+            "redundancy": self.redundancy,
+            "kept": self.kept,
+            "clipped": self.clipped,
+            "estimated": self.estimated,
+        }
 
 
 @dataclass
@@ -203,8 +208,13 @@ class PrecisionFit:
     def as_dict(self, names: list[str] | tuple[str, ...]) -> dict[str, dict[str, float | int | bool | str]]:
         out: dict[str, dict[str, float | int | bool | str]] = {}
         for c in sorted(self.scale):
-            out[names[c]] = {"scale": self.scale[c], "redundancy": self.redundancy[c], "kept": self.kept[c],
-                             "clipped": self.clipped[c], "estimated": self.estimated[c]}
+            out[names[c]] = {
+                "scale": self.scale[c],
+                "redundancy": self.redundancy[c],
+                "kept": self.kept[c],
+                "clipped": self.clipped[c],
+                "estimated": self.estimated[c],
+            }
             if c in self.borrowed:
                 out[names[c]]["scale_from"] = names[self.borrowed[c]]
         return out
@@ -221,11 +231,19 @@ def _bspline(t: Array, lo: float, hi: float, knot_s: float) -> Array:
 def _design(t: Array, x: Array, knot_s: float) -> Array:
     """Smooth-model design ``(n, p)``: cubic B-splines in ``t`` (s) times ``(1, x)``, plus ``x^2, x^3``."""
     b = _bspline(t, float(np.min(t)), float(np.max(t)), knot_s)
-    return np.hstack([b, b * x[:, None], (x ** 2)[:, None], (x ** 3)[:, None]])
+    return np.hstack([b, b * x[:, None], (x**2)[:, None], (x**3)[:, None]])
 
 
-def _solve(X: dict[int, Array], rows: dict[int, NDArray[np.int64]], feat_of: NDArray[np.int64], n_feat: int, d: Array,
-           e: Array, w: Array, h_prior_m: float) -> tuple[Array, dict[int, float]]:
+def _solve(
+    X: dict[int, Array],
+    rows: dict[int, NDArray[np.int64]],
+    feat_of: NDArray[np.int64],
+    n_feat: int,
+    d: Array,
+    e: Array,
+    w: Array,
+    h_prior_m: float,
+) -> tuple[Array, dict[int, float]]:
     """Joint weighted least squares of the smooth models and the heights (Schur complement on the
     heights); the residuals ``(n, 2)`` and each camera's redundancy ``n_c - tr(N^-1 N_c)``. Rows
     with ``w = 0`` are out of the fit."""
@@ -239,7 +257,7 @@ def _solve(X: dict[int, Array], rows: dict[int, NDArray[np.int64]], feat_of: NDA
     a_ss = np.zeros((n_s, n_s))
     b = np.zeros((n_s, n_feat))
     rhs_s = np.zeros(n_s)
-    dd = np.full(n_feat, 1.0 / h_prior_m ** 2)
+    dd = np.full(n_feat, 1.0 / h_prior_m**2)
     rhs_h = np.zeros(n_feat)
     for c, r in rows.items():
         xc, wc, fc = X[c], w[r], feat_of[r]
@@ -260,7 +278,7 @@ def _solve(X: dict[int, Array], rows: dict[int, NDArray[np.int64]], feat_of: NDA
     res = d.copy()
     for c, r in rows.items():
         for q in range(2):
-            res[r, q] -= X[c] @ x_s[off[c, q]:off[c, q] + X[c].shape[1]]
+            res[r, q] -= X[c] @ x_s[off[c, q] : off[c, q] + X[c].shape[1]]
     res -= h[feat_of][:, None] * e
     # redundancy per camera: n_c - tr(N^-1 N_c), N^-1 = [[Q, R], [R^T, H]], R = -Q B D^-1
     qbd = q_mat @ bd
@@ -280,8 +298,15 @@ def _solve(X: dict[int, Array], rows: dict[int, NDArray[np.int64]], feat_of: NDA
     return res, red
 
 
-def _shared_design(camera: NDArray[np.int64], cams: list[int], time_s: Array, x: Array, pointing: Pointing,
-                   knot_s: float, span: tuple[float, float] | None = None) -> Array:
+def _shared_design(
+    camera: NDArray[np.int64],
+    cams: list[int],
+    time_s: Array,
+    x: Array,
+    pointing: Pointing,
+    knot_s: float,
+    span: tuple[float, float] | None = None,
+) -> Array:
     """Shared-attitude design ``(2n, p)``, rows ``2i`` (line) and ``2i + 1`` (sample) of
     observation ``i``: the attitude spline's coefficients (3 axes, rad; on ``span`` (s), by default
     the observations' own) seen as ``J_c B(t_c) + K_c B(t_An)``, then per camera of ``cams`` and
@@ -297,7 +322,7 @@ def _shared_design(camera: NDArray[np.int64], cams: list[int], time_s: Array, x:
     # (n, 2, 3, nb) -> (2n, 3 nb): axis-major columns
     att = (jc[:, :, :, None] * b_c[:, None, None, :] + ka[:, :, :, None] * b_a[:, None, None, :]).reshape(2 * n, 3 * nb)
     tau = (time_s - 0.5 * (lo + hi)) / max(0.5 * (hi - lo), 1.0)
-    poly = np.column_stack([np.ones(n), x, x ** 2, x ** 3, tau, tau ** 2])  # (n, 6)
+    poly = np.column_stack([np.ones(n), x, x**2, x**3, tau, tau**2])  # (n, 6)
     static = np.zeros((2 * n, len(cams) * 12))
     mine = np.flatnonzero(np.isin(camera, cams))
     pos = np.searchsorted(cams, camera[mine])
@@ -307,17 +332,29 @@ def _shared_design(camera: NDArray[np.int64], cams: list[int], time_s: Array, x:
     return np.hstack([att, static])
 
 
-def _joint_design(a_tie: Array, pointing: Pointing, gcp: GcpRows, cams: list[int], span: tuple[float, float],
-                  knot_s: float) -> Array:
+def _joint_design(
+    a_tie: Array, pointing: Pointing, gcp: GcpRows, cams: list[int], span: tuple[float, float], knot_s: float
+) -> Array:
     """The shared design with the GCP rows below the tie rows (module docstring): the tie rows'
     ``a_tie (2n, p)`` and An's static pointing ``dA`` through ``K_c``; the GCP rows' attitude and
     static terms, ``dA`` through ``J_A`` on An's rows, and three ground columns per GCP."""
     g = gcp.time_s.size
-    a_gcp = _shared_design(gcp.camera, cams, gcp.time_s, gcp.x,
-                           Pointing(gcp.time_s, gcp.camera_px_per_rad, np.zeros((g, 2, 3))), knot_s, span)
+    a_gcp = _shared_design(
+        gcp.camera,
+        cams,
+        gcp.time_s,
+        gcp.x,
+        Pointing(gcp.time_s, gcp.camera_px_per_rad, np.zeros((g, 2, 3))),
+        knot_s,
+        span,
+    )
     own = (gcp.camera == gcp.defining_camera)[:, None, None]
-    d_an = np.vstack([np.asarray(pointing.an_px_per_rad, float).reshape(-1, 3),
-                      np.where(own, gcp.camera_px_per_rad, 0.0).reshape(-1, 3)])
+    d_an = np.vstack(
+        [
+            np.asarray(pointing.an_px_per_rad, float).reshape(-1, 3),
+            np.where(own, gcp.camera_px_per_rad, 0.0).reshape(-1, 3),
+        ]
+    )
     ids, of = np.unique(gcp.gcp, return_inverse=True)
     ground = np.zeros((2 * g, 3 * ids.size))
     for q in range(2):
@@ -326,19 +363,21 @@ def _joint_design(a_tie: Array, pointing: Pointing, gcp: GcpRows, cams: list[int
     return np.hstack([np.vstack([top, np.hstack([a_gcp, ground])]), d_an])
 
 
-def _solve_rows(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat: int, w: Array,
-                h_prior_m: float) -> tuple[Array, Array]:
+def _solve_rows(
+    a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat: int, w: Array, h_prior_m: float
+) -> tuple[Array, Array]:
     """Weighted least squares of ``y (m,) = a (m, p) s + e (m,) h[feat_of]`` with a weak prior
     ``h ~ N(0, h_prior_m^2)`` on each height, the heights eliminated by a Schur complement; the
     residuals ``(m,)`` and the hat matrix's diagonal ``(m,)`` (0 where ``w = 0``): :func:`_solve_blocks`
     with one unknown per feature. A gauge the rows do not fix -- a constant attitude against the
     cameras' offsets -- leaves the residuals alone."""
-    res, hat, _, _ = _solve_blocks(a, y, e[:, None], feat_of, n_feat, w, np.array([1.0 / h_prior_m ** 2]))
+    res, hat, _, _ = _solve_blocks(a, y, e[:, None], feat_of, n_feat, w, np.array([1.0 / h_prior_m**2]))
     return res, hat
 
 
-def _solve_blocks(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat: int, w: Array,
-                  prior: Array) -> tuple[Array, Array, Array, Array]:
+def _solve_blocks(
+    a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_feat: int, w: Array, prior: Array
+) -> tuple[Array, Array, Array, Array]:
     """Weighted least squares of ``y (m,) = a (m, p) s + sum_j e[:, j] u[feat_of, j]`` with ``q``
     unknowns ``u`` per feature (``e (m, q)``), each with a zero-mean prior of precision ``prior (q,)``,
     the features' unknowns eliminated by a Schur complement on their ``q x q`` blocks. Returns the
@@ -366,8 +405,11 @@ def _solve_blocks(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_fe
     res = y - a @ x_s - np.sum(e * u[feat_of], axis=1)
     aq = a @ q_mat
     cov_u = d_inv + (g @ q_mat) @ g.transpose(0, 2, 1)
-    hat = w * (np.sum(aq * a, axis=1) - 2.0 * np.einsum("rp,rjp,rj->r", aq, g[feat_of], e)
-               + np.einsum("rq,rqj,rj->r", e, cov_u[feat_of], e))
+    hat = w * (
+        np.sum(aq * a, axis=1)
+        - 2.0 * np.einsum("rp,rjp,rj->r", aq, g[feat_of], e)
+        + np.einsum("rq,rqj,rj->r", e, cov_u[feat_of], e)
+    )
     return res, hat, u, cov_u
 
 
@@ -375,12 +417,26 @@ def _solve_blocks(a: Array, y: Array, e: Array, feat_of: NDArray[np.int64], n_fe
 _GCP = -1
 
 
-def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], time_s: Array, x: Array, d: Array,
-                        epipolar: Array, sigma: Array, knot_s: float = 60.0, clip: float = 4.0,
-                        min_redundancy: float = 30.0, max_iter: int = 10, tol: float = 0.01,
-                        height_prior_m: float = 1000.0, pointing: Pointing | None = None,
-                        twin: dict[int, int] | None = None, gcp: GcpRows | None = None,
-                        gcp_min_redundancy: float = 10.0, shared_offset: bool = False) -> PrecisionFit:
+def camera_sigma_scales(
+    feature: NDArray[np.int64],
+    camera: NDArray[np.int64],
+    time_s: Array,
+    x: Array,
+    d: Array,
+    epipolar: Array,
+    sigma: Array,
+    knot_s: float = 60.0,
+    clip: float = 4.0,
+    min_redundancy: float = 30.0,
+    max_iter: int = 10,
+    tol: float = 0.01,
+    height_prior_m: float = 1000.0,
+    pointing: Pointing | None = None,
+    twin: dict[int, int] | None = None,
+    gcp: GcpRows | None = None,
+    gcp_min_redundancy: float = 10.0,
+    shared_offset: bool = False,
+) -> PrecisionFit:
     """Per-camera scales of the matching sigmas (see the module docstring).
 
     Arguments, one row per matched (non-defining) observation, ``n`` rows:
@@ -424,8 +480,11 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     if shared_offset and pointing is None:
         raise InputError("shared_offset", True, "pointing sensitivities too (the shared-attitude form)")
     if pointing is not None:
-        for name, v, shape in (("an_time_s", pointing.an_time_s, (n,)), ("camera_px_per_rad", pointing.camera_px_per_rad, (n, 2, 3)),
-                               ("an_px_per_rad", pointing.an_px_per_rad, (n, 2, 3))):
+        for name, v, shape in (
+            ("an_time_s", pointing.an_time_s, (n,)),
+            ("camera_px_per_rad", pointing.camera_px_per_rad, (n, 2, 3)),
+            ("an_px_per_rad", pointing.an_px_per_rad, (n, 2, 3)),
+        ):
             if np.shape(v) != shape or not np.all(np.isfinite(v)):
                 raise InputError(f"pointing.{name}", np.shape(v), f"finite values of shape {shape}")
         if gcp is not None:
@@ -454,14 +513,16 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
         if shared_offset:  # per feature: the height and a (line, sample) offset all its tie rows share
             e_blk = np.zeros((y_rows.size, 3))
             e_blk[:, 0] = e_rows
-            e_blk[0:2 * n:2, 1] = 1.0
-            e_blk[1:2 * n:2, 2] = 1.0
+            e_blk[0 : 2 * n : 2, 1] = 1.0
+            e_blk[1 : 2 * n : 2, 2] = 1.0
             offset["var"] = (0.5 * float(np.median(sigma[:n]))) ** 2
 
         def solve(w: Array) -> tuple[Array, dict[int, float]]:
             if shared_offset:
-                prior = np.array([1.0 / height_prior_m ** 2, 1.0 / offset["var"], 1.0 / offset["var"]])
-                res_r, hat, u, cov_u = _solve_blocks(a_rows, y_rows, e_blk, f_rows, feat_ids.size, np.repeat(w, 2), prior)
+                prior = np.array([1.0 / height_prior_m**2, 1.0 / offset["var"], 1.0 / offset["var"]])
+                res_r, hat, u, cov_u = _solve_blocks(
+                    a_rows, y_rows, e_blk, f_rows, feat_ids.size, np.repeat(w, 2), prior
+                )
                 # two pseudo-observations (the prior) per feature, each with redundancy 1 - p [N^-1]_kk
                 r_o = float(np.sum(2.0 - (cov_u[:, 1, 1] + cov_u[:, 2, 2]) / offset["var"]))
                 offset["redundancy"] = r_o
@@ -480,6 +541,7 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
 
         def solve(w: Array) -> tuple[Array, dict[int, float]]:
             return _solve(X, rows, feat_of, feat_ids.size, d, e, w, height_prior_m)
+
     scale = {c: 1.0 for c in rows}
     keep = np.ones(klass.size, bool)
     red: dict[int, float] = {}
@@ -501,7 +563,7 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     for it in range(1, max_iter + 1):
         w = np.where(keep, 1.0 / (sigma * per_row(scale)) ** 2, 0.0)
         res, red = solve(w)
-        z2 = np.sum(res ** 2, axis=1) / sigma ** 2  # against the stated sigma, both coordinates
+        z2 = np.sum(res**2, axis=1) / sigma**2  # against the stated sigma, both coordinates
         change = 0.0
         for c, r in rows.items():
             k = keep[r]
@@ -534,16 +596,25 @@ def camera_sigma_scales(feature: NDArray[np.int64], camera: NDArray[np.int64], t
     out.outlier = ~keep[:n]
     if offset:
         est = offset.get("redundancy", 0.0) >= min_redundancy
-        out.shared_offset = SharedOffset(float(np.sqrt(offset["var"])) if est else 0.0,
-                                         float(max(offset.get("redundancy", 0.0), 0.0)), bool(est))
+        out.shared_offset = SharedOffset(
+            float(np.sqrt(offset["var"])) if est else 0.0, float(max(offset.get("redundancy", 0.0), 0.0)), bool(est)
+        )
     return out
 
 
 def _checked_gcp(gcp: GcpRows) -> GcpRows:
     """``gcp`` as float/int arrays, every field of the same length and finite (InputError naming the field)."""
     g = np.size(gcp.time_s)
-    shapes = {"gcp": (g,), "camera": (g,), "time_s": (g,), "x": (g,), "d": (g, 2), "sigma": (g,),
-              "camera_px_per_rad": (g, 2, 3), "ground_px_per_m": (g, 2, 3)}
+    shapes = {
+        "gcp": (g,),
+        "camera": (g,),
+        "time_s": (g,),
+        "x": (g,),
+        "d": (g, 2),
+        "sigma": (g,),
+        "camera_px_per_rad": (g, 2, 3),
+        "ground_px_per_m": (g, 2, 3),
+    }
     out = {}
     for name, shape in shapes.items():
         v = np.asarray(getattr(gcp, name), np.int64 if name in ("gcp", "camera") else float)

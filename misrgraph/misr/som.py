@@ -69,15 +69,185 @@ BLOCK1_CORNER_SOM = (7460750.0, 527450.0)
 
 #: Shift across the track (in 1.1 km pixels) of block b+1 against block b, for b = 1..179.
 RELATIVE_OFFSETS_1100: tuple[int, ...] = (
-    0, 16, 0, 16, 0, 0, 0, 16, 0, 0, 0, 0, 16, 0, 0, 0, 0, 0, 0, 0,
-    0, 0, 0, 0, 0, 0, -16, 0, 0, 0, -16, 0, 0, -16, 0, 0, -16, 0, -16, 0,
-    -16, 0, -16, -16, 0, -16, 0, -16, -16, 0, -16, -16, -16, 0, -16, -16, -16, -16, 0, -16,
-    -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16,
-    -16, -16, -16, -16, -32, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -32, -16, -16, -16, -16,
-    -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, -16, 0,
-    -16, -16, -16, -16, -16, 0, -16, -16, -16, 0, -16, -16, 0, -16, 0, -16, -16, 0, -16, 0,
-    -16, 0, 0, -16, 0, -16, 0, 0, -16, 0, 0, 0, 0, -16, 0, 0, 0, 0, 0, 0,
-    0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 16, 0, 0, 16, 0, 0, 16, 0,
+    0,
+    16,
+    0,
+    16,
+    0,
+    0,
+    0,
+    16,
+    0,
+    0,
+    0,
+    0,
+    16,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    -16,
+    0,
+    0,
+    0,
+    -16,
+    0,
+    0,
+    -16,
+    0,
+    0,
+    -16,
+    0,
+    -16,
+    0,
+    -16,
+    0,
+    -16,
+    -16,
+    0,
+    -16,
+    0,
+    -16,
+    -16,
+    0,
+    -16,
+    -16,
+    -16,
+    0,
+    -16,
+    -16,
+    -16,
+    -16,
+    0,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -32,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -32,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    0,
+    -16,
+    -16,
+    -16,
+    -16,
+    -16,
+    0,
+    -16,
+    -16,
+    -16,
+    0,
+    -16,
+    -16,
+    0,
+    -16,
+    0,
+    -16,
+    -16,
+    0,
+    -16,
+    0,
+    -16,
+    0,
+    0,
+    -16,
+    0,
+    -16,
+    0,
+    0,
+    -16,
+    0,
+    0,
+    0,
+    0,
+    -16,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    0,
+    16,
+    0,
+    0,
+    16,
+    0,
+    0,
+    16,
+    0,
 )
 assert len(RELATIVE_OFFSETS_1100) == N_BLOCKS - 1
 
@@ -143,9 +313,11 @@ class SomGrid:
     @property
     def block_offsets(self) -> NDArray[np.int64]:
         """Cumulative cross-track offset of each block (180,), in pixels of this resolution."""
-        rel = np.asarray(RELATIVE_OFFSETS_1100, dtype=np.int64) * (_BASE_RES // self.resolution_m) \
-            if self.resolution_m <= _BASE_RES else \
-            np.asarray(RELATIVE_OFFSETS_1100, dtype=np.int64) // (self.resolution_m // _BASE_RES)
+        rel = (
+            np.asarray(RELATIVE_OFFSETS_1100, dtype=np.int64) * (_BASE_RES // self.resolution_m)
+            if self.resolution_m <= _BASE_RES
+            else np.asarray(RELATIVE_OFFSETS_1100, dtype=np.int64) // (self.resolution_m // _BASE_RES)
+        )
         return np.concatenate([[0], np.cumsum(rel)])
 
     @property
@@ -159,9 +331,16 @@ class SomGrid:
 
         Raises :class:`InputError` naming the first block outside 1..180, or line/sample outside
         [-0.5, nline - 0.5] / [-0.5, nsample - 0.5]."""
-        b, ln, s = np.broadcast_arrays(np.asarray(block), np.asarray(line, dtype=float), np.asarray(sample, dtype=float))
+        b, ln, s = np.broadcast_arrays(
+            np.asarray(block), np.asarray(line, dtype=float), np.asarray(sample, dtype=float)
+        )
         bf = b.astype(float)
-        _first_bad("block", bf, ~np.isfinite(bf) | (bf != np.round(bf)) | (bf < 1) | (bf > N_BLOCKS), f"an integer in 1..{N_BLOCKS}")
+        _first_bad(
+            "block",
+            bf,
+            ~np.isfinite(bf) | (bf != np.round(bf)) | (bf < 1) | (bf > N_BLOCKS),
+            f"an integer in 1..{N_BLOCKS}",
+        )
         _first_bad("line", ln, ~(ln >= -0.5) | ~(ln <= self.nline - 0.5), f"a line in [-0.5, {self.nline - 0.5}]")
         _first_bad("sample", s, ~(s >= -0.5) | ~(s <= self.nsample - 0.5), f"a sample in [-0.5, {self.nsample - 0.5}]")
         bi = bf.astype(np.int64)
@@ -170,7 +349,9 @@ class SomGrid:
         y = BLOCK1_CORNER_SOM[1] + r / 2 + (s + self.block_offsets[bi - 1]) * r
         return x, y
 
-    def somxy_to_bls(self, som_x: ArrayLike, som_y: ArrayLike, *, strict: bool = True) -> tuple[NDArray[np.int64], Array, Array]:
+    def somxy_to_bls(
+        self, som_x: ArrayLike, som_y: ArrayLike, *, strict: bool = True
+    ) -> tuple[NDArray[np.int64], Array, Array]:
         """(block, line, sample) of SOM (x, y) metres.
 
         A point on no block (before block 1, after block 180, or beside its block's samples)
@@ -211,7 +392,11 @@ class SomGrid:
         if strict and not np.all(ok):
             k = np.unravel_index(int(np.flatnonzero(~ok.ravel())[0]), ok.shape) if ok.ndim else ()
             xv, yv = (float(x[k]), float(y[k])) if k else (float(x), float(y))
-            why = "a SOM x inside blocks 1..180" if not (ok_b[k] if k else bool(ok_b)) else "a SOM y inside its block's samples"
+            why = (
+                "a SOM x inside blocks 1..180"
+                if not (ok_b[k] if k else bool(ok_b))
+                else "a SOM y inside its block's samples"
+            )
             raise InputError("som_x, som_y", (xv, yv), f"{why} of path {self.path} at {self.resolution_m} m")
         bi = np.where(ok, bi, 0)
         return bi, np.where(ok, line, np.nan), np.where(ok, sample, np.nan)
@@ -235,11 +420,16 @@ class SomGrid:
         bad = ~np.isfinite(lat) | ~np.isfinite(lon)
         if np.any(bad):
             k = np.unravel_index(int(np.flatnonzero(bad.ravel())[0]), bad.shape) if bad.ndim else ()
-            raise InputError("som_x, som_y", (float(x[k]), float(y[k])) if k else (float(x), float(y)),
-                             f"a point PROJ can invert on path {self.path}'s SOM")
+            raise InputError(
+                "som_x, som_y",
+                (float(x[k]), float(y[k])) if k else (float(x), float(y)),
+                f"a point PROJ can invert on path {self.path}'s SOM",
+            )
         return lat, lon
 
-    def latlon_to_bls(self, lat: ArrayLike, lon: ArrayLike, *, strict: bool = True) -> tuple[NDArray[np.int64], Array, Array]:
+    def latlon_to_bls(
+        self, lat: ArrayLike, lon: ArrayLike, *, strict: bool = True
+    ) -> tuple[NDArray[np.int64], Array, Array]:
         """(block, line, sample) of geodetic latitude/longitude (deg); see :meth:`somxy_to_bls`."""
         return self.somxy_to_bls(*self.latlon_to_somxy(lat, lon), strict=strict)
 
@@ -251,8 +441,15 @@ class SomGrid:
     def block_centres(self, block: int, step: int = 1) -> tuple[Array, Array]:
         """SOM (x, y) metres of the pixel centres of ``block``, each ``(nline // step, nsample // step)``
         (every ``step``-th line and sample, starting at 0)."""
-        if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1 \
-                or self.nline % step or self.nsample % step:
+        if (
+            isinstance(step, bool)
+            or not isinstance(step, (int, np.integer))
+            or step < 1
+            or self.nline % step
+            or self.nsample % step
+        ):
             raise InputError("step", step, f"a positive divisor of {self.nline} and {self.nsample}")
-        ln, s = np.meshgrid(np.arange(0, self.nline, step, dtype=float), np.arange(0, self.nsample, step, dtype=float), indexing="ij")
+        ln, s = np.meshgrid(
+            np.arange(0, self.nline, step, dtype=float), np.arange(0, self.nsample, step, dtype=float), indexing="ij"
+        )
         return self.bls_to_somxy(np.full(ln.shape, block), ln, s)

@@ -7,8 +7,8 @@ with ``T_si = Rz(wz) Ry(wy) Rx(wx)`` (instrument -> spacecraft, common to all ca
 camera about its along-track line axis, beta then tilts it fore/aft, positive forward; the
 boresight's cross-track component is ``-sin(delta)`` whatever beta is, which is how MISR's
 delta compensates Earth rotation) and ``T_cd = Rz(eps)`` (detector -> camera, about the boresight).
-Axes: x along track (forward), y right of the flight direction, z nadir. Units: radians, metres, pixels. ``alpha_i`` is in pixel^-i, so that
-``f * alpha_1 = 21 um`` is the cross-track pitch and ``f * sum alpha_i (s - c_y)^i`` is the
+Axes: x along track (forward), y right of the flight direction, z nadir. Units: radians, metres, pixels. ``alpha_i``
+is in pixel^-i, so that ``f * alpha_1 = 21 um`` is the cross-track pitch and ``f * sum alpha_i (s - c_y)^i`` is the
 cross-track focal-plane coordinate in metres.
 
 The parameters are data: :class:`CameraModel` is a dataclass; :mod:`misrgraph.io.camera` reads and
@@ -27,8 +27,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.geometry import detector_vector, rot_x, rot_y, rot_z
-from misrgraph.model.constants import BANDS, CAMERAS, LINE_TIME_S, N_PIXELS, PITCH_ALONG_M, PITCH_CROSS_M
 from misrgraph.errors import InputError
+from misrgraph.model.constants import BANDS, CAMERAS, LINE_TIME_S, N_PIXELS, PITCH_ALONG_M, PITCH_CROSS_M
 
 __all__ = ["CameraModel", "TabulatedCameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "validate_pixel_inputs"]
 
@@ -49,9 +49,9 @@ class CameraModel:
     Shapes: ``omega (3,)`` as (wx, wy, wz); ``delta, beta, epsilon (9,)``;
     ``focal_length, k, cy (9, 4)``; ``alpha (9, 4, 6)``; ``band_delta, band_beta, band_epsilon
     (9, 4)``: each band's own angle offsets (rad), added to the camera's angles for that band's
-    line array (zero unless a per-band calibration or truth sets them; see :meth:`angles`). ``dx``/``dy`` are the along/cross-track
-    detector pitches (m); ``line_time`` the line repeat time (s); ``temperature_c`` the
-    temperature (deg C) at which the parameters hold.
+    line array (zero unless a per-band calibration or truth sets them; see :meth:`angles`).
+    ``dx``/``dy`` are the along/cross-track detector pitches (m); ``line_time`` the line repeat
+    time (s); ``temperature_c`` the temperature (deg C) at which the parameters hold.
     """
 
     omega: Array
@@ -72,9 +72,17 @@ class CameraModel:
     band_epsilon: Array = field(default_factory=lambda: np.zeros((NC, NB)))
 
     _SHAPES = {
-        "omega": (3,), "delta": (NC,), "beta": (NC,), "epsilon": (NC,),
-        "focal_length": (NC, NB), "alpha": (NC, NB, N_ALPHA), "k": (NC, NB), "cy": (NC, NB),
-        "band_delta": (NC, NB), "band_beta": (NC, NB), "band_epsilon": (NC, NB),
+        "omega": (3,),
+        "delta": (NC,),
+        "beta": (NC,),
+        "epsilon": (NC,),
+        "focal_length": (NC, NB),
+        "alpha": (NC, NB, N_ALPHA),
+        "k": (NC, NB),
+        "cy": (NC, NB),
+        "band_delta": (NC, NB),
+        "band_beta": (NC, NB),
+        "band_epsilon": (NC, NB),
     }
 
     def __post_init__(self) -> None:
@@ -115,8 +123,12 @@ class CameraModel:
         else:
             raise InputError("camera parameter", param, "delta, beta, epsilon, f or alpha0..alpha5")
 
-    def corrected(self, corrections: "dict[int, ArrayLike]", params: tuple[str, ...] = ("delta", "beta", "epsilon"),
-                  sign: float = 1.0) -> "CameraModel":
+    def corrected(
+        self,
+        corrections: "dict[int, ArrayLike]",
+        params: tuple[str, ...] = ("delta", "beta", "epsilon"),
+        sign: float = 1.0,
+    ) -> "CameraModel":
         """A copy with camera-level corrections added (``sign=-1``: removed): ``corrections`` maps a
         camera index to its values in the order of ``params``."""
         m = self.copy()
@@ -137,7 +149,11 @@ class CameraModel:
         if band is None:
             return self.delta[c], self.beta[c], self.epsilon[c]
         b = np.asarray(band, dtype=int)
-        return self.delta[c] + self.band_delta[c, b], self.beta[c] + self.band_beta[c, b], self.epsilon[c] + self.band_epsilon[c, b]
+        return (
+            self.delta[c] + self.band_delta[c, b],
+            self.beta[c] + self.band_beta[c, b],
+            self.epsilon[c] + self.band_epsilon[c, b],
+        )
 
     def t_ic(self, cam: ArrayLike, band: ArrayLike | None = None) -> Array:
         """Camera -> instrument rotation ``Ry(beta) Rx(delta)`` for camera (and band) indices, (..., 3, 3)."""
@@ -153,7 +169,12 @@ class CameraModel:
         camera-level angles (no band offsets)."""
         c = np.asarray(cam, dtype=int)
         b = None if band is None else np.asarray(band, dtype=int)
-        if c.ndim and c.size > 1 and np.all(c == c.flat[0]) and (b is None or (b.shape == c.shape and np.all(b == b.flat[0]))):
+        if (
+            c.ndim
+            and c.size > 1
+            and np.all(c == c.flat[0])
+            and (b is None or (b.shape == c.shape and np.all(b == b.flat[0])))
+        ):
             # one camera/band for all (the common case): one matrix, broadcast
             one = self.detector_to_spacecraft(int(c.flat[0]), None if b is None else int(b.flat[0]))
             return np.broadcast_to(one, c.shape + (3, 3))
@@ -256,13 +277,17 @@ class TabulatedCameraModel:
             raise InputError("temperature table", temps.tolist(), "distinct temperatures")
         self.models = [models[i] for i in order]
         self.temperatures_c = temps[order]
-        lo, hi = (float(self.temperatures_c[0]), float(self.temperatures_c[-1])) if valid_range_c is None else valid_range_c
+        lo, hi = (
+            (float(self.temperatures_c[0]), float(self.temperatures_c[-1])) if valid_range_c is None else valid_range_c
+        )
         if not (np.isfinite(lo) and np.isfinite(hi) and lo <= self.temperatures_c[0] and hi >= self.temperatures_c[-1]):
             raise InputError("valid_range_c", (lo, hi), "finite (low, high) that contains the tabulated temperatures")
         self.valid_range_c = (float(lo), float(hi))
 
     @classmethod
-    def linear(cls, base: CameraModel, slopes: dict[str, Array], t_range_c: tuple[float, float]) -> "TabulatedCameraModel":
+    def linear(
+        cls, base: CameraModel, slopes: dict[str, Array], t_range_c: tuple[float, float]
+    ) -> "TabulatedCameraModel":
         """A model linear in temperature: ``base`` holds at ``base.temperature_c``; ``slopes`` per deg C,
         each of shape (9,): ``delta``, ``beta`` (rad/C) and ``focal_scale`` (1/C, the relative
         change of f with the focal-plane polynomial ``f alpha_i`` fixed, i.e. every alpha_i / (1 + x)).

@@ -36,8 +36,15 @@ N_PIXELS = 1504
 
 # View angle at the surface (deg), signed: forward cameras positive, aft negative.
 VIEW_ANGLE_DEG: dict[str, float] = {
-    "Df": 70.5, "Cf": 60.0, "Bf": 45.6, "Af": 26.1, "An": 0.0,
-    "Aa": -26.1, "Ba": -45.6, "Ca": -60.0, "Da": -70.5,
+    "Df": 70.5,
+    "Cf": 60.0,
+    "Bf": 45.6,
+    "Af": 26.1,
+    "An": 0.0,
+    "Aa": -26.1,
+    "Ba": -45.6,
+    "Ca": -60.0,
+    "Da": -70.5,
 }
 _F = {"A": 58.9e-3, "B": 73.4e-3, "C": 95.3e-3, "D": 123.7e-3}
 FOCAL_LENGTH_M: dict[str, float] = {c: _F[c[0]] for c in CAMERAS}

@@ -167,7 +167,9 @@ def bilinear(z: ArrayLike, r: Array, c: Array) -> Array:
 def _keys_weights(t: Array) -> tuple[Array, Array]:
     """Cubic-convolution weights (a = -0.5) of postings -1, 0, 1, 2 at fraction t, and d/dt."""
     t2, t3 = t * t, t * t * t
-    w = np.stack([-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1, -1.5 * t3 + 2 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2], -1)
+    w = np.stack(
+        [-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1, -1.5 * t3 + 2 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2], -1
+    )
     dw = np.stack([-1.5 * t2 + 2 * t - 0.5, 4.5 * t2 - 5 * t, -4.5 * t2 + 4 * t + 0.5, 1.5 * t2 - t], -1)
     return w, dw
 
@@ -250,7 +252,9 @@ def _cubic_convolution_windows(z: Array, tr: Array, tc: Array) -> tuple[Array, A
     return h, dh_dr, dh_dc, rms
 
 
-def _cubic_convolution(heights: Array, r: Array, c: Array, tile: NDArray[np.int64] | None = None) -> tuple[Array, Array, Array, Array]:
+def _cubic_convolution(
+    heights: Array, r: Array, c: Array, tile: NDArray[np.int64] | None = None
+) -> tuple[Array, Array, Array, Array]:
     """C1 bicubic (cubic convolution) on ``heights (R, C)`` or, with ``tile``, ``heights (T, R, C)``."""
     hh = heights if tile is not None else heights[None]
     t = tile if tile is not None else np.zeros(np.size(r), np.int64)
@@ -283,8 +287,11 @@ class DemTiles:
     def __post_init__(self) -> None:
         self.lat0 = np.asarray(self.lat0, dtype=float)
         self.lon0 = np.asarray(self.lon0, dtype=float)
-        self.lon_posting = (np.full(self.lat0.shape, float(self.posting_deg)) if self.lon_posting is None
-                            else np.asarray(self.lon_posting, dtype=float))
+        self.lon_posting = (
+            np.full(self.lat0.shape, float(self.posting_deg))
+            if self.lon_posting is None
+            else np.asarray(self.lon_posting, dtype=float)
+        )
         self.heights = np.asarray(self.heights, dtype=float)
         self.flags = np.asarray(self.flags, dtype=np.uint8)
         self.quality = np.asarray(self.quality, dtype=np.int64)
@@ -294,13 +301,21 @@ class DemTiles:
         if self.flags.shape != self.heights.shape:
             raise InputError("dem.flags", self.flags.shape, f"shape {self.heights.shape}")
         if self.lon0.shape != (t,) or self.quality.shape != (t,) or self.lon_posting.shape != (t,):
-            raise InputError("dem.lon0/quality/lon_posting", (self.lon0.shape, self.quality.shape, self.lon_posting.shape),
-                             f"shape ({t},)")
+            raise InputError(
+                "dem.lon0/quality/lon_posting",
+                (self.lon0.shape, self.quality.shape, self.lon_posting.shape),
+                f"shape ({t},)",
+            )
         if t and not (np.all(np.isfinite(self.lat0)) and np.all(np.abs(self.lat0) <= 90.0)):
-            raise InputError("dem.lat0", self.lat0[~(np.abs(self.lat0) <= 90.0)][:1].tolist(), "finite, within [-90, 90] deg")
+            raise InputError(
+                "dem.lat0", self.lat0[~(np.abs(self.lat0) <= 90.0)][:1].tolist(), "finite, within [-90, 90] deg"
+            )
         if t and not np.all(self.lat0 + (self.size - 1) * self.posting_deg <= 90.0 + 1e-9):
-            raise InputError("dem.lat0", float(self.lat0.max()), f"tiles ending at or below 90 deg "
-                                                                 f"(lat0 <= {90.0 - (self.size - 1) * self.posting_deg:.6f})")
+            raise InputError(
+                "dem.lat0",
+                float(self.lat0.max()),
+                f"tiles ending at or below 90 deg (lat0 <= {90.0 - (self.size - 1) * self.posting_deg:.6f})",
+            )
         if t and not (np.all(np.isfinite(self.lon_posting)) and np.all(self.lon_posting > 0)):
             raise InputError("dem.lon_posting", float(self.lon_posting.min()), "positive, finite (deg)")
         bad = set(np.unique(self.quality).tolist()) - set(QUALITY_SIGMA_M)
@@ -335,8 +350,9 @@ class DemTiles:
             cache[s] = DemTiles(self.lat0, self.lon0, h, self.flags, self.quality, self.posting_deg, self.lon_posting)
         return cache[s]
 
-    def tile_of(self, lat: ArrayLike, lon: ArrayLike, margin: int = 3,
-                hint: NDArray[np.int64] | None = None) -> NDArray[np.int64]:
+    def tile_of(
+        self, lat: ArrayLike, lon: ArrayLike, margin: int = 3, hint: NDArray[np.int64] | None = None
+    ) -> NDArray[np.int64]:
         """Index of a tile containing each point at least ``margin`` postings from its edge (-1 if none);
         among several, the tile whose centre is nearest.
 
@@ -382,21 +398,27 @@ class DemTiles:
     def posting_position(self, tile: NDArray[np.int64], row: ArrayLike, col: ArrayLike) -> tuple[Array, Array]:
         """(lat, lon) in deg (lon in [-180, 180)) of postings ``(row, col)`` of tiles ``tile``."""
         t = np.asarray(tile, np.int64)
-        return (self.lat0[t] + np.asarray(row, float) * self.posting_deg,
-                wrap_deg(self.lon0[t] + np.asarray(col, float) * self.lon_posting[t]))
+        return (
+            self.lat0[t] + np.asarray(row, float) * self.posting_deg,
+            wrap_deg(self.lon0[t] + np.asarray(col, float) * self.lon_posting[t]),
+        )
 
     def surface(self, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic") -> LocalSurface:
         """Local surface fit (eq. 8) at points; see :func:`fit_local_surface`."""
         return fit_local_surface(self, lat, lon, method)
 
-def fit_local_surface(dem: DemTiles, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic",
-                      hint: NDArray[np.int64] | None = None) -> LocalSurface:
+
+def fit_local_surface(
+    dem: DemTiles, lat: ArrayLike, lon: ArrayLike, method: str = "bicubic", hint: NDArray[np.int64] | None = None
+) -> LocalSurface:
     """Eq. 8 at points (deg): height above MSL, gradient (m/deg) and 1-sigma (m); ``hint``: the
     ``tile`` of an earlier result for the same points (see :meth:`DemTiles.tile_of`)."""
     la = np.atleast_1d(np.asarray(lat, dtype=float))
     lo = np.atleast_1d(np.asarray(lon, dtype=float))
     n = la.size
-    out = LocalSurface(np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool))
+    out = LocalSurface(
+        np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool)
+    )
     tile = dem.tile_of(la, lo, hint=hint)
     out.tile = tile
     sel = np.flatnonzero(tile >= 0)

@@ -22,11 +22,27 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.geometry import hermite_weights
-from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS, NODAL_PERIOD_S
 from misrgraph.errors import InputError
+from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS, NODAL_PERIOD_S
 
-__all__ = ["ATTITUDE_RATE_FACTOR", "ATTITUDE_DAMPING", "JITTER_PERIODS_S", "band_correlation", "spline_design",
-           "projected_band_covariance", "unresolved_band_sigma", "unresolved_attitude", "ephemeris_prior_covariance", "process_correlation", "fit_damping", "EphemerisErrorModel", "AttitudeErrorModel", "knots_to_remove", "interval_counts", "uniform_knots"]
+__all__ = [
+    "ATTITUDE_RATE_FACTOR",
+    "ATTITUDE_DAMPING",
+    "JITTER_PERIODS_S",
+    "band_correlation",
+    "spline_design",
+    "projected_band_covariance",
+    "unresolved_band_sigma",
+    "unresolved_attitude",
+    "ephemeris_prior_covariance",
+    "process_correlation",
+    "fit_damping",
+    "EphemerisErrorModel",
+    "AttitudeErrorModel",
+    "knots_to_remove",
+    "interval_counts",
+    "uniform_knots",
+]
 
 Array = NDArray[np.float64]
 
@@ -80,21 +96,27 @@ def process_correlation(tau: ArrayLike, lam: float, zeta: float) -> Array:
     return np.exp(-a) * (np.cosh(wd * t) + zeta * lam / wd * np.sinh(wd * t))
 
 
-def fit_damping(max_lag_s: float = 600.0, lam: float = ATTITUDE_RATE_FACTOR,
-                periods_s: tuple[float, float] = (200.0, 2000.0)) -> float:
+def fit_damping(
+    max_lag_s: float = 600.0, lam: float = ATTITUDE_RATE_FACTOR, periods_s: tuple[float, float] = (200.0, 2000.0)
+) -> float:
     """The damping ratio whose process correlation is closest in least squares (lags every 1 s
     up to ``max_lag_s``) to the band's (:func:`band_correlation`), rounded to 0.01."""
     from scipy.optimize import minimize_scalar
 
     tau = np.arange(0.0, max_lag_s + 0.5, 1.0)
     target = band_correlation(tau, periods_s)
-    res = minimize_scalar(lambda z: float(np.sum((process_correlation(tau, lam, z) - target) ** 2)),
-                          bounds=(0.05, 2.0), method="bounded", options={"xatol": 1e-5})
+    res = minimize_scalar(
+        lambda z: float(np.sum((process_correlation(tau, lam, z) - target) ** 2)),
+        bounds=(0.05, 2.0),
+        method="bounded",
+        options={"xatol": 1e-5},
+    )
     return round(float(res.x), 2)
 
 
-def _increasing_times(times: ArrayLike, field: str = "knot_times",
-                      expected: str = "at least 2 increasing times (s)") -> Array:
+def _increasing_times(
+    times: ArrayLike, field: str = "knot_times", expected: str = "at least 2 increasing times (s)"
+) -> Array:
     """``times`` (s) as a float array, refused (naming ``field``, expecting ``expected``) unless
     they are at least 2 strictly increasing values."""
     t = np.asarray(times, dtype=float)
@@ -111,8 +133,9 @@ class EphemerisErrorModel:
     params: Array
 
     def __post_init__(self) -> None:
-        self.boundaries = _increasing_times(self.boundaries, "ephemeris_error.boundaries",
-                                            "increasing segment boundaries (at least 2)")
+        self.boundaries = _increasing_times(
+            self.boundaries, "ephemeris_error.boundaries", "increasing segment boundaries (at least 2)"
+        )
         self.params = np.asarray(self.params, dtype=float)
         if self.params.shape != (self.boundaries.size - 1, 6):
             raise InputError("ephemeris_error.params", self.params.shape, f"shape ({self.boundaries.size - 1}, 6)")
@@ -130,7 +153,9 @@ class EphemerisErrorModel:
 
     def segment_of(self, t: ArrayLike) -> NDArray[np.int64]:
         """Index of the segment containing each time (times outside clamp to the end segments)."""
-        return np.clip(np.searchsorted(self.boundaries, np.asarray(t, dtype=float), side="right") - 1, 0, self.n_segments - 1)
+        return np.clip(
+            np.searchsorted(self.boundaries, np.asarray(t, dtype=float), side="right") - 1, 0, self.n_segments - 1
+        )
 
     def design(self, t: ArrayLike) -> tuple[NDArray[np.int64], Array]:
         """Segment index and ``de/dparams`` (``(N, 3, 6)``) at times ``t``: ``[(t - t_s) I, I]``."""
@@ -168,7 +193,9 @@ class AttitudeErrorModel:
         if len(self.knot_times) != 3 or len(self.knots) != 3:
             raise InputError("attitude_error", len(self.knot_times), "three angles (roll, pitch, yaw)")
         for a in range(3):
-            kt = _increasing_times(self.knot_times[a], f"attitude_error.knot_times[{ANGLES[a]}]", "at least 2 increasing times")
+            kt = _increasing_times(
+                self.knot_times[a], f"attitude_error.knot_times[{ANGLES[a]}]", "at least 2 increasing times"
+            )
             kv = np.asarray(self.knots[a], dtype=float)
             if kv.shape != (kt.size, 2):
                 raise InputError(f"attitude_error.knots[{ANGLES[a]}]", kv.shape, f"shape ({kt.size}, 2)")
@@ -206,8 +233,10 @@ class AttitudeErrorModel:
         from scipy.interpolate import CubicHermiteSpline
 
         tt = np.ravel(np.asarray(t, dtype=float))
-        return np.stack([CubicHermiteSpline(self.knot_times[a], self.knots[a][:, 0], self.knots[a][:, 1])(tt, 1)
-                         for a in range(3)], -1)
+        return np.stack(
+            [CubicHermiteSpline(self.knot_times[a], self.knots[a][:, 0], self.knots[a][:, 1])(tt, 1) for a in range(3)],
+            -1,
+        )
 
     def without(self, removed: list[NDArray[np.int64]]) -> "AttitudeErrorModel":
         """A copy with knots removed per angle (indices into the current knots)."""
@@ -232,8 +261,9 @@ def spline_design(knot_times: ArrayLike, t: ArrayLike) -> Array:
     return design
 
 
-def projected_band_covariance(knot_times: ArrayLike, sigma: float, periods_s: tuple[float, float] = JITTER_PERIODS_S,
-                              step_s: float = 1.0) -> Array:
+def projected_band_covariance(
+    knot_times: ArrayLike, sigma: float, periods_s: tuple[float, float] = JITTER_PERIODS_S, step_s: float = 1.0
+) -> Array:
     """Covariance ``(2K, 2K)`` of the spline's share of a stationary error: the least-squares
     projection onto the Hermite spline on ``knot_times`` of an error ``e(t)`` with 1 sigma
     ``sigma`` (rad) and periods log-uniform in ``periods_s`` (s; correlation :func:`band_correlation`),
@@ -252,7 +282,11 @@ def projected_band_covariance(knot_times: ArrayLike, sigma: float, periods_s: tu
 
     kt = _increasing_times(knot_times)
     if not (sigma >= 0 and step_s > 0 and 0 < periods_s[0] < periods_s[1]):
-        raise InputError("(sigma, periods_s, step_s)", (sigma, periods_s, step_s), "sigma >= 0, 0 < period_min < period_max, step > 0")
+        raise InputError(
+            "(sigma, periods_s, step_s)",
+            (sigma, periods_s, step_s),
+            "sigma >= 0, 0 < period_min < period_max, step > 0",
+        )
     t = np.arange(kt[0], kt[-1] + 0.5 * step_s, step_s)
     design = spline_design(kt, t)
     m = np.linalg.solve(design.T @ design, design.T)
@@ -261,8 +295,9 @@ def projected_band_covariance(knot_times: ArrayLike, sigma: float, periods_s: tu
     return sigma**2 * 0.5 * (cov + cov.T)
 
 
-def unresolved_band_sigma(knot_times: ArrayLike, sigma: float, periods_s: tuple[float, float] = JITTER_PERIODS_S,
-                          step_s: float = 1.0) -> float:
+def unresolved_band_sigma(
+    knot_times: ArrayLike, sigma: float, periods_s: tuple[float, float] = JITTER_PERIODS_S, step_s: float = 1.0
+) -> float:
     """RMS over the knots' span (rad) of the part of a stationary error (1 sigma ``sigma`` rad,
     periods log-uniform in ``periods_s`` s) that the spline on ``knot_times`` cannot take up: the
     residual of its least-squares projection (:func:`projected_band_covariance`, ``Cov(k)``),
@@ -284,8 +319,9 @@ def unresolved_band_sigma(knot_times: ArrayLike, sigma: float, periods_s: tuple[
     return float(sigma * np.sqrt(max(1.0 - share, 0.0)))
 
 
-def unresolved_attitude(knot_times: list[Array], jitter_arcsec: float,
-                        periods_s: tuple[float, float] = JITTER_PERIODS_S) -> float:
+def unresolved_attitude(
+    knot_times: list[Array], jitter_arcsec: float, periods_s: tuple[float, float] = JITTER_PERIODS_S
+) -> float:
     """1 sigma (rad) of the attitude jitter the knots cannot follow: per angle
     :func:`~misrgraph.model.errormodels.unresolved_band_sigma` of a jitter of ``jitter_arcsec``
     (1 sigma, arcsec) with periods log-uniform in ``periods_s`` (s) on that angle's knots, then the
@@ -306,8 +342,14 @@ def _projected_share(spacings: tuple[float, ...], periods_s: tuple[float, float]
     return float(np.einsum("ni,ij,nj->", design, cov, design)) / design.shape[0]
 
 
-def ephemeris_prior_covariance(boundaries: ArrayLike, a_sigma_mps: ArrayLike, b_sigma_m: float, amplitude_m: float,
-                               period_s: float | None = None, step_s: float = 5.0) -> Array:
+def ephemeris_prior_covariance(
+    boundaries: ArrayLike,
+    a_sigma_mps: ArrayLike,
+    b_sigma_m: float,
+    amplitude_m: float,
+    period_s: float | None = None,
+    step_s: float = 5.0,
+) -> Array:
     """Covariance ``(6 S, 6 S)`` of the eq. 19 parameters of ``S`` segments (``boundaries (S+1,)``
     s; per segment ``[a_x, a_y, a_z, b_x, b_y, b_z]`` as :class:`EphemerisErrorModel` orders them,
     segment after segment) when the ephemeris error of each orbital axis ``k`` is the process
@@ -322,15 +364,19 @@ def ephemeris_prior_covariance(boundaries: ArrayLike, a_sigma_mps: ArrayLike, b_
     four variables ``(b, a, c, d)``, so the covariance is regular for one or two segments and
     :class:`~misrgraph.errors.InputError` names ``ephemeris_segments`` for more while
     ``amplitude_m > 0``. Two segments follow the term's curvature over a long pass (over 45
-    minutes one line leaves ~0.19 of its amplitude, RMS, that no offset and drift can take). With ``amplitude_m = 0`` and one
-    segment it is ``diag(a_sigma^2, b_sigma^2)``, the plain eq. 19 prior."""
+    minutes one line leaves ~0.19 of its amplitude, RMS, that no offset and drift can take). With ``amplitude_m =
+    0`` and one segment it is ``diag(a_sigma^2, b_sigma^2)``, the plain eq. 19 prior."""
     edges = _increasing_times(boundaries, "ephemeris boundaries", "increasing segment boundaries (at least 2)")
     if not (np.isfinite(amplitude_m) and amplitude_m >= 0):
         raise InputError("ephemeris_once_per_rev_m", amplitude_m, "a 1 sigma amplitude >= 0 (m)")
     n_seg = edges.size - 1
     if amplitude_m > 0 and n_seg > 2:
-        raise InputError("ephemeris_segments", n_seg, "1 or 2 with a once-per-revolution term (an offset, a drift and "
-                                                      "the term are 4 variables per axis: more segments are not determined)")
+        raise InputError(
+            "ephemeris_segments",
+            n_seg,
+            "1 or 2 with a once-per-revolution term (an offset, a drift and "
+            "the term are 4 variables per axis: more segments are not determined)",
+        )
     w = 2 * np.pi / (NODAL_PERIOD_S if period_s is None else period_s)
     a_sig = np.broadcast_to(np.asarray(a_sigma_mps, dtype=float), (3,))
     # per segment: the least-squares line's (slope, value at the segment start) per unit of each variable

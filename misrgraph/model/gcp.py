@@ -64,7 +64,9 @@ class GcpDatabase:
         for name in ("lat", "lon", "height", "sigma_m"):
             arr = np.asarray(getattr(self, name), dtype=float)
             if arr.shape != (g,) and not (name == "sigma_m" and arr.shape == (g, 3)):
-                raise InputError(f"gcp.{name}", arr.shape, f"shape ({g},)" + (f" or ({g}, 3)" if name == "sigma_m" else ""))
+                raise InputError(
+                    f"gcp.{name}", arr.shape, f"shape ({g},)" + (f" or ({g}, 3)" if name == "sigma_m" else "")
+                )
             setattr(self, name, arr)
         if np.any(np.abs(self.lat) > 90):
             raise InputError("gcp.lat", float(self.lat[np.abs(self.lat) > 90][0]), "latitudes within -90..90 deg")
@@ -75,13 +77,19 @@ class GcpDatabase:
         if self.chips is not None and self.chips.shape[:2] != (g, 9):
             raise InputError("gcp.chips", self.chips.shape, f"shape ({g}, 9, 64, 64)")
         if (self.scene is None) != (self.scene_sigma_m is None):
-            raise InputError("gcp.scene_sigma_m", None if self.scene_sigma_m is None else "given",
-                             "scene and scene_sigma_m together (the source scene of each GCP and its shared sigma)")
+            raise InputError(
+                "gcp.scene_sigma_m",
+                None if self.scene_sigma_m is None else "given",
+                "scene and scene_sigma_m together (the source scene of each GCP and its shared sigma)",
+            )
         if self.scene is not None:
             sc = np.asarray(self.scene)
             if sc.shape != (g,) or not np.all(sc == np.round(sc)) or np.any(sc < -1):
-                raise InputError("gcp.scene", sc.shape if sc.shape != (g,) else sc[(sc != np.round(sc)) | (sc < -1)][:1].tolist(),
-                                 f"shape ({g},) whole numbers >= -1 (-1: no source scene)")
+                raise InputError(
+                    "gcp.scene",
+                    sc.shape if sc.shape != (g,) else sc[(sc != np.round(sc)) | (sc < -1)][:1].tolist(),
+                    f"shape ({g},) whole numbers >= -1 (-1: no source scene)",
+                )
             self.scene = sc.astype(np.int64)
             ss = np.asarray(self.scene_sigma_m, dtype=float)
             if ss.shape != (g,):
@@ -89,14 +97,20 @@ class GcpDatabase:
             smin = self.sigma_m if self.sigma_m.ndim == 1 else self.sigma_m.min(axis=1)
             bad = np.flatnonzero(~((ss >= 0) & ((ss < smin) | (self.scene < 0))))
             if bad.size:
-                raise InputError(f"gcp.scene_sigma_m[{bad[0]}]", float(ss[bad[0]]),
-                                 f">= 0 and below the GCP's sigma_m ({float(smin[bad[0]])} m): the shared part of it")
+                raise InputError(
+                    f"gcp.scene_sigma_m[{bad[0]}]",
+                    float(ss[bad[0]]),
+                    f">= 0 and below the GCP's sigma_m ({float(smin[bad[0]])} m): the shared part of it",
+                )
             self.scene_sigma_m = np.where(self.scene >= 0, ss, 0.0)
             for sc_id in np.unique(self.scene[self.scene >= 0]):
                 vals = self.scene_sigma_m[self.scene == sc_id]
                 if np.ptp(vals) > 1e-9 * max(1.0, float(vals.max())):
-                    raise InputError(f"gcp.scene_sigma_m of scene {int(sc_id)}", vals.tolist()[:4],
-                                     "one value for all the GCPs of a source scene")
+                    raise InputError(
+                        f"gcp.scene_sigma_m of scene {int(sc_id)}",
+                        vals.tolist()[:4],
+                        "one value for all the GCPs of a source scene",
+                    )
 
     def __len__(self) -> int:
         return int(self.id.size)
@@ -107,7 +121,11 @@ class GcpDatabase:
 
     def covariance_ecef(self) -> Array:
         """Full ECEF covariance ``(G, 3, 3)`` from sigma per ENU axis: ``R diag(s^2) R^T``."""
-        return enu_covariance(np.radians(self.lat), np.radians(self.lon), self.sigma_m if self.sigma_m.ndim == 2 else self.sigma_m[:, None])
+        return enu_covariance(
+            np.radians(self.lat),
+            np.radians(self.lon),
+            self.sigma_m if self.sigma_m.ndim == 2 else self.sigma_m[:, None],
+        )
 
     def own_covariance_ecef(self) -> Array:
         """ECEF covariance ``(G, 3, 3)`` of each GCP's own error: ``sigma_m^2 - scene_sigma_m^2``

@@ -22,14 +22,23 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.geometry import attitude_matrix, orbital_frame
+from misrgraph.errors import ConvergenceError, InputError
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import BANDS, CAMERAS, N_PIXELS
-from misrgraph.errors import ConvergenceError, InputError
 from misrgraph.model.frames import WGS84_A, WGS84_B, EarthOrientation, ecef_to_geodetic, enu_basis
 from misrgraph.model.orbit import AttitudeSeries, Ephemeris
 
-__all__ = ["PassGeometry", "NavState", "ImagePoints", "ray_ellipsoid", "cast_from", "cast_first", "cast_seen",
-           "hidden_from_camera", "hidden_in_image"]
+__all__ = [
+    "PassGeometry",
+    "NavState",
+    "ImagePoints",
+    "ray_ellipsoid",
+    "cast_from",
+    "cast_first",
+    "cast_seen",
+    "hidden_from_camera",
+    "hidden_in_image",
+]
 
 Array = NDArray[np.float64]
 Correction = Callable[[Array], Array]
@@ -153,9 +162,20 @@ class PassGeometry:
         ``exposure`` (optional) is the integer exposure index ``L``; by default ``INT(l + 0.5)``;
         NaN marks a continuous position (``L = l``). The focal-plane fraction is always ``l - L``.
         """
-        c, b, ln, s = (np.ravel(x) for x in np.broadcast_arrays(
-            np.asarray(cam, dtype=int), np.asarray(band, dtype=int), np.asarray(line, dtype=float), np.asarray(sample, dtype=float)))
-        big_l = np.floor(ln + 0.5) if exposure is None else np.ravel(np.broadcast_to(np.asarray(exposure, dtype=float), ln.shape))
+        c, b, ln, s = (
+            np.ravel(x)
+            for x in np.broadcast_arrays(
+                np.asarray(cam, dtype=int),
+                np.asarray(band, dtype=int),
+                np.asarray(line, dtype=float),
+                np.asarray(sample, dtype=float),
+            )
+        )
+        big_l = (
+            np.floor(ln + 0.5)
+            if exposure is None
+            else np.ravel(np.broadcast_to(np.asarray(exposure, dtype=float), ln.shape))
+        )
         big_l = np.where(np.isnan(big_l), ln, big_l)  # NaN: a continuous position (time from the line)
         if np.any((c < 0) | (c >= len(CAMERAS))):
             raise InputError("camera", c[(c < 0) | (c >= len(CAMERAS))][0], f"an index in 0..{len(CAMERAS) - 1}")
@@ -184,15 +204,20 @@ class PassGeometry:
 
         Without ``surface`` the ground is the WGS84 ellipsoidal height ``height`` (m). With
         ``surface(lat_deg, lon_deg) -> h`` (ellipsoidal m) the ray is cast onto that height field
-        by a bracketed root search (:func:`scipy.optimize.elementwise.find_root`) between the heights ``surface`` can take,
-        which are estimated along the ray; the first crossing from above is not guaranteed where
+        by a bracketed root search (:func:`scipy.optimize.elementwise.find_root`) between the heights ``surface``
+        can take, which are estimated along the ray; the first crossing from above is not guaranteed where
         terrain occludes itself. Rays that miss the Earth give NaN.
         """
         origin, direction = self.pixel_rays(cam, band, line, sample, exposure)
         n = origin.shape[0]
         if surface is None:
-            h_target = np.broadcast_to(np.asarray(height, dtype=float), (n,)) if np.ndim(height) else np.full(n, float(height))
-            h_fun: Callable[[Array, Array, Array], Array] = lambda lat, lon, idx: h_target[idx]
+            h_target = (
+                np.broadcast_to(np.asarray(height, dtype=float), (n,)) if np.ndim(height) else np.full(n, float(height))
+            )
+
+            def h_fun(lat: Array, lon: Array, idx: Array) -> Array:
+                return h_target[idx]
+
             lo_h, hi_h = h_target - 50.0, h_target + 50.0
         else:
             return _cast_onto(origin, direction, surface, tol_m)
@@ -206,8 +231,9 @@ class PassGeometry:
         ln = np.asarray(lines, dtype=float).ravel()
         s = np.asarray(samples, dtype=float).ravel()
         nav = self.nav_state(self.line_time(cam, band, ln, ln))
-        r_scs = self.camera.direction_scs(np.full(s.size, cam), np.full(s.size, band), np.zeros(s.size), s,
-                                          exposure=np.zeros(s.size))
+        r_scs = self.camera.direction_scs(
+            np.full(s.size, cam), np.full(s.size, band), np.zeros(s.size), s, exposure=np.zeros(s.size)
+        )
         to_ecef = np.einsum("lij,ljk->lik", nav.eci_to_ecef, nav.r_eci_scs)
         origin = np.einsum("lij,lj->li", nav.eci_to_ecef, nav.position)
         return origin, np.einsum("lij,sj->lsi", to_ecef, r_scs)
@@ -230,8 +256,9 @@ class PassGeometry:
         with np.errstate(divide="ignore", invalid="ignore"):
             return f * v_det[..., 0] / v_det[..., 2], f * v_det[..., 1] / v_det[..., 2], v_det[..., 2]
 
-    def ground_to_pixel(self, cam: ArrayLike, band: ArrayLike, ground: ArrayLike, coarse_step_s: float = 10.0,
-                        continuous: bool = False) -> ImagePoints:
+    def ground_to_pixel(
+        self, cam: ArrayLike, band: ArrayLike, ground: ArrayLike, coarse_step_s: float = 10.0, continuous: bool = False
+    ) -> ImagePoints:
         """Image coordinates at which camera ``cam``/band ``band`` sees ECEF ground points.
 
         The continuous time ``t*`` at which the point crosses the band's line array (detector
@@ -276,7 +303,10 @@ class PassGeometry:
         exposure = np.full(n, np.nan)
         crossing = np.full(n, np.nan)
         if idx.size:
-            f_t = lambda tt, ii: self._along_cross(c[ii], b[ii], g[ii], tt)[0] + k[ii]
+
+            def f_t(tt, ii):
+                return self._along_cross(c[ii], b[ii], g[ii], tt)[0] + k[ii]
+
             t_star = _find_root(f_t, grid[j[idx]], grid[j[idx] + 1], tol=1e-9 if continuous else 1e-7, index=idx)
             assert self.t0 is not None
             dt = self.camera.line_time
@@ -295,7 +325,10 @@ class PassGeometry:
             exposure[idx] = np.where(inside, big_l, np.nan)
             sample[idx] = np.where(inside, self.camera.sample_from_focal_plane_y(c[idx], b[idx], yl), np.nan)
         visible = np.isfinite(line) & np.isfinite(sample) & (sample >= -0.5) & (sample <= N_PIXELS - 0.5)
-        nan = lambda a: np.where(visible, a, np.nan)
+
+        def nan(a):
+            return np.where(visible, a, np.nan)
+
         return ImagePoints(nan(line), nan(sample), visible, nan(exposure), nan(crossing))
 
     def line_rate(self, cam: ArrayLike, band: ArrayLike, ground: ArrayLike, t: ArrayLike) -> Array:
@@ -334,8 +367,16 @@ class PassGeometry:
         return along, cross, up
 
 
-def cast_from(origin: Array, direction: Array, lam0: Array, surface: Callable[[Array, Array], Array],
-              tol_m: float = 0.05, max_iter: int = 8, step_m: float = 20.0, fallback: bool = True) -> Array:
+def cast_from(
+    origin: Array,
+    direction: Array,
+    lam0: Array,
+    surface: Callable[[Array, Array], Array],
+    tol_m: float = 0.05,
+    max_iter: int = 8,
+    step_m: float = 20.0,
+    fallback: bool = True,
+) -> Array:
     """Rays ``origin + lam direction`` (``(N, 3)`` ECEF m, unit directions) cast onto the height
     field ``surface(lat, lon)`` (ellipsoidal m) by secant steps on ``h(lam) - surface(lam)`` from a
     guess ``lam0 (N,)`` (e.g. a neighbouring pixel's solution); rays that have not converged to
@@ -372,9 +413,16 @@ def cast_from(origin: Array, direction: Array, lam0: Array, surface: Callable[[A
     return out
 
 
-def cast_first(origin: Array, direction: Array, surface: Callable[[Array, Array], Array], lam_end: Array,
-               climb_m: float = 3000.0, max_step_m: float = 200.0, max_slope: float = 1.5,
-               tol_m: float = 0.05) -> Array:
+def cast_first(
+    origin: Array,
+    direction: Array,
+    surface: Callable[[Array, Array], Array],
+    lam_end: Array,
+    climb_m: float = 3000.0,
+    max_step_m: float = 200.0,
+    max_slope: float = 1.5,
+    tol_m: float = 0.05,
+) -> Array:
     """Where rays ``origin + lam direction`` (``(N, 3)`` ECEF m, unit directions) first meet the
     height field ``surface(lat, lon)`` (ellipsoidal m) coming from the camera: the first crossing
     from above, which is the ground the pixel sees even where terrain hides farther ground (the
@@ -431,8 +479,13 @@ def cast_first(origin: Array, direction: Array, surface: Callable[[Array, Array]
     return out
 
 
-def cast_seen(origin: Array, direction: Array, surface: Callable[[Array, Array], Array], climb_m: float = 3000.0,
-              tol_m: float = 0.05) -> Array:
+def cast_seen(
+    origin: Array,
+    direction: Array,
+    surface: Callable[[Array, Array], Array],
+    climb_m: float = 3000.0,
+    tol_m: float = 0.05,
+) -> Array:
     """The ground rays ``(N, 3)`` see on ``surface``: a crossing by the bracketed search, then the
     first crossing from the camera before it (:func:`cast_first`, searched from ``climb_m`` above
     that crossing). NaN where a ray misses."""
@@ -441,8 +494,14 @@ def cast_seen(origin: Array, direction: Array, surface: Callable[[Array, Array],
     return cast_first(origin, direction, surface, lam, climb_m=climb_m, tol_m=tol_m)
 
 
-def hidden_from_camera(origin: Array, direction: Array, ground: Array, surface: Callable[[Array, Array], Array],
-                       min_distance_m: float = 137.5, climb_m: float = 3000.0) -> NDArray[np.bool_]:
+def hidden_from_camera(
+    origin: Array,
+    direction: Array,
+    ground: Array,
+    surface: Callable[[Array, Array], Array],
+    min_distance_m: float = 137.5,
+    climb_m: float = 3000.0,
+) -> NDArray[np.bool_]:
     """``(N,)``: whether ``surface`` hides each ECEF point ``ground (N, 3)`` from the camera whose
     ray towards it is ``origin + lam direction`` (``(N, 3)``): the ray meets the surface first
     (:func:`cast_first`) more than ``min_distance_m`` (default half a 275 m pixel) before the
@@ -453,9 +512,16 @@ def hidden_from_camera(origin: Array, direction: Array, ground: Array, surface: 
     return np.isfinite(dist) & (dist > min_distance_m)
 
 
-def hidden_in_image(geo: "PassGeometry", cams: NDArray[np.int64], band: int, points: ImagePoints, ground: Array,
-                    surface: Callable[[Array, Array], Array], min_distance_m: float = 137.5,
-                    climb_m: float = 3000.0) -> NDArray[np.bool_]:
+def hidden_in_image(
+    geo: "PassGeometry",
+    cams: NDArray[np.int64],
+    band: int,
+    points: ImagePoints,
+    ground: Array,
+    surface: Callable[[Array, Array], Array],
+    min_distance_m: float = 137.5,
+    climb_m: float = 3000.0,
+) -> NDArray[np.bool_]:
     """``(N,)``: :func:`hidden_from_camera` for ECEF points ``ground (N, 3)`` imaged by cameras
     ``cams (N,)`` of ``band`` at ``points`` (their :meth:`PassGeometry.ground_to_pixel`), the rays
     being those of the image positions under ``geo``. Points not visible are False."""
@@ -463,8 +529,9 @@ def hidden_in_image(geo: "PassGeometry", cams: NDArray[np.int64], band: int, poi
     vis = np.flatnonzero(points.visible)
     if vis.size == 0:
         return hidden
-    origin, direction = geo.pixel_rays(np.asarray(cams)[vis], np.full(vis.size, band), points.line[vis],
-                                       points.sample[vis], np.full(vis.size, np.nan))
+    origin, direction = geo.pixel_rays(
+        np.asarray(cams)[vis], np.full(vis.size, band), points.line[vis], points.sample[vis], np.full(vis.size, np.nan)
+    )
     hidden[vis] = hidden_from_camera(origin, direction, ground[vis], surface, min_distance_m, climb_m)
     return hidden
 
@@ -476,8 +543,14 @@ def _cast_onto(origin: Array, direction: Array, surface: Callable[[Array, Array]
     lam0 = ray_ellipsoid(origin, direction, 0.0)
     lat0, lon0, _ = ecef_to_geodetic(origin + lam0[:, None] * direction)
     h0 = np.asarray(surface(lat0, lon0), dtype=float)
-    return _cast(origin, direction, np.minimum(h0, -500.0) - 500.0, np.maximum(h0, 0.0) + 9000.0,
-                 lambda lat, lon, idx: np.asarray(surface(lat, lon), dtype=float), tol_m)
+    return _cast(
+        origin,
+        direction,
+        np.minimum(h0, -500.0) - 500.0,
+        np.maximum(h0, 0.0) + 9000.0,
+        lambda lat, lon, idx: np.asarray(surface(lat, lon), dtype=float),
+        tol_m,
+    )
 
 
 def _find_root(
@@ -487,12 +560,19 @@ def _find_root(
     (scipy's vectorised Chandrupatla search, ``scipy.optimize.elementwise.find_root``)."""
     from scipy.optimize.elementwise import find_root
 
-    res = find_root(lambda t, i: fun(t, i.astype(np.int64)), (a, b), args=(np.asarray(index, float),),
-                    tolerances={"xatol": tol, "xrtol": 0.0, "fatol": 0.0, "frtol": 0.0}, maxiter=max_iter)
+    res = find_root(
+        lambda t, i: fun(t, i.astype(np.int64)),
+        (a, b),
+        args=(np.asarray(index, float),),
+        tolerances={"xatol": tol, "xrtol": 0.0, "fatol": 0.0, "frtol": 0.0},
+        maxiter=max_iter,
+    )
     if not np.all(res.success):
         bad = ~np.asarray(res.success)
-        raise ConvergenceError(f"root search did not converge in {max_iter} iterations for {int(bad.sum())} of "
-                               f"{bad.size} points (status {sorted(set(np.asarray(res.status)[bad].tolist()))})")
+        raise ConvergenceError(
+            f"root search did not converge in {max_iter} iterations for {int(bad.sum())} of "
+            f"{bad.size} points (status {sorted(set(np.asarray(res.status)[bad].tolist()))})"
+        )
     return np.asarray(res.x, dtype=float)
 
 

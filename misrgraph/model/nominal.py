@@ -35,12 +35,21 @@ import functools
 
 import numpy as np
 
-from misrgraph.model.camera import BAND_ANGLE_DEG, N_ALPHA, CameraModel
-from misrgraph.model.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, PITCH_CROSS_M, VIEW_ANGLE_DEG, N_PIXELS
 from misrgraph.errors import ConvergenceError
+from misrgraph.model.camera import BAND_ANGLE_DEG, N_ALPHA, CameraModel
+from misrgraph.model.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, N_PIXELS, PITCH_CROSS_M, VIEW_ANGLE_DEG
 
-__all__ = ["nominal_camera_model", "derive_camera_model", "preflight_camera_model", "TABLE1", "TABLE1_OMEGA_DEG",
-           "REFERENCE_LAT_DEG", "compensation_miss_km", "MODEL_NAMES", "builtin_camera_model"]
+__all__ = [
+    "nominal_camera_model",
+    "derive_camera_model",
+    "preflight_camera_model",
+    "TABLE1",
+    "TABLE1_OMEGA_DEG",
+    "REFERENCE_LAT_DEG",
+    "compensation_miss_km",
+    "MODEL_NAMES",
+    "builtin_camera_model",
+]
 
 #: Built-in models a user can name instead of a file (``--camera-model preflight``).
 MODEL_NAMES = ("preflight", "nominal")
@@ -53,12 +62,30 @@ REFERENCE_LAT_DEG = 30.0
 #: angle, see :func:`preflight_camera_model`), epsilon, delta, beta (deg). The OCR-damaged
 #: "-28030" and "-579879" read as -2.8030 and -57.9879.
 TABLE1: dict[str, dict[str, float]] = {
-    "Df": {"k_deg": -0.065, "f_mm": 123.67, "alpha0": 1.2747e-01, "epsilon_deg": -0.2759, "delta_deg": -2.8030,
-           "beta_deg": 58.1266},
-    "An": {"k_deg": -0.050, "f_mm": 58.944, "alpha0": 2.71992e-01, "epsilon_deg": -0.1518, "delta_deg": 0.0022,
-           "beta_deg": 0.0016},
-    "Da": {"k_deg": -0.0358, "f_mm": 123.653, "alpha0": 1.2941e-01, "epsilon_deg": 0.0691, "delta_deg": 2.7314,
-           "beta_deg": -57.9879},
+    "Df": {
+        "k_deg": -0.065,
+        "f_mm": 123.67,
+        "alpha0": 1.2747e-01,
+        "epsilon_deg": -0.2759,
+        "delta_deg": -2.8030,
+        "beta_deg": 58.1266,
+    },
+    "An": {
+        "k_deg": -0.050,
+        "f_mm": 58.944,
+        "alpha0": 2.71992e-01,
+        "epsilon_deg": -0.1518,
+        "delta_deg": 0.0022,
+        "beta_deg": 0.0016,
+    },
+    "Da": {
+        "k_deg": -0.0358,
+        "f_mm": 123.653,
+        "alpha0": 1.2941e-01,
+        "epsilon_deg": 0.0691,
+        "delta_deg": 2.7314,
+        "beta_deg": -57.9879,
+    },
 }
 
 
@@ -85,7 +112,9 @@ def _initial_model() -> CameraModel:
     )
 
 
-def derive_camera_model(ref_lat_deg: float = REFERENCE_LAT_DEG, path: int = 37, epoch_date: str = "2001-06-15") -> CameraModel:
+def derive_camera_model(
+    ref_lat_deg: float = REFERENCE_LAT_DEG, path: int = 37, epoch_date: str = "2001-06-15"
+) -> CameraModel:
     """Derive beta and delta of every camera numerically (see the module docstring).
 
     For each oblique camera the geometry is taken at the moment its boresight ground point lies
@@ -99,7 +128,9 @@ def derive_camera_model(ref_lat_deg: float = REFERENCE_LAT_DEG, path: int = 37, 
     from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 
     # Pass centred on the reference latitude, long enough for Df..Da to see the same point.
-    eph = terra_like_orbit(epoch_date=epoch_date, path=path, start_lat_deg=min(ref_lat_deg + 30.0, 81.0), duration_s=2400.0)
+    eph = terra_like_orbit(
+        epoch_date=epoch_date, path=path, start_lat_deg=min(ref_lat_deg + 30.0, 81.0), duration_s=2400.0
+    )
     model = _initial_model()
     geo = PassGeometry(eph, AttitudeSeries.zeros(eph.t), model)
 
@@ -179,10 +210,14 @@ def derive_camera_model(ref_lat_deg: float = REFERENCE_LAT_DEG, path: int = 37, 
             if abs(time_at_ref(ci, t_c) - t_prev) < 1e-3 and _outer > 0:
                 break
     model.provenance.update(
-        {"ref_lat_deg": str(ref_lat_deg), "path": str(path), "epoch_date": epoch_date,
-         "convention": "T_ic = Ry(beta) Rx(delta)",
-         "method": "beta from view zenith angle; delta from Earth-rotation compensation against An, "
-                   "both for the camera's boresight ground point at the reference latitude"}
+        {
+            "ref_lat_deg": str(ref_lat_deg),
+            "path": str(path),
+            "epoch_date": epoch_date,
+            "convention": "T_ic = Ry(beta) Rx(delta)",
+            "method": "beta from view zenith angle; delta from Earth-rotation compensation against An, "
+            "both for the camera's boresight ground point at the reference latitude",
+        }
     )
     return model
 
@@ -231,9 +266,11 @@ def preflight_camera_model() -> CameraModel:
             model.alpha[c, :, 1] = PITCH_CROSS_M / f
             model.k[c, :] = f * np.tan(np.radians(BAND_ANGLE_DEG["red"]) + offsets)
     model.temperature_c = 5.0
-    model.provenance = {"source": "pre-flight model: Table 1 (Df, An, Da, red band, 5 deg C) as printed; "
-                                  "other cameras derived (misrgraph.model.nominal.preflight_camera_model)",
-                        "convention": "T_ic = Ry(beta) Rx(delta)"}
+    model.provenance = {
+        "source": "pre-flight model: Table 1 (Df, An, Da, red band, 5 deg C) as printed; "
+        "other cameras derived (misrgraph.model.nominal.preflight_camera_model)",
+        "convention": "T_ic = Ry(beta) Rx(delta)",
+    }
     return model
 
 
@@ -269,8 +306,9 @@ def compensation_miss_km(
     from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 
     lats = np.atleast_1d(np.asarray(lat_deg, dtype=float))
-    eph = terra_like_orbit(epoch_date=epoch_date, path=path, start_lat_deg=min(float(lats.max()) + 25.0, 81.0),
-                           duration_s=2700.0)
+    eph = terra_like_orbit(
+        epoch_date=epoch_date, path=path, start_lat_deg=min(float(lats.max()) + 25.0, 81.0), duration_s=2700.0
+    )
     geo = PassGeometry(eph, AttitudeSeries.zeros(eph.t), model)
     red, an = BANDS.index("red"), CAMERAS.index("An")
     out: dict[str, np.ndarray] = {}
@@ -287,8 +325,9 @@ def compensation_miss_km(
         ip = geo.ground_to_pixel(np.full(lats.size, an), red, p)
         if not np.all(ip.visible):
             raise ConvergenceError(f"An does not see the boresight point of {cam} at latitudes {lats[~ip.visible]}")
-        q = geo.pixel_to_ground(np.full(lats.size, an), red, ip.line, np.full(lats.size, model.cy[an, red]),
-                                exposure=ip.exposure)
+        q = geo.pixel_to_ground(
+            np.full(lats.size, an), red, ip.line, np.full(lats.size, model.cy[an, red]), exposure=ip.exposure
+        )
         out[cam] = np.sign(ip.sample - model.cy[an, red]) * np.linalg.norm(p - q, axis=-1) / 1e3
     return out
 

@@ -21,8 +21,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicHermiteSpline
 
 from factors.geometry import rot_z
-from misrgraph.model.constants import NAV_SAMPLE_S, NODAL_PERIOD_S, ORBIT_INCLINATION_DEG, REPEAT_PATHS
 from misrgraph.errors import InputError
+from misrgraph.model.constants import NAV_SAMPLE_S, NODAL_PERIOD_S, ORBIT_INCLINATION_DEG, REPEAT_PATHS
 from misrgraph.model.frames import GM_EARTH, WGS84_A, EarthOrientation, geodetic_to_ecef, parse_epoch
 
 __all__ = [
@@ -91,7 +91,9 @@ class Ephemeris:
 
     def _check_range(self, tt: Array) -> None:
         if tt.size and (tt.min() < self.t[0] - 1e-9 or tt.max() > self.t[-1] + 1e-9):
-            raise InputError("t", f"[{tt.min():.3f}, {tt.max():.3f}] s", f"times within [{self.t[0]:.3f}, {self.t[-1]:.3f}] s")
+            raise InputError(
+                "t", f"[{tt.min():.3f}, {tt.max():.3f}] s", f"times within [{self.t[0]:.3f}, {self.t[-1]:.3f}] s"
+            )
 
     @property
     def span(self) -> tuple[float, float]:

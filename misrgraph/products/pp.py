@@ -44,8 +44,8 @@ from numpy.typing import NDArray
 from scipy.interpolate import RegularGridInterpolator
 from scipy.ndimage import distance_transform_edt
 
-from misrgraph.errors import InputError
 from factors.collinearity import camera_param_scale
+from misrgraph.errors import InputError
 from misrgraph.estimate.adjust import AdjustResult, corrected_geometry
 from misrgraph.estimate.graph import calibrated_camera_sigma
 from misrgraph.io.passes import OrbitPass
@@ -69,8 +69,16 @@ PP_HEIGHTS_M = (0.0, 3000.0, 6000.0)
 
 
 # ---------------------------------------------------------------------------- projection
-def crossing(geo: PassGeometry, cam: int, band: int, ground: Array, t_guess: Array,
-             iterations: int = 6, tol_s: float = 1e-7, margin_px: float = 0.0) -> tuple[Array, Array, Array]:
+def crossing(
+    geo: PassGeometry,
+    cam: int,
+    band: int,
+    ground: Array,
+    t_guess: Array,
+    iterations: int = 6,
+    tol_s: float = 1e-7,
+    margin_px: float = 0.0,
+) -> tuple[Array, Array, Array]:
     """Crossing time ``t*`` (s), continuous line and sample of ECEF ``ground`` (N, 3) in one
     camera/band, refined from ``t_guess`` (N,) by secant steps on the detector-x residual
     (``x(t) + k = 0``; smooth in ``t``, so a guess within a second converges in 3-4 steps).
@@ -108,8 +116,9 @@ def crossing(geo: PassGeometry, cam: int, band: int, ground: Array, t_guess: Arr
     return np.where(bad, np.nan, t), np.where(bad, np.nan, line), np.where(bad, np.nan, sample)
 
 
-def _perturbed(geo: PassGeometry, d_att: Array | None = None, d_pos: Array | None = None,
-               camera: Any = None) -> PassGeometry:
+def _perturbed(
+    geo: PassGeometry, d_att: Array | None = None, d_pos: Array | None = None, camera: Any = None
+) -> PassGeometry:
     """``geo`` with a constant extra attitude (rad, roll/pitch/yaw) or orbital-frame position (m)
     correction, or another camera model."""
     att0, pos0 = geo.attitude_delta, geo.position_delta
@@ -122,8 +131,15 @@ def _perturbed(geo: PassGeometry, d_att: Array | None = None, d_pos: Array | Non
         base = np.zeros((np.size(t), 3)) if pos0 is None else np.asarray(pos0(t)).reshape(-1, 3)
         return base + (0.0 if d_pos is None else d_pos)
 
-    return PassGeometry(geo.ephemeris, geo.attitude, geo.camera if camera is None else camera, earth=geo.earth,
-                        t0=geo.t0, attitude_delta=att, position_delta=pos)
+    return PassGeometry(
+        geo.ephemeris,
+        geo.attitude,
+        geo.camera if camera is None else camera,
+        earth=geo.earth,
+        t0=geo.t0,
+        attitude_delta=att,
+        position_delta=pos,
+    )
 
 
 #: Central-difference steps: 1 arcsec of attitude, 1 m of position.
@@ -131,8 +147,9 @@ _D_ANGLE = np.pi / 180 / 3600
 _D_POS = 1.0
 
 
-def _central_differences(geo_at: Callable[[int, float], PassGeometry], n: int, step: float, cam: int, band: int,
-                         ground: Array, t_star: Array) -> Array:
+def _central_differences(
+    geo_at: Callable[[int, float], PassGeometry], n: int, step: float, cam: int, band: int, ground: Array, t_star: Array
+) -> Array:
     """``d(line, sample) / d(parameter j)`` (N, 2, n) by central differences, where
     ``geo_at(j, +-step)`` is the geometry with parameter ``j`` moved by that much."""
     out = np.full((ground.shape[0], 2, n), np.nan)
@@ -157,8 +174,9 @@ def image_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t_s
     return np.concatenate([att, pos], axis=2)
 
 
-def _camera_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t_star: Array,
-                        params: tuple[str, ...]) -> Array:
+def _camera_derivatives(
+    geo: PassGeometry, cam: int, band: int, ground: Array, t_star: Array, params: tuple[str, ...]
+) -> Array:
     """``d(line, sample) / d(camera correction)`` (N, 2, P) for camera ``cam``'s ``params``, per
     unit of the adjustment's variables (:data:`factors.collinearity.CAMERA_PARAM_SCALE`), by central
     differences of steps that move an image point by ~0.05 pixel."""
@@ -167,17 +185,25 @@ def _camera_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, t
     out = np.empty((ground.shape[0], 2, len(params)))
     for j, p in enumerate(params):
         d = _central_differences(
-            lambda _, s: _perturbed(geo, camera=geo.camera.corrected({cam: [s]}, (p,))), 1, float(step_si[j]),
-            cam, band, ground, t_star)
+            lambda _, s: _perturbed(geo, camera=geo.camera.corrected({cam: [s]}, (p,))),
+            1,
+            float(step_si[j]),
+            cam,
+            band,
+            ground,
+            t_star,
+        )
         out[:, :, j] = d[:, :, 0] * scale[j]
     return out
 
 
-def ground_derivatives(geo: PassGeometry, cam: int, band: int, ground: Array, enu: Array, t_guess: Array,
-                       step_m: float = 10.0) -> Array:
+def ground_derivatives(
+    geo: PassGeometry, cam: int, band: int, ground: Array, enu: Array, t_guess: Array, step_m: float = 10.0
+) -> Array:
     """``d(line, sample) / d(east, north)`` (N, 2, 2) in pixels per metre at ECEF ``ground`` (N, 3)
     with local ``enu`` bases (N, 3, 3), by central differences of ``step_m``; NaN where a displaced
     point leaves the view."""
+
     def image(q: int, sign: float) -> Array:
         return np.stack(crossing(geo, cam, band, ground + sign * step_m * enu[:, :, q], t_guess)[1:], -1)
 
@@ -221,8 +247,15 @@ def _posterior(res: AdjustResult) -> _Posterior:
         keys.append(key)
         n += dim
     cov = res.marginals.joint_of(keys)
-    return _Posterior(keys, 0.5 * (cov + cov.T), knot_slices, eph_slice, camera_slices, res.unresolved_attitude_rad,
-                      tuple(pg.camera_params))
+    return _Posterior(
+        keys,
+        0.5 * (cov + cov.T),
+        knot_slices,
+        eph_slice,
+        camera_slices,
+        res.unresolved_attitude_rad,
+        tuple(pg.camera_params),
+    )
 
 
 def navigation_map_at(res: AdjustResult, post: _Posterior, t: Array) -> Array:
@@ -255,13 +288,22 @@ def _upsample(sub: Array, sub_axes: tuple[Array, Array], shape: tuple[int, int],
     """Bilinear interpolation of a sub-grid field (NaN filled by the nearest value) to a grid of
     ``shape`` points every ``step`` grid points (1: the full grid)."""
     f = RegularGridInterpolator(sub_axes, _fill_nearest(sub), bounds_error=False, fill_value=None)
-    ln, sm = np.meshgrid(np.arange(shape[0], dtype=float) * step, np.arange(shape[1], dtype=float) * step, indexing="ij")
+    ln, sm = np.meshgrid(
+        np.arange(shape[0], dtype=float) * step, np.arange(shape[1], dtype=float) * step, indexing="ij"
+    )
     return f(np.stack([ln, sm], -1))
 
 
-def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDArray[np.int64], band: str = "red",
-               sigma_step: int = 8, progress: Callable[[str, int, int], None] | None = None,
-               cameras: tuple[str, ...] = CAMERAS) -> ProjectionParameters:
+def compute_pp(
+    orbit_pass: OrbitPass,
+    res: AdjustResult,
+    path: int,
+    blocks: NDArray[np.int64],
+    band: str = "red",
+    sigma_step: int = 8,
+    progress: Callable[[str, int, int], None] | None = None,
+    cameras: tuple[str, ...] = CAMERAS,
+) -> ProjectionParameters:
     """The PP of an adjusted pass on ``path``'s 1.1 km grid over ``blocks`` (module docstring), for
     ``cameras`` (default all nine, in MISR's order).
 
@@ -305,8 +347,11 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
             ip = geo.ground_to_pixel(c, bi, g_heights[0])
             t_s = geo.t0[c, bi] + ip.crossing_line * geo.camera.line_time
             # ground_to_pixel stops at the array's edge; carry the sub-grid a margin beyond it
-            t_s = _upsample(t_s.reshape(shape_s), sub_axes, shape_s, step=sigma_step).ravel() \
-                if np.isnan(t_s).any() else t_s
+            t_s = (
+                _upsample(t_s.reshape(shape_s), sub_axes, shape_s, step=sigma_step).ravel()
+                if np.isnan(t_s).any()
+                else t_s
+            )
             t_s, l_sub, s_sub = crossing(geo, c, bi, g_heights[0], t_s, margin_px=2 * EDGE_MARGIN_PX)
             if not np.isfinite(t_s).any():
                 continue
@@ -315,8 +360,13 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
             out["line0"][jc, j] = ln0.reshape(nl, ns)
             out["sample0"][jc, j] = sm0.reshape(nl, ns)
             # height quadratic on the sub-grid (height 0 is the crossing just computed)
-            ls = [(l_sub, s_sub)] + [crossing(geo, c, bi, gh, t_s, margin_px=2 * EDGE_MARGIN_PX)[1:] for gh in g_heights[1:]]
-            for which, names in ((0, ("line0", "dline_dh", "d2line_dh2")), (1, ("sample0", "dsample_dh", "d2sample_dh2"))):
+            ls = [(l_sub, s_sub)] + [
+                crossing(geo, c, bi, gh, t_s, margin_px=2 * EDGE_MARGIN_PX)[1:] for gh in g_heights[1:]
+            ]
+            for which, names in (
+                (0, ("line0", "dline_dh", "d2line_dh2")),
+                (1, ("sample0", "dsample_dh", "d2sample_dh2")),
+            ):
                 coef = np.linalg.solve(vand, np.stack([ls[k][which] for k in range(3)], 0))  # (3, n_sub)
                 for q in (1, 2):
                     out[names[q]][jc, j] = _upsample(coef[q].reshape(shape_s), sub_axes, (nl, ns))
@@ -329,16 +379,20 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
             full_j = -np.einsum("nij,njk->nik", jac, navigation_map_at(res, post, t0))
             if c in post.camera_slices:
                 full_j[:, :, post.camera_slices[c]] += _camera_derivatives(geo, c, bi, g0, t0, post.camera_params)
-            cov_ls = np.einsum("nij,jk,nlk->nil", full_j, post.cov, full_j) + \
-                post.jitter_rad**2 * np.einsum("nij,nlj->nil", jac[:, :, :3], jac[:, :, :3])
+            cov_ls = np.einsum("nij,jk,nlk->nil", full_j, post.cov, full_j) + post.jitter_rad**2 * np.einsum(
+                "nij,nlj->nil", jac[:, :, :3], jac[:, :, :3]
+            )
             # ground (east, north) per (line, sample): invert d(line, sample)/d(east, north)
             d_en = ground_derivatives(geo, c, bi, g0, enu[okp], t0)
             en_ok = np.isfinite(d_en).all(axis=(1, 2))  # a displaced point can leave the margin
             inv = np.linalg.inv(np.where(en_ok[:, None, None], d_en, np.eye(2)))
             cov_en = np.einsum("nij,njk,nlk->nil", inv, cov_ls, inv)
-            fields = {"sigma_line": np.sqrt(cov_ls[:, 0, 0]), "sigma_sample": np.sqrt(cov_ls[:, 1, 1]),
-                      "correlation": cov_ls[:, 0, 1] / np.sqrt(cov_ls[:, 0, 0] * cov_ls[:, 1, 1]),
-                      "sigma_m": np.where(en_ok, np.sqrt(cov_en[:, 0, 0] + cov_en[:, 1, 1]), np.nan)}
+            fields = {
+                "sigma_line": np.sqrt(cov_ls[:, 0, 0]),
+                "sigma_sample": np.sqrt(cov_ls[:, 1, 1]),
+                "correlation": cov_ls[:, 0, 1] / np.sqrt(cov_ls[:, 0, 0] * cov_ls[:, 1, 1]),
+                "sigma_m": np.where(en_ok, np.sqrt(cov_en[:, 0, 0] + cov_en[:, 1, 1]), np.nan),
+            }
             for name, v in fields.items():
                 sub_field = np.full(t_s.size, np.nan)
                 sub_field[okp] = v
@@ -348,6 +402,11 @@ def compute_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, blocks: NDAr
                 out[name][jc, j][unseen] = np.nan
     if progress:
         progress("PP", total, total)
-    return ProjectionParameters(path=int(path), blocks=blocks, cameras=cameras, band=band, pass_id=orbit_pass.pass_id,
-                                **{k: out[k] for k in out})
-
+    return ProjectionParameters(
+        path=int(path),
+        blocks=blocks,
+        cameras=cameras,
+        band=band,
+        pass_id=orbit_pass.pass_id,
+        **{k: out[k] for k in out},
+    )

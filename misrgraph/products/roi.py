@@ -71,9 +71,23 @@ from misrgraph.misr.som import SomGrid
 from misrgraph.model.constants import CAMERAS, VIEW_ANGLE_DEG
 from misrgraph.products.terrain import terrain_obscured
 
-__all__ = ["RoiPass", "RoiBlock", "PairMatches", "build_roi", "cloud_mask", "consistent_matches", "coregistration",
-           "coregistration_matches", "coregistration_stats", "roi_predicted_coregistration", "CLOUD_REFLECTANCE",
-           "CLOUD_MEAN_REFLECTANCE", "CLOUD_MARGIN_PX", "COREG_REJECT_SIGMA", "MIN_ROI_PASSES"]
+__all__ = [
+    "RoiPass",
+    "RoiBlock",
+    "PairMatches",
+    "build_roi",
+    "cloud_mask",
+    "consistent_matches",
+    "coregistration",
+    "coregistration_matches",
+    "coregistration_stats",
+    "roi_predicted_coregistration",
+    "CLOUD_REFLECTANCE",
+    "CLOUD_MEAN_REFLECTANCE",
+    "CLOUD_MARGIN_PX",
+    "COREG_REJECT_SIGMA",
+    "MIN_ROI_PASSES",
+]
 
 Array = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -138,8 +152,9 @@ def cloud_mask(counts: NDArray[np.float32], full_scale: float) -> NDArray[np.boo
     return cloud
 
 
-def _resample(p: RoiPass, camera: str, block: int, heights: NDArray[np.float32], lines: Array,
-              samples: Array) -> NDArray[np.float32] | None:
+def _resample(
+    p: RoiPass, camera: str, block: int, heights: NDArray[np.float32], lines: Array, samples: Array
+) -> NDArray[np.float32] | None:
     """A pass's image on the block's 275 m grid (NaN where it does not image the point; None where
     it has no strip there): the PP give each point's image position at its DEM height, where
     the strip (only the lines needed) is interpolated."""
@@ -152,9 +167,14 @@ def _resample(p: RoiPass, camera: str, block: int, heights: NDArray[np.float32],
     return None if strip is None else strip.sample_at(ln, sm)
 
 
-def build_roi(passes: list[RoiPass], dem: SomDem, blocks: NDArray[np.int64], cameras: tuple[str, ...] = CAMERAS,
-              full_scale: float = 2**14 - 1,
-              progress: Callable[[str, int, int], None] | None = None) -> Iterator[RoiBlock]:
+def build_roi(
+    passes: list[RoiPass],
+    dem: SomDem,
+    blocks: NDArray[np.int64],
+    cameras: tuple[str, ...] = CAMERAS,
+    full_scale: float = 2**14 - 1,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> Iterator[RoiBlock]:
     """The ROI of ``blocks``, one :class:`RoiBlock` at a time (module docstring), from ``passes``
     (at least :data:`MIN_ROI_PASSES`, all of one path) resampled with the heights of ``dem``."""
     if len(passes) < MIN_ROI_PASSES:
@@ -173,7 +193,9 @@ def build_roi(passes: list[RoiPass], dem: SomDem, blocks: NDArray[np.int64], cam
     for k, block in enumerate(np.asarray(blocks, dtype=np.int64)):
         for p in passes:
             if int(block) not in p.pp.blocks:
-                raise InputError("blocks", int(block), f"blocks of pass {p.pass_id}'s PP ({p.pp.blocks.min()}..{p.pp.blocks.max()})")
+                raise InputError(
+                    "blocks", int(block), f"blocks of pass {p.pass_id}'s PP ({p.pp.blocks.min()}..{p.pp.blocks.max()})"
+                )
         h = dem.block(int(block))
         imgs = np.full((n_p, n_c, grid.nline, grid.nsample), np.nan, np.float32)
         hidden = np.zeros((n_p, n_c, grid.nline, grid.nsample), bool)
@@ -201,14 +223,31 @@ def build_roi(passes: list[RoiPass], dem: SomDem, blocks: NDArray[np.int64], cam
                 pixels[take] = np.clip(np.round(imgs[i][take]), 0, 65535).astype(np.uint16)
                 cloudy[take] = clouds[i][take]
         obscured = hidden.any(axis=0) & (source < 0)
-        log.info("ROI block %d: clearest pass %s (clear %.2f), obscured by terrain %.4f", block,
-                 passes[int(order[0])].pass_id, clear_fraction[order[0]], float(obscured.mean()))
-        yield RoiBlock(int(block), tuple(cameras), pixels, source, cloudy, obscured, clear_fraction, int(order[0]), imgs,
-                       clouds, hidden)
+        log.info(
+            "ROI block %d: clearest pass %s (clear %.2f), obscured by terrain %.4f",
+            block,
+            passes[int(order[0])].pass_id,
+            clear_fraction[order[0]],
+            float(obscured.mean()),
+        )
+        yield RoiBlock(
+            int(block),
+            tuple(cameras),
+            pixels,
+            source,
+            cloudy,
+            obscured,
+            clear_fraction,
+            int(order[0]),
+            imgs,
+            clouds,
+            hidden,
+        )
 
 
-def _match_offsets(ref: NDArray[np.float32], img: NDArray[np.float32], bad: NDArray[np.bool_], n_points: int,
-                   min_std: float) -> tuple[Array, Array, int]:
+def _match_offsets(
+    ref: NDArray[np.float32], img: NDArray[np.float32], bad: NDArray[np.bool_], n_points: int, min_std: float
+) -> tuple[Array, Array, int]:
     """Offsets and their LSM 1-sigma ``(n, 4)`` (line, sample, sigma_line, sigma_sample px) of
     ``img`` against ``ref`` by LSM at up to ``n_points`` points spread evenly over where both images
     hold data clear of ``bad`` over the whole search window, the grid points ``(n, 2)`` (line,
@@ -219,17 +258,17 @@ def _match_offsets(ref: NDArray[np.float32], img: NDArray[np.float32], bad: NDAr
     t2, m = COREG_TEMPLATE_PX // 2, COREG_MARGIN_PX
     w = 2 * (t2 + m) + 1
     usable = ndimage.minimum_filter(np.isfinite(ref) & np.isfinite(img) & ~bad, size=w, mode="constant", cval=0)
-    usable[:t2 + m + 1] = usable[-(t2 + m + 1):] = False
-    usable[:, :t2 + m + 1] = usable[:, -(t2 + m + 1):] = False
+    usable[: t2 + m + 1] = usable[-(t2 + m + 1) :] = False
+    usable[:, : t2 + m + 1] = usable[:, -(t2 + m + 1) :] = False
     cand = np.argwhere(usable[::8, ::8]) * 8  # candidates 8 px apart, then evenly thinned
     if cand.shape[0] > n_points:
         cand = cand[np.linspace(0, cand.shape[0] - 1, n_points).astype(int)]
     out, at, failed = [], [], 0
     for r, c in cand:
-        tpl = ref[r - t2:r + t2 + 1, c - t2:c + t2 + 1]
+        tpl = ref[r - t2 : r + t2 + 1, c - t2 : c + t2 + 1]
         if tpl.std() < min_std:  # water, flat ground: nothing to match
             continue
-        win = img[r - t2 - m:r + t2 + m + 1, c - t2 - m:c + t2 + m + 1]
+        win = img[r - t2 - m : r + t2 + m + 1, c - t2 - m : c + t2 + m + 1]
         centre = float(t2 + m)
         res = lsm(win, tpl, centre, centre, max_shift_px=1.0)
         if not res.converged:
@@ -251,13 +290,17 @@ def _offset_stats(d: Array) -> dict[str, float | int]:
     from scipy.stats import chi2
 
     n = int(d.shape[0])
-    ms = float(np.mean(np.sum(d[:, :2]**2, 1)))
-    noise2 = float(np.mean(np.sum(d[:, 2:]**2, 1)))
+    ms = float(np.mean(np.sum(d[:, :2] ** 2, 1)))
+    noise2 = float(np.mean(np.sum(d[:, 2:] ** 2, 1)))
     lo, hi = (ms * 2 * n / float(chi2.ppf(q, 2 * n)) for q in (0.975, 0.025))
-    return {"rms_px": float(np.sqrt(ms)), "noise_px": float(np.sqrt(noise2)),
-            "excess_px": float(np.sqrt(max(ms - noise2, 0.0))),
-            "excess_interval_px": [float(np.sqrt(max(lo - noise2, 0.0))), float(np.sqrt(max(hi - noise2, 0.0)))],
-            "mean_px": float(np.hypot(*d[:, :2].mean(0))), "matches": n}
+    return {
+        "rms_px": float(np.sqrt(ms)),
+        "noise_px": float(np.sqrt(noise2)),
+        "excess_px": float(np.sqrt(max(ms - noise2, 0.0))),
+        "excess_interval_px": [float(np.sqrt(max(lo - noise2, 0.0))), float(np.sqrt(max(hi - noise2, 0.0)))],
+        "mean_px": float(np.hypot(*d[:, :2].mean(0))),
+        "matches": n,
+    }
 
 
 #: Matches further than this many robust sigmas from their pair's affine field are rejected.
@@ -314,22 +357,36 @@ class PairMatches:
         return int(self.kept.sum()) >= 3
 
 
-def coregistration_matches(block: RoiBlock, pass_ids: list[str], points_per_pair: int = 64,
-                           min_std_counts: float = 150.0) -> list[PairMatches]:
+def coregistration_matches(
+    block: RoiBlock, pass_ids: list[str], points_per_pair: int = 64, min_std_counts: float = 150.0
+) -> list[PairMatches]:
     """Every pair co-registration compares on a block (module docstring), matched: per camera, it
     against An in each pass and, in each other pass, it against itself in the block's pass."""
     imgs, clouds = block.resampled, block.clouds
     an = block.cameras.index("An") if "An" in block.cameras else None
     out = []
     for j, cam in enumerate(block.cameras):
-        pairs = [("between_cameras", (i, an), (i, j)) for i in range(imgs.shape[0])] if an is not None and j != an else []
+        pairs = (
+            [("between_cameras", (i, an), (i, j)) for i in range(imgs.shape[0])] if an is not None and j != an else []
+        )
         pairs += [("between_passes", (block.chosen, j), (i, j)) for i in range(imgs.shape[0]) if i != block.chosen]
         for kind, (pr, cr), (po, co) in pairs:
-            d, at, failed = _match_offsets(imgs[pr, cr], imgs[po, co], clouds[pr, cr] | clouds[po, co],
-                                           points_per_pair, min_std_counts)
-            out.append(PairMatches(kind, cam, (pr, cr), (po, co), d, at, failed,
-                                   f"{block.cameras[co]}/{pass_ids[po]} vs {block.cameras[cr]}/{pass_ids[pr]}",
-                                   consistent_matches(at, d)))
+            d, at, failed = _match_offsets(
+                imgs[pr, cr], imgs[po, co], clouds[pr, cr] | clouds[po, co], points_per_pair, min_std_counts
+            )
+            out.append(
+                PairMatches(
+                    kind,
+                    cam,
+                    (pr, cr),
+                    (po, co),
+                    d,
+                    at,
+                    failed,
+                    f"{block.cameras[co]}/{pass_ids[po]} vs {block.cameras[cr]}/{pass_ids[pr]}",
+                    consistent_matches(at, d),
+                )
+            )
     return out
 
 
@@ -351,22 +408,32 @@ def coregistration_stats(matches: list[PairMatches]) -> dict[str, dict[str, dict
             if not good:
                 continue
             pairs = [{**_offset_stats(m.offsets[m.kept]), "pair": m.name} for m in good]
-            out[cam][kind] = {**_offset_stats(np.concatenate([m.offsets[m.kept] for m in good])),
-                              "failed": int(sum(m.failed for m in cand)),
-                              "rejected": int(sum(int((~m.kept).sum()) for m in good)), "pairs": len(good),
-                              "worst_pair": max(pairs, key=lambda st: float(st["excess_px"]))}  # type: ignore[arg-type]
+            out[cam][kind] = {
+                **_offset_stats(np.concatenate([m.offsets[m.kept] for m in good])),
+                "failed": int(sum(m.failed for m in cand)),
+                "rejected": int(sum(int((~m.kept).sum()) for m in good)),
+                "pairs": len(good),
+                "worst_pair": max(pairs, key=lambda st: float(st["excess_px"])),
+            }  # type: ignore[arg-type]
     return out
 
 
-def coregistration(block: RoiBlock, pass_ids: list[str], points_per_pair: int = 64,
-                   min_std_counts: float = 150.0) -> dict[str, dict[str, dict[str, object]]]:
+def coregistration(
+    block: RoiBlock, pass_ids: list[str], points_per_pair: int = 64, min_std_counts: float = 150.0
+) -> dict[str, dict[str, dict[str, object]]]:
     """Co-registration measured on a block's resampled images (module docstring):
     :func:`coregistration_stats` of :func:`coregistration_matches`."""
     return coregistration_stats(coregistration_matches(block, pass_ids, points_per_pair, min_std_counts))
 
 
-def roi_predicted_coregistration(pps: list[ProjectionParameters], block: int, chosen: int, cameras: tuple[str, ...],
-                                 dem_sigma_m: float, resolution_m: float) -> dict[str, dict[str, float]]:
+def roi_predicted_coregistration(
+    pps: list[ProjectionParameters],
+    block: int,
+    chosen: int,
+    cameras: tuple[str, ...],
+    dem_sigma_m: float,
+    resolution_m: float,
+) -> dict[str, dict[str, float]]:
     """The misregistration (px, RMS over the block) the adjustment's own uncertainty predicts for
     one ROI block, per camera: ``vs_An`` from the chosen pass's PP 1-sigma of the camera and of An
     (taken as independent: the two see a point minutes apart) and the SOM DEM's error seen as
@@ -377,6 +444,7 @@ def roi_predicted_coregistration(pps: list[ProjectionParameters], block: int, ch
     Where this exceeds the seed's 0.2 pixel, no resampling can co-register the block: the
     navigation there is not known better (e.g. an oblique camera imaging the pass's last land
     after its last observation)."""
+
     def sigma(pp: ProjectionParameters, cam: str) -> float:
         j = np.flatnonzero(np.asarray(pp.blocks) == block)
         if j.size == 0 or cam not in pp.cameras:

@@ -82,24 +82,30 @@ def view_directions(pp: ProjectionParameters, camera: str, block: int, heights: 
     return np.stack([ndimage.map_coordinates(v, coords, order=1, mode="nearest", prefilter=False) for v in (v_l, v_s)])
 
 
-def march_obscured(h_ext: NDArray[np.float32], margin: int, v: Array, max_steps: int | None = None) -> NDArray[np.bool_]:
+def march_obscured(
+    h_ext: NDArray[np.float32], margin: int, v: Array, max_steps: int | None = None
+) -> NDArray[np.bool_]:
     """Which points of a block are obscured (module docstring): ``h_ext (nline + 2 margin,
     nsample + 2 margin)`` heights (m; the block at rows/columns ``margin..``, its surroundings
     around it, NaN unknown: never obscuring) and ``v (2, nline, nsample)`` the rays' horizontal
     displacement per metre (grid pixels/m; NaN: not imaged, never obscured). The march takes at
     most ``max_steps`` (default ``margin``) one-pixel steps. Returns ``(nline, nsample)`` bool."""
     if v.ndim != 3 or v.shape[0] != 2 or h_ext.shape != (v.shape[1] + 2 * margin, v.shape[2] + 2 * margin):
-        raise InputError("v, h_ext", (v.shape, h_ext.shape), "(2, nline, nsample) and (nline + 2 margin, nsample + 2 margin)")
+        raise InputError(
+            "v, h_ext", (v.shape, h_ext.shape), "(2, nline, nsample) and (nline + 2 margin, nsample + 2 margin)"
+        )
     nl, ns = v.shape[1:]
     steps = int(margin if max_steps is None else min(max_steps, margin))
     hz = np.where(np.isfinite(h_ext), h_ext, -np.inf).astype(np.float64)
-    h0 = hz[margin:margin + nl, margin:margin + ns]
+    h0 = hz[margin : margin + nl, margin : margin + ns]
     speed = np.hypot(v[0], v[1])  # grid pixels per metre of climb
     out = np.zeros((nl, ns), bool)
     if steps == 0:
         return out
     # the highest terrain within reach of each point bounds the climb worth following
-    reach = ndimage.maximum_filter(hz, size=2 * steps + 1, mode="constant", cval=-np.inf)[margin:margin + nl, margin:margin + ns]
+    reach = ndimage.maximum_filter(hz, size=2 * steps + 1, mode="constant", cval=-np.inf)[
+        margin : margin + nl, margin : margin + ns
+    ]
     with np.errstate(invalid="ignore"):
         active = np.isfinite(h0) & (speed > 0) & np.isfinite(speed) & (reach > h0 + 1.0 / speed)
     idx = np.flatnonzero(active)
@@ -117,8 +123,9 @@ def march_obscured(h_ext: NDArray[np.float32], margin: int, v: Array, max_steps:
             break
         if not keep.all():
             r0, c0, sp, ul, us, base, top, idx, ray = (a[keep] for a in (r0, c0, sp, ul, us, base, top, idx, ray))
-        terrain = ndimage.map_coordinates(hz_nan, [r0 + margin + k * ul, c0 + margin + k * us], order=1,
-                                          mode="constant", cval=np.nan, prefilter=False)
+        terrain = ndimage.map_coordinates(
+            hz_nan, [r0 + margin + k * ul, c0 + margin + k * us], order=1, mode="constant", cval=np.nan, prefilter=False
+        )
         hidden = terrain > ray  # NaN: unknown, not hidden
         if hidden.any():
             out.ravel()[idx[hidden]] = True
@@ -129,8 +136,9 @@ def march_obscured(h_ext: NDArray[np.float32], margin: int, v: Array, max_steps:
     return out
 
 
-def terrain_obscured(pp: ProjectionParameters, camera: str, dem: SomDem, block: int,
-                     margin: int = OBSCURATION_MARGIN_PX) -> NDArray[np.bool_]:
+def terrain_obscured(
+    pp: ProjectionParameters, camera: str, dem: SomDem, block: int, margin: int = OBSCURATION_MARGIN_PX
+) -> NDArray[np.bool_]:
     """``(nline, nsample)`` bool: the points of ``block``'s 275 m grid that terrain hides from
     ``camera`` in the pass of ``pp``, by the heights of ``dem`` (module docstring)."""
     if dem.resolution_m != 275:
@@ -138,7 +146,7 @@ def terrain_obscured(pp: ProjectionParameters, camera: str, dem: SomDem, block: 
     if int(dem.path) != int(pp.path):
         raise InputError("dem.path", int(dem.path), f"the PP's path {int(pp.path)}")
     h_ext = dem.extended_block(int(block), margin)
-    heights = h_ext[margin:-margin or None, margin:-margin or None]
+    heights = h_ext[margin : -margin or None, margin : -margin or None]
     v = view_directions(pp, camera, int(block), heights)
     out = march_obscured(h_ext, margin, v)
     log.debug("block %d %s: %.4f of the grid obscured", block, camera, float(out.mean()))

@@ -33,12 +33,24 @@ from misrgraph.model.constants import ANGLES, CAMERAS
 from misrgraph.model.dem import DemTiles
 from misrgraph.model.gcp import GcpDatabase
 
-__all__ = ["run_adjust", "run_tie_height_pool", "write_adjust_result", "matched_tie_offset", "camera_prior_of",
-           "adjust_observation_set"]
+__all__ = [
+    "run_adjust",
+    "run_tie_height_pool",
+    "write_adjust_result",
+    "matched_tie_offset",
+    "camera_prior_of",
+    "adjust_observation_set",
+]
 
 
-def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, summary: dict[str, Any],
-                        provenance: dict[str, str], truth: PassTruth | None = None) -> None:
+def write_adjust_result(
+    path: Path,
+    orbit_pass: OrbitPass,
+    res: AdjustResult,
+    summary: dict[str, Any],
+    provenance: dict[str, str],
+    truth: PassTruth | None = None,
+) -> None:
     """Write RESULT.h5 (HDF5 kind ``adjustment_result``, docs/data-model.md) atomically; with
     ``truth`` also ``/landmarks/truth_ecef`` for the views."""
     pg = res.pass_graph
@@ -56,11 +68,21 @@ def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, su
             keys = pg.knot_keys(i)
             write_dataset(g, "knot_times", res.attitude.knot_times[i], units="s")
             write_dataset(g, "knots", res.attitude.knots[i], units="rad, rad/s")
-            write_dataset(g, "covariance", np.stack([res.marginals[k] for k in keys]), units="rad^2, rad^2/s, rad^2/s^2")
+            write_dataset(
+                g, "covariance", np.stack([res.marginals[k] for k in keys]), units="rad^2, rad^2/s, rad^2/s^2"
+            )
             write_dataset(g, "joint_covariance", res.marginals.joint_of(keys), order="knot-major (value, rate)")
             write_dataset(g, "removed_knots", pg.removed_knots[i], meaning="indices on the uniform grid, eqs. 28-29")
-            write_dataset(g, "grid_spacing", np.array(float(pg.attitude_model.knot_times[i][1] - pg.attitude_model.knot_times[i][0])
-                                                       if pg.removed_knots[i].size == 0 else np.nan), units="s")
+            write_dataset(
+                g,
+                "grid_spacing",
+                np.array(
+                    float(pg.attitude_model.knot_times[i][1] - pg.attitude_model.knot_times[i][0])
+                    if pg.removed_knots[i].size == 0
+                    else np.nan
+                ),
+                units="s",
+            )
         e = f.create_group("ephemeris_error")
         write_dataset(e, "boundaries", res.ephemeris.boundaries, units="s")
         write_dataset(e, "params", res.ephemeris.params, units="m/s (a), m (b)", order="a_x,a_y,a_z,b_x,b_y,b_z")
@@ -72,10 +94,21 @@ def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, su
         scale = camera_param_scale(pg.camera_params)
         si = pg.camera_corrections(res.values)
         units = "rad (delta, beta, epsilon), m (f), alpha_i as the camera model stores them"
-        write_dataset(c, "values", np.array([si[k] for k in cams]).reshape(-1, n_par), units=units,
-                      order=",".join(pg.camera_params))
-        write_dataset(c, "covariance", np.array([res.marginals[pg.camera_keys[k]] * np.outer(scale, scale)
-                                                 for k in cams]).reshape(-1, n_par, n_par), units="the values' units squared")
+        write_dataset(
+            c,
+            "values",
+            np.array([si[k] for k in cams]).reshape(-1, n_par),
+            units=units,
+            order=",".join(pg.camera_params),
+        )
+        write_dataset(
+            c,
+            "covariance",
+            np.array([res.marginals[pg.camera_keys[k]] * np.outer(scale, scale) for k in cams]).reshape(
+                -1, n_par, n_par
+            ),
+            units="the values' units squared",
+        )
         lm = f.create_group("landmarks")
         write_dataset(lm, "row", pg.landmark_rows)
         write_dataset(lm, "kind", orbit_pass.landmarks.kind[pg.landmark_rows], meaning="0 tie, 1 GCP")
@@ -89,7 +122,9 @@ def write_adjust_result(path: Path, orbit_pass: OrbitPass, res: AdjustResult, su
         write_dataset(o, "rejected", res.rejected, meaning="observation indices rejected as blunders")
         write_dataset(o, "rejected_normalised_residual", res.rejected_norm, units="sigma")
         h = f.create_group("convergence")
-        write_dataset(h, "error", np.asarray(res.history), meaning="0.5 * sum of squared whitened residuals per iteration")
+        write_dataset(
+            h, "error", np.asarray(res.history), meaning="0.5 * sum of squared whitened residuals per iteration"
+        )
         write_camera_group(f.create_group("camera_model"), res.camera)
 
 
@@ -114,18 +149,35 @@ def camera_prior_of(camera_model: str | os.PathLike[str], cfg: AdjustConfig) -> 
     return read_calibration_prior(camera_model) if cfg.camera_prior_from_calibration else None
 
 
-def adjust_observation_set(orbit_pass: OrbitPass, pass_file: str | os.PathLike[str], camera: CameraModel,
-                           dem: DemTiles | None, gcps: GcpDatabase | None, cfg: AdjustConfig, observations: str,
-                           camera_prior: tuple[list[str], np.ndarray] | None,
-                           progress: Callable[[str], None] | None = None) -> AdjustResult:
+def adjust_observation_set(
+    orbit_pass: OrbitPass,
+    pass_file: str | os.PathLike[str],
+    camera: CameraModel,
+    dem: DemTiles | None,
+    gcps: GcpDatabase | None,
+    cfg: AdjustConfig,
+    observations: str,
+    camera_prior: tuple[list[str], np.ndarray] | None,
+    progress: Callable[[str], None] | None = None,
+) -> AdjustResult:
     """:func:`~misrgraph.estimate.adjust.adjust_pass` of ``orbit_pass`` as loaded with its
     ``observations`` set from ``pass_file`` (matched: with the offset ``misrgraph match`` measured
     for the pass, :func:`matched_tie_offset`), the camera corrections' prior ``camera_prior``
     (:func:`camera_prior_of`). The one adjustment of ``adjust`` and ``products``."""
     matched = observations == "matched"
     s_o, own = matched_tie_offset(pass_file) if matched else (None, None)
-    return adjust_pass(orbit_pass, camera, dem, gcps, cfg, progress, ties_matched=matched, tie_offset_px=s_o,
-                       tie_offset_own_ratio=own, camera_prior=camera_prior)
+    return adjust_pass(
+        orbit_pass,
+        camera,
+        dem,
+        gcps,
+        cfg,
+        progress,
+        ties_matched=matched,
+        tie_offset_px=s_o,
+        tie_offset_own_ratio=own,
+        camera_prior=camera_prior,
+    )
 
 
 def run_adjust(
@@ -161,8 +213,9 @@ def run_adjust(
             raise FileFormatError(d / "passes", "no pass files (*.h5)")
         if len(passes) > 1:
             names = ", ".join(p.name for p in passes[:5]) + (", ..." if len(passes) > 5 else "")
-            raise InputError("PASS_FILE", None, f"one of the scenario's {len(passes)} pass files ({names}): "
-                                                "name it with --pass")
+            raise InputError(
+                "PASS_FILE", None, f"one of the scenario's {len(passes)} pass files ({names}): name it with --pass"
+            )
         pass_file = passes[0]
     orbit_pass, truth = load_pass_observations(pass_file, observations)
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
@@ -175,7 +228,9 @@ def run_adjust(
     summary: dict[str, Any] = {
         "pass_id": orbit_pass.pass_id,
         "observation_set": observations,
-        "camera_prior": "the camera model's calibration covariance" if prior is not None else "camera_prior_px per camera",
+        "camera_prior": "the camera model's calibration covariance"
+        if prior is not None
+        else "camera_prior_px per camera",
         "solver_status": res.status,
         "covariance": res.reliability.get("covariance", "gauss_newton"),
         "variance_factor": res.variance_factor,
@@ -186,19 +241,33 @@ def run_adjust(
         "observations": int(len(pg.collinearity)),
         "landmarks": int(pg.landmark_keys.size),
         "dropped_tie_points": int(res.dropped_landmarks.size),
-        "knots": {a: {"kept": int(res.attitude.knot_times[i].size), "removed": int(pg.removed_knots[i].size)}
-                  for i, a in enumerate(ANGLES)},
+        "knots": {
+            a: {"kept": int(res.attitude.knot_times[i].size), "removed": int(pg.removed_knots[i].size)}
+            for i, a in enumerate(ANGLES)
+        },
         "rejected_observations": capped_list(
-            [{"index": int(i), "camera": CAMERAS[int(orbit_pass.observations.camera[i])],
-              "landmark_kind": "gcp" if orbit_pass.landmarks.kind[orbit_pass.observations.landmark[i]] == KIND_GCP else "tie",
-              "normalised_residual": float(n),
-              "by": "data snooping" if i in snooped else "robust screen"} for i, n in zip(res.rejected, res.rejected_norm)],
-            f"{out}:/observations/rejected" if out is not None else None, group_by=("camera", "landmark_kind")),
+            [
+                {
+                    "index": int(i),
+                    "camera": CAMERAS[int(orbit_pass.observations.camera[i])],
+                    "landmark_kind": "gcp"
+                    if orbit_pass.landmarks.kind[orbit_pass.observations.landmark[i]] == KIND_GCP
+                    else "tie",
+                    "normalised_residual": float(n),
+                    "by": "data snooping" if i in snooped else "robust screen",
+                }
+                for i, n in zip(res.rejected, res.rejected_norm)
+            ],
+            f"{out}:/observations/rejected" if out is not None else None,
+            group_by=("camera", "landmark_kind"),
+        ),
         "attitude_sigma": attitude_sigma_summary(res, cfg.graph_config().attitude_sigma_arcsec),
         "tie_height": res.tie_height,
         "tie_offset": res.tie_offset,
-        "ephemeris": {"params": res.ephemeris.params.tolist(),
-                      "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in pg.ephemeris_keys()]},
+        "ephemeris": {
+            "params": res.ephemeris.params.tolist(),
+            "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in pg.ephemeris_keys()],
+        },
     }
     diagnostics = []
     obs = orbit_pass.observations
@@ -206,26 +275,48 @@ def run_adjust(
     n_gcp = int(is_gcp.sum())
     n_gcp_rej = int(is_gcp[res.rejected].sum()) if res.rejected.size else 0
     if n_gcp == 0:
-        diagnostics.append("no GCP observations on this pass: absolute accuracy rests on the DEM and the navigation priors")
+        diagnostics.append(
+            "no GCP observations on this pass: absolute accuracy rests on the DEM and the navigation priors"
+        )
     elif n_gcp_rej == n_gcp:
-        diagnostics.append(f"all {n_gcp} GCP observations were rejected as blunders: absolute accuracy rests on the DEM "
-                           "and the navigation priors; check the GCP database")
+        diagnostics.append(
+            f"all {n_gcp} GCP observations were rejected as blunders: absolute accuracy rests on the DEM "
+            "and the navigation priors; check the GCP database"
+        )
     removed = sum(int(r.size) for r in pg.removed_knots)
     if removed:
-        diagnostics.append(f"{removed} knots removed by eqs. 28-29 (too few tie points or cameras): the spline spans the gaps")
+        diagnostics.append(
+            f"{removed} knots removed by eqs. 28-29 (too few tie points or cameras): the spline spans the gaps"
+        )
     if "reason" in res.tie_height:
-        diagnostics.append(f"the tie points' shared height error was not estimated ({res.tie_height['reason']}): "
-                           "their heights' covariance leaves it out (--tie-height-sigma-m sets it)")
+        diagnostics.append(
+            f"the tie points' shared height error was not estimated ({res.tie_height['reason']}): "
+            "their heights' covariance leaves it out (--tie-height-sigma-m sets it)"
+        )
     if res.status != "converged":
-        diagnostics.insert(0, f"the least-squares solve ended {res.status.replace('_', ' ')} (accepted with "
-                              "--accept-unconverged): the covariances are not those of an optimum")
+        diagnostics.insert(
+            0,
+            f"the least-squares solve ended {res.status.replace('_', ' ')} (accepted with "
+            "--accept-unconverged): the covariances are not those of an optimum",
+        )
     summary["diagnostics"] = diagnostics
     if truth is not None:
         summary.update(score_pass(orbit_pass, truth, res, camera, points=score_points))
     if out is not None:
-        write_adjust_result(Path(out), orbit_pass, res, summary,
-                            {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
-                             "config": json.dumps(dataclasses.asdict(cfg)), "software": f"misrgraph {__version__}"}, truth)
+        write_adjust_result(
+            Path(out),
+            orbit_pass,
+            res,
+            summary,
+            {
+                "scenario": str(d),
+                "pass_file": str(pass_file),
+                "camera_model": str(cam_path),
+                "config": json.dumps(dataclasses.asdict(cfg)),
+                "software": f"misrgraph {__version__}",
+            },
+            truth,
+        )
     return summary
 
 
@@ -249,16 +340,31 @@ def run_tie_height_pool(results: list[str | os.PathLike[str]]) -> dict[str, Any]
             summary = json.loads(f.attrs["summary_json"])
         th = summary.get("tie_height", {})
         if th.get("source") != "estimated" or not np.isfinite(th.get("unclipped_variance_m2", np.nan)):
-            skipped[str(path)] = (f"tie height {th.get('source', 'absent')}"
-                                  + (f" ({th['reason']})" if "reason" in th else ""))
+            skipped[str(path)] = f"tie height {th.get('source', 'absent')}" + (
+                f" ({th['reason']})" if "reason" in th else ""
+            )
             continue
-        per_pass[str(path)] = {"unclipped_variance_m2": float(th["unclipped_variance_m2"]),
-                               "standard_error_m2": float(th["standard_error_m2"]), "dem_factors": int(th["dem_factors"])}
+        per_pass[str(path)] = {
+            "unclipped_variance_m2": float(th["unclipped_variance_m2"]),
+            "standard_error_m2": float(th["standard_error_m2"]),
+            "dem_factors": int(th["dem_factors"]),
+        }
     if len(per_pass) < 2:
-        raise InputError("results", f"{len(per_pass)} with an estimate (skipped: {skipped})",
-                         "at least 2 results of adjust --observations matched that estimated the tie height")
-    pooled = pool_shared_height([v["unclipped_variance_m2"] for v in per_pass.values()],
-                                [v["dem_factors"] for v in per_pass.values()])
-    return {"sigma_m": pooled.sigma_m, "variance_m2": pooled.variance_m2, "unclipped_variance_m2": pooled.unclipped_m2,
-            "standard_error_m2": pooled.standard_error_m2, "dem_factors": pooled.n, "passes": len(per_pass),
-            "per_pass": per_pass, "skipped": skipped}
+        raise InputError(
+            "results",
+            f"{len(per_pass)} with an estimate (skipped: {skipped})",
+            "at least 2 results of adjust --observations matched that estimated the tie height",
+        )
+    pooled = pool_shared_height(
+        [v["unclipped_variance_m2"] for v in per_pass.values()], [v["dem_factors"] for v in per_pass.values()]
+    )
+    return {
+        "sigma_m": pooled.sigma_m,
+        "variance_m2": pooled.variance_m2,
+        "unclipped_variance_m2": pooled.unclipped_m2,
+        "standard_error_m2": pooled.standard_error_m2,
+        "dem_factors": pooled.n,
+        "passes": len(per_pass),
+        "per_pass": per_pass,
+        "skipped": skipped,
+    }

@@ -68,11 +68,16 @@ def run_calibrate(
             passes.append(p)
     if not passes:
         raise InputError("--observations", observations, "a set with observations in at least one pass")
-    supplied = table if isinstance(table, CameraModel) else table.at_temperature(
-        float(np.median([p.temperature_c for p in passes])))
+    supplied = (
+        table
+        if isinstance(table, CameraModel)
+        else table.at_temperature(float(np.median([p.temperature_c for p in passes])))
+    )
     truth_path = d / "camera_truth.h5"
     truth = load_camera_model(truth_path) if truth_path.exists() else None
-    res = calibrate_passes(passes, supplied, gcps, cfg, progress, table=None if isinstance(table, CameraModel) else table)
+    res = calibrate_passes(
+        passes, supplied, gcps, cfg, progress, table=None if isinstance(table, CameraModel) else table
+    )
     summary = summarise(res, cfg, supplied)
     summary["observation_set"] = observations
     if truth is not None:
@@ -80,9 +85,14 @@ def run_calibrate(
     if out is not None:
         summary["rejected_observations"]["full_list"] = f"{out}:/calibration/rejected"
         with atomic_h5(out, "camera_model") as f:
-            for m in (res.table.models if res.table is not None else [res.camera]):
-                m.provenance.update({"scenario": str(d), "camera_model_in": str(cam_path),
-                                     "config": json.dumps(dataclasses.asdict(cfg))})
+            for m in res.table.models if res.table is not None else [res.camera]:
+                m.provenance.update(
+                    {
+                        "scenario": str(d),
+                        "camera_model_in": str(cam_path),
+                        "config": json.dumps(dataclasses.asdict(cfg)),
+                    }
+                )
             if res.table is not None:  # thermal: one model per temperature bin
                 write_camera_groups(f, res.table)
             else:
@@ -95,7 +105,9 @@ def run_calibrate(
             write_dataset(g, "correlation", np.asarray(summary["correlation"]["matrix"]))
             rej = np.array([(p, o, r) for p, o, r in res.rejected], float).reshape(-1, 3)
             r = g.create_group("rejected")
-            write_dataset(r, "pass_index", rej[:, 0].astype(np.int64), meaning="index of the pass in the month (file order)")
+            write_dataset(
+                r, "pass_index", rej[:, 0].astype(np.int64), meaning="index of the pass in the month (file order)"
+            )
             write_dataset(r, "observation", rej[:, 1].astype(np.int64), meaning="observation index within the pass")
             write_dataset(r, "normalised_residual", rej[:, 2], units="sigma")
             g.attrs["summary_json"] = json.dumps({k: v for k, v in summary.items() if k != "correlation"})

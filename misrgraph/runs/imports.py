@@ -22,29 +22,51 @@ def _geoid(geoid: str | os.PathLike[str] | None) -> Geoid | None:
     return None if geoid is None else read_geoid_grid(geoid)
 
 
-def run_import_gcps(source: str | os.PathLike[str], out: str | os.PathLike[str], default_sigma_m: float | None = None,
-                    geoid: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+def run_import_gcps(
+    source: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    default_sigma_m: float | None = None,
+    geoid: str | os.PathLike[str] | None = None,
+) -> dict[str, Any]:
     """Write the GCP database ``out`` (HDF5) from a CSV/GeoJSON list; return a summary:
     ``{"gcps", "out", "sigma_m": {"min", "median", "max"}, "lat": [min, max], "lon": [min, max]}``."""
     db = read_gcp_table(source, default_sigma_m, _geoid(geoid))
     save_gcp_database(db, out)
     s = np.asarray(db.sigma_m)
-    return {"gcps": len(db), "out": str(Path(out)),
-            "sigma_m": {"min": float(s.min()), "median": float(np.median(s)), "max": float(s.max())},
-            "lat": [float(db.lat.min()), float(db.lat.max())], "lon": [float(db.lon.min()), float(db.lon.max())]}
+    return {
+        "gcps": len(db),
+        "out": str(Path(out)),
+        "sigma_m": {"min": float(s.min()), "median": float(np.median(s)), "max": float(s.max())},
+        "lat": [float(db.lat.min()), float(db.lat.max())],
+        "lon": [float(db.lon.min()), float(db.lon.max())],
+    }
 
 
-def run_import_dem(sources: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str], posting_arcsec: float = 3.0,
-                   tile_postings: int = 1201, quality: int = 1, geoid: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+def run_import_dem(
+    sources: Sequence[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    posting_arcsec: float = 3.0,
+    tile_postings: int = 1201,
+    quality: int = 1,
+    geoid: str | os.PathLike[str] | None = None,
+) -> dict[str, Any]:
     """Write the DEM file ``out`` (HDF5) from rasters; return a summary: ``{"tiles", "tile_postings",
     "posting_arcsec", "height_reference", "height_m": {"min", "max"}, "lat": [min, max], "lon": [min, max], "out"}``."""
     dem = read_raster_dem(list(sources), posting_arcsec, tile_postings, quality, _geoid(geoid))
-    reference = ("WGS84 ellipsoid (geoid grid " + Path(geoid).name + " added)" if geoid is not None
-                 else "as in " + ", ".join(Path(s).name for s in sources) + " (no geoid applied)")
+    reference = (
+        "WGS84 ellipsoid (geoid grid " + Path(geoid).name + " added)"
+        if geoid is not None
+        else "as in " + ", ".join(Path(s).name for s in sources) + " (no geoid applied)"
+    )
     save_dem(dem, out, height_reference=reference)
     span = (dem.size - 1) * dem.posting_deg
-    return {"tiles": int(dem.lat0.size), "tile_postings": dem.size, "posting_arcsec": dem.posting_deg * 3600.0,
-            "height_reference": reference,
-            "height_m": {"min": float(dem.heights.min()), "max": float(dem.heights.max())},
-            "lat": [float(dem.lat0.min()), float(dem.lat0.max() + span)],
-            "lon": [float(dem.lon0.min()), float(dem.lon0.max() + span)], "out": str(Path(out))}
+    return {
+        "tiles": int(dem.lat0.size),
+        "tile_postings": dem.size,
+        "posting_arcsec": dem.posting_deg * 3600.0,
+        "height_reference": reference,
+        "height_m": {"min": float(dem.heights.min()), "max": float(dem.heights.max())},
+        "lat": [float(dem.lat0.min()), float(dem.lat0.max() + span)],
+        "lon": [float(dem.lon0.min()), float(dem.lon0.max() + span)],
+        "out": str(Path(out)),
+    }

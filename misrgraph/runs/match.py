@@ -40,8 +40,16 @@ from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.imagery import MatchedSet, has_imagery, read_imagery, write_matched
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, Landmarks, Observations, OrbitPass
 from misrgraph.io.truth import read_pass_truth
-from misrgraph.match.pipeline import (AN, MatchConfig, MatchedObservations, gcp_fit_rows, match_gcps, match_ties, scale_gcp_sigmas,
-                                      search_range)
+from misrgraph.match.pipeline import (
+    AN,
+    MatchConfig,
+    MatchedObservations,
+    gcp_fit_rows,
+    match_gcps,
+    match_ties,
+    scale_gcp_sigmas,
+    search_range,
+)
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.dem import Geoid, fit_local_surface
 
@@ -59,15 +67,25 @@ _TIES_PER_PASS = 20_000
 def _stats(err: np.ndarray, sig: np.ndarray) -> dict[str, Any]:
     """Per-coordinate error statistics of ``err (n, 2)`` px with sigmas ``sig (n,)``."""
     if err.size == 0:
-        return {"error_px": None, "normalised_error_rms": None, "wrong_matches": 0, "normalised_error_rms_correct": None}
+        return {
+            "error_px": None,
+            "normalised_error_rms": None,
+            "wrong_matches": 0,
+            "normalised_error_rms_correct": None,
+        }
     a = np.abs(err).ravel()
     z = err / sig[:, None]
     wrong = np.hypot(err[:, 0], err[:, 1]) > WRONG_MATCH_PX
-    return {"error_px": {"rms": float(np.sqrt(np.mean(a ** 2))), "p50": float(np.median(a)),
-                         "p95": float(np.percentile(a, 95))},
-            "normalised_error_rms": float(np.sqrt(np.mean(z ** 2))),
-            "wrong_matches": int(np.sum(wrong)),
-            "normalised_error_rms_correct": float(np.sqrt(np.mean(z[~wrong] ** 2))) if (~wrong).any() else None}
+    return {
+        "error_px": {
+            "rms": float(np.sqrt(np.mean(a**2))),
+            "p50": float(np.median(a)),
+            "p95": float(np.percentile(a, 95)),
+        },
+        "normalised_error_rms": float(np.sqrt(np.mean(z**2))),
+        "wrong_matches": int(np.sum(wrong)),
+        "normalised_error_rms_correct": float(np.sqrt(np.mean(z[~wrong] ** 2))) if (~wrong).any() else None,
+    }
 
 
 def _per_band(err: np.ndarray, sig: np.ndarray, band: np.ndarray) -> dict[str, Any]:
@@ -90,10 +108,17 @@ def _scenario_surface(directory: Path) -> Callable[[np.ndarray, np.ndarray], np.
     return scenario_terrain(cfg).height
 
 
-def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Path, pass_index: int,
-               cfg: MatchConfig = MatchConfig(), true_surface: Callable | None = None,
-               progress: Callable[[str], None] | None = None,
-               scored: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] | None = None) -> dict[str, Any]:
+def match_pass(
+    pass_file: Path,
+    camera_path: Path,
+    gcp_path: Path,
+    dem_path: Path,
+    pass_index: int,
+    cfg: MatchConfig = MatchConfig(),
+    true_surface: Callable | None = None,
+    progress: Callable[[str], None] | None = None,
+    scored: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] | None = None,
+) -> dict[str, Any]:
     """Match one pass file and write its ``/matched`` group; return its summary. With truth,
     ``scored`` (when given) collects each kind's ``(error (n, 2) px, sigma (n,) px, band (n,))`` for
     pooling over passes."""
@@ -141,8 +166,15 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
 
     def obs_of(m: MatchedObservations, rows: np.ndarray) -> Observations:
         n = len(m)
-        return Observations(rows, np.array(m.camera, np.int64), np.array(m.band, np.int64).reshape(n),
-                            np.array(m.line), np.array(m.sample), np.full(n, np.nan), np.array(m.sigma_px))
+        return Observations(
+            rows,
+            np.array(m.camera, np.int64),
+            np.array(m.band, np.int64).reshape(n),
+            np.array(m.line),
+            np.array(m.sample),
+            np.full(n, np.nan),
+            np.array(m.sigma_px),
+        )
 
     o_g = obs_of(g, np.array([new_gcp[r] for r in g.feature], np.int64))
     o_t = obs_of(t, n_g + np.array(t.feature, np.int64))
@@ -150,21 +182,45 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
     summary: dict[str, Any] = {
         "pass_id": p.pass_id,
         "search_px": search_range(cfg, im),
-        "gcp": {"candidates": g.candidates, "matched": len(g), "seconds": t_gcp, "rejected": dict(g.reasons),
-                "sigma_scale": t.precision.gcp.as_dict() if t.precision is not None and t.precision.gcp is not None else None},
-        "tie": {"candidates": tie_candidates, "matched": int(np.sum(np.array(t.camera) != AN)) if len(t) else 0,
-                "features": n_t, "seconds": t_tie, "rejected": dict(t.reasons),
-                "sigma_scale": t.precision.as_dict(CAMERAS) if t.precision is not None else None,
-                **({"shared_offset": t.precision.shared_offset.as_dict(CAMERAS)}
-                   if t.precision is not None and t.precision.shared_offset is not None else {})},
+        "gcp": {
+            "candidates": g.candidates,
+            "matched": len(g),
+            "seconds": t_gcp,
+            "rejected": dict(g.reasons),
+            "sigma_scale": t.precision.gcp.as_dict()
+            if t.precision is not None and t.precision.gcp is not None
+            else None,
+        },
+        "tie": {
+            "candidates": tie_candidates,
+            "matched": int(np.sum(np.array(t.camera) != AN)) if len(t) else 0,
+            "features": n_t,
+            "seconds": t_tie,
+            "rejected": dict(t.reasons),
+            "sigma_scale": t.precision.as_dict(CAMERAS) if t.precision is not None else None,
+            **(
+                {"shared_offset": t.precision.shared_offset.as_dict(CAMERAS)}
+                if t.precision is not None and t.precision.shared_offset is not None
+                else {}
+            ),
+        },
     }
     truth = read_pass_truth(pass_file)
     tl = tb = None
     if truth is not None and true_surface is not None:
         true_geo = truth.geometry(p)
-        tie_truth = (true_geo.pixel_to_ground(np.full(n_t, AN), band, [f.line for f in features], [f.sample for f in features],
-                                              surface=true_surface, exposure=np.full(n_t, np.nan))
-                     if n_t else np.zeros((0, 3)))
+        tie_truth = (
+            true_geo.pixel_to_ground(
+                np.full(n_t, AN),
+                band,
+                [f.line for f in features],
+                [f.sample for f in features],
+                surface=true_surface,
+                exposure=np.full(n_t, np.nan),
+            )
+            if n_t
+            else np.zeros((0, 3))
+        )
         tl = np.concatenate([truth.landmark_ecef[gcp_rows].reshape(-1, 3), tie_truth, truth.landmark_ecef[chk_rows]])
         err = np.full((len(obs), 2), np.nan)
         for cam, b in np.unique(np.stack([obs.camera, obs.band], 1), axis=0) if len(obs) else []:
@@ -186,14 +242,19 @@ def match_pass(pass_file: Path, camera_path: Path, gcp_path: Path, dem_path: Pat
             scored.setdefault("tie", []).append((err[scored_t], obs.sigma_px[scored_t], obs.band[scored_t]))
         summary["tie"]["per_camera"] = {
             CAMERAS[c]: {"matched": int(np.sum(sel)), **_stats(err[sel], obs.sigma_px[sel])}
-            for c in range(len(CAMERAS)) if c != AN and np.any(sel := scored_t & (obs.camera == c))}
+            for c in range(len(CAMERAS))
+            if c != AN and np.any(sel := scored_t & (obs.camera == c))
+        }
     write_matched(pass_file, MatchedSet(landmarks, obs, tl, tb, summary))
     return summary
 
 
-def run_match(scenario_dir: str | os.PathLike[str], cfg: MatchConfig = MatchConfig(),
-              pass_file: str | os.PathLike[str] | None = None,
-              progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+def run_match(
+    scenario_dir: str | os.PathLike[str],
+    cfg: MatchConfig = MatchConfig(),
+    pass_file: str | os.PathLike[str] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
     """Match every pass of a scenario that has imagery (or only ``pass_file``); return
     ``{"gcp": {...}, "tie": {...}, "passes": [...]}`` pooled over passes (see the module docstring)."""
     d = Path(scenario_dir)
@@ -213,13 +274,16 @@ def run_match(scenario_dir: str | os.PathLike[str], cfg: MatchConfig = MatchConf
         idx = all_files.index(f) if f in all_files else 0
         if progress:
             progress(f"matching {f.name} ({i + 1}/{len(with_imagery)})")
-        passes.append(match_pass(f, d / "camera_model.h5", d / "gcp.h5", d / "dem.h5", idx, cfg, true_surface, progress,
-                                 scored))
+        passes.append(
+            match_pass(f, d / "camera_model.h5", d / "gcp.h5", d / "dem.h5", idx, cfg, true_surface, progress, scored)
+        )
     out: dict[str, Any] = {"passes": passes}
     for kind in ("gcp", "tie"):
-        pooled = {"candidates": sum(s[kind]["candidates"] for s in passes),
-                  "matched": sum(s[kind]["matched"] for s in passes),
-                  "seconds": sum(s[kind]["seconds"] for s in passes)}
+        pooled = {
+            "candidates": sum(s[kind]["candidates"] for s in passes),
+            "matched": sum(s[kind]["matched"] for s in passes),
+            "seconds": sum(s[kind]["seconds"] for s in passes),
+        }
         if scored.get(kind):  # with truth: the statistics over every pass's matches
             err, sig, band = (np.concatenate([item[i] for item in scored[kind]]) for i in range(3))
             pooled.update(_stats(err.reshape(-1, 2), sig))

@@ -30,27 +30,29 @@ import numpy as np
 from misrgraph import __version__
 from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult
-from misrgraph.runs.adjust import adjust_observation_set, camera_prior_of
 from misrgraph.evaluate.products import score_pp
 from misrgraph.io.camera import load_camera_model
 from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_file
+from misrgraph.io.imagery import OBSERVATION_SETS
 from misrgraph.io.passes import OrbitPass
 from misrgraph.io.products import ProjectionParameters, save_pp
-from misrgraph.io.imagery import OBSERVATION_SETS
 from misrgraph.io.truth import PassTruth, load_pass_observations, pass_truth_in, read_pass_truth
 from misrgraph.misr.som import N_BLOCKS, SomGrid
-from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.constants import CAMERAS
+from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.products.pp import compute_pp
 from misrgraph.products.roi import MIN_ROI_PASSES
+from misrgraph.runs.adjust import adjust_observation_set, camera_prior_of
 
 __all__ = ["run_products", "parse_blocks", "DEFAULT_BLOCKS", "RoiOptions"]
 
 #: Why the summaries carry ``"roi": null`` without ``--roi``.
-ROI_NOTE = ("ROI not built: give --roi (it needs at least four passes with whole-swath strips, "
-            "simulated with --imagery --roi-blocks A-B)")
+ROI_NOTE = (
+    "ROI not built: give --roi (it needs at least four passes with whole-swath strips, "
+    "simulated with --imagery --roi-blocks A-B)"
+)
 
 #: Blocks mapped when ``--blocks`` is not given: this many, centred on the pass's features.
 DEFAULT_BLOCKS = 10
@@ -79,8 +81,9 @@ def _default_blocks(orbit_pass: OrbitPass, res: AdjustResult, grid: SomGrid, n: 
     b, _, _ = grid.latlon_to_bls(lat, lon, strict=False)
     b = b[b > 0]
     if b.size == 0:
-        raise DegenerateProblemError(f"pass {orbit_pass.pass_id}: none of its features lies on path {grid.path}'s blocks; "
-                                     "give --blocks")
+        raise DegenerateProblemError(
+            f"pass {orbit_pass.pass_id}: none of its features lies on path {grid.path}'s blocks; give --blocks"
+        )
     lo = int(np.clip(int(np.median(b)) - n // 2, 1, N_BLOCKS - n + 1))
     return np.arange(lo, lo + n)
 
@@ -130,7 +133,9 @@ def run_products(
     d = Path(scenario_dir)
     roi_options = (roi_options or RoiOptions()) if roi else None
     if roi and pass_file is not None:
-        raise InputError("--pass", str(pass_file), "no --pass with --roi (the ROI is made of all the passes with strips)")
+        raise InputError(
+            "--pass", str(pass_file), "no --pass with --roi (the ROI is made of all the passes with strips)"
+        )
     if observations not in OBSERVATION_SETS:
         raise InputError("--observations", observations, OBSERVATION_SETS)
     if (d / "state.json").is_file():
@@ -152,16 +157,37 @@ def run_products(
     if progress:
         progress("adjusting the pass", 0, 1)
     t0 = time.perf_counter()
-    res = adjust_observation_set(orbit_pass, pass_file, camera, read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5"), cfg,
-                                 observations, camera_prior_of(cam_path, cfg))
+    res = adjust_observation_set(
+        orbit_pass,
+        pass_file,
+        camera,
+        read_dem(d / "dem.h5"),
+        read_gcp_database(d / "gcp.h5"),
+        cfg,
+        observations,
+        camera_prior_of(cam_path, cfg),
+    )
     t_adjust = time.perf_counter() - t0
     chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
-    provenance = {"scenario": str(d), "pass_file": str(pass_file), "camera_model": str(cam_path),
-                  "software": f"misrgraph {__version__}", "solver_status": res.status, "observation_set": observations}
-    row, t_pp, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, read_pass_truth(pass_file),
-                            camera, progress)
-    summary: dict[str, Any] = {"path": grid.path, "band": band, "blocks": [int(chosen.min()), int(chosen.max())], **row,
-                               "roi": None, "notes": [ROI_NOTE]}
+    provenance = {
+        "scenario": str(d),
+        "pass_file": str(pass_file),
+        "camera_model": str(cam_path),
+        "software": f"misrgraph {__version__}",
+        "solver_status": res.status,
+        "observation_set": observations,
+    }
+    row, t_pp, _ = _pass_pp(
+        orbit_pass, res, grid.path, chosen, band, out_dir, provenance, read_pass_truth(pass_file), camera, progress
+    )
+    summary: dict[str, Any] = {
+        "path": grid.path,
+        "band": band,
+        "blocks": [int(chosen.min()), int(chosen.max())],
+        **row,
+        "roi": None,
+        "notes": [ROI_NOTE],
+    }
     summary["seconds"] = {"adjust": t_adjust, "pp": t_pp, "total": time.perf_counter() - t_start}
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
@@ -177,10 +203,19 @@ def _out_dir(out: str | os.PathLike[str]) -> Path:
     return out_dir
 
 
-def _pass_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, chosen: np.ndarray, band: str, out_dir: Path,
-             provenance: dict[str, Any], truth: PassTruth | None, camera: Any,
-             progress: Callable[[str, int, int], None] | None,
-             cameras: tuple[str, ...] = CAMERAS) -> tuple[dict[str, Any], float, ProjectionParameters]:
+def _pass_pp(
+    orbit_pass: OrbitPass,
+    res: AdjustResult,
+    path: int,
+    chosen: np.ndarray,
+    band: str,
+    out_dir: Path,
+    provenance: dict[str, Any],
+    truth: PassTruth | None,
+    camera: Any,
+    progress: Callable[[str, int, int], None] | None,
+    cameras: tuple[str, ...] = CAMERAS,
+) -> tuple[dict[str, Any], float, ProjectionParameters]:
     """Compute and write ``OUT/PP_<pass id>.h5`` of one adjusted pass; its summary row
     ``{"pass_id", "files", coverage..., "pp_error_m"?, "seconds_scoring"?}`` (scored against
     ``truth``, the pass file's, when it has one), the seconds the PP took and the PP."""
@@ -199,9 +234,17 @@ def _pass_pp(orbit_pass: OrbitPass, res: AdjustResult, path: int, chosen: np.nda
     return row, t_pp, pp
 
 
-def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None, pass_file: str | os.PathLike[str] | None,
-                        band: str, progress: Callable[[str, int, int], None] | None, default_blocks: int,
-                        t_start: float, roi_options: "RoiOptions | None" = None) -> dict[str, Any]:
+def _run_products_state(
+    d: Path,
+    out: str | os.PathLike[str],
+    blocks: str | None,
+    pass_file: str | os.PathLike[str] | None,
+    band: str,
+    progress: Callable[[str, int, int], None] | None,
+    default_blocks: int,
+    t_start: float,
+    roi_options: "RoiOptions | None" = None,
+) -> dict[str, Any]:
     """PP of the passes of an update state from its current estimate (see :func:`run_products`):
     ``{"path", "state", "band", "blocks", "passes": [{"pass_id", "files", coverage..., "pp_error_m"?,
     "seconds"}], "seconds"}``; ``OUT/PP_<pass id>.h5`` per pass and ``OUT/products.json``."""
@@ -229,8 +272,20 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
         # the scenario beside the state's DEM holds its SOM DEM (and, when simulated, its truth)
         dem_file = json.loads((d / "state.json").read_text()).get("dem")
         scenario = Path(dem_file).parent if dem_file else d
-        return _roi_stage(adjusted, grid.path, blocks, band, out_dir, d, scenario, camera, progress, roi_options,
-                          {"state": str(d), "restore": t_restore}, t_start)
+        return _roi_stage(
+            adjusted,
+            grid.path,
+            blocks,
+            band,
+            out_dir,
+            d,
+            scenario,
+            camera,
+            progress,
+            roi_options,
+            {"state": str(d), "restore": t_restore},
+            t_start,
+        )
     rows = []
     chosen = None
     for n, i in enumerate(chosen_idx):
@@ -241,16 +296,29 @@ def _run_products_state(d: Path, out: str | os.PathLike[str], blocks: str | None
             chosen = parse_blocks(blocks) if blocks else _default_blocks(orbit_pass, res, grid, default_blocks)
         if progress:
             progress(f"PP of pass {orbit_pass.pass_id} ({n + 1}/{len(chosen_idx)})", n, len(chosen_idx))
-        provenance = {"state": str(d), "pass_file": str(files[i]), "camera_model": "the state's",
-                      "software": f"misrgraph {__version__}", "solver_status": "iSAM2 update state"}
-        row, _, _ = _pass_pp(orbit_pass, res, grid.path, chosen, band, out_dir, provenance, read_pass_truth(files[i]),
-                             camera, None)
+        provenance = {
+            "state": str(d),
+            "pass_file": str(files[i]),
+            "camera_model": "the state's",
+            "software": f"misrgraph {__version__}",
+            "solver_status": "iSAM2 update state",
+        }
+        row, _, _ = _pass_pp(
+            orbit_pass, res, grid.path, chosen, band, out_dir, provenance, read_pass_truth(files[i]), camera, None
+        )
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
     assert chosen is not None
-    summary: dict[str, Any] = {"path": grid.path, "state": str(d), "band": band, "blocks": [int(chosen.min()), int(chosen.max())],
-                               "passes": rows, "roi": None, "notes": [ROI_NOTE],
-                               "seconds": {"restore": t_restore, "total": time.perf_counter() - t_start}}
+    summary: dict[str, Any] = {
+        "path": grid.path,
+        "state": str(d),
+        "band": band,
+        "blocks": [int(chosen.min()), int(chosen.max())],
+        "passes": rows,
+        "roi": None,
+        "notes": [ROI_NOTE],
+        "seconds": {"restore": t_restore, "total": time.perf_counter() - t_start},
+    }
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
     return summary
@@ -277,9 +345,18 @@ class RoiOptions:
                 raise InputError(name, v, "an integer >= 0")
 
 
-def _run_products_roi(d: Path, out: str | os.PathLike[str], blocks: str | None, camera_model: str | os.PathLike[str] | None,
-                      band: str, cfg: AdjustConfig, progress: Callable[[str, int, int], None] | None,
-                      opts: RoiOptions, t_start: float, observations: str = "simulated") -> dict[str, Any]:
+def _run_products_roi(
+    d: Path,
+    out: str | os.PathLike[str],
+    blocks: str | None,
+    camera_model: str | os.PathLike[str] | None,
+    band: str,
+    cfg: AdjustConfig,
+    progress: Callable[[str, int, int], None] | None,
+    opts: RoiOptions,
+    t_start: float,
+    observations: str = "simulated",
+) -> dict[str, Any]:
     """Adjust every pass of scenario ``d`` that has whole-swath strips (from the ``observations``
     set), then :func:`_roi_stage`."""
     from misrgraph.io.imagery import strip_cameras
@@ -287,8 +364,11 @@ def _run_products_roi(d: Path, out: str | os.PathLike[str], blocks: str | None, 
     out_dir = _out_dir(out)
     files = [f for f in sorted((d / "passes").glob("*.h5")) if strip_cameras(f)]
     if len(files) < MIN_ROI_PASSES:
-        raise InputError("--roi", f"{len(files)} passes with whole-swath strips in {d / 'passes'}",
-                         f"at least {MIN_ROI_PASSES} (simulate a path scenario with --imagery --roi-blocks A-B)")
+        raise InputError(
+            "--roi",
+            f"{len(files)} passes with whole-swath strips in {d / 'passes'}",
+            f"at least {MIN_ROI_PASSES} (simulate a path scenario with --imagery --roi-blocks A-B)",
+        )
     cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
     camera_all = load_camera_model(cam_path)
     prior = camera_prior_of(cam_path, cfg)
@@ -299,16 +379,40 @@ def _run_products_roi(d: Path, out: str | os.PathLike[str], blocks: str | None, 
         if progress:
             progress(f"adjusting pass {n + 1}/{len(files)}", n, len(files))
         orbit_pass = load_pass_observations(f, observations)[0]
-        res = adjust_observation_set(orbit_pass, f, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg,
-                                     observations, prior)
+        res = adjust_observation_set(
+            orbit_pass, f, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg, observations, prior
+        )
         adjusted.append((orbit_pass, res, f))
-    return _roi_stage(adjusted, int(adjusted[0][0].path), blocks, band, out_dir, d, d, camera_all, progress, opts,
-                      {"scenario": str(d), "adjust": time.perf_counter() - t0}, t_start)
+    return _roi_stage(
+        adjusted,
+        int(adjusted[0][0].path),
+        blocks,
+        band,
+        out_dir,
+        d,
+        d,
+        camera_all,
+        progress,
+        opts,
+        {"scenario": str(d), "adjust": time.perf_counter() - t0},
+        t_start,
+    )
 
 
-def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, blocks: str | None, band: str, out_dir: Path,
-               source: Path, scenario: Path, camera: Any, progress: Callable[[str, int, int], None] | None,
-               opts: RoiOptions, head: dict[str, Any], t_start: float) -> dict[str, Any]:
+def _roi_stage(
+    adjusted: list[tuple[OrbitPass, AdjustResult, Any]],
+    path: int,
+    blocks: str | None,
+    band: str,
+    out_dir: Path,
+    source: Path,
+    scenario: Path,
+    camera: Any,
+    progress: Callable[[str, int, int], None] | None,
+    opts: RoiOptions,
+    head: dict[str, Any],
+    t_start: float,
+) -> dict[str, Any]:
     """PP of every adjusted pass over the ROI's blocks (for the cameras with strips), the ROI built
     and written, its co-registration measured, exports and the summary (``products.json``).
     ``scenario`` is the directory whose ``dem_som.h5`` is the default SOM DEM and whose
@@ -320,26 +424,46 @@ def _roi_stage(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], path: int, b
         raise InputError("--band", band, "red (the strips are rendered in the red band)")
     with contextlib.ExitStack() as stack:
         readers = {str(f): stack.enter_context(open_strips(f)) for _, _, f in adjusted}
-        return _roi_build(adjusted, readers, path, blocks, band, out_dir, source, scenario, camera, progress, opts, head,
-                          t_start)
+        return _roi_build(
+            adjusted, readers, path, blocks, band, out_dir, source, scenario, camera, progress, opts, head, t_start
+        )
 
 
-def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dict[str, Any], path: int, blocks: str | None,
-               band: str, out_dir: Path, source: Path, scenario: Path, camera: Any,
-               progress: Callable[[str, int, int], None] | None, opts: RoiOptions, head: dict[str, Any],
-               t_start: float) -> dict[str, Any]:
+def _roi_build(
+    adjusted: list[tuple[OrbitPass, AdjustResult, Any]],
+    readers: dict[str, Any],
+    path: int,
+    blocks: str | None,
+    band: str,
+    out_dir: Path,
+    source: Path,
+    scenario: Path,
+    camera: Any,
+    progress: Callable[[str, int, int], None] | None,
+    opts: RoiOptions,
+    head: dict[str, Any],
+    t_start: float,
+) -> dict[str, Any]:
     """:func:`_roi_stage` with every pass file's strips open in ``readers`` (by file name)."""
     from misrgraph.evaluate.products import score_roi, score_roi_matches
     from misrgraph.io.dem import read_som_dem
     from misrgraph.io.roi import export_roi_geotiff, read_roi, roi_writer, write_quicklooks
-    from misrgraph.products.roi import (RoiPass, build_roi, coregistration_matches, coregistration_stats,
-                                        roi_predicted_coregistration)
+    from misrgraph.products.roi import (
+        RoiPass,
+        build_roi,
+        coregistration_matches,
+        coregistration_stats,
+        roi_predicted_coregistration,
+    )
     from misrgraph.sim.imagery import FULL_SCALE_DN
 
     with_strips = [(p, r, f) for p, r, f in adjusted if readers[str(f)].cameras]
     if len(with_strips) < MIN_ROI_PASSES:
-        raise InputError("--roi", f"{len(with_strips)} passes with whole-swath strips",
-                         f"at least {MIN_ROI_PASSES} (simulate a path scenario with --imagery --roi-blocks A-B)")
+        raise InputError(
+            "--roi",
+            f"{len(with_strips)} passes with whole-swath strips",
+            f"at least {MIN_ROI_PASSES} (simulate a path scenario with --imagery --roi-blocks A-B)",
+        )
     if len({int(p.path) for p, _, _ in with_strips}) != 1:
         raise InputError("passes", sorted({int(p.path) for p, _, _ in with_strips}), "passes of one path")
     if blocks:
@@ -350,31 +474,46 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
             raise InputError("--blocks", None, "a block range (the strips do not say which blocks they cover)")
         a, b = max(r[0] for r in rendered), min(r[1] for r in rendered)  # type: ignore[index]
         if a > b:
-            raise InputError("--blocks", None, f"a block range (the passes' strips cover different blocks: {sorted(rendered)})")
+            raise InputError(
+                "--blocks", None, f"a block range (the passes' strips cover different blocks: {sorted(rendered)})"
+            )
         chosen = np.arange(a, b + 1)
     dem_path = Path(opts.som_dem) if opts.som_dem else scenario / "dem_som.h5"
     if not dem_path.is_file():
-        raise InputError("--som-dem", str(dem_path), "a SOM DEM file (dem_som.h5, written by 'misrgraph simulate --roi-blocks')")
+        raise InputError(
+            "--som-dem", str(dem_path), "a SOM DEM file (dem_som.h5, written by 'misrgraph simulate --roi-blocks')"
+        )
     som_dem = read_som_dem(dem_path)
     missing = sorted(set(chosen.tolist()) - set(som_dem.blocks.tolist()))
     if missing or som_dem.path != path:
-        raise InputError("--blocks", missing or chosen.tolist(), f"blocks of the SOM DEM {dem_path} (path {som_dem.path}, "
-                                                                 f"blocks {som_dem.blocks.min()}-{som_dem.blocks.max()})")
+        raise InputError(
+            "--blocks",
+            missing or chosen.tolist(),
+            f"blocks of the SOM DEM {dem_path} (path {som_dem.path}, "
+            f"blocks {som_dem.blocks.min()}-{som_dem.blocks.max()})",
+        )
     cameras = tuple(c for c in CAMERAS if any(c in readers[str(f)].cameras for _, _, f in with_strips))
     rows, roi_passes, truths = [], [], []
     t0 = time.perf_counter()
     for n, (orbit_pass, res, f) in enumerate(with_strips):
         if progress:
             progress(f"PP of pass {orbit_pass.pass_id} ({n + 1}/{len(with_strips)})", n, len(with_strips))
-        provenance = {"source": str(source), "pass_file": str(f), "software": f"misrgraph {__version__}",
-                      "solver_status": str(getattr(res, "status", "iSAM2 update state"))}
+        provenance = {
+            "source": str(source),
+            "pass_file": str(f),
+            "software": f"misrgraph {__version__}",
+            "solver_status": str(getattr(res, "status", "iSAM2 update state")),
+        }
         cam_at = camera.at_temperature(orbit_pass.temperature_c) if hasattr(camera, "at_temperature") else camera
         rd = readers[str(f)]
         truth = pass_truth_in(rd.file)  # from the file the reader validated (not opened again)
         row, _, pp = _pass_pp(orbit_pass, res, path, chosen, band, out_dir, provenance, truth, cam_at, None, cameras)
         rows.append(row)
-        roi_passes.append(RoiPass(orbit_pass.pass_id, pp,
-                                  lambda cam, lines, rd=rd: rd.strip(cam, lines) if cam in rd.cameras else None))
+        roi_passes.append(
+            RoiPass(
+                orbit_pass.pass_id, pp, lambda cam, lines, rd=rd: rd.strip(cam, lines) if cam in rd.cameras else None
+            )
+        )
         if truth is not None:
             truths.append((orbit_pass, truth, pp))
     t_pp = time.perf_counter() - t0
@@ -397,17 +536,23 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
             writer.write(blk)
             clear[blk.block] = dict(zip(pass_ids, map(float, blk.clear_fraction)))
             chosen_pass[blk.block] = pass_ids[blk.chosen]
-            predicted[blk.block] = roi_predicted_coregistration([rp.pp for rp in roi_passes], blk.block, blk.chosen,
-                                                                cameras, som_dem.sigma_m, som_dem.resolution_m)
+            predicted[blk.block] = roi_predicted_coregistration(
+                [rp.pp for rp in roi_passes], blk.block, blk.chosen, cameras, som_dem.sigma_m, som_dem.resolution_m
+            )
             obscured[blk.block] = {cam: float(blk.obscured[j].mean()) for j, cam in enumerate(cameras)}
             t1 = time.perf_counter()
             scored = surface is not None and len(truths) == len(roi_passes)
             if opts.coregistration_points:
                 matches = coregistration_matches(blk, pass_ids, opts.coregistration_points)
-                at_matches = (score_roi_matches(blk.block, truths, som_dem.block(blk.block), cameras, surface, matches)
-                              if scored and opts.truth_points else {})
+                at_matches = (
+                    score_roi_matches(blk.block, truths, som_dem.block(blk.block), cameras, surface, matches)
+                    if scored and opts.truth_points
+                    else {}
+                )
                 for cam, kinds in coregistration_stats(matches).items():
-                    coreg_by_block.setdefault(blk.block, {})[cam] = {k: float(st["excess_px"]) for k, st in kinds.items()}
+                    coreg_by_block.setdefault(blk.block, {})[cam] = {
+                        k: float(st["excess_px"]) for k, st in kinds.items()
+                    }
                     for kind, st in kinds.items():
                         if kind in at_matches.get(cam, {}):
                             st["truth_at_matches"] = at_matches[cam][kind]
@@ -415,8 +560,16 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                         if best is None or st["excess_px"] > best["excess_px"]:
                             coreg[cam][kind] = {**st, "block": blk.block}
             if scored and opts.truth_points:
-                sc = score_roi(blk.block, truths, som_dem.block(blk.block), cameras, surface, opts.truth_points,
-                               reference=blk.chosen, obscured=blk.hidden)
+                sc = score_roi(
+                    blk.block,
+                    truths,
+                    som_dem.block(blk.block),
+                    cameras,
+                    surface,
+                    opts.truth_points,
+                    reference=blk.chosen,
+                    obscured=blk.hidden,
+                )
                 for cam, cnt in sc.pop("obscured").items():
                     acc = hidden_counts.setdefault(cam, dict.fromkeys(cnt, 0))
                     for key, v in cnt.items():
@@ -427,39 +580,63 @@ def _roi_build(adjusted: list[tuple[OrbitPass, AdjustResult, Any]], readers: dic
                         truth_scores.setdefault(kind, {})[cam] = max(truth_scores.get(kind, {}).get(cam, 0.0), v)
             t_coreg += time.perf_counter() - t1
     t_roi = time.perf_counter() - t0 - t_coreg
-    roi_summary: dict[str, Any] = {"file": str(roi_file), "cameras": list(cameras), "passes": pass_ids,
-                                   "clear_fraction": clear, "chosen_pass": chosen_pass, "obscured_fraction": obscured}
+    roi_summary: dict[str, Any] = {
+        "file": str(roi_file),
+        "cameras": list(cameras),
+        "passes": pass_ids,
+        "clear_fraction": clear,
+        "chosen_pass": chosen_pass,
+        "obscured_fraction": obscured,
+    }
     if opts.geotiff or opts.quicklooks:
         r = read_roi(roi_file)
         if opts.geotiff:
             roi_summary["geotiff"] = export_roi_geotiff(r, out_dir)
         if opts.quicklooks:
             roi_summary["quicklooks"] = write_quicklooks(r, out_dir)
-    summary: dict[str, Any] = {"path": path, **{k: v for k, v in head.items() if isinstance(v, str)}, "band": band,
-                               "blocks": [int(chosen.min()), int(chosen.max())], "passes": rows, "roi": roi_summary,
-                               "roi_coregistration_px": {cam: max(float(st["excess_px"]) for st in kinds.values())
-                                                         for cam, kinds in coreg.items() if kinds},
-                               "roi_coregistration": coreg, "roi_coregistration_by_block": coreg_by_block,
-                               "roi_predicted_px": _worst_block(predicted, cameras),
-                               "roi_predicted_px_by_block": predicted, "notes": []}
+    summary: dict[str, Any] = {
+        "path": path,
+        **{k: v for k, v in head.items() if isinstance(v, str)},
+        "band": band,
+        "blocks": [int(chosen.min()), int(chosen.max())],
+        "passes": rows,
+        "roi": roi_summary,
+        "roi_coregistration_px": {
+            cam: max(float(st["excess_px"]) for st in kinds.values()) for cam, kinds in coreg.items() if kinds
+        },
+        "roi_coregistration": coreg,
+        "roi_coregistration_by_block": coreg_by_block,
+        "roi_predicted_px": _worst_block(predicted, cameras),
+        "roi_predicted_px_by_block": predicted,
+        "notes": [],
+    }
     if opts.coregistration_points:
         unmeasured = {cam: [int(b) for b in chosen if not coreg_by_block.get(int(b), {}).get(cam)] for cam in cameras}
         summary["roi_coregistration_unmeasured"] = {cam: bl for cam, bl in unmeasured.items() if bl}
         for cam, bl in summary["roi_coregistration_unmeasured"].items():
-            summary["notes"].append(f"{cam}: co-registration not measured in blocks {bl} (fewer than 3 matches in "
-                                    f"every pair: sea, cloud or no texture); roi_coregistration_px covers the others")
+            summary["notes"].append(
+                f"{cam}: co-registration not measured in blocks {bl} (fewer than 3 matches in "
+                f"every pair: sea, cloud or no texture); roi_coregistration_px covers the others"
+            )
     if truth_scores:
         summary["roi_truth"] = truth_scores
         summary["roi_truth_obscured"] = hidden_counts
         summary["roi_truth_by_block"] = truth_by_block
-    summary["seconds"] = {**{k: v for k, v in head.items() if not isinstance(v, str)}, "pp": t_pp, "roi": t_roi,
-                          "coregistration_and_scoring": t_coreg, "total": time.perf_counter() - t_start}
+    summary["seconds"] = {
+        **{k: v for k, v in head.items() if not isinstance(v, str)},
+        "pp": t_pp,
+        "roi": t_roi,
+        "coregistration_and_scoring": t_coreg,
+        "total": time.perf_counter() - t_start,
+    }
     with atomic_file(out_dir / "products.json") as fh:
         fh.write(json.dumps(summary, indent=2))
     return summary
 
 
-def _worst_block(per_block: dict[int, dict[str, dict[str, float]]], cameras: tuple[str, ...]) -> dict[str, dict[str, float]]:
+def _worst_block(
+    per_block: dict[int, dict[str, dict[str, float]]], cameras: tuple[str, ...]
+) -> dict[str, dict[str, float]]:
     """``{camera: {kind: worst over the blocks}}`` of ``{block: {camera: {kind: px}}}`` (every
     camera of ``cameras``, empty where no block has a figure for it)."""
     worst: dict[str, dict[str, float]] = {cam: {} for cam in cameras}

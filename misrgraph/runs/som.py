@@ -16,9 +16,18 @@ __all__ = ["run_som_convert", "run_som_orbit"]
 _FORMS = {"block/line/sample": ("block", "line", "sample"), "lat/lon": ("lat", "lon"), "SOM x/y": ("som_x", "som_y")}
 
 
-def run_som_convert(path: int, resolution_m: int = 1100, *, block: int | None = None, line: float | None = None,
-                    sample: float | None = None, lat: float | None = None, lon: float | None = None,
-                    som_x: float | None = None, som_y: float | None = None) -> dict[str, Any]:
+def run_som_convert(
+    path: int,
+    resolution_m: int = 1100,
+    *,
+    block: int | None = None,
+    line: float | None = None,
+    sample: float | None = None,
+    lat: float | None = None,
+    lon: float | None = None,
+    som_x: float | None = None,
+    som_y: float | None = None,
+) -> dict[str, Any]:
     """One point in every form, from exactly one complete form of input.
 
     Returns ``{"path", "resolution_m", "block", "line", "sample", "lat", "lon", "som_x", "som_y"}``
@@ -27,10 +36,14 @@ def run_som_convert(path: int, resolution_m: int = 1100, *, block: int | None = 
     null and ``on_grid`` false."""
     given = {"block": block, "line": line, "sample": sample, "lat": lat, "lon": lon, "som_x": som_x, "som_y": som_y}
     complete = [name for name, keys in _FORMS.items() if all(given[k] is not None for k in keys)]
-    partial = [name for name, keys in _FORMS.items() if any(given[k] is not None for k in keys) and name not in complete]
+    partial = [
+        name for name, keys in _FORMS.items() if any(given[k] is not None for k in keys) and name not in complete
+    ]
     if len(complete) != 1 or partial:
         got = ", ".join(k for k, v in given.items() if v is not None) or "nothing"
-        raise InputError("point", got, "exactly one of --block/--line/--sample, --lat/--lon or --som-x/--som-y, complete")
+        raise InputError(
+            "point", got, "exactly one of --block/--line/--sample, --lat/--lon or --som-x/--som-y, complete"
+        )
     grid = SomGrid(path, resolution_m)
     form = complete[0]
     if form == "block/line/sample":
@@ -47,11 +60,15 @@ def run_som_convert(path: int, resolution_m: int = 1100, *, block: int | None = 
         b, ln, s = grid.somxy_to_bls(x, y, strict=False)
     on_grid = int(b) != 0
     return {
-        "path": grid.path, "resolution_m": grid.resolution_m,
+        "path": grid.path,
+        "resolution_m": grid.resolution_m,
         "block": int(b) if on_grid else None,
         "line": float(ln) if on_grid else None,
         "sample": float(s) if on_grid else None,
-        "lat": float(la), "lon": float(lo), "som_x": float(x), "som_y": float(y),
+        "lat": float(la),
+        "lon": float(lo),
+        "som_x": float(x),
+        "som_y": float(y),
         "on_grid": on_grid,
     }
 

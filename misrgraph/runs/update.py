@@ -49,13 +49,21 @@ from misrgraph.evaluate.score import score_pass
 from misrgraph.io.camera import is_builtin_model, load_camera_model
 from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
-from misrgraph.io.h5 import atomic_file, atomic_h5, fsync_directory, open_h5, read_dataset, stored_file_sha256, write_dataset
-from misrgraph.io.passes import PASS_ID_PATTERN
+from misrgraph.io.h5 import (
+    atomic_file,
+    atomic_h5,
+    fsync_directory,
+    open_h5,
+    read_dataset,
+    stored_file_sha256,
+    write_dataset,
+)
 from misrgraph.io.imagery import OBSERVATION_SETS
+from misrgraph.io.passes import PASS_ID_PATTERN
 from misrgraph.io.truth import load_pass_observations
-from misrgraph.runs.adjust import camera_prior_of, matched_tie_offset
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, ARCSEC
+from misrgraph.runs.adjust import camera_prior_of, matched_tie_offset
 
 __all__ = ["run_update", "load_state", "restore_state", "State"]
 
@@ -122,11 +130,12 @@ def _check_manifest(f: Path, meta: Any) -> None:
     sha = meta["input_sha256"]
     for key in _INPUTS:
         if meta.get(key) is not None and not (isinstance(sha, dict) and _HEX64.fullmatch(str(sha.get(key)))):
-            raise FileFormatError(f, f"input_sha256.{key} is {sha.get(key) if isinstance(sha, dict) else sha!r}; "
-                                     "expected 64 hex digits")
+            raise FileFormatError(
+                f, f"input_sha256.{key} is {sha.get(key) if isinstance(sha, dict) else sha!r}; expected 64 hex digits"
+            )
     if meta.get("observations", "simulated") not in OBSERVATION_SETS:
         raise FileFormatError(f, f"observations is {meta['observations']!r}; expected one of {OBSERVATION_SETS}")
-    files = ([("estimate", meta["estimate"])] if meta["estimate"] is not None else [])
+    files = [("estimate", meta["estimate"])] if meta["estimate"] is not None else []
     if not isinstance(meta["passes"], list):
         raise FileFormatError(f, "passes is not a list")
     seen = set()
@@ -153,8 +162,9 @@ def _checked_file(d: Path, entry: dict[str, Any]) -> Path:
         raise FileFormatError(path, "named by state.json but missing; the state is damaged")
     got = stored_file_sha256(path)
     if got != entry["sha256"]:
-        raise FileFormatError(path, f"SHA-256 {got[:12]}... differs from state.json's {entry['sha256'][:12]}...; "
-                                    "the state is damaged")
+        raise FileFormatError(
+            path, f"SHA-256 {got[:12]}... differs from state.json's {entry['sha256'][:12]}...; the state is damaged"
+        )
     return path
 
 
@@ -169,9 +179,12 @@ def load_state(directory: str | os.PathLike[str]) -> State | None:
     except json.JSONDecodeError as exc:
         raise FileFormatError(f, f"invalid JSON ({exc.msg}); the state is damaged") from exc
     if isinstance(meta, dict) and meta.get("version") != STATE_VERSION:
-        raise FileFormatError(f, f"state version {meta.get('version')!r}; expected {STATE_VERSION} (version 1 states "
-                                 "hold camera corrections in the retired T_ic = Rz(delta) Ry(beta) convention, version 2 "
-                                 "states name no file by digest; start a new state)")
+        raise FileFormatError(
+            f,
+            f"state version {meta.get('version')!r}; expected {STATE_VERSION} (version 1 states "
+            "hold camera corrections in the retired T_ic = Rz(delta) Ry(beta) convention, version 2 "
+            "states name no file by digest; start a new state)",
+        )
     _check_manifest(f, meta)
     return State(d, meta)
 
@@ -190,7 +203,9 @@ def _state_lock(d: Path) -> Any:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
             locked = True
         except OSError as exc:
-            raise InputError("STATE", str(d), "a state no other update is using (another update holds its lock)") from exc
+            raise InputError(
+                "STATE", str(d), "a state no other update is using (another update holds its lock)"
+            ) from exc
         yield
     finally:
         if locked and created and not (d / "state.json").exists():
@@ -202,8 +217,13 @@ def _state_lock(d: Path) -> Any:
 def _collect_garbage(d: Path, meta: dict[str, Any]) -> None:
     """Remove state files the manifest does not name (left by earlier updates or by crashes)."""
     keep = {d / e["file"] for e in meta["passes"]} | ({d / meta["estimate"]["file"]} if meta["estimate"] else set())
-    for p in [*d.glob("estimate-*.h5"), *d.glob(".estimate*"), *d.glob(".*.tmp"), *(d / "passes").glob("*.h5"),
-              *(d / "passes").glob(".*.tmp")]:
+    for p in [
+        *d.glob("estimate-*.h5"),
+        *d.glob(".estimate*"),
+        *d.glob(".*.tmp"),
+        *(d / "passes").glob("*.h5"),
+        *(d / "passes").glob(".*.tmp"),
+    ]:
         if p not in keep:
             with contextlib.suppress(FileNotFoundError):
                 p.unlink()
@@ -247,8 +267,9 @@ def _load_estimate(path: Path) -> gtsam.Values:
     return out
 
 
-def _restore(d: Path, meta: dict[str, Any], linearization_tol: float | None,
-             progress: Callable[[str], None] | None) -> tuple[IncrementalSolver, CameraModel, list[Path]]:
+def _restore(
+    d: Path, meta: dict[str, Any], linearization_tol: float | None, progress: Callable[[str], None] | None
+) -> tuple[IncrementalSolver, CameraModel, list[Path]]:
     """The solver of a state with its passes replayed (warm from the saved estimate, one update),
     its camera model and its pass files; the inputs are checked against the state's digests."""
     for key in _INPUTS:  # the inputs must be the ones the state was built on
@@ -258,9 +279,13 @@ def _restore(d: Path, meta: dict[str, Any], linearization_tol: float | None,
             raise InputError(key, meta[key], "the file this state was created with (it is missing)")
         now = _input_sha256(meta[key], key)
         if now != meta["input_sha256"][key]:
-            raise InputError(key, meta[key], f"the input this state was created with (SHA-256 "
-                                             f"{meta['input_sha256'][key][:12]}...; it is now {now[:12]}...: restore it "
-                                             "or start a new state)")
+            raise InputError(
+                key,
+                meta[key],
+                f"the input this state was created with (SHA-256 "
+                f"{meta['input_sha256'][key][:12]}...; it is now {now[:12]}...: restore it "
+                "or start a new state)",
+            )
     conf = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()}
     # a state written before the DEM's low-pass existed (2026-11-26) read the raw DEM: it goes on so
     conf.setdefault("dem_smoothing_postings", 0.0)
@@ -269,11 +294,19 @@ def _restore(d: Path, meta: dict[str, Any], linearization_tol: float | None,
     cfg = AdjustConfig.from_dict(conf)
     camera = load_camera_model(meta["camera_model"])
     if not isinstance(camera, CameraModel):
-        raise InputError("--camera-model", meta["camera_model"], "a single-temperature camera model (not a temperature table)")
+        raise InputError(
+            "--camera-model", meta["camera_model"], "a single-temperature camera model (not a temperature table)"
+        )
     gcps = read_gcp_database(meta["gcps"])
     dem = read_dem(meta["dem"]) if meta.get("dem") else None
-    solver = IncrementalSolver(camera, gcps, dem, cfg, DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol,
-                               camera_prior=camera_prior_of(meta["camera_model"], cfg))
+    solver = IncrementalSolver(
+        camera,
+        gcps,
+        dem,
+        cfg,
+        DEFAULT_LINEARIZATION_TOL if linearization_tol is None else linearization_tol,
+        camera_prior=camera_prior_of(meta["camera_model"], cfg),
+    )
     # replay the state (warm start from the saved estimate), in one update
     files = [_checked_file(d, p) for p in meta["passes"]]
     old = [load_pass_observations(f, _observation_set(meta))[0] for f in files]
@@ -298,8 +331,9 @@ def _observation_set(meta: dict[str, Any]) -> str:
     return str(meta.get("observations", "simulated"))
 
 
-def _pass_result(solver: IncrementalSolver, index: int, pass_file: Path, camera: CameraModel, observations: str,
-                 seconds: float = 0.0) -> AdjustResult:
+def _pass_result(
+    solver: IncrementalSolver, index: int, pass_file: Path, camera: CameraModel, observations: str, seconds: float = 0.0
+) -> AdjustResult:
     """Pass ``index``'s error models and marginals from the solver's current estimate. With
     matched observations its tie landmarks' covariances also carry the shared height error and
     the conjugates' shared offset, as ``adjust --observations matched`` adds them
@@ -311,13 +345,22 @@ def _pass_result(solver: IncrementalSolver, index: int, pass_file: Path, camera:
     if observations == "matched":
         s_o, own = matched_tie_offset(pass_file)
         res.tie_height, res.tie_offset, res.landmark_extra_cov = tie_point_terms(
-            solver.passes[index], camera, solver.standalone_graph(index), res.values, res.marginals, solver.cfg, True,
-            s_o, own)
+            solver.passes[index],
+            camera,
+            solver.standalone_graph(index),
+            res.values,
+            res.marginals,
+            solver.cfg,
+            True,
+            s_o,
+            own,
+        )
     return res
 
 
-def restore_state(state_dir: str | os.PathLike[str], progress: Callable[[str], None] | None = None
-                  ) -> tuple[IncrementalSolver, CameraModel, list[Path]]:
+def restore_state(
+    state_dir: str | os.PathLike[str], progress: Callable[[str], None] | None = None
+) -> tuple[IncrementalSolver, CameraModel, list[Path]]:
     """Read-only: the solver of the update state in ``state_dir`` with every pass replayed, its
     camera model and its (digest-checked) pass files, for products and reports."""
     d = Path(state_dir)
@@ -360,15 +403,35 @@ def run_update(
     """
     d = Path(state_dir)
     with _state_lock(d):
-        return _run_update_locked(d, new_passes, camera_model, gcp_file, dem_file, cfg, compare_batch, progress,
-                                  crash_before_commit, report, linearization_tol, observations)
+        return _run_update_locked(
+            d,
+            new_passes,
+            camera_model,
+            gcp_file,
+            dem_file,
+            cfg,
+            compare_batch,
+            progress,
+            crash_before_commit,
+            report,
+            linearization_tol,
+            observations,
+        )
 
 
 def _run_update_locked(
-    d: Path, new_passes: list[str | os.PathLike[str]], camera_model: str | os.PathLike[str] | None,
-    gcp_file: str | os.PathLike[str] | None, dem_file: str | os.PathLike[str] | None, cfg: AdjustConfig | None,
-    compare_batch: bool, progress: Callable[[str], None] | None, crash_before_commit: bool, report: str | None,
-    linearization_tol: float | None, observations: str | None,
+    d: Path,
+    new_passes: list[str | os.PathLike[str]],
+    camera_model: str | os.PathLike[str] | None,
+    gcp_file: str | os.PathLike[str] | None,
+    dem_file: str | os.PathLike[str] | None,
+    cfg: AdjustConfig | None,
+    compare_batch: bool,
+    progress: Callable[[str], None] | None,
+    crash_before_commit: bool,
+    report: str | None,
+    linearization_tol: float | None,
+    observations: str | None,
 ) -> dict[str, Any]:
     if observations is not None and observations not in OBSERVATION_SETS:
         raise InputError("--observations", observations, OBSERVATION_SETS)
@@ -377,25 +440,42 @@ def _run_update_locked(
         if camera_model is None or gcp_file is None:
             raise InputError("--camera-model/--gcps", None, "both, when creating a new state")
         (d / "passes").mkdir(parents=True, exist_ok=True)
-        specs = {"camera_model": _model_spec(camera_model), "gcps": str(Path(gcp_file).resolve()),
-                 "dem": str(Path(dem_file).resolve()) if dem_file else None}
+        specs = {
+            "camera_model": _model_spec(camera_model),
+            "gcps": str(Path(gcp_file).resolve()),
+            "dem": str(Path(dem_file).resolve()) if dem_file else None,
+        }
         for key, flag in zip(_INPUTS, ("--camera-model", "--gcps", "--dem")):
             spec = specs[key]
             if spec is not None and not _is_builtin(key, spec) and not Path(spec).is_file():
                 raise InputError(flag, spec, "an existing file")
-        meta = {"version": STATE_VERSION, "software": f"misrgraph {__version__}", **specs,
-                "input_sha256": {k: _input_sha256(v, k) for k, v in specs.items() if v is not None},
-                "config": dataclasses.asdict(cfg or AdjustConfig()), "observations": observations or "simulated", "estimate": None,
-                "passes": []}
+        meta = {
+            "version": STATE_VERSION,
+            "software": f"misrgraph {__version__}",
+            **specs,
+            "input_sha256": {k: _input_sha256(v, k) for k, v in specs.items() if v is not None},
+            "config": dataclasses.asdict(cfg or AdjustConfig()),
+            "observations": observations or "simulated",
+            "estimate": None,
+            "passes": [],
+        }
         state = State(d, meta)
     meta = state.meta
-    if cfg is not None and json.dumps(dataclasses.asdict(cfg), sort_keys=True) != json.dumps(meta["config"], sort_keys=True):
-        raise InputError("--config", "settings that differ from the state's",
-                         "the settings the state was created with (a state keeps them; start a new state for others)")
+    if cfg is not None and json.dumps(dataclasses.asdict(cfg), sort_keys=True) != json.dumps(
+        meta["config"], sort_keys=True
+    ):
+        raise InputError(
+            "--config",
+            "settings that differ from the state's",
+            "the settings the state was created with (a state keeps them; start a new state for others)",
+        )
     obs_set = _observation_set(meta)
     if observations is not None and observations != obs_set:
-        raise InputError("--observations", observations, f"{obs_set!r}, the observation set this state adjusts "
-                                                          "(a state keeps one; start a new state for the other)")
+        raise InputError(
+            "--observations",
+            observations,
+            f"{obs_set!r}, the observation set this state adjusts (a state keeps one; start a new state for the other)",
+        )
     solver, camera, files = _restore(d, meta, linearization_tol, progress)
     summaries = []
     added = []
@@ -413,13 +493,24 @@ def _run_update_locked(
         idx = len(solver.graphs) - 1
         res = _pass_result(solver, idx, Path(f), camera, obs_set, seconds)
         res.rejected_norm = norms[res.rejected]
-        s = {"pass_id": p.pass_id, "status": "added", "update_seconds": seconds, "relinearization_rounds": solver.last_rounds,
-             "linearization_error_sigma": solver.last_linearization_error,
-             "passes_in_state": len(solver.passes), "knots": {a: {"kept": int(res.attitude.knot_times[i].size),
-                                                                  "removed": int(res.pass_graph.removed_knots[i].size)}
-                                                              for i, a in enumerate(ANGLES)},
-             "rejected_observations": int(res.rejected.size), "iterations": solver.last_rounds, "final_cost": res.final_cost,
-             "observation_set": obs_set, "tie_height": res.tie_height, "tie_offset": res.tie_offset}
+        s = {
+            "pass_id": p.pass_id,
+            "status": "added",
+            "update_seconds": seconds,
+            "relinearization_rounds": solver.last_rounds,
+            "linearization_error_sigma": solver.last_linearization_error,
+            "passes_in_state": len(solver.passes),
+            "knots": {
+                a: {"kept": int(res.attitude.knot_times[i].size), "removed": int(res.pass_graph.removed_knots[i].size)}
+                for i, a in enumerate(ANGLES)
+            },
+            "rejected_observations": int(res.rejected.size),
+            "iterations": solver.last_rounds,
+            "final_cost": res.final_cost,
+            "observation_set": obs_set,
+            "tie_height": res.tie_height,
+            "tie_offset": res.tie_offset,
+        }
         if truth is not None:
             s.update(score_pass(p, truth, res, camera, whole_state=False))
         if compare_batch:
@@ -447,13 +538,24 @@ def _run_update_locked(
             raise InputError("--report", report, ids or "a pass id already in the state")
         i = ids.index(report)
         res = _pass_result(solver, i, files[i], camera, obs_set)
-        rep = {"pass_id": report, "knots": {a: {"kept": int(res.attitude.knot_times[j].size),
-                                                "removed": int(res.pass_graph.removed_knots[j].size)} for j, a in enumerate(ANGLES)},
-               "ephemeris": {"params": res.ephemeris.params.tolist(),
-                             "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in res.pass_graph.ephemeris_keys()]},
-               "attitude_knot_sigma_arcsec": {a: [float(np.sqrt(res.marginals[k][0, 0]) / ARCSEC) for k in res.pass_graph.knot_keys(j)]
-                                              for j, a in enumerate(ANGLES)},
-               "observation_set": obs_set, "tie_height": res.tie_height, "tie_offset": res.tie_offset}
+        rep = {
+            "pass_id": report,
+            "knots": {
+                a: {"kept": int(res.attitude.knot_times[j].size), "removed": int(res.pass_graph.removed_knots[j].size)}
+                for j, a in enumerate(ANGLES)
+            },
+            "ephemeris": {
+                "params": res.ephemeris.params.tolist(),
+                "sigma": [np.sqrt(np.diag(res.marginals[k])).tolist() for k in res.pass_graph.ephemeris_keys()],
+            },
+            "attitude_knot_sigma_arcsec": {
+                a: [float(np.sqrt(res.marginals[k][0, 0]) / ARCSEC) for k in res.pass_graph.knot_keys(j)]
+                for j, a in enumerate(ANGLES)
+            },
+            "observation_set": obs_set,
+            "tie_height": res.tie_height,
+            "tie_offset": res.tie_offset,
+        }
         truth = load_pass_observations(files[i], obs_set)[1]
         if truth is not None:
             rep.update(score_pass(solver.passes[i], truth, res, camera, whole_state=False))
@@ -467,4 +569,10 @@ def _run_update_locked(
         _write_json_atomic(d / "state.json", new_meta)  # the commit point
         meta = new_meta
         _collect_garbage(d, meta)
-    return {"state": str(d), "passes_in_state": len(meta["passes"]), "observation_set": obs_set, "updates": summaries, **out}
+    return {
+        "state": str(d),
+        "passes_in_state": len(meta["passes"]),
+        "observation_set": obs_set,
+        "updates": summaries,
+        **out,
+    }

@@ -80,5 +80,6 @@ def generate_gcp_database(
             f = rng.uniform(0.05, 0.3, (9, 2))
             ph = rng.uniform(0, 6.3, (9, 1, 1))
             chips[i] = (127 + 100 * np.sin(f[:, 0, None, None] * xx + f[:, 1, None, None] * yy + ph)).astype(np.uint8)
-    return GcpDatabase(np.arange(lat.size, dtype=np.int64), mlat, mlon, mh, sig, np.array(regions), chips,
-                       scene_of, scene_sig), truth
+    return GcpDatabase(
+        np.arange(lat.size, dtype=np.int64), mlat, mlon, mh, sig, np.array(regions), chips, scene_of, scene_sig
+    ), truth

@@ -69,15 +69,25 @@ if TYPE_CHECKING:
     from misrgraph.io.imagery import ImageStrip, PassImagery
     from misrgraph.io.passes import OrbitPass
 
-__all__ = ["SceneRadiance", "render_window", "render_windows", "render_strip", "render_block_strips", "strip_line_range", "render_chip", "render_pass_imagery", "FULL_SCALE_DN",
-           "REFERENCE_REFLECTANCE"]
+__all__ = [
+    "SceneRadiance",
+    "render_window",
+    "render_windows",
+    "render_strip",
+    "render_block_strips",
+    "strip_line_range",
+    "render_chip",
+    "render_pass_imagery",
+    "FULL_SCALE_DN",
+    "REFERENCE_REFLECTANCE",
+]
 
 Array = NDArray[np.float64]
 Surface = Callable[[Array, Array], Array]
 
 RED = BANDS.index("red")
 #: 14-bit counts at reflectance 1.0 (full scale)
-FULL_SCALE_DN = 2 ** 14 - 1
+FULL_SCALE_DN = 2**14 - 1
 #: the reflectance at which ``snr`` is stated (land's mean in the red band)
 REFERENCE_REFLECTANCE = 0.18
 #: Mean land reflectance per band (blue, green, red, NIR; :data:`BANDS`): land is dark in the
@@ -98,7 +108,7 @@ def _waves(rng: np.random.Generator, n: int, lam_lo: float, lam_hi: float, rms: 
     u = rng.standard_normal((n, 3))
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     amp = np.sqrt(lam)  # log-uniform wavelengths: power per log band ~ lambda, a 1/f amplitude spectrum
-    amp *= rms * np.sqrt(2.0 / np.sum(amp ** 2))
+    amp *= rms * np.sqrt(2.0 / np.sum(amp**2))
     return (2 * np.pi / lam)[:, None] * u, rng.uniform(0, 2 * np.pi, n), amp
 
 
@@ -114,7 +124,7 @@ def _field(xyz: Array, waves: tuple[Array, Array, Array]) -> Array:
     k, ph, amp = waves
     out = np.zeros(xyz.shape[:-1])
     for i in range(0, k.shape[0], 16):  # chunks keep the (points, waves) temporary small
-        out += np.sin(xyz @ k[i:i + 16].T + ph[i:i + 16]) @ amp[i:i + 16]
+        out += np.sin(xyz @ k[i : i + 16].T + ph[i : i + 16]) @ amp[i : i + 16]
     return out
 
 
@@ -147,8 +157,9 @@ class SceneRadiance:
             object.__setattr__(self, "_cloud", _waves(crng, 24, 5e3, 40e3, 1.0))
             object.__setattr__(self, "_cloud_texture", _waves(crng, 24, 300.0, 3000.0, 0.15))
         object.__setattr__(self, "_brdf", (_waves(rng, 48, 100.0, 3000.0, 1.0), _waves(rng, 48, 100.0, 3000.0, 1.0)))
-        object.__setattr__(self, "_change", _waves(np.random.default_rng([self.seed, 18, self.epoch]), 64, 60.0, 3000.0,
-                                                   1.0))
+        object.__setattr__(
+            self, "_change", _waves(np.random.default_rng([self.seed, 18, self.epoch]), 64, 60.0, 3000.0, 1.0)
+        )
         object.__setattr__(self, "_vegetation", _waves(np.random.default_rng([self.seed, 23]), 48, 200.0, 3000.0, 1.0))
 
     def for_view(self, view_angle_deg: float) -> "SceneRadiance":
@@ -158,12 +169,24 @@ class SceneRadiance:
     def another_date(self, epoch: int, change_rms: float = 0.15, sun_elevation_deg: float = 35.0) -> "SceneRadiance":
         """The scene on another date (a reference image's), seen at nadir without clouds: an
         independent change of the surface (``change_rms`` relative) and another sun elevation."""
-        return dataclasses.replace(self, sun_elevation_deg=sun_elevation_deg, cloud_fraction=0.0, epoch=epoch,
-                                   change_rms=change_rms, view_angle_deg=0.0)
+        return dataclasses.replace(
+            self,
+            sun_elevation_deg=sun_elevation_deg,
+            cloud_fraction=0.0,
+            epoch=epoch,
+            change_rms=change_rms,
+            view_angle_deg=0.0,
+        )
 
     # ------------------------------------------------------------------ ground
-    def ground_reflectance(self, ecef: Array, d_line: Array | None = None, d_sample: Array | None = None,
-                           rate: float = 1.0, band: int = RED) -> Array:
+    def ground_reflectance(
+        self,
+        ecef: Array,
+        d_line: Array | None = None,
+        d_sample: Array | None = None,
+        rate: float = 1.0,
+        band: int = RED,
+    ) -> Array:
         """Shaded reflectance (dimensionless) in ``band`` (index into :data:`BANDS`; the mean level
         :data:`LAND_REFLECTANCE`, :data:`WATER_REFLECTANCE` and the vegetation response
         :data:`VEGETATION_RESPONSE` differ per band) of ground points ``(..., 3)`` ECEF m, averaged over a
@@ -179,9 +202,9 @@ class SceneRadiance:
         k, ph, amp = self._texture
         tex = np.zeros(g.shape[0])
         for i in range(0, k.shape[0], 16):  # chunks keep the (points, waves) temporaries small
-            ki = k[i:i + 16]
-            arg = (g * scale) @ ki.T + ph[i:i + 16]
-            wgt = np.broadcast_to(amp[i:i + 16], arg.shape)
+            ki = k[i : i + 16]
+            arg = (g * scale) @ ki.T + ph[i : i + 16]
+            wgt = np.broadcast_to(amp[i : i + 16], arg.shape)
             if d_line is not None and d_sample is not None:
                 a = (d_line.reshape(-1, 3) * scale) @ ki.T
                 w = (d_sample.reshape(-1, 3) * scale) @ ki.T
@@ -256,8 +279,9 @@ def _sweeps_backward(cam: int) -> bool:
 FIRST_CROSSING_CLIMB_M = SyntheticTerrain.max_relief_m + 200.0
 
 
-def _cast_rows(origin: Array, direction: Array, surface: Surface, backward: bool,
-               lam_start: Array | None = None) -> Array:
+def _cast_rows(
+    origin: Array, direction: Array, surface: Surface, backward: bool, lam_start: Array | None = None
+) -> Array:
     """Rays ``(R, S, 3)`` of consecutive image rows cast onto ``surface`` row after row, each from
     its neighbour's solution by secant steps (:func:`misrgraph.model.geolocation.cast_from`), the
     first row (unless ``lam_start (S,)`` continues an earlier sweep) and rays that lose their
@@ -293,14 +317,23 @@ def _cast_grid(geo: PassGeometry, cam: int, band: int, lines: Array, samples: Ar
     shape = np.broadcast_shapes(lines.shape, samples.shape)
     ln = np.broadcast_to(lines, shape).reshape(-1, shape[-1] if len(shape) > 1 else 1)
     sm = np.broadcast_to(samples, shape).reshape(ln.shape)
-    origin, direction = geo.pixel_rays(np.full(ln.size, cam), np.full(ln.size, band), ln.ravel(), sm.ravel(),
-                                       np.full(ln.size, np.nan))
+    origin, direction = geo.pixel_rays(
+        np.full(ln.size, cam), np.full(ln.size, band), ln.ravel(), sm.ravel(), np.full(ln.size, np.nan)
+    )
     g = _cast_rows(origin.reshape(ln.shape + (3,)), direction.reshape(ln.shape + (3,)), surface, _sweeps_backward(cam))
     return g.reshape(shape + (3,))
 
 
-def _render(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, lines: Array, samples: Array,
-            surface: Surface, rate: float | None = None) -> Array:
+def _render(
+    geo: PassGeometry,
+    scene: SceneRadiance,
+    cam: int,
+    band: int,
+    lines: Array,
+    samples: Array,
+    surface: Surface,
+    rate: float | None = None,
+) -> Array:
     """Mean scene reflectance over each pixel footprint, for a regular grid of continuous pixel
     positions ``lines (H,)`` x ``samples (W,)`` (spacing ``dl``, ``ds`` pixels). ``rate`` (image
     lines per line of ground motion, :meth:`PassGeometry.line_rate`) is taken by default at the
@@ -312,13 +345,17 @@ def _render(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, lines:
         rate = _line_rate_at(geo, cam, band, lines[r], g[r, q])
     dl = lines[1] - lines[0] if lines.size > 1 else 1.0
     ds = samples[1] - samples[0] if samples.size > 1 else 1.0
-    rays = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(),
-                          np.full(ll.size, np.nan)) if scene.cloud_fraction > 0 else None
+    rays = (
+        geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(), np.full(ll.size, np.nan))
+        if scene.cloud_fraction > 0
+        else None
+    )
     return _footprint_reflectance(scene, band, g, dl, ds, rate, rays)
 
 
-def _footprint_reflectance(scene: SceneRadiance, band: int, g: Array, dl: float, ds: float, rate: float,
-                           rays: tuple[Array, Array] | None) -> Array:
+def _footprint_reflectance(
+    scene: SceneRadiance, band: int, g: Array, dl: float, ds: float, rate: float, rays: tuple[Array, Array] | None
+) -> Array:
     """Reflectance ``(H, W)`` of the cast grid ``g (H, W, 3)`` (rows ``dl``, columns ``ds`` pixels
     apart), averaged over each pixel's footprint (the local ground Jacobian from the grid itself)
     and seen through the clouds along ``rays = (origin, direction)`` (``(H W, 3)``, row-major;
@@ -329,8 +366,18 @@ def _footprint_reflectance(scene: SceneRadiance, band: int, g: Array, dl: float,
     return refl
 
 
-def render_window(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line0: int, sample0: int,
-                  size: int, surface: Surface, rng: np.random.Generator, snr: float = 200.0) -> NDArray[np.uint16]:
+def render_window(
+    geo: PassGeometry,
+    scene: SceneRadiance,
+    cam: int,
+    band: int,
+    line0: int,
+    sample0: int,
+    size: int,
+    surface: Surface,
+    rng: np.random.Generator,
+    snr: float = 200.0,
+) -> NDArray[np.uint16]:
     """A ``size x size`` window of 14-bit counts whose pixel ``(r, q)`` is image line ``line0 + r``,
     sample ``sample0 + q`` of camera ``cam``/band ``band`` under ``geo`` (the true geometry)."""
     lines = line0 + np.arange(size, dtype=float)
@@ -344,8 +391,17 @@ def render_window(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, 
 WINDOW_BATCH = 64
 
 
-def _window_reflectance(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line0: Array, sample0: Array,
-                        size: int, surface: Surface, batch: int = WINDOW_BATCH) -> Array:
+def _window_reflectance(
+    geo: PassGeometry,
+    scene: SceneRadiance,
+    cam: int,
+    band: int,
+    line0: Array,
+    sample0: Array,
+    size: int,
+    surface: Surface,
+    batch: int = WINDOW_BATCH,
+) -> Array:
     """``(n, size, size)`` reflectance of the windows of :func:`render_windows` (no noise)."""
     line0 = np.asarray(line0, dtype=float).ravel()
     sample0 = np.asarray(sample0, dtype=float).ravel()
@@ -360,8 +416,9 @@ def _window_reflectance(geo: PassGeometry, scene: SceneRadiance, cam: int, band:
         ss = np.broadcast_to(np.tile(off, m)[None, :] + np.repeat(sample0[a:b], size)[None, :], ll.shape).copy()
         g = _cast_grid(geo, cam, band, ll, ss, surface).reshape(size, m, size, 3)
         if scene.cloud_fraction > 0:
-            origin, direction = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(),
-                                               np.full(ll.size, np.nan))
+            origin, direction = geo.pixel_rays(
+                np.full(ll.size, cam), np.full(ll.size, band), ll.ravel(), ss.ravel(), np.full(ll.size, np.nan)
+            )
             origin, direction = origin.reshape(size, m, size, 3), direction.reshape(size, m, size, 3)
         r = size // 2
         for j in range(m):  # as _render does for one window
@@ -372,9 +429,19 @@ def _window_reflectance(geo: PassGeometry, scene: SceneRadiance, cam: int, band:
     return refl
 
 
-def render_windows(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line0: Array, sample0: Array,
-                   size: int, surface: Surface, rng: np.random.Generator, snr: float = 200.0,
-                   batch: int = WINDOW_BATCH) -> NDArray[np.uint16]:
+def render_windows(
+    geo: PassGeometry,
+    scene: SceneRadiance,
+    cam: int,
+    band: int,
+    line0: Array,
+    sample0: Array,
+    size: int,
+    surface: Surface,
+    rng: np.random.Generator,
+    snr: float = 200.0,
+    batch: int = WINDOW_BATCH,
+) -> NDArray[np.uint16]:
     """``(n, size, size)``: :func:`render_window` for each of ``n`` windows at ``line0 (n,)``,
     ``sample0 (n,)`` of one camera and band, with the same result (the noise drawn window after
     window, in the order given). The rays of ``batch`` windows are cast together, side by side
@@ -388,8 +455,18 @@ def render_windows(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int,
     return out
 
 
-def render_chip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line_c: float, sample_c: float,
-                size: int, surface: Surface, gain: float = 0.8, offset_dn: float = 300.0) -> Array:
+def render_chip(
+    geo: PassGeometry,
+    scene: SceneRadiance,
+    cam: int,
+    band: int,
+    line_c: float,
+    sample_c: float,
+    size: int,
+    surface: Surface,
+    gain: float = 0.8,
+    offset_dn: float = 300.0,
+) -> Array:
     """A reference chip ``(size, size)`` float32 counts, centred (between pixels ``size/2 - 1`` and
     ``size/2``) on the continuous image position ``(line_c, sample_c)`` under ``geo``, with the
     linear radiometry ``gain * counts + offset_dn`` of another sensor and no noise."""
@@ -419,10 +496,21 @@ def _counts(refl: Array, rng: np.random.Generator, snr: float) -> NDArray[np.uin
     return np.clip(np.round(signal + noise), 0, FULL_SCALE_DN).astype(np.uint16)
 
 
-
-def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, line0: int, n_lines: int,
-                 sample0: int, n_samples: int, surface: Surface, rng: np.random.Generator, snr: float = 200.0,
-                 chunk: int = 32, progress: Callable[[int, int], None] | None = None) -> NDArray[np.uint16]:
+def render_strip(
+    geo: PassGeometry,
+    scene: SceneRadiance,
+    cam: int,
+    band: int,
+    line0: int,
+    n_lines: int,
+    sample0: int,
+    n_samples: int,
+    surface: Surface,
+    rng: np.random.Generator,
+    snr: float = 200.0,
+    chunk: int = 32,
+    progress: Callable[[int, int], None] | None = None,
+) -> NDArray[np.uint16]:
     """A strip of whole image lines (``n_lines x n_samples`` 14-bit counts): pixel ``(r, q)`` is
     exposure ``line0 + r``, sample ``sample0 + q`` of camera ``cam``/band ``band`` under ``geo``.
 
@@ -456,10 +544,12 @@ def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, l
         rate = _line_rate_at(geo, cam, band, lines[1 + c], g[1 + c, n_samples // 2])
         refl = scene.ground_reflectance(g[1:-1], g_l, g_s, rate if np.isfinite(rate) else 1.0, band)
         if scene.cloud_fraction > 0:
-            refl = scene.through_clouds(refl, np.repeat(origin[1:-1], n_samples, axis=0), direction[1:-1].reshape(-1, 3))
+            refl = scene.through_clouds(
+                refl, np.repeat(origin[1:-1], n_samples, axis=0), direction[1:-1].reshape(-1, 3)
+            )
         refl_of[a] = refl
     for a in starts:  # the noise drawn in line order whatever the sweep
-        out[a:a + chunk] = _counts(np.nan_to_num(refl_of.pop(a), nan=0.0), rng, snr)
+        out[a : a + chunk] = _counts(np.nan_to_num(refl_of.pop(a), nan=0.0), rng, snr)
     if progress:
         progress(n_lines, n_lines)
     return out
@@ -469,8 +559,9 @@ def render_strip(geo: PassGeometry, scene: SceneRadiance, cam: int, band: int, l
 STRIP_MARGIN_LINES = 24
 
 
-def strip_line_range(geo: PassGeometry, cam: int, band: int, path: int, blocks: tuple[int, int],
-                     surface: Surface) -> tuple[int, int] | None:
+def strip_line_range(
+    geo: PassGeometry, cam: int, band: int, path: int, blocks: tuple[int, int], surface: Surface
+) -> tuple[int, int] | None:
     """First and one-past-last exposure of camera ``cam`` that image blocks ``blocks[0]..blocks[1]``
     of ``path`` (their 1.1 km grid every 8th point on the terrain, :data:`STRIP_MARGIN_LINES` more
     each side, clipped to the pass); None when the camera sees none of them."""
@@ -493,10 +584,20 @@ def strip_line_range(geo: PassGeometry, cam: int, band: int, path: int, blocks: 
     return (lo, hi) if hi > lo else None
 
 
-def render_block_strips(geo: PassGeometry, scene: SceneRadiance, surface: Surface, path: int, blocks: tuple[int, int],
-                        cameras: tuple[str, ...], samples: tuple[int, int] | tuple = (), seed: list[int] | None = None,
-                        snr: float = 200.0, band: int = 2, workers: int | None = None,
-                        progress: Callable[[str, int, int], None] | None = None) -> "dict[str, ImageStrip]":
+def render_block_strips(
+    geo: PassGeometry,
+    scene: SceneRadiance,
+    surface: Surface,
+    path: int,
+    blocks: tuple[int, int],
+    cameras: tuple[str, ...],
+    samples: tuple[int, int] | tuple = (),
+    seed: list[int] | None = None,
+    snr: float = 200.0,
+    band: int = 2,
+    workers: int | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> "dict[str, ImageStrip]":
     """Whole-swath strips (:func:`render_strip`) of ``cameras`` over ``blocks`` of ``path``
     (:func:`strip_line_range`), ``samples = (first, count)`` of the array (default all), each
     camera's noise from its own generator ``default_rng(seed + [camera index])`` so the result does
@@ -516,8 +617,19 @@ def render_block_strips(geo: PassGeometry, scene: SceneRadiance, surface: Surfac
         if rng_lines is None:
             return None
         lo, hi = rng_lines
-        px = render_strip(geo, scene.for_view(VIEW_ANGLE_DEG[name]), cam, band, lo, hi - lo, s0, ns, surface,
-                          np.random.default_rng(seed + [cam]), snr)
+        px = render_strip(
+            geo,
+            scene.for_view(VIEW_ANGLE_DEG[name]),
+            cam,
+            band,
+            lo,
+            hi - lo,
+            s0,
+            ns,
+            surface,
+            np.random.default_rng(seed + [cam]),
+            snr,
+        )
         done[0] += 1
         if progress:
             progress(f"strip {name} ({done[0]}/{len(cameras)})", done[0], len(cameras))
@@ -537,10 +649,21 @@ def _window_size(kind: str, search_px: int, template_px: int, chip_px: int) -> i
     return template_px + 2 * (search_px + INTEREST_RADIUS_PX + 2)
 
 
-def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplied_geo: PassGeometry,
-                        landmark_ecef: Array, scene: SceneRadiance, surface: Surface, rng: np.random.Generator,
-                        search_px: int = 8, template_px: int = 15, chip_px: int = 64, snr: float = 200.0,
-                        band: int = RED, gcp_bands: tuple[int, ...] | None = None) -> "PassImagery":
+def render_pass_imagery(
+    orbit_pass: "OrbitPass",
+    true_geo: PassGeometry,
+    supplied_geo: PassGeometry,
+    landmark_ecef: Array,
+    scene: SceneRadiance,
+    surface: Surface,
+    rng: np.random.Generator,
+    search_px: int = 8,
+    template_px: int = 15,
+    chip_px: int = 64,
+    snr: float = 200.0,
+    band: int = RED,
+    gcp_bands: tuple[int, ...] | None = None,
+) -> "PassImagery":
     """Render the windows a matcher reads for one pass: tie points in band ``band`` (red by
     default), GCPs in each of ``gcp_bands`` (default: ``band`` alone) where the pass observes them.
 
@@ -579,7 +702,10 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
                     continue
                 size = _window_size(kind, search_px, template_px, chip_px)
                 l0, s0 = int(round(ln)) - size // 2, int(round(sm)) - size // 2
-                t_first, t_last = supplied_geo.line_time(int(cam), b, l0, l0), supplied_geo.line_time(int(cam), b, l0, l0 + size)
+                t_first, t_last = (
+                    supplied_geo.line_time(int(cam), b, l0, l0),
+                    supplied_geo.line_time(int(cam), b, l0, l0 + size),
+                )
                 if t_first < t_lo or t_last > t_hi:  # the window would reach past the pass's navigation
                     continue
                 jobs.append((kind, int(row), l0, s0))
@@ -588,9 +714,16 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
             for kind in ("tie", "gcp"):
                 mine = [i for i, job in enumerate(jobs) if job[0] == kind]
                 if mine:
-                    r = _window_reflectance(true_geo, views[int(cam)], int(cam), b, np.array([jobs[i][2] for i in mine]),
-                                            np.array([jobs[i][3] for i in mine]),
-                                            _window_size(kind, search_px, template_px, chip_px), surface)
+                    r = _window_reflectance(
+                        true_geo,
+                        views[int(cam)],
+                        int(cam),
+                        b,
+                        np.array([jobs[i][2] for i in mine]),
+                        np.array([jobs[i][3] for i in mine]),
+                        _window_size(kind, search_px, template_px, chip_px),
+                        surface,
+                    )
                     refl.update(zip(mine, r))
             for i, (kind, row, l0, s0) in enumerate(jobs):
                 out[kind].append((row, int(cam), b, l0, s0, _counts(refl[i], rng, snr)))
@@ -609,10 +742,24 @@ def render_pass_imagery(orbit_pass: "OrbitPass", true_geo: PassGeometry, supplie
         for cam in w.camera[(w.landmark == row) & (w.band == b)]:
             p = supplied_geo.ground_to_pixel(int(cam), int(b), landmark_ecef[row][None], continuous=True)
             if p.visible[0]:
-                chips[i, int(cam)] = render_chip(supplied_geo, reference, int(cam), int(b), float(p.line[0]),
-                                                 float(p.sample[0]), chip_px, surface)
-    attrs = {"snr": float(snr), "cloud_fraction": float(scene.cloud_fraction), "search_px": int(search_px),
-             "template_px": int(template_px), "chip_px": int(chip_px), "band": int(band),
-             "gcp_bands": [int(b) for b in gcp_bands], "full_scale_dn": int(FULL_SCALE_DN)}
-    return PassImagery(wins["tie"], wins["gcp"], chip_keys[:, 0].astype(np.int64), chips, attrs,
-                       chip_band=chip_keys[:, 1].astype(np.int64))
+                chips[i, int(cam)] = render_chip(
+                    supplied_geo, reference, int(cam), int(b), float(p.line[0]), float(p.sample[0]), chip_px, surface
+                )
+    attrs = {
+        "snr": float(snr),
+        "cloud_fraction": float(scene.cloud_fraction),
+        "search_px": int(search_px),
+        "template_px": int(template_px),
+        "chip_px": int(chip_px),
+        "band": int(band),
+        "gcp_bands": [int(b) for b in gcp_bands],
+        "full_scale_dn": int(FULL_SCALE_DN),
+    }
+    return PassImagery(
+        wins["tie"],
+        wins["gcp"],
+        chip_keys[:, 0].astype(np.int64),
+        chips,
+        attrs,
+        chip_band=chip_keys[:, 1].astype(np.int64),
+    )

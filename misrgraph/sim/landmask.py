@@ -40,7 +40,9 @@ def _source() -> Path:
     """The data file, found without importing the package (whose import decompresses it)."""
     spec = importlib.util.find_spec("global_land_mask")
     if spec is None or not spec.submodule_search_locations:
-        raise InputError("global-land-mask", "not installed", "pip install 'misrgraph[sim]' (the simulator's land mask)")
+        raise InputError(
+            "global-land-mask", "not installed", "pip install 'misrgraph[sim]' (the simulator's land mask)"
+        )
     return Path(list(spec.submodule_search_locations)[0]) / "globe_combined_mask_compressed.npz"
 
 
@@ -61,8 +63,9 @@ def mask_cache_path() -> Path:
 def _read_npy_member(z: zipfile.ZipFile, name: str) -> NDArray:
     with z.open(name) as f:
         version = np.lib.format.read_magic(f)
-        shape, fortran, dtype = (np.lib.format.read_array_header_1_0(f) if version == (1, 0)
-                                 else np.lib.format.read_array_header_2_0(f))
+        shape, fortran, dtype = (
+            np.lib.format.read_array_header_1_0(f) if version == (1, 0) else np.lib.format.read_array_header_2_0(f)
+        )
         return np.frombuffer(f.read(), dtype=dtype).reshape(shape, order="F" if fortran else "C")
 
 
@@ -70,8 +73,9 @@ def _build(target: Path) -> None:
     """Stream the mask out of the ``.npz`` row block by row block, pack it and write it atomically."""
     with zipfile.ZipFile(_source()) as z, z.open("mask.npy") as f:
         version = np.lib.format.read_magic(f)
-        shape, fortran, dtype = (np.lib.format.read_array_header_1_0(f) if version == (1, 0)
-                                 else np.lib.format.read_array_header_2_0(f))
+        shape, fortran, dtype = (
+            np.lib.format.read_array_header_1_0(f) if version == (1, 0) else np.lib.format.read_array_header_2_0(f)
+        )
         if fortran or dtype != np.bool_ or len(shape) != 2:
             raise InputError("global-land-mask data", (shape, str(dtype), fortran), "a C-ordered 2-D boolean mask")
         rows, cols = shape
@@ -83,7 +87,7 @@ def _build(target: Path) -> None:
             for r0 in range(0, rows, _ROWS_PER_CHUNK):
                 n = min(_ROWS_PER_CHUNK, rows - r0)
                 block = np.frombuffer(f.read(n * cols), dtype=np.bool_).reshape(n, cols)
-                out[r0:r0 + n] = np.packbits(block, axis=1)
+                out[r0 : r0 + n] = np.packbits(block, axis=1)
             out.flush()
             del out
             os.replace(tmp, target)
@@ -112,8 +116,16 @@ def _axes() -> tuple[float, float, float, float, float, float, float, float]:
     """The grid's (min, max, first, step) of latitude, then of longitude (deg), computed once:
     :func:`is_land` is called with a few dozen points at a time by the ray casting."""
     _, glat, glon = _mask()
-    return (float(glat.min()), float(glat.max()), float(glat[0]), float(glat[1] - glat[0]),
-            float(glon.min()), float(glon.max()), float(glon[0]), float(glon[1] - glon[0]))
+    return (
+        float(glat.min()),
+        float(glat.max()),
+        float(glat[0]),
+        float(glat[1] - glat[0]),
+        float(glon.min()),
+        float(glon.max()),
+        float(glon[0]),
+        float(glon[1] - glon[0]),
+    )
 
 
 def is_land(lat: ArrayLike, lon: ArrayLike) -> NDArray[np.bool_]:
@@ -166,8 +178,9 @@ def _tile_distance(ti: int, tj: int, cap_m: float) -> tuple[NDArray[np.float32],
     return np.minimum(d, cap_m + dy).astype(np.float32), mr, mc
 
 
-def coast_distance_m(lat: ArrayLike, lon: ArrayLike, cap_m: float,
-                     land: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
+def coast_distance_m(
+    lat: ArrayLike, lon: ArrayLike, cap_m: float, land: NDArray[np.bool_] | None = None
+) -> NDArray[np.float64]:
     """Distance (m) from geodetic ``lat, lon`` (deg; longitudes in [-180, 180); any broadcastable
     shapes) to the coast of the land mask, 0 over water, capped at ``cap_m`` (farther is
     ``cap_m``). Continuous: the distance of each cell centre to the nearest water cell centre,
@@ -202,8 +215,9 @@ def coast_distance_m(lat: ArrayLike, lon: ArrayLike, cap_m: float,
         d, mr, mc = _tile_distance(a, b, cap)
         ri, ci = i0[sel] - a * _TILE_CELLS + mr, j0[sel] - b * _TILE_CELLS + mc
         wu, wv = fu[sel], fv[sel]
-        vals[sel] = ((1 - wu) * ((1 - wv) * d[ri, ci] + wv * d[ri, ci + 1])
-                     + wu * ((1 - wv) * d[ri + 1, ci] + wv * d[ri + 1, ci + 1]))
+        vals[sel] = (1 - wu) * ((1 - wv) * d[ri, ci] + wv * d[ri, ci + 1]) + wu * (
+            (1 - wv) * d[ri + 1, ci] + wv * d[ri + 1, ci + 1]
+        )
     half = 0.5 * abs(dlat) * _M_PER_DEG  # rows are the longer side (cos(lat) <= 1 shortens columns)
     out[land] = np.clip(vals - half, 0.0, cap)
     return out

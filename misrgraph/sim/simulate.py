@@ -14,8 +14,8 @@ Two scenarios, following the paper's order of work:
 Injected navigation errors per pass: ephemeris (eq. 19) b ~ N(0, 50 m) per orbital axis (150 m
 3 sigma), drift a ~ N(0, 0.05 m/s) along track and N(0, 0.01 m/s) across/radial; attitude (eqs.
 23-27) with the model truth a cubic Hermite spline through knots every 60 s drawn from the
-estimator's own process prior (damped oscillator, :mod:`factors.priors`); with the independent truth a smooth random process
-(periods 200-2000 s) plus jitter; 1 sigma 41/3, 44/3, 36/3 arcsec for roll, pitch, yaw (the
+estimator's own process prior (damped oscillator, :mod:`factors.priors`); with the independent truth a smooth random
+process (periods 200-2000 s) plus jitter; 1 sigma 41/3, 44/3, 36/3 arcsec for roll, pitch, yaw (the
 3-sigma knowledge requirement). The supplied navigation is the measured
 one; the truth is ``P = P_meas - T_go e``, ``A = A_meas - E`` (docs/conventions.md). All
 randomness comes from one ``numpy`` generator seeded by ``seed``.
@@ -128,8 +128,14 @@ IMAGERY_DEM_PAD = 20
 #: The independent truth's error sources beyond the navigation (ScenarioConfig fields; each off at
 #: 0), with the value that switches them off: ``misrgraph bench sources`` turns them on one at a time.
 INDEPENDENT_SOURCES = {
-    "jitter_arcsec": 0.0, "once_per_rev_m": 0.0, "subposting_relief_m": 0.0, "dem_correlated_fraction": 0.0,
-    "camera_f_alpha_px": 0.0, "noise_tail_dof": 0.0, "mismatch_rate": 0.0, "gcp_scene_fraction": 0.0,
+    "jitter_arcsec": 0.0,
+    "once_per_rev_m": 0.0,
+    "subposting_relief_m": 0.0,
+    "dem_correlated_fraction": 0.0,
+    "camera_f_alpha_px": 0.0,
+    "noise_tail_dof": 0.0,
+    "mismatch_rate": 0.0,
+    "gcp_scene_fraction": 0.0,
 }
 
 #: The sources of :data:`INDEPENDENT_SOURCES` whose random draws do not depend on their value: a
@@ -138,8 +144,9 @@ INDEPENDENT_SOURCES = {
 #: ``misrgraph bench sources --mode without``). The others draw only when they are on
 #: (``camera_f_alpha_px``, ``mismatch_rate``) or draw differently (``noise_tail_dof``: Student-t
 #: instead of Gaussian), which shifts every later draw.
-PAIRED_SOURCES = frozenset({"jitter_arcsec", "once_per_rev_m", "subposting_relief_m", "dem_correlated_fraction",
-                            "gcp_scene_fraction"})
+PAIRED_SOURCES = frozenset(
+    {"jitter_arcsec", "once_per_rev_m", "subposting_relief_m", "dem_correlated_fraction", "gcp_scene_fraction"}
+)
 
 
 @dataclass(frozen=True)
@@ -275,14 +282,20 @@ class ScenarioConfig(Config):
         if not self.coast_ramp_m >= 0:
             raise InputError("coast_ramp_m", self.coast_ramp_m, "a distance >= 0 (m; 0: no ramp)")
         if not (self.noise_tail_dof == 0 or self.noise_tail_dof > 2):
-            raise InputError("noise_tail_dof", self.noise_tail_dof, "0 (Gaussian) or degrees of freedom > 2 (finite variance)")
+            raise InputError(
+                "noise_tail_dof", self.noise_tail_dof, "0 (Gaussian) or degrees of freedom > 2 (finite variance)"
+            )
         if len(self.mismatch_px) != 2 or not 0 < self.mismatch_px[0] <= self.mismatch_px[1]:
             raise InputError("mismatch_px", self.mismatch_px, "(min, max) pixels, 0 < min <= max")
         if self.n_passes < 1:
             raise InputError("n_passes", self.n_passes, "an integer >= 1")
-        if self.repeat_indices and (len(set(self.repeat_indices)) != len(self.repeat_indices)
-                                    or any(not isinstance(k, int) or isinstance(k, bool) or k < 0 for k in self.repeat_indices)):
-            raise InputError("repeat_indices", self.repeat_indices, "distinct integers >= 0 (repeat cycles after epoch_date)")
+        if self.repeat_indices and (
+            len(set(self.repeat_indices)) != len(self.repeat_indices)
+            or any(not isinstance(k, int) or isinstance(k, bool) or k < 0 for k in self.repeat_indices)
+        ):
+            raise InputError(
+                "repeat_indices", self.repeat_indices, "distinct integers >= 0 (repeat cycles after epoch_date)"
+            )
         if not (1 <= self.path <= REPEAT_PATHS):
             raise InputError("path", self.path, f"an integer in 1..{REPEAT_PATHS}")
         for name in ("tie_sigma_px", "gcp_sigma_px", "nav_sigma_m", "gcp_sigma_m", "duration_s"):
@@ -295,12 +308,23 @@ class ScenarioConfig(Config):
         for name in ("thermal_arcsec_per_c", "thermal_focal_ppm_per_c"):
             if not getattr(self, name) >= 0:
                 raise InputError(name, getattr(self, name), "a number >= 0 (1 sigma of the per-camera slope)")
-        for name in ("tie_blunder_rate", "gcp_blunder_rate", "view_probability", "texture_probability", "dted1_fraction",
-                     "dem_correlated_fraction", "mismatch_rate"):
+        for name in (
+            "tie_blunder_rate",
+            "gcp_blunder_rate",
+            "view_probability",
+            "texture_probability",
+            "dted1_fraction",
+            "dem_correlated_fraction",
+            "mismatch_rate",
+        ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(name, getattr(self, name), "a fraction in [0, 1]")
         if not 0.0 <= self.gcp_scene_fraction < 1.0:
-            raise InputError("gcp_scene_fraction", self.gcp_scene_fraction, "a fraction in [0, 1) (each GCP keeps an error of its own)")
+            raise InputError(
+                "gcp_scene_fraction",
+                self.gcp_scene_fraction,
+                "a fraction in [0, 1) (each GCP keeps an error of its own)",
+            )
         if not 0.0 <= self.cloud_fraction < 1.0:
             raise InputError("cloud_fraction", self.cloud_fraction, "a fraction in [0, 1)")
         if not self.image_snr > 0:
@@ -308,30 +332,52 @@ class ScenarioConfig(Config):
         if not (isinstance(self.search_px, int) and 1 <= self.search_px <= 64):
             raise InputError("search_px", self.search_px, "an integer number of pixels in 1..64")
         if not self.feature_windows and not self.roi_blocks:
-            raise InputError("feature_windows", False, "True unless roi_blocks are rendered (the imagery would be empty)")
+            raise InputError(
+                "feature_windows", False, "True unless roi_blocks are rendered (the imagery would be empty)"
+            )
         if self.roi_blocks:
             rb = self.roi_blocks
             if not self.imagery:
                 raise InputError("roi_blocks", rb, "() unless imagery is rendered (--imagery)")
-            if len(rb) != 2 or any(isinstance(b, bool) or not isinstance(b, int) for b in rb) \
-                    or not 1 <= rb[0] <= rb[1] <= 180:
+            if (
+                len(rb) != 2
+                or any(isinstance(b, bool) or not isinstance(b, int) for b in rb)
+                or not 1 <= rb[0] <= rb[1] <= 180
+            ):
                 raise InputError("roi_blocks", rb, "(first, last) block numbers, 1 <= first <= last <= 180")
         if not self.roi_dem_sigma_m >= 0:
             raise InputError("roi_dem_sigma_m", self.roi_dem_sigma_m, "a number >= 0 (m, 1 sigma)")
         if any(c not in CAMERAS for c in self.strip_cameras) or len(set(self.strip_cameras)) != len(self.strip_cameras):
-            raise InputError("strip_cameras", self.strip_cameras, f"distinct names from {', '.join(CAMERAS)} (empty: all)")
-        if self.strip_samples and (len(self.strip_samples) != 2 or self.strip_samples[0] < 0 or self.strip_samples[1] < 16
-                                   or self.strip_samples[0] + self.strip_samples[1] > N_PIXELS):
-            raise InputError("strip_samples", self.strip_samples, f"(first sample, count): count >= 16, within 0..{N_PIXELS}")
+            raise InputError(
+                "strip_cameras", self.strip_cameras, f"distinct names from {', '.join(CAMERAS)} (empty: all)"
+            )
+        if self.strip_samples and (
+            len(self.strip_samples) != 2
+            or self.strip_samples[0] < 0
+            or self.strip_samples[1] < 16
+            or self.strip_samples[0] + self.strip_samples[1] > N_PIXELS
+        ):
+            raise InputError(
+                "strip_samples", self.strip_samples, f"(first sample, count): count >= 16, within 0..{N_PIXELS}"
+            )
         if len(self.attitude_sigma_arcsec) != 3 or len(self.knot_spacing_s) != 3:
-            raise InputError("attitude_sigma_arcsec/knot_spacing_s", (self.attitude_sigma_arcsec, self.knot_spacing_s),
-                             "three values (roll, pitch, yaw)")
+            raise InputError(
+                "attitude_sigma_arcsec/knot_spacing_s",
+                (self.attitude_sigma_arcsec, self.knot_spacing_s),
+                "three values (roll, pitch, yaw)",
+            )
         if self.n_tie_points < 0 or self.n_check_points < 0 or self.n_gcps < 5:
-            raise InputError("counts", (self.n_tie_points, self.n_check_points, self.n_gcps), "n_tie_points, n_check_points >= 0; n_gcps >= 5")
+            raise InputError(
+                "counts",
+                (self.n_tie_points, self.n_check_points, self.n_gcps),
+                "n_tie_points, n_check_points >= 0; n_gcps >= 5",
+            )
 
 
 # ---------------------------------------------------------------------------- truth draws
-def draw_ephemeris_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float) -> EphemerisErrorModel:
+def draw_ephemeris_error(
+    rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float
+) -> EphemerisErrorModel:
     """Random eq. 19 model: b ~ N(0, nav_sigma_m), a ~ N(0, along/drift sigma) per segment
     (``truth="model"``); or, with ``truth="independent"``, an offset, a drift and a
     once-per-revolution term per axis, tabulated on 60 s segments (continuous)."""
@@ -354,8 +400,9 @@ def draw_ephemeris_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start:
     return model
 
 
-def smooth_process(rng: np.random.Generator, sigma: float, n_terms: int = 6,
-                   periods_s: tuple[float, float] = (200.0, 2000.0)) -> Callable[[Array], tuple[Array, Array]]:
+def smooth_process(
+    rng: np.random.Generator, sigma: float, n_terms: int = 6, periods_s: tuple[float, float] = (200.0, 2000.0)
+) -> Callable[[Array], tuple[Array, Array]]:
     """A zero-mean random sum of sinusoids (periods log-uniform in ``periods_s``) with standard
     deviation ``sigma``; returns ``f(t) -> (value, rate)``."""
     period = np.exp(rng.uniform(np.log(periods_s[0]), np.log(periods_s[1]), n_terms))
@@ -363,10 +410,15 @@ def smooth_process(rng: np.random.Generator, sigma: float, n_terms: int = 6,
     ph = rng.uniform(0, 2 * np.pi, n_terms)
     amp = rng.rayleigh(1.0, n_terms)
     amp *= sigma / np.sqrt(np.sum(amp**2) / 2)
-    return lambda t: (np.sum(amp * np.sin(np.multiply.outer(t, w) + ph), -1), np.sum(amp * w * np.cos(np.multiply.outer(t, w) + ph), -1))
+    return lambda t: (
+        np.sum(amp * np.sin(np.multiply.outer(t, w) + ph), -1),
+        np.sum(amp * w * np.cos(np.multiply.outer(t, w) + ph), -1),
+    )
 
 
-def draw_attitude_error(rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float) -> AttitudeErrorModel:
+def draw_attitude_error(
+    rng: np.random.Generator, cfg: ScenarioConfig, t_start: float, t_end: float
+) -> AttitudeErrorModel:
     """Random attitude error spline: knots (value, rate) on the estimator's knot grid drawn from the
     estimator's own process prior (``truth="model"``, :func:`sample_process_knots`), or
     :func:`smooth_process` plus jitter on a 2 s grid the estimator does not share
@@ -408,8 +460,9 @@ THERMAL_REFERENCE_C = 5.0
 THERMAL_RANGE_C = (-10.0, 20.0)
 
 
-def draw_thermal_truth(rng: np.random.Generator, base: CameraModel, angle_sigma_rad: float,
-                       focal_sigma: float) -> TabulatedCameraModel:
+def draw_thermal_truth(
+    rng: np.random.Generator, base: CameraModel, angle_sigma_rad: float, focal_sigma: float
+) -> TabulatedCameraModel:
     """A true camera linear in temperature around ``base`` (at :data:`THERMAL_REFERENCE_C`).
 
     Per camera: slopes of delta and beta ~ N(0, angle_sigma_rad) rad/C and a focal scale slope
@@ -417,8 +470,11 @@ def draw_thermal_truth(rng: np.random.Generator, base: CameraModel, angle_sigma_
     cross-track field angle per pixel shrinks). Tabulated over :data:`THERMAL_RANGE_C`.
     """
     nc = len(CAMERAS)
-    slopes = {"delta": rng.standard_normal(nc) * angle_sigma_rad, "beta": rng.standard_normal(nc) * angle_sigma_rad,
-              "focal_scale": rng.standard_normal(nc) * focal_sigma}
+    slopes = {
+        "delta": rng.standard_normal(nc) * angle_sigma_rad,
+        "beta": rng.standard_normal(nc) * angle_sigma_rad,
+        "focal_scale": rng.standard_normal(nc) * focal_sigma,
+    }
     base = base.copy()
     base.temperature_c = THERMAL_REFERENCE_C
     table = TabulatedCameraModel.linear(base, slopes, THERMAL_RANGE_C)
@@ -427,7 +483,9 @@ def draw_thermal_truth(rng: np.random.Generator, base: CameraModel, angle_sigma_
     return table
 
 
-def _offset_table(truth: TabulatedCameraModel, truth_ref: CameraModel, supplied_ref: CameraModel) -> TabulatedCameraModel:
+def _offset_table(
+    truth: TabulatedCameraModel, truth_ref: CameraModel, supplied_ref: CameraModel
+) -> TabulatedCameraModel:
     """``truth`` with the difference ``supplied_ref - truth_ref`` added at every temperature."""
     models = []
     for m in truth.models:
@@ -480,7 +538,7 @@ def perturb_field_angles(rng: np.random.Generator, camera: CameraModel, px: floa
     m = camera.copy()
     nc = len(CAMERAS)
     for i in (2, 3):
-        m.alpha[:, :, i] += (rng.standard_normal(nc)[:, None] * px * m.alpha[:, :, 1] / 752.0**i)
+        m.alpha[:, :, i] += rng.standard_normal(nc)[:, None] * px * m.alpha[:, :, 1] / 752.0**i
     return m
 
 
@@ -565,9 +623,17 @@ def simulate_pass(
     e_eph = draw_ephemeris_error(rng, cfg, t_lo, t_hi)
     att_meas = AttitudeSeries(eph.t, ang + e_att.evaluate(eph.t), rate + e_att.rate(eph.t))
     t0 = np.full((len(CAMERAS), len(BANDS)), t_lo)
-    geo = PassGeometry(eph, att_meas, camera_truth, t0=t0,
-                       attitude_delta=lambda t: -e_att.evaluate(t), position_delta=lambda t: -e_eph.evaluate(t))
-    surface = lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo)
+    geo = PassGeometry(
+        eph,
+        att_meas,
+        camera_truth,
+        t0=t0,
+        attitude_delta=lambda t: -e_att.evaluate(t),
+        position_delta=lambda t: -e_eph.evaluate(t),
+    )
+
+    def surface(la, lo):
+        return terrain.height(la, lo) + geoid.undulation(la, lo)
 
     lms: list[_Landmark] = []
     # GCPs seen by the nadir camera during the pass
@@ -640,7 +706,13 @@ def simulate_pass(
     t_obs = t0[cols[1].astype(np.int64), cols[2].astype(np.int64)] + line * camera_truth.line_time
     inside = (t_obs >= eph.span[0]) & (t_obs <= eph.span[1])
     if not inside.all():
-        obs_lm, line, sample, sigma, blunder = obs_lm[inside], line[inside], sample[inside], sigma[inside], blunder[inside]
+        obs_lm, line, sample, sigma, blunder = (
+            obs_lm[inside],
+            line[inside],
+            sample[inside],
+            sigma[inside],
+            blunder[inside],
+        )
         cols = [c[inside] for c in cols]
     landmarks = Landmarks(
         np.array([lm.ident for lm in kept], np.int64),
@@ -648,8 +720,12 @@ def simulate_pass(
         np.array([lm.gcp_index for lm in kept], np.int64),
     )
     obs = Observations(obs_lm, cols[1], cols[2], line, sample, cols[5], sigma)
-    truth = PassTruth(e_eph, e_att, np.stack([lm.ecef for lm in kept]) if kept else np.zeros((0, 3)), blunder, camera_truth)
-    return OrbitPass(pass_id, path, orbit, eph, att_meas, t0, camera_truth.line_time, landmarks, obs, temperature_c), truth
+    truth = PassTruth(
+        e_eph, e_att, np.stack([lm.ecef for lm in kept]) if kept else np.zeros((0, 3)), blunder, camera_truth
+    )
+    return OrbitPass(
+        pass_id, path, orbit, eph, att_meas, t0, camera_truth.line_time, landmarks, obs, temperature_c
+    ), truth
 
 
 # ---------------------------------------------------------------------------- scenarios
@@ -658,7 +734,9 @@ def _month_passes(cfg: ScenarioConfig, gcps: GcpDatabase) -> list[tuple[int, int
     import datetime as dt
 
     ref_path = cfg.path
-    ref = terra_like_orbit(epoch_date=cfg.epoch_date, path=ref_path, start_lat_deg=80.0, duration_s=2950.0, step_s=8.192)
+    ref = terra_like_orbit(
+        epoch_date=cfg.epoch_date, path=ref_path, start_lat_deg=80.0, duration_s=2950.0, step_s=8.192
+    )
     geo = PassGeometry(ref, AttitudeSeries.zeros(ref.t), nominal_camera_model())
     nav = geo.nav_state(ref.t)
     track = np.einsum("nij,nj->ni", nav.eci_to_ecef, nav.position)
@@ -672,9 +750,16 @@ def _month_passes(cfg: ScenarioConfig, gcps: GcpDatabase) -> list[tuple[int, int
         path = (ref_path - 1 + 16 * j) % REPEAT_PATHS + 1
         lon_track = tlon_rel + np.radians(path_node_longitude(path))
         # great-circle distance from each GCP to the ground track samples
-        d = np.arccos(np.clip(
-            np.sin(glat[:, None]) * np.sin(np.radians(tlat))[None, :]
-            + np.cos(glat[:, None]) * np.cos(np.radians(tlat))[None, :] * np.cos(glon[:, None] - lon_track[None, :]), -1, 1))
+        d = np.arccos(
+            np.clip(
+                np.sin(glat[:, None]) * np.sin(np.radians(tlat))[None, :]
+                + np.cos(glat[:, None])
+                * np.cos(np.radians(tlat))[None, :]
+                * np.cos(glon[:, None] - lon_track[None, :]),
+                -1,
+                1,
+            )
+        )
         dmin = d.min(axis=1) * 6371e3
         seen = np.flatnonzero(dmin < 150e3)
         if seen.size:
@@ -738,9 +823,13 @@ def load_scenario(directory: str | os.PathLike[str]) -> Scenario:
     if not passes:
         raise FileFormatError(d / "passes", "no pass files (*.h5)")
     return Scenario(
-        d, config, load_camera_model(d / "camera_model.h5"),
+        d,
+        config,
+        load_camera_model(d / "camera_model.h5"),
         load_camera_model(truth_path) if truth_path.exists() else None,
-        read_gcp_database(d / "gcp.h5"), read_dem(d / "dem.h5"), passes,
+        read_gcp_database(d / "gcp.h5"),
+        read_dem(d / "dem.h5"),
+        passes,
     )
 
 
@@ -751,9 +840,11 @@ def scenario_terrain(cfg: ScenarioConfig | Mapping[str, Any]) -> SyntheticTerrai
     is 0, the world that scenario was simulated in."""
     get = cfg.get if isinstance(cfg, Mapping) else (lambda k, d: getattr(cfg, k))
     truth = str(get("truth", "model"))
-    return SyntheticTerrain(seed=int(get("seed", 0)),
-                            fine_relief_m=float(get("subposting_relief_m", 0.0)) if truth == "independent" else 0.0,
-                            coast_ramp_m=float(get("coast_ramp_m", 0.0)))
+    return SyntheticTerrain(
+        seed=int(get("seed", 0)),
+        fine_relief_m=float(get("subposting_relief_m", 0.0)) if truth == "independent" else 0.0,
+        coast_ramp_m=float(get("coast_ramp_m", 0.0)),
+    )
 
 
 def _scenario_rng(seed: int) -> np.random.Generator:
@@ -773,22 +864,33 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     terrain = scenario_terrain(cfg)
     geoid = Geoid("zero")
     nominal = nominal_camera_model()
-    gcps, gcp_truth = generate_gcp_database(rng, terrain, cfg.n_gcps, cfg.gcp_sigma_m, geoid, cfg.with_chips,
-                                            scene_fraction=cfg.gcp_scene_fraction if independent else None)
+    gcps, gcp_truth = generate_gcp_database(
+        rng,
+        terrain,
+        cfg.n_gcps,
+        cfg.gcp_sigma_m,
+        geoid,
+        cfg.with_chips,
+        scene_fraction=cfg.gcp_scene_fraction if independent else None,
+    )
     truth_cam = draw_camera_misalignment(rng, nominal, cfg.camera_misalignment_arcsec * ARCSEC)
     if independent and cfg.camera_f_alpha_px > 0:
         truth_cam = perturb_focal_plane(rng, truth_cam, cfg.camera_f_alpha_px)
     elif cfg.scenario == "month" and cfg.camera_f_alpha_px > 0:
         # the model truth of a month: alpha_2, alpha_3 off the pre-flight values by the
         # calibration's own prior (CalibrateConfig.focal_prior_px), from a stream of their own
-        truth_cam = perturb_field_angles(np.random.default_rng([cfg.seed, MODEL_ALPHA_STREAM]), truth_cam, cfg.camera_f_alpha_px)
+        truth_cam = perturb_field_angles(
+            np.random.default_rng([cfg.seed, MODEL_ALPHA_STREAM]), truth_cam, cfg.camera_f_alpha_px
+        )
     truth_cam.provenance = {"source": "simulator truth", "seed": str(cfg.seed)}
     truth_model: CameraModel | TabulatedCameraModel = truth_cam
     if cfg.thermal_arcsec_per_c > 0 or cfg.thermal_focal_ppm_per_c > 0:
-        truth_model = draw_thermal_truth(rng, truth_cam, cfg.thermal_arcsec_per_c * ARCSEC, cfg.thermal_focal_ppm_per_c * 1e-6)
+        truth_model = draw_thermal_truth(
+            rng, truth_cam, cfg.thermal_arcsec_per_c * ARCSEC, cfg.thermal_focal_ppm_per_c * 1e-6
+        )
     if cfg.band_misalignment_arcsec > 0:
         offsets = rng.standard_normal((3, len(CAMERAS), len(BANDS))) * cfg.band_misalignment_arcsec * ARCSEC
-        for m in ([truth_cam] if truth_model is truth_cam else [truth_cam, *truth_model.models]):  # type: ignore[union-attr]
+        for m in [truth_cam] if truth_model is truth_cam else [truth_cam, *truth_model.models]:  # type: ignore[union-attr]
             for name, off in zip(("band_delta", "band_beta", "band_epsilon"), offsets):
                 getattr(m, name)[:] += off
     if cfg.camera_truth:
@@ -810,9 +912,13 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             # the model truth: the supplied alpha_2, alpha_3 off by the adjustment's own prior (f
             # exact, as the adjustment holds it); drawn from a stream of their own so that every
             # other draw of the scenario stays as it was
-            supplied = perturb_field_angles(np.random.default_rng([cfg.seed, MODEL_ALPHA_STREAM]), supplied,
-                                            cfg.camera_f_alpha_px)
-        supplied.provenance = {"source": "calibrated model (truth + residual error)", "residual_px": str(cfg.camera_residual_px)}
+            supplied = perturb_field_angles(
+                np.random.default_rng([cfg.seed, MODEL_ALPHA_STREAM]), supplied, cfg.camera_f_alpha_px
+            )
+        supplied.provenance = {
+            "source": "calibrated model (truth + residual error)",
+            "residual_px": str(cfg.camera_residual_px),
+        }
         if isinstance(truth_model, TabulatedCameraModel):
             # a calibrated thermal table: the same residual error at every temperature
             supplied = _offset_table(truth_model, truth_cam, supplied)
@@ -822,8 +928,10 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
 
             d0 = _dt.date.fromisoformat(cfg.epoch_date)
             cycles = sorted(cfg.repeat_indices) if cfg.repeat_indices else range(cfg.n_passes)
-            plan = [(233 * k, cfg.path, (d0 + _dt.timedelta(days=16 * k)).isoformat(), cfg.start_lat_deg, cfg.duration_s)
-                    for k in cycles]
+            plan = [
+                (233 * k, cfg.path, (d0 + _dt.timedelta(days=16 * k)).isoformat(), cfg.start_lat_deg, cfg.duration_s)
+                for k in cycles
+            ]
         else:
             plan = [(0, cfg.path, cfg.epoch_date, cfg.start_lat_deg, cfg.duration_s)]
     tmp = make_temp_dir(f".{out_dir.name}.", out_dir.parent)
@@ -839,13 +947,30 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                 progress(f"pass {k + 1}/{len(plan)}", k, len(plan))
             eph = terra_like_orbit(epoch_date=date, path=path, start_lat_deg=start_lat, duration_s=duration)
             temp = 5.0 + 3.0 * np.sin(2 * np.pi * orbit / 437.0) + 0.5 * rng.standard_normal()
-            p, p_truth = simulate_pass(rng, cfg, eph, truth_model.at_temperature(float(temp)), terrain, geoid, gcps, gcp_truth,
-                                       f"P{path:03d}_O{orbit:04d}", path, orbit,
-                              n_tie, n_check, float(temp), features=path_features,
-                              feature_fraction=cfg.repeat_visibility if path_features is not None else 1.0)
+            p, p_truth = simulate_pass(
+                rng,
+                cfg,
+                eph,
+                truth_model.at_temperature(float(temp)),
+                terrain,
+                geoid,
+                gcps,
+                gcp_truth,
+                f"P{path:03d}_O{orbit:04d}",
+                path,
+                orbit,
+                n_tie,
+                n_check,
+                float(temp),
+                features=path_features,
+                feature_fraction=cfg.repeat_visibility if path_features is not None else 1.0,
+            )
             if cfg.scenario == "path" and path_features is None:
-                path_features = [_Landmark(p_truth.landmark_ecef[i], int(p.landmarks.kind[i]), int(p.landmarks.id[i]), -1)
-                                 for i in range(len(p.landmarks)) if p.landmarks.kind[i] != KIND_GCP]
+                path_features = [
+                    _Landmark(p_truth.landmark_ecef[i], int(p.landmarks.kind[i]), int(p.landmarks.id[i]), -1)
+                    for i in range(len(p.landmarks))
+                    if p.landmarks.kind[i] != KIND_GCP
+                ]
             if cfg.scenario == "month" and not np.any(p.landmarks.kind == KIND_GCP):
                 continue
             imagery = None
@@ -858,17 +983,32 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             seen_count[gi] += 1
             n_obs += len(p.observations)
             all_lm.append(p_truth.landmark_ecef)
-            summaries.append({"pass_id": p.pass_id, "observations": len(p.observations),
-                              "tie_points": int(np.sum(p.landmarks.kind == KIND_TIE)),
-                              "gcps": int(np.sum(p.landmarks.kind == KIND_GCP)),
-                              "check_points": int(np.sum(p.landmarks.kind == KIND_CHECK))})
+            summaries.append(
+                {
+                    "pass_id": p.pass_id,
+                    "observations": len(p.observations),
+                    "tie_points": int(np.sum(p.landmarks.kind == KIND_TIE)),
+                    "gcps": int(np.sum(p.landmarks.kind == KIND_GCP)),
+                    "check_points": int(np.sum(p.landmarks.kind == KIND_CHECK)),
+                }
+            )
         if progress:
             progress("DEM tiles", len(plan), len(plan))
         lm = np.concatenate(all_lm + [gcp_truth])
         lat, lon, _ = ecef_to_geodetic(lm)
-        save_dem(simulate_dem_tiles(lat, lon, terrain, rng, cfg.dem_tile_size, cfg.dted1_fraction,
-                                    pad=IMAGERY_DEM_PAD if cfg.imagery else 8,
-                                    correlated_fraction=cfg.dem_correlated_fraction if independent else 0.0), tmp / "dem.h5")
+        save_dem(
+            simulate_dem_tiles(
+                lat,
+                lon,
+                terrain,
+                rng,
+                cfg.dem_tile_size,
+                cfg.dted1_fraction,
+                pad=IMAGERY_DEM_PAD if cfg.imagery else 8,
+                correlated_fraction=cfg.dem_correlated_fraction if independent else 0.0,
+            ),
+            tmp / "dem.h5",
+        )
         if cfg.roi_blocks:  # the heights the ROI is orthorectified with, on the path's 275 m SOM grid,
             # one block more each side: terrain there can hide the blocks' ends from the oblique cameras
             from misrgraph.io.dem import save_som_dem
@@ -876,9 +1016,16 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             from misrgraph.sim.terrain import simulate_som_dem
 
             padded = (max(1, cfg.roi_blocks[0] - 1), min(N_BLOCKS, cfg.roi_blocks[1] + 1))
-            save_som_dem(simulate_som_dem(lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo), cfg.path,
-                                          padded, int(rng.integers(0, 2**62)), cfg.roi_dem_sigma_m),
-                         tmp / "dem_som.h5")
+            save_som_dem(
+                simulate_som_dem(
+                    lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo),
+                    cfg.path,
+                    padded,
+                    int(rng.integers(0, 2**62)),
+                    cfg.roi_dem_sigma_m,
+                ),
+                tmp / "dem_som.h5",
+            )
         save_camera_model(supplied, tmp / "camera_model.h5")
         save_camera_model(truth_model, tmp / "camera_truth.h5")
         save_gcp_database(gcps, tmp / "gcp.h5", truth_ecef=gcp_truth)
@@ -904,9 +1051,16 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
     return summary
 
 
-def _render_imagery(cfg: ScenarioConfig, p: OrbitPass, p_truth: PassTruth, supplied: "CameraModel | TabulatedCameraModel",
-                    terrain: SyntheticTerrain, geoid: Geoid, k: int,
-                    progress: Callable[[str, int, int], None] | None = None) -> "PassImagery":
+def _render_imagery(
+    cfg: ScenarioConfig,
+    p: OrbitPass,
+    p_truth: PassTruth,
+    supplied: "CameraModel | TabulatedCameraModel",
+    terrain: SyntheticTerrain,
+    geoid: Geoid,
+    k: int,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> "PassImagery":
     """The pass's image windows and GCP chips (:mod:`misrgraph.sim.imagery`), from a generator of
     their own so that switching imagery on changes nothing else in the scenario."""
     from misrgraph.sim.imagery import (
@@ -915,32 +1069,64 @@ def _render_imagery(cfg: ScenarioConfig, p: OrbitPass, p_truth: PassTruth, suppl
         render_pass_imagery,
     )
 
-    surface = lambda la, lo: terrain.height(la, lo) + geoid.undulation(la, lo)
+    def surface(la, lo):
+        return terrain.height(la, lo) + geoid.undulation(la, lo)
+
     scene = SceneRadiance(cfg.seed, surface, cloud_fraction=cfg.cloud_fraction, cloud_epoch=k)
     true_geo = p_truth.geometry(p)
     supplied_geo = p.geometry(supplied.at_temperature(p.temperature_c))
     if cfg.feature_windows:
         bands = tuple(BANDS.index(b) for b in cfg.bands)  # GCPs in every observed band; ties in red if observed
-        imagery = render_pass_imagery(p, true_geo, supplied_geo, p_truth.landmark_ecef, scene, surface,
-                                      np.random.default_rng([cfg.seed, 4242, k]), search_px=cfg.search_px, snr=cfg.image_snr,
-                                      band=RED if RED in bands else bands[0], gcp_bands=bands)
+        imagery = render_pass_imagery(
+            p,
+            true_geo,
+            supplied_geo,
+            p_truth.landmark_ecef,
+            scene,
+            surface,
+            np.random.default_rng([cfg.seed, 4242, k]),
+            search_px=cfg.search_px,
+            snr=cfg.image_snr,
+            band=RED if RED in bands else bands[0],
+            gcp_bands=bands,
+        )
     else:  # strips only (a scenario for Reference Orbit Imagery, not for matching)
         from misrgraph.io.imagery import ImageWindows, PassImagery
 
-        imagery = PassImagery(ImageWindows.empty(1), ImageWindows.empty(1), np.zeros(0, np.int64),
-                              np.zeros((0, len(CAMERAS), 1, 1), np.float32),
-                              {"snr": float(cfg.image_snr), "cloud_fraction": float(cfg.cloud_fraction), "band": 2,
-                               "full_scale_dn": 2**14 - 1, "feature_windows": 0})
+        imagery = PassImagery(
+            ImageWindows.empty(1),
+            ImageWindows.empty(1),
+            np.zeros(0, np.int64),
+            np.zeros((0, len(CAMERAS), 1, 1), np.float32),
+            {
+                "snr": float(cfg.image_snr),
+                "cloud_fraction": float(cfg.cloud_fraction),
+                "band": 2,
+                "full_scale_dn": 2**14 - 1,
+                "feature_windows": 0,
+            },
+        )
     if cfg.roi_blocks:
-        imagery.strips = render_block_strips(true_geo, scene, surface, p.path, cfg.roi_blocks, cfg.strip_cameras or CAMERAS,
-                                             cfg.strip_samples, [cfg.seed, 4343, k], cfg.image_snr, progress=progress)
+        imagery.strips = render_block_strips(
+            true_geo,
+            scene,
+            surface,
+            p.path,
+            cfg.roi_blocks,
+            cfg.strip_cameras or CAMERAS,
+            cfg.strip_samples,
+            [cfg.seed, 4343, k],
+            cfg.image_snr,
+            progress=progress,
+        )
         imagery.attrs["roi_blocks"] = list(cfg.roi_blocks)
     return imagery
 
 
 #: What :func:`run_simulate` writes into a scenario directory (nothing else is ever replaced).
-SCENARIO_ENTRIES = frozenset({"scenario.json", "passes", "dem.h5", "dem_som.h5", "camera_model.h5", "camera_truth.h5",
-                              "gcp.h5"})
+SCENARIO_ENTRIES = frozenset(
+    {"scenario.json", "passes", "dem.h5", "dem_som.h5", "camera_model.h5", "camera_truth.h5", "gcp.h5"}
+)
 
 
 def _check_replaceable(out_dir: Path) -> None:
@@ -950,15 +1136,26 @@ def _check_replaceable(out_dir: Path) -> None:
     if not out_dir.exists() or not any(out_dir.iterdir()):
         return
     if not (out_dir / "scenario.json").exists():
-        raise InputError("--out", str(out_dir), "a new or empty directory, or an earlier scenario directory to replace "
-                                                "(this one is not empty and has no scenario.json)")
+        raise InputError(
+            "--out",
+            str(out_dir),
+            "a new or empty directory, or an earlier scenario directory to replace "
+            "(this one is not empty and has no scenario.json)",
+        )
     foreign = sorted(e.name for e in out_dir.iterdir() if e.name not in SCENARIO_ENTRIES)
-    foreign += sorted(f"passes/{e.name}" for e in (out_dir / "passes").iterdir()
-                      if not (e.is_file() and e.suffix == ".h5")) if (out_dir / "passes").is_dir() else []
+    foreign += (
+        sorted(f"passes/{e.name}" for e in (out_dir / "passes").iterdir() if not (e.is_file() and e.suffix == ".h5"))
+        if (out_dir / "passes").is_dir()
+        else []
+    )
     if foreign:
         shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
-        raise InputError("--out", str(out_dir), f"a scenario directory holding only what simulate writes; it also holds "
-                                                f"{shown}: move those elsewhere or choose another --out")
+        raise InputError(
+            "--out",
+            str(out_dir),
+            f"a scenario directory holding only what simulate writes; it also holds "
+            f"{shown}: move those elsewhere or choose another --out",
+        )
 
 
 def _exchange(a: Path, b: Path) -> bool:

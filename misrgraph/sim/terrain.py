@@ -22,11 +22,29 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from misrgraph.errors import InputError
+from misrgraph.model.dem import (
+    FLAG_BOUNDARY,
+    FLAG_LAND,
+    FLAG_WATER,
+    POSTING_DEG,
+    POSTINGS_360,
+    QUALITY_SIGMA_M,
+    DemTiles,
+    dted_lon_posting_factor,
+    wrap_deg,
+)
 from misrgraph.sim.landmask import coast_distance_m, is_land
-from misrgraph.model.dem import (FLAG_BOUNDARY, FLAG_LAND, FLAG_WATER, POSTING_DEG, POSTINGS_360, QUALITY_SIGMA_M,
-                                 DemTiles, dted_lon_posting_factor, wrap_deg)
 
-__all__ = ["SyntheticTerrain", "land_mask", "simulate_dem_tiles", "simulate_som_dem", "value_noise", "ERROR_CORRELATION_POSTINGS", "LONG_CORRELATION_POSTINGS", "EARTH_R"]
+__all__ = [
+    "SyntheticTerrain",
+    "land_mask",
+    "simulate_dem_tiles",
+    "simulate_som_dem",
+    "value_noise",
+    "ERROR_CORRELATION_POSTINGS",
+    "LONG_CORRELATION_POSTINGS",
+    "EARTH_R",
+]
 
 if TYPE_CHECKING:
     from misrgraph.io.dem import SomDem
@@ -118,9 +136,11 @@ def _hash_uniform(i: NDArray[np.int64], j: NDArray[np.int64], seed: int) -> Arra
     """Uniform (0, 1) numbers that are a fixed function of integer grid indices and a seed
     (splitmix64 mixing), so every tile holding a posting gives it the same random error."""
     with np.errstate(over="ignore"):
-        z = (np.asarray(i, np.int64).astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
-             ^ np.asarray(j, np.int64).astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F)
-             ^ np.uint64(seed & 0xFFFFFFFFFFFFFFFF))
+        z = (
+            np.asarray(i, np.int64).astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+            ^ np.asarray(j, np.int64).astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F)
+            ^ np.uint64(seed & 0xFFFFFFFFFFFFFFFF)
+        )
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
         z = z ^ (z >> np.uint64(31))
@@ -230,8 +250,9 @@ def simulate_dem_tiles(
         sig_q = np.where(cell_quality(glat, glon) == 1, QUALITY_SIGMA_M[1], QUALITY_SIGMA_M[2])
         smooth = value_noise(gi, gj, seed + 1, ERROR_CORRELATION_POSTINGS)
         if correlated_fraction > 0:
-            smooth = (np.sqrt(1.0 - correlated_fraction) * smooth
-                      + np.sqrt(correlated_fraction) * value_noise(gi, gj, seed + 3, LONG_CORRELATION_POSTINGS))
+            smooth = np.sqrt(1.0 - correlated_fraction) * smooth + np.sqrt(correlated_fraction) * value_noise(
+                gi, gj, seed + 3, LONG_CORRELATION_POSTINGS
+            )
         err = sig_q * (smooth + 0.1 * _hash_normal(gi, gj, seed + 2))
         return true_h + err, flags
 
@@ -239,7 +260,7 @@ def simulate_dem_tiles(
     heights = np.zeros((len(cells), size, size))
     flags = np.zeros((len(cells), size, size), np.uint8)
     for c in range(0, len(cells), 128):
-        heights[c:c + 128], flags[c:c + 128] = chunk(i0[c:c + 128], j0[c:c + 128], fzc[c:c + 128])
+        heights[c : c + 128], flags[c : c + 128] = chunk(i0[c : c + 128], j0[c : c + 128], fzc[c : c + 128])
     quality = cell_quality(lat0 + size / 2 * p, wrap_deg(lon0 + size / 2 * fzc * p))
     return DemTiles(lat0, lon0, heights, flags, quality, p, fzc * p)
 
@@ -248,8 +269,14 @@ def simulate_dem_tiles(
 SOM_DEM_CORRELATION_PX = 18
 
 
-def simulate_som_dem(surface: "Callable[[Array, Array], Array]", path: int, blocks: tuple[int, int], seed: int,
-                     sigma_m: float = 10.0, resolution_m: int = 275) -> "SomDem":
+def simulate_som_dem(
+    surface: "Callable[[Array, Array], Array]",
+    path: int,
+    blocks: tuple[int, int],
+    seed: int,
+    sigma_m: float = 10.0,
+    resolution_m: int = 275,
+) -> "SomDem":
     """A DEM on ``path``'s SOM grid over ``blocks[0]..blocks[1]``: the true surface
     (ellipsoidal m) at every pixel centre plus an error of 1-sigma ``sigma_m`` -- a smooth field
     correlated over ~5 km (:func:`value_noise` on the grid, 0.95 of the variance) and white noise
@@ -267,7 +294,10 @@ def simulate_som_dem(surface: "Callable[[Array, Array], Array]", path: int, bloc
         lat, lon = grid.somxy_to_latlon(*grid.block_centres(int(b)))
         h = np.asarray(surface(lat, lon), dtype=float)
         gi = (int(b) - 1) * grid.nline + li  # path-continuous line index: the error field crosses block edges
-        err = np.sqrt(0.95) * value_noise(gi, si, seed, SOM_DEM_CORRELATION_PX) \
-            + np.sqrt(0.05) * _hash_normal(gi, si, seed + 1)
+        err = np.sqrt(0.95) * value_noise(gi, si, seed, SOM_DEM_CORRELATION_PX) + np.sqrt(0.05) * _hash_normal(
+            gi, si, seed + 1
+        )
         out[k] = np.where(land_mask(lat, lon), h + sigma_m * err, h)
-    return SomDem(int(path), int(resolution_m), bl, out, float(sigma_m), source=f"simulated (surface + {sigma_m} m error)")
+    return SomDem(
+        int(path), int(resolution_m), bl, out, float(sigma_m), source=f"simulated (surface + {sigma_m} m error)"
+    )

@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
-from misrgraph.io.truth import read_pass_truth
 from misrgraph.errors import require_extra
+from misrgraph.io.truth import read_pass_truth
+from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
 
 __all__ = ["plot_adjustment", "plot_calibration", "plot_campaign", "plot_match"]
 
@@ -61,7 +61,9 @@ def plot_adjustment(result_h5: str | os.PathLike[str], out_dir: str | os.PathLik
         idx, w = model.bracket(i, t)
         rows = np.stack([2 * idx, 2 * idx + 1, 2 * idx + 2, 2 * idx + 3], 1)
         sig = np.sqrt(np.einsum("ni,nij,nj->n", w, jc[i][rows[:, :, None], rows[:, None, :]], w))
-        ax.fill_between(t, (est[:, i] - sig) / ARCSEC, (est[:, i] + sig) / ARCSEC, alpha=0.3, label="estimate +- 1 sigma")
+        ax.fill_between(
+            t, (est[:, i] - sig) / ARCSEC, (est[:, i] + sig) / ARCSEC, alpha=0.3, label="estimate +- 1 sigma"
+        )
         ax.plot(t, est[:, i] / ARCSEC, lw=1.2, label="estimate")
         ax.plot(kt[i], kv[i][:, 0] / ARCSEC, "o", ms=3, label="knots")
         if truth is not None:
@@ -87,8 +89,20 @@ def plot_adjustment(result_h5: str | os.PathLike[str], out_dir: str | os.PathLik
         fig, ax = plt.subplots(figsize=(8, 3.5))
         names = list(cp)
         x = np.arange(len(names))
-        ax.bar(x - 0.2, [cp[n]["before"]["mean"] for n in names], 0.4, yerr=[cp[n]["before"]["std"] for n in names], label="supplied navigation")
-        ax.bar(x + 0.2, [cp[n]["after"]["mean"] for n in names], 0.4, yerr=[cp[n]["after"]["std"] for n in names], label="corrected")
+        ax.bar(
+            x - 0.2,
+            [cp[n]["before"]["mean"] for n in names],
+            0.4,
+            yerr=[cp[n]["before"]["std"] for n in names],
+            label="supplied navigation",
+        )
+        ax.bar(
+            x + 0.2,
+            [cp[n]["after"]["mean"] for n in names],
+            0.4,
+            yerr=[cp[n]["after"]["std"] for n in names],
+            label="corrected",
+        )
         ax.set_xticks(x, names)
         ax.set_ylabel("check-point error (m)")
         ax.legend()
@@ -110,7 +124,9 @@ def plot_calibration(summary: dict[str, Any], out_dir: str | os.PathLike[str]) -
     fig, ax = plt.subplots(figsize=(8, 3.5))
     x = np.arange(len(names))
     if all("pointing_error_px" in summary["cameras"][n] for n in names):
-        ax.bar(x - 0.2, [summary["cameras"][n]["pointing_error_before_px"] for n in names], 0.4, label="pre-flight model")
+        ax.bar(
+            x - 0.2, [summary["cameras"][n]["pointing_error_before_px"] for n in names], 0.4, label="pre-flight model"
+        )
         ax.bar(x + 0.2, [summary["cameras"][n]["pointing_error_px"] for n in names], 0.4, label="recalibrated")
     ax.plot(x, [summary["cameras"][n]["sigma_px"] for n in names], "k_", ms=20, mew=2, label="predicted sigma")
     ax.axhline(0.125, color="r", ls=":", label="1/8 pixel requirement")
@@ -132,8 +148,12 @@ def plot_calibration(summary: dict[str, Any], out_dir: str | os.PathLike[str]) -
     return paths
 
 
-def plot_campaign(summary: dict[str, Any], points: dict[str, list[float]], out_dir: str | os.PathLike[str],
-                  land: tuple[Any, tuple[float, float, float, float]] | None = None) -> list[Path]:
+def plot_campaign(
+    summary: dict[str, Any],
+    points: dict[str, list[float]],
+    out_dir: str | os.PathLike[str],
+    land: tuple[Any, tuple[float, float, float, float]] | None = None,
+) -> list[Path]:
     """The campaign report's figures (PNG): check-point RMS per camera and per path (m), a world
     map of the check points coloured by their error (``points``: ``lat``, ``lon`` deg, ``rms_m``;
     ``land``: an optional boolean image with its lon/lat extent as the background), and the
@@ -205,8 +225,11 @@ def plot_match(pass_file: str | os.PathLike[str], out_dir: str | os.PathLike[str
     p = OrbitPass.load(pass_file)
     truth = read_pass_truth(pass_file)
     chip_of = im.chip_index()
-    ks = [k for k in range(len(im.gcp)) if im.gcp.camera[k] == cam and im.gcp.band[k] == im.band
-          and (int(im.gcp.landmark[k]), im.band) in chip_of]
+    ks = [
+        k
+        for k in range(len(im.gcp))
+        if im.gcp.camera[k] == cam and im.gcp.band[k] == im.band and (int(im.gcp.landmark[k]), im.band) in chip_of
+    ]
     if not ks:
         from misrgraph.errors import InputError
 
@@ -223,7 +246,9 @@ def plot_match(pass_file: str | os.PathLike[str], out_dir: str | os.PathLike[str
     ax[0].set_title(f"reference chip ({camera}, GCP row {row})")
     ax[1].imshow(window, cmap="gray")
     if res is not None:
-        ax[1].plot(res.col, res.row, "r+", ms=14, label=f"matched (sigma {np.hypot(res.sigma_row, res.sigma_col):.3f} px)")
+        ax[1].plot(
+            res.col, res.row, "r+", ms=14, label=f"matched (sigma {np.hypot(res.sigma_row, res.sigma_col):.3f} px)"
+        )
     if truth is not None:
         geo = truth.geometry(p)
         ip = geo.ground_to_pixel(cam, int(im.gcp.band[k]), truth.landmark_ecef[row][None], continuous=True)
@@ -231,12 +256,16 @@ def plot_match(pass_file: str | os.PathLike[str], out_dir: str | os.PathLike[str
     ax[1].legend(loc="lower right", fontsize=8)
     ax[1].set_title("search window (line down, sample across)")
     half = (chip.shape[0] - 1) / 2
-    ax[2].imshow(cc, cmap="viridis", extent=(half - 0.5, half + cc.shape[1] - 0.5, half + cc.shape[0] - 0.5, half - 0.5))
+    ax[2].imshow(
+        cc, cmap="viridis", extent=(half - 0.5, half + cc.shape[1] - 0.5, half + cc.shape[0] - 0.5, half - 0.5)
+    )
     ax[2].set_title(f"NCC surface (peak {peak.value:.2f}, ratio {peak.ratio:.2f})" if peak else "NCC surface")
     if res is not None:
         from scipy import ndimage
 
-        rr, qq = np.meshgrid(np.arange(chip.shape[0]) - half + res.row, np.arange(chip.shape[1]) - half + res.col, indexing="ij")
+        rr, qq = np.meshgrid(
+            np.arange(chip.shape[0]) - half + res.row, np.arange(chip.shape[1]) - half + res.col, indexing="ij"
+        )
         warped = ndimage.map_coordinates(window, [rr, qq], order=3)
         fit = np.polyval(np.polyfit(chip.ravel(), warped.ravel(), 1), chip)
         resid = warped - fit

@@ -31,13 +31,12 @@ from typing import Any
 import h5py
 import numpy as np
 
-from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
-from misrgraph.errors import FileFormatError, InputError
-from misrgraph.model.frames import geodetic_to_ecef
-from misrgraph.io.h5 import open_h5, read_attr, read_dataset
+from misrgraph.errors import FileFormatError, InputError, require_extra
 from misrgraph.io.camera import read_camera_group
+from misrgraph.io.h5 import open_h5, read_attr, read_dataset
 from misrgraph.io.truth import read_pass_truth
-from misrgraph.errors import require_extra
+from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
+from misrgraph.model.frames import geodetic_to_ecef
 
 __all__ = ["run_view", "ellipsoid_axes", "DEFAULT_EXAGGERATION"]
 
@@ -68,13 +67,18 @@ def _graticule(step: float = 10.0) -> list[np.ndarray]:
 
 
 def _log_series(rec, rr, path: str, t: np.ndarray, y: np.ndarray) -> None:
-    rec.send_columns(path, indexes=[rr.TimeColumn("pass_time", duration=np.asarray(t, float))],
-                     columns=rr.Scalars.columns(scalars=np.asarray(y, float)))
+    rec.send_columns(
+        path,
+        indexes=[rr.TimeColumn("pass_time", duration=np.asarray(t, float))],
+        columns=rr.Scalars.columns(scalars=np.asarray(y, float)),
+    )
 
 
-def _view_adjustment(rec, rr, f: h5py.File, exaggeration: float, counts: dict[str, int], instances: dict[str, int]) -> None:
-    from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel
+def _view_adjustment(
+    rec, rr, f: h5py.File, exaggeration: float, counts: dict[str, int], instances: dict[str, int]
+) -> None:
     from misrgraph.io.passes import KIND_NAMES, OrbitPass
+    from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel
 
     prov = {k: (v.decode() if isinstance(v, bytes) else str(v)) for k, v in f["provenance"].attrs.items()}
     orbit_pass = OrbitPass.load(prov["pass_file"]) if "pass_file" in prov and Path(prov["pass_file"]).exists() else None
@@ -96,8 +100,11 @@ def _view_adjustment(rec, rr, f: h5py.File, exaggeration: float, counts: dict[st
                 line = (ti - orbit_pass.t0[c, 2]) / orbit_pass.line_time
                 g = geo.pixel_to_ground(c, 2, np.full(2, np.floor(line)), np.array([0.0, 1503.0]))
                 lines.append(g)
-            rec.send_columns(f"world/footprints/{name}", indexes=[rr.TimeColumn("pass_time", duration=tt)],
-                             columns=rr.LineStrips3D.columns(strips=lines))
+            rec.send_columns(
+                f"world/footprints/{name}",
+                indexes=[rr.TimeColumn("pass_time", duration=tt)],
+                columns=rr.LineStrips3D.columns(strips=lines),
+            )
             counts[f"world/footprints/{name}"] = tt.size
     # landmarks
     ecef = read_dataset(f["landmarks"], "ecef", (None, 3))
@@ -107,20 +114,32 @@ def _view_adjustment(rec, rr, f: h5py.File, exaggeration: float, counts: dict[st
         sel = kind == k
         if not sel.any():
             continue
-        rec.log(f"world/landmarks/{name}", rr.Points3D(ecef[sel], colors=[KIND_COLORS[name]], radii=1500.0), static=True)
+        rec.log(
+            f"world/landmarks/{name}", rr.Points3D(ecef[sel], colors=[KIND_COLORS[name]], radii=1500.0), static=True
+        )
         half, quat = ellipsoid_axes(cov[sel], 3.0, exaggeration)
-        rec.log(f"world/landmarks/{name}/ellipsoids",
-                rr.Ellipsoids3D(centers=ecef[sel], half_sizes=half, quaternions=[rr.Quaternion(xyzw=q) for q in quat],
-                                colors=[KIND_COLORS[name]], labels=[f"3 sigma x {exaggeration:g}"] * int(sel.sum())),
-                static=True)
+        rec.log(
+            f"world/landmarks/{name}/ellipsoids",
+            rr.Ellipsoids3D(
+                centers=ecef[sel],
+                half_sizes=half,
+                quaternions=[rr.Quaternion(xyzw=q) for q in quat],
+                colors=[KIND_COLORS[name]],
+                labels=[f"3 sigma x {exaggeration:g}"] * int(sel.sum()),
+            ),
+            static=True,
+        )
         counts[f"world/landmarks/{name}"] = 1  # one static row holding every landmark of the kind
         counts[f"world/landmarks/{name}/ellipsoids"] = 1
         instances[f"world/landmarks/{name}"] = int(sel.sum())
     if orbit_pass is not None and truth is not None:
         chk = orbit_pass.landmarks.kind == 2
         if chk.any():
-            rec.log("world/landmarks/check", rr.Points3D(truth.landmark_ecef[chk], colors=[KIND_COLORS["check"]],
-                                                         radii=1500.0), static=True)
+            rec.log(
+                "world/landmarks/check",
+                rr.Points3D(truth.landmark_ecef[chk], colors=[KIND_COLORS["check"]], radii=1500.0),
+                static=True,
+            )
             counts["world/landmarks/check"] = 1
             instances["world/landmarks/check"] = int(chk.sum())
     # attitude with sigma bands
@@ -212,7 +231,9 @@ def _view_calibration(rec, rr, f: h5py.File, counts: dict[str, int]) -> None:
         idx = [i for i, lab in enumerate(labels) if lab.startswith(name + ".") or lab.startswith(name + "/")]
         if not idx:
             continue
-        scale = np.array([1 / ARCSEC if lab.split(".")[-1] in ("delta", "beta", "epsilon") else 1.0 for lab in np.array(labels)[idx]])
+        scale = np.array(
+            [1 / ARCSEC if lab.split(".")[-1] in ("delta", "beta", "epsilon") else 1.0 for lab in np.array(labels)[idx]]
+        )
         rec.log(f"calibration/{name}/corrections", rr.BarChart(x[idx] * scale), static=True)
         rec.log(f"calibration/{name}/sigma", rr.BarChart(sig[idx] * scale), static=True)
         counts[f"calibration/{name}/corrections"] = 1
@@ -249,15 +270,27 @@ def _view_imagery(rec, rr, path: Path, counts: dict[str, int], max_gcps: int = 5
                 lm_rows = np.flatnonzero((matched.landmarks.gcp_index == gi) & (matched.landmarks.kind == KIND_GCP))
                 sel = np.isin(mo.landmark, lm_rows) & (mo.camera == int(im.gcp.camera[k])) & (mo.band == im.band)
                 if sel.any():
-                    rec.log(f"{base}/matched", rr.Points2D(np.stack([mo.sample[sel] - im.gcp.sample0[k],
-                                                                     mo.line[sel] - im.gcp.line0[k]], 1),
-                                                           colors=[255, 0, 0], radii=1.0))
+                    rec.log(
+                        f"{base}/matched",
+                        rr.Points2D(
+                            np.stack([mo.sample[sel] - im.gcp.sample0[k], mo.line[sel] - im.gcp.line0[k]], 1),
+                            colors=[255, 0, 0],
+                            radii=1.0,
+                        ),
+                    )
             if geo is not None:
-                ip = geo.ground_to_pixel(int(im.gcp.camera[k]), int(im.gcp.band[k]), truth.landmark_ecef[row][None],
-                                         continuous=True)
+                ip = geo.ground_to_pixel(
+                    int(im.gcp.camera[k]), int(im.gcp.band[k]), truth.landmark_ecef[row][None], continuous=True
+                )
                 if ip.visible[0]:
-                    rec.log(f"{base}/truth", rr.Points2D([[ip.sample[0] - im.gcp.sample0[k], ip.line[0] - im.gcp.line0[k]]],
-                                                         colors=[0, 255, 0], radii=1.0))
+                    rec.log(
+                        f"{base}/truth",
+                        rr.Points2D(
+                            [[ip.sample[0] - im.gcp.sample0[k], ip.line[0] - im.gcp.line0[k]]],
+                            colors=[0, 255, 0],
+                            radii=1.0,
+                        ),
+                    )
 
 
 def _view_roi(rec, rr, path: Path, counts: dict[str, int], step: int = 2) -> None:
@@ -276,7 +309,9 @@ def _view_roi(rec, rr, path: Path, counts: dict[str, int], step: int = 2) -> Non
             rec.log(f"roi/{cam}/image", rr.Image(roi.pixels[c, k, ::step, ::step].astype(np.float32)))
             rec.log(f"roi/{cam}/source", rr.SegmentationImage((roi.source[c, k, ::step, ::step] + 1).astype(np.uint8)))
             if roi.obscured[c, k].any():
-                rec.log(f"roi/{cam}/obscured", rr.SegmentationImage(roi.obscured[c, k, ::step, ::step].astype(np.uint8)))
+                rec.log(
+                    f"roi/{cam}/obscured", rr.SegmentationImage(roi.obscured[c, k, ::step, ::step].astype(np.uint8))
+                )
             counts["ROI block images"] = counts.get("ROI block images", 0) + 1
 
 
@@ -297,8 +332,13 @@ def _view_pp(rec, rr, path: Path, counts: dict[str, int]) -> None:
             counts["PP sigma maps"] = counts.get("PP sigma maps", 0) + 1
 
 
-def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None = None, spawn: bool = False,
-             exaggeration: float = DEFAULT_EXAGGERATION, notebook: bool = False) -> dict[str, Any]:
+def run_view(
+    result: str | os.PathLike[str],
+    save: str | os.PathLike[str] | None = None,
+    spawn: bool = False,
+    exaggeration: float = DEFAULT_EXAGGERATION,
+    notebook: bool = False,
+) -> dict[str, Any]:
     """Log a result file to rerun; save a ``.rrd``, spawn the viewer and/or show it inline in a
     Jupyter notebook (``notebook=True``). Returns the logged entities."""
     rr = require_extra("rerun", "viz", "the rerun viewer")
@@ -310,15 +350,25 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
         raise InputError("--exaggeration", exaggeration, "a positive factor")
     with open_h5(result) as f:
         kind = str(read_attr(f, "misrgraph_kind"))
-        if kind not in ("adjustment_result", "camera_model", "orbit_pass", "reference_orbit_imagery",
-                        "projection_parameters"):
-            raise FileFormatError(result, f"misrgraph_kind {kind!r} cannot be viewed; expected an adjustment result, a "
-                                          "calibrated camera model, a pass file with imagery, Reference Orbit Imagery "
-                                          "or Projection Parameters")
+        if kind not in (
+            "adjustment_result",
+            "camera_model",
+            "orbit_pass",
+            "reference_orbit_imagery",
+            "projection_parameters",
+        ):
+            raise FileFormatError(
+                result,
+                f"misrgraph_kind {kind!r} cannot be viewed; expected an adjustment result, a "
+                "calibrated camera model, a pass file with imagery, Reference Orbit Imagery "
+                "or Projection Parameters",
+            )
         if kind == "orbit_pass" and "imagery" not in f:
             raise FileFormatError(result, "a pass file without /imagery (simulate with --imagery)")
         if kind == "camera_model" and "calibration" not in f:
-            raise FileFormatError(result, "a camera model without /calibration (write one with 'misrgraph calibrate --out')")
+            raise FileFormatError(
+                result, "a camera model without /calibration (write one with 'misrgraph calibrate --out')"
+            )
         rec = rr.RecordingStream("misrgraph")
         tmp = None
         if save is not None:
@@ -332,12 +382,19 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
         instances: dict[str, int] = {}
         if kind == "adjustment_result":
             _view_adjustment(rec, rr, f, exaggeration, counts, instances)
-            bp = rrb.Blueprint(rrb.Horizontal(
-                rrb.Spatial3DView(origin="world", name="orbit, footprints, landmarks"),
-                rrb.Vertical(*[rrb.TimeSeriesView(origin=f"attitude/{a}", name=f"{a} error (arcsec)") for a in ANGLES],
-                             rrb.TimeSeriesView(origin="ephemeris", name="ephemeris error (m)")),
-                rrb.Vertical(rrb.TimeSeriesView(origin="residuals", name="residuals (px)"),
-                             rrb.BarChartView(origin="residuals/An/histogram", name="An residual histogram"))))
+            bp = rrb.Blueprint(
+                rrb.Horizontal(
+                    rrb.Spatial3DView(origin="world", name="orbit, footprints, landmarks"),
+                    rrb.Vertical(
+                        *[rrb.TimeSeriesView(origin=f"attitude/{a}", name=f"{a} error (arcsec)") for a in ANGLES],
+                        rrb.TimeSeriesView(origin="ephemeris", name="ephemeris error (m)"),
+                    ),
+                    rrb.Vertical(
+                        rrb.TimeSeriesView(origin="residuals", name="residuals (px)"),
+                        rrb.BarChartView(origin="residuals/An/histogram", name="An residual histogram"),
+                    ),
+                )
+            )
         elif kind == "reference_orbit_imagery":
             _view_roi(rec, rr, Path(result), counts)
             cams = str(read_attr(f, "cameras")).split(",")
@@ -345,15 +402,25 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
         elif kind == "projection_parameters":
             _view_pp(rec, rr, Path(result), counts)
             cams = str(read_attr(f, "cameras")).split(",")
-            bp = rrb.Blueprint(rrb.Grid(*[rrb.TensorView(origin=f"pp/{c}/sigma_m", name=f"PP 1 sigma (m) {c}") for c in cams]))
+            bp = rrb.Blueprint(
+                rrb.Grid(*[rrb.TensorView(origin=f"pp/{c}/sigma_m", name=f"PP 1 sigma (m) {c}") for c in cams])
+            )
         elif kind == "orbit_pass":
             _view_imagery(rec, rr, Path(result), counts)
             bp = rrb.Blueprint(rrb.Grid(*[rrb.Spatial2DView(origin=f"imagery/{c}", name=c) for c in CAMERAS]))
         else:
             _view_calibration(rec, rr, f, counts)
-            bp = rrb.Blueprint(rrb.Horizontal(rrb.TensorView(origin="calibration/correlation", name="correlation"),
-                                              rrb.Vertical(*[rrb.BarChartView(origin=f"calibration/{c}/corrections", name=f"{c} (arcsec)")
-                                                             for c in CAMERAS[:3]])))
+            bp = rrb.Blueprint(
+                rrb.Horizontal(
+                    rrb.TensorView(origin="calibration/correlation", name="correlation"),
+                    rrb.Vertical(
+                        *[
+                            rrb.BarChartView(origin=f"calibration/{c}/corrections", name=f"{c} (arcsec)")
+                            for c in CAMERAS[:3]
+                        ]
+                    ),
+                )
+            )
         rec.send_blueprint(bp)
         rec.flush()
         if notebook:
@@ -362,5 +429,10 @@ def run_view(result: str | os.PathLike[str], save: str | os.PathLike[str] | None
             rec.disconnect()
         if tmp is not None:
             os.replace(tmp, save)
-    return {"kind": kind, "entities": counts, "instances": instances, "rrd": str(save) if save else None,
-            "exaggeration": exaggeration}
+    return {
+        "kind": kind,
+        "entities": counts,
+        "instances": instances,
+        "rrd": str(save) if save else None,
+        "exaggeration": exaggeration,
+    }

@@ -6,8 +6,8 @@ import pytest
 
 from factors import keys as K
 from factors.collinearity import FactorShapeError, collinearity_residual
-from misrgraph.model.constants import CAMERAS
 from misrgraph.estimate.graph import GraphConfig, build_pass_graph
+from misrgraph.model.constants import CAMERAS
 
 NO_REMOVAL = GraphConfig(threshold1=0, threshold2=0, use_dem=False)
 
@@ -91,8 +91,10 @@ def test_jacobians_match_numerical_derivatives_all_cameras(graph, seed):
             xp, xm = x.copy(), x.copy()
             xp[:, a, i] += h
             xm[:, a, i] -= h
-            num = (collinearity_residual(**{**args, "knots": xp}, c=c, jacobians=False)[0]
-                   - collinearity_residual(**{**args, "knots": xm}, c=c, jacobians=False)[0]) / (2 * h)
+            num = (
+                collinearity_residual(**{**args, "knots": xp}, c=c, jacobians=False)[0]
+                - collinearity_residual(**{**args, "knots": xm}, c=c, jacobians=False)[0]
+            ) / (2 * h)
             ana = jac["knots"][:, :, a, i]
             assert np.max(np.abs(num - ana)) / np.max(np.abs(ana)) < 1e-6, (a, i)
     k = graph.collinearity.const.k

@@ -36,8 +36,11 @@ def test_zero_on_the_surface_and_jacobian(rng):
         e[i] = 1e-3
         num = (dem_residual(q + e, _surface, False)[0] - dem_residual(q - e, _surface, False)[0]) / 2e-3
         np.testing.assert_allclose(j[:, 0, i], num, rtol=1e-5, atol=1e-7)
+
     # moving straight up by 1 m lowers the residual by 1 m on flat ground
-    flat = lambda la, lo: (np.zeros_like(la), np.zeros_like(la), np.zeros_like(la))
+    def flat(la, lo):
+        return (np.zeros_like(la), np.zeros_like(la), np.zeros_like(la))
+
     r0, j0 = dem_residual(p, flat)
     assert np.linalg.norm(j0[0, 0]) == pytest.approx(1.0, rel=1e-9)
 
@@ -53,11 +56,17 @@ def test_residual_hessian_matches_second_differences(rng):
     for a in range(3):
         for b in range(3):
             ea, eb = np.eye(3)[a] * s, np.eye(3)[b] * s
-            f = lambda q: dem_residual(q, _surface, False)[0]
+
+            def f(q):
+                return dem_residual(q, _surface, False)[0]
+
             num = (f(p + ea + eb) - f(p + ea - eb) - f(p - ea + eb) + f(p - ea - eb)) / (4 * s * s)
             # curvature here is ~1e-6 / m; the residual is good to ~1e-9 m, so its second
             # differences over 2 m to ~1e-10 / m
             np.testing.assert_allclose(hess[:, a, b], num, rtol=1e-4, atol=1e-9)
+
     # a plane has (almost) no curvature: only the ellipsoid's ~1/R terms remain
-    plane = lambda la, lo: (np.zeros_like(la), np.zeros_like(la), np.zeros_like(la))
+    def plane(la, lo):
+        return (np.zeros_like(la), np.zeros_like(la), np.zeros_like(la))
+
     assert np.abs(dem_residual_hessian(p, plane)).max() < 1e-6

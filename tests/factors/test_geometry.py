@@ -2,7 +2,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from factors.geometry import (
     attitude_matrix,
@@ -46,11 +47,13 @@ def test_rot_z_is_active():
 def test_attitude_matrix_matches_eq5_with_corrected_element(roll, pitch, yaw):
     t = attitude_matrix(roll, pitch, yaw)
     sO, cO, sP, cP, sK, cK = np.sin(roll), np.cos(roll), np.sin(pitch), np.cos(pitch), np.sin(yaw), np.cos(yaw)
-    eq5 = np.array([
-        [cP * cK, sO * sP * cK - cO * sK, cO * sP * cK + sO * sK],
-        [cP * sK, sO * sP * sK + cO * cK, cO * sP * sK - sO * cK],
-        [-sP, sO * cP, cO * cP],
-    ])
+    eq5 = np.array(
+        [
+            [cP * cK, sO * sP * cK - cO * sK, cO * sP * cK + sO * sK],
+            [cP * sK, sO * sP * sK + cO * cK, cO * sP * sK - sO * cK],
+            [-sP, sO * cP, cO * cP],
+        ]
+    )
     np.testing.assert_allclose(t, eq5, atol=1e-14)
 
 

@@ -4,9 +4,9 @@ import gtsam
 import numpy as np
 import pytest
 
+from factors.geometry import enu_covariance
 from factors.layout import BlockLayout
 from factors.priors import gcp_prior, gcp_scene_prior, scene_offset_prior, vector_prior
-from factors.geometry import enu_covariance
 from misrgraph.model.frames import enu_basis
 
 
@@ -76,7 +76,7 @@ def test_block_layout_matches_naive_assembly(rng):
             for s in range(2):
                 k = slot_keys[s][i]
                 if k >= 0:
-                    naive[2 * li:2 * li + 2, cols[k]:cols[k] + dims[s]] = blocks[s][i]
+                    naive[2 * li : 2 * li + 2, cols[k] : cols[k] + dims[s]] = blocks[s][i]
         np.testing.assert_array_equal(a, naive)
 
 
@@ -99,7 +99,7 @@ def test_joint_prior_factor_is_the_gaussian_on_any_number_of_keys():
         x = rng.multivariate_normal(np.zeros(n), c)
         v = gtsam.Values()
         for i, k in enumerate(keys):
-            v.insert(k, x[5 * i:5 * i + 5])
+            v.insert(k, x[5 * i : 5 * i + 5])
         expected = 0.5 * x @ np.linalg.solve(c, x)
         assert f.error(v) == pytest.approx(expected, rel=1e-7)
         jac, b = gtsam.JacobianFactor(f.factor()).jacobian()

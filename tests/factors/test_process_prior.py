@@ -19,13 +19,13 @@ LAM, SIG = 0.0146, 3e-5
 def _kernel(tau: float) -> tuple[float, float, float]:
     """C(tau), C'(tau), C''(tau) of sigma^2 (1 + lam tau) exp(-lam tau), tau >= 0, by hand."""
     e = np.exp(-LAM * tau)
-    return (SIG**2 * (1 + LAM * tau) * e, -SIG**2 * LAM**2 * tau * e, -SIG**2 * LAM**2 * (1 - LAM * tau) * e)
+    return (SIG**2 * (1 + LAM * tau) * e, -(SIG**2) * LAM**2 * tau * e, -(SIG**2) * LAM**2 * (1 - LAM * tau) * e)
 
 
 @pytest.mark.parametrize("dt", [2.0, 60.0, 120.0, 1600.0])
 def test_transition_is_the_matern_covariance(dt):
     phi, q = process_transition(dt, SIG, LAM)
-    f = np.array([[0.0, 1.0], [-LAM**2, -2 * LAM]])
+    f = np.array([[0.0, 1.0], [-(LAM**2), -2 * LAM]])
     np.testing.assert_allclose(phi, expm(f * dt), rtol=1e-10, atol=1e-14)
     # cross-covariance E[x(t+dt) x(t)^T] = Phi P = [[C, -C'], [C', -C'']]
     c, c1, c2 = _kernel(dt)
@@ -72,7 +72,9 @@ def test_underdamped_chain_gives_the_process_covariance():
     for k in keys:
         np.testing.assert_allclose(m.marginalCovariance(k), p, rtol=1e-7, atol=1e-20)
     joint = m.jointMarginalCovariance(gtsam.KeyVector([keys[2], keys[3]])).fullMatrix()
-    assert joint[2, 0] == pytest.approx(SIG**2 * float(process_correlation(1600.0, LAM, 0.58)), rel=1e-5, abs=1e-6 * SIG**2)
+    assert joint[2, 0] == pytest.approx(
+        SIG**2 * float(process_correlation(1600.0, LAM, 0.58)), rel=1e-5, abs=1e-6 * SIG**2
+    )
 
 
 def test_linear_factor_error_is_its_mahalanobis_norm(rng):
@@ -95,7 +97,7 @@ def test_transition_is_the_sde_covariance(zeta, dt):
     diag(sigma^2, (lam sigma)^2) stationary: an independent route to the same (Phi, Q); and the
     critically damped case matches the closed form. (Van Loan's block grows as exp(-F dt): past a
     few hundred seconds it loses the digits; the chain test below covers long spacings.)"""
-    f = np.array([[0.0, 1.0], [-LAM**2, -2 * zeta * LAM]])
+    f = np.array([[0.0, 1.0], [-(LAM**2), -2 * zeta * LAM]])
     qc = np.array([[0.0, 0.0], [0.0, 4 * zeta * LAM**3 * SIG**2]])
     m = expm(np.block([[-f, qc], [np.zeros((2, 2)), f.T]]) * dt)
     phi_ref = m[2:, 2:].T
@@ -119,8 +121,13 @@ def test_default_damping_is_the_fit_to_the_attitude_spectrum():
     cosines over the periods (numerical), and the process correlation against the transition
     (rho(dt) = Phi[0, 0] + Phi[0, 1] C'(0) / C(0) = Phi[0, 0], the rate being uncorrelated with
     the value at equal times)."""
-    from misrgraph.model.errormodels import (ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, band_correlation, fit_damping,
-                                             process_correlation)
+    from misrgraph.model.errormodels import (
+        ATTITUDE_DAMPING,
+        ATTITUDE_RATE_FACTOR,
+        band_correlation,
+        fit_damping,
+        process_correlation,
+    )
 
     tau = np.array([0.0, 30.0, 60.0, 120.0, 300.0, 600.0])
     periods = np.exp(np.linspace(np.log(200.0), np.log(2000.0), 20001))
@@ -132,7 +139,10 @@ def test_default_damping_is_the_fit_to_the_attitude_spectrum():
     assert fit_damping(600.0) == ATTITUDE_DAMPING
     # the fit is better than the critically damped process by a wide margin
     t = np.arange(0.0, 601.0)
-    err = {z: np.sum((process_correlation(t, ATTITUDE_RATE_FACTOR, z) - band_correlation(t)) ** 2) for z in (ATTITUDE_DAMPING, 1.0)}
+    err = {
+        z: np.sum((process_correlation(t, ATTITUDE_RATE_FACTOR, z) - band_correlation(t)) ** 2)
+        for z in (ATTITUDE_DAMPING, 1.0)
+    }
     assert err[ATTITUDE_DAMPING] < 0.5 * err[1.0]
 
 

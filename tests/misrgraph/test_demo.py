@@ -14,8 +14,15 @@ def test_small_demo_runs_every_stage(tmp_path):
     assert res.exit_code == 0, res.output
     for name, _ in STAGES:
         assert name.split()[0] in res.stdout
-    for f in ("camera_calibrated.h5", "pass_result.h5", "pass_result.rrd", "calibration.rrd",
-              "plots/attitude_error.png", "plots/calibration_pointing.png", "state/state.json"):
+    for f in (
+        "camera_calibrated.h5",
+        "pass_result.h5",
+        "pass_result.rrd",
+        "calibration.rrd",
+        "plots/attitude_error.png",
+        "plots/calibration_pointing.png",
+        "state/state.json",
+    ):
         assert (tmp_path / "d" / f).exists(), f
     assert list((tmp_path / "d" / "plots").glob("match_*.png"))  # a chip, its window, NCC and LSM
     # the images stage matched the pass it rendered (the observations are in its pass file)

@@ -20,8 +20,14 @@ def bench_dir(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def sba(bench_dir):
-    return run_bench_sba(tie_points=100, workdir=bench_dir, skip=("gtsam_lm", "scipy_trf_unscaled"), budget_s=20.0,
-                         check_points=20, duration_s=900.0)
+    return run_bench_sba(
+        tie_points=100,
+        workdir=bench_dir,
+        skip=("gtsam_lm", "scipy_trf_unscaled"),
+        budget_s=20.0,
+        check_points=20,
+        duration_s=900.0,
+    )
 
 
 def test_bench_sba_measures_every_solver_against_a_verified_optimum(sba):
@@ -65,9 +71,24 @@ def test_bench_sba_measures_every_solver_against_a_verified_optimum(sba):
 
 def test_bench_sba_cli_json_and_a_bad_solver_name(bench_dir):
     runner = CliRunner()
-    out = runner.invoke(app, ["bench", "sba", "--tie-points", "100", "--check-points", "0", "--workdir", str(bench_dir),
-                              "--skip", "gtsam_lm,scipy_trf_unscaled,scipy_trust_krylov,ceres,ceres_batched,misrgraph_gauss_newton",
-                              "--budget", "20", "--json"])
+    out = runner.invoke(
+        app,
+        [
+            "bench",
+            "sba",
+            "--tie-points",
+            "100",
+            "--check-points",
+            "0",
+            "--workdir",
+            str(bench_dir),
+            "--skip",
+            "gtsam_lm,scipy_trf_unscaled,scipy_trust_krylov,ceres,ceres_batched,misrgraph_gauss_newton",
+            "--budget",
+            "20",
+            "--json",
+        ],
+    )
     assert out.exit_code == 0, out.output
     res = json.loads(out.stdout)
     assert set(res["solvers"]) == {"misrgraph", "scipy_trf"}

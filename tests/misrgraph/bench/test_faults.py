@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from misrgraph.errors import InputError
 from misrgraph.bench.faults import KILL_COMMANDS, run_kill_trials
+from misrgraph.errors import InputError
 
 
 def test_kill_trials_leave_old_or_complete_new_files(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+
 import numpy as np
 import pytest
 
@@ -56,15 +57,27 @@ def test_bench_nees_per_class_at_reduced_size(bench_dir):
 
     r = run_bench_nees("adjust", runs=2, seed=1000, workdir=bench_dir)
     assert r["truth"] == "model" and r["adjust_overrides"] == {"attitude_jitter_arcsec": 0.0}
-    assert set(r["summary"]) >= {"knots", "ephemeris", "landmarks", "landmarks_common", "landmarks_within", "state",
-                                 "state_landmarks_given_rest", "state_rest", "checkpoint_rms_over_predicted", "checkpoint_rms_m"}
+    assert set(r["summary"]) >= {
+        "knots",
+        "ephemeris",
+        "landmarks",
+        "landmarks_common",
+        "landmarks_within",
+        "state",
+        "state_landmarks_given_rest",
+        "state_rest",
+        "checkpoint_rms_over_predicted",
+        "checkpoint_rms_m",
+    }
     # the landmarks' two parts are averaged over the same landmarks as the landmarks' NEES
     assert r["summary"]["landmarks_within"]["dof"] <= r["summary"]["landmarks"]["dof"]
     # the whole state's chi-square is the sum of its two parts, run by run and pooled
     sm = r["summary"]
     assert sm["state_landmarks_given_rest"]["dof"] + sm["state_rest"]["dof"] == sm["state"]["dof"]
-    assert (sm["state_landmarks_given_rest"]["nees_per_dim"] * sm["state_landmarks_given_rest"]["dof"]
-            + sm["state_rest"]["nees_per_dim"] * sm["state_rest"]["dof"]) == pytest.approx(sm["state"]["nees_per_dim"] * sm["state"]["dof"])
+    assert (
+        sm["state_landmarks_given_rest"]["nees_per_dim"] * sm["state_landmarks_given_rest"]["dof"]
+        + sm["state_rest"]["nees_per_dim"] * sm["state_rest"]["dof"]
+    ) == pytest.approx(sm["state"]["nees_per_dim"] * sm["state"]["dof"])
     for k, v in r["summary"].items():
         lo, hi = v["per_run"]["ci95"]
         assert lo <= v["per_run"]["mean"] <= hi, k
@@ -78,15 +91,20 @@ def test_bench_nees_per_class_at_reduced_size(bench_dir):
     by_cam = r["summary"]["checkpoint_rms_over_predicted"]["by_camera"]
     assert set(by_cam) == set(r["per_run"][0]["checkpoint_by_camera"])
     for c, v in by_cam.items():
-        ratios = [p["checkpoint_by_camera"][c]["rms_m"] / p["checkpoint_by_camera"][c]["predicted_rms_m"]
-                  for p in r["per_run"] if c in p["checkpoint_by_camera"]]
+        ratios = [
+            p["checkpoint_by_camera"][c]["rms_m"] / p["checkpoint_by_camera"][c]["predicted_rms_m"]
+            for p in r["per_run"]
+            if c in p["checkpoint_by_camera"]
+        ]
         assert v["runs"] == len(ratios) and v["rms"] == pytest.approx(np.sqrt(np.mean(np.square(ratios))))
     # the CLI prints them (the same passes, reused from the workdir)
     from typer.testing import CliRunner
 
     from misrgraph.commands.cli import app
 
-    out = CliRunner().invoke(app, ["bench", "nees", "--study", "adjust", "--runs", "2", "--seed", "1000", "--workdir", str(bench_dir)])
+    out = CliRunner().invoke(
+        app, ["bench", "nees", "--study", "adjust", "--runs", "2", "--seed", "1000", "--workdir", str(bench_dir)]
+    )
     assert out.exit_code == 0, out.output
     for c, v in by_cam.items():
         assert f"{c}: RMS of {v['runs']} runs {v['rms']:.3f}" in out.output
@@ -120,7 +138,9 @@ def test_bench_nees_pool_of_parts_equals_the_whole(bench_dir, tmp_path):
         assert p["per_run"]["ci95"] == pytest.approx(v["per_run"]["ci95"])
     cp, cw = pooled["summary"]["checkpoint_rms_over_predicted"], whole["summary"]["checkpoint_rms_over_predicted"]
     assert cp["rms_of_runs"]["rms"] == pytest.approx(cw["rms_of_runs"]["rms"])
-    assert {c: v["rms"] for c, v in cp["by_camera"].items()} == pytest.approx({c: v["rms"] for c, v in cw["by_camera"].items()})
+    assert {c: v["rms"] for c, v in cp["by_camera"].items()} == pytest.approx(
+        {c: v["rms"] for c, v in cw["by_camera"].items()}
+    )
     # the CLI reads bench nees --json files
     files = []
     for n, r in enumerate(parts):
@@ -173,7 +193,9 @@ def test_bench_pp_at_reduced_size(bench_dir):
         assert one["rms_over_predicted"] == pytest.approx(one["error_px_rms"] / one["predicted_px_rms"])
         assert 1 / 3 < one["rms_over_predicted"] < 3, cam
         # a camera's PP ratio in metres and in pixels agree for one block (same points, one scale)
-        ratio_m = np.sqrt(np.mean([r["rms_over_predicted"][cam] ** 2 for r in blk["per_run"] if cam in r["rms_over_predicted"]]))
+        ratio_m = np.sqrt(
+            np.mean([r["rms_over_predicted"][cam] ** 2 for r in blk["per_run"] if cam in r["rms_over_predicted"]])
+        )
         assert one["rms_over_predicted_rms_of_runs"]["rms"] == pytest.approx(ratio_m, rel=0.25), cam
 
 
@@ -229,10 +251,20 @@ def _fake_bench_nees(effects):
         for s in range(seed, seed + runs):
             scatter = np.sin(s)  # the same on every row: cancels in a paired difference
             shift = sum(effects[k] for k, v in overrides.items() if v == INDEPENDENT_SOURCES[k])
-            per_run.append({"seed": s, "knots": 1.0 + scatter, "landmarks": 1.0 + scatter + shift, "camera": 1.0,
-                            "checkpoint_rms_over_predicted": 1.0 + 0.1 * scatter + shift, "checkpoint_rms_m": 30.0})
-        summary = {k: {"per_run": {"mean": float(np.mean([r[k] for r in per_run])), "ci95": [0.0, 2.0]}}
-                   for k in ("knots", "landmarks", "camera", "checkpoint_rms_over_predicted", "checkpoint_rms_m")}
+            per_run.append(
+                {
+                    "seed": s,
+                    "knots": 1.0 + scatter,
+                    "landmarks": 1.0 + scatter + shift,
+                    "camera": 1.0,
+                    "checkpoint_rms_over_predicted": 1.0 + 0.1 * scatter + shift,
+                    "checkpoint_rms_m": 30.0,
+                }
+            )
+        summary = {
+            k: {"per_run": {"mean": float(np.mean([r[k] for r in per_run])), "ci95": [0.0, 2.0]}}
+            for k in ("knots", "landmarks", "camera", "checkpoint_rms_over_predicted", "checkpoint_rms_m")
+        }
         summary["checkpoint_rms_over_predicted"]["rms_of_runs"] = {"rms": 1.0, "ci95": [0.9, 1.1]}
         return {"summary": summary, "per_run": per_run}
 
@@ -271,12 +303,11 @@ def test_bench_sources_compares_each_row_with_its_base_seed_by_seed(monkeypatch)
     with pytest.raises(InputError, match="mode"):
         studies.run_bench_sources(runs=5, mode="both")
     # the CLI: the table with the paired differences, and a refusal that names the option
+    from rich.console import Console
     from typer.testing import CliRunner
 
-    from misrgraph.commands.cli import app
-
     import misrgraph.commands.cli as cli
-    from rich.console import Console
+    from misrgraph.commands.cli import app
 
     monkeypatch.setattr(cli, "console", Console(width=300))  # the table's width, not the CI terminal's
     out = CliRunner().invoke(app, ["bench", "sources", "--runs", "3", "--mode", "without"])
@@ -286,8 +317,10 @@ def test_bench_sources_compares_each_row_with_its_base_seed_by_seed(monkeypatch)
         assert f"{eff:+.3f}" in line and (" yes " if k in PAIRED_SOURCES else " no ") in line
     out = CliRunner().invoke(app, ["bench", "sources", "--runs", "3", "--mode", "without", "--json"])
     assert out.exit_code == 0, out.output
-    rows = json.loads(out.stdout[out.stdout.index("{"):])["rows"]
-    assert {k: rows[f"without {k}"]["paired"] for k in INDEPENDENT_SOURCES} == {k: k in PAIRED_SOURCES for k in INDEPENDENT_SOURCES}
+    rows = json.loads(out.stdout[out.stdout.index("{") :])["rows"]
+    assert {k: rows[f"without {k}"]["paired"] for k in INDEPENDENT_SOURCES} == {
+        k: k in PAIRED_SOURCES for k in INDEPENDENT_SOURCES
+    }
     assert rows["without mismatch_rate"]["difference"]["landmarks"]["mean"] == pytest.approx(effects["mismatch_rate"])
     out = CliRunner().invoke(app, ["bench", "sources", "--mode", "both"])
     assert out.exit_code == 2 and "--mode" in out.output and "'both'" in out.output

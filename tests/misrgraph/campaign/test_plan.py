@@ -37,8 +37,18 @@ def test_parse_paths() -> None:
         parse_paths("3x")
 
 
-@pytest.mark.parametrize("field,value", [("paths", (0,)), ("paths", (37, 37)), ("months", 0.0), ("fraction", 1.5),
-                                         ("size", "huge"), ("passes_per_path", 0), ("pp_blocks", 200)])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("paths", (0,)),
+        ("paths", (37, 37)),
+        ("months", 0.0),
+        ("fraction", 1.5),
+        ("size", "huge"),
+        ("passes_per_path", 0),
+        ("pp_blocks", 200),
+    ],
+)
 def test_bad_config_names_the_field(field: str, value: object) -> None:
     with pytest.raises(InputError, match=field):
         CampaignConfig.from_dict({field: value})

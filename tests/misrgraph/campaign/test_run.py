@@ -118,7 +118,9 @@ def test_a_path_with_strips_gets_its_reference_orbit_imagery(runs, campaign_roi_
     assert res["failed"] == [] and res["stages"]["calibration"]["found_done"] == 1
     roi_entry = res["paths"]["37"]["products"]["roi"]
     roi = read_roi(roi_entry["file"])
-    assert roi.cameras == ("Df", "An", "Da") and len(roi.pass_ids) == 4 and roi_entry["blocks"] == [int(roi.blocks[0])] * 2
+    assert (
+        roi.cameras == ("Df", "An", "Da") and len(roi.pass_ids) == 4 and roi_entry["blocks"] == [int(roi.blocks[0])] * 2
+    )
     summary = json.loads((Path(res["paths"]["37"]["products"]["dir"]) / "path.json").read_text())
     r = summary["products"]["roi"]
     assert r["passes"] == list(roi.pass_ids)
@@ -126,11 +128,16 @@ def test_a_path_with_strips_gets_its_reference_orbit_imagery(runs, campaign_roi_
     assert len(pps) == 4
     dem_parallax_px = 10.0 * np.tan(np.radians(70.5)) / 275.0  # the SOM DEM's 10 m in the D cameras
     for cam in ("Df", "An", "Da"):
-        sig = max(float(np.nanmedian(np.hypot(pp.sigma_line[pp.cameras.index(cam)], pp.sigma_sample[pp.cameras.index(cam)])))
-                  for pp in pps)
+        sig = max(
+            float(np.nanmedian(np.hypot(pp.sigma_line[pp.cameras.index(cam)], pp.sigma_sample[pp.cameras.index(cam)])))
+            for pp in pps
+        )
         assert r["truth_px"]["between_passes_px"][cam] < 3 * np.sqrt(2) * sig, (cam, r["truth_px"], sig)
         if cam != "An":
-            assert r["truth_px"]["between_cameras_px"][cam] < 3 * np.sqrt(dem_parallax_px**2 + 2 * sig**2), (cam, r["truth_px"])
+            assert r["truth_px"]["between_cameras_px"][cam] < 3 * np.sqrt(dem_parallax_px**2 + 2 * sig**2), (
+                cam,
+                r["truth_px"],
+            )
     assert 0 < roi_entry["coregistration_px_max"] < 0.5
     assert "co-registration ≤" in (out / "report" / "campaign.md").read_text()
 
@@ -141,8 +148,26 @@ def test_a_failing_pass_is_reported_and_the_others_go_on(campaign_setup, tmp_pat
     shutil.copytree(inputs, mine)
     bad = sorted((mine / "path_038" / "passes").glob("*.h5"))[1]
     bad.write_bytes(bad.read_bytes()[:5000])  # truncated
-    r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "out"), "--inputs", str(mine), "--paths", "37,38",
-                                 "--months", "2", "--size", "reduced", "--workers", "0", "--no-products", "--json"])
+    r = CliRunner().invoke(
+        app,
+        [
+            "campaign",
+            "--out",
+            str(tmp_path / "out"),
+            "--inputs",
+            str(mine),
+            "--paths",
+            "37,38",
+            "--months",
+            "2",
+            "--size",
+            "reduced",
+            "--workers",
+            "0",
+            "--no-products",
+            "--json",
+        ],
+    )
     assert r.exit_code == 1, r.output
     s = json.loads(r.stdout)
     assert s["passes"] == {"planned": 8, "done": 7, "failed": 1}
@@ -167,7 +192,9 @@ def test_bad_input_is_one_clear_error(campaign_setup, tmp_path) -> None:
     (tmp_path / "e" / "campaign.json").write_text(json.dumps({"digest": "older", "config": old}, default=list))
     with pytest.raises(InputError, match="planned by an earlier misrgraph .its plan has no observations."):
         run_campaign(tmp_path / "e", cfg, inputs=inputs, workers=0)
-    r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "c"), "--workers", "1", "--scheduler", "tcp://x:1"])
+    r = CliRunner().invoke(
+        app, ["campaign", "--out", str(tmp_path / "c"), "--workers", "1", "--scheduler", "tcp://x:1"]
+    )
     assert r.exit_code == 2 and "give one" in r.output
     r = CliRunner().invoke(app, ["campaign", "--out", str(tmp_path / "c"), "--paths", "300"])
     assert r.exit_code == 2 and "paths" in r.output and "1..233" in r.output
@@ -190,9 +217,21 @@ def test_a_campaign_from_matched_observations(matched_month_dir, campaign_setup,
     inputs = tmp_path / "inputs"
     inputs.mkdir()
     (inputs / "month").symlink_to(month, target_is_directory=True)
-    run_simulate(ScenarioConfig(truth="model", scenario="path", seed=43, n_passes=2, n_tie_points=30, n_check_points=5,
-                                duration_s=600.0, start_lat_deg=52.0, imagery=True,
-                                camera_truth=str(month / "camera_truth.h5")), inputs / "path_037")
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="path",
+            seed=43,
+            n_passes=2,
+            n_tie_points=30,
+            n_check_points=5,
+            duration_s=600.0,
+            start_lat_deg=52.0,
+            imagery=True,
+            camera_truth=str(month / "camera_truth.h5"),
+        ),
+        inputs / "path_037",
+    )
     run_match(inputs / "path_037")
     cfg = CampaignConfig(paths=(37,), size="reduced", pp_blocks=1, passes_per_path=2, observations="matched")
     s = run_campaign(tmp_path / "out", cfg, inputs=inputs, workers=0)
@@ -210,9 +249,15 @@ def test_a_campaign_from_matched_observations(matched_month_dir, campaign_setup,
     assert json.loads((d / "path.json").read_text())["observation_set"] == "matched"
     assert "matched observations (measured in the imagery" in (tmp_path / "out" / "report" / "campaign.md").read_text()
     # the reduced campaign's inputs were never matched: refused, and nothing else runs on them
-    bare = run_campaign(tmp_path / "bare", campaign_setup[0].replace(observations="matched", products=False),
-                        inputs=campaign_setup[1], workers=0)
+    bare = run_campaign(
+        tmp_path / "bare",
+        campaign_setup[0].replace(observations="matched", products=False),
+        inputs=campaign_setup[1],
+        workers=0,
+    )
     reasons = {(f["stage"], f["name"]): f["reason"] for f in bare["failed"]}
-    assert "no matched observations" in reasons[("inputs", "month")] and "misrgraph match" in reasons[("inputs", "month")]
+    assert (
+        "no matched observations" in reasons[("inputs", "month")] and "misrgraph match" in reasons[("inputs", "month")]
+    )
     assert reasons[("calibration", "month")] == "needs inputs month, which failed"
     assert bare["passes"]["done"] == 0

@@ -11,8 +11,17 @@ from misrgraph.runs.match import run_match
 
 
 def test_a_scenario_matched_part_way_is_completed_on_the_rerun(tmp_path) -> None:
-    scfg = {"scenario": "path", "truth": "model", "seed": 5, "n_passes": 2, "n_tie_points": 15, "n_check_points": 2,
-            "duration_s": 300.0, "start_lat_deg": 52.0, "imagery": True}
+    scfg = {
+        "scenario": "path",
+        "truth": "model",
+        "seed": 5,
+        "n_passes": 2,
+        "n_tie_points": 15,
+        "n_check_points": 2,
+        "duration_s": 300.0,
+        "start_lat_deg": 52.0,
+        "imagery": True,
+    }
     d = tmp_path / "path_037"
     out, skipped, s = tasks._simulate(d, scfg, match=True)
     assert out == d and not skipped and s["matched"]["tie"] > 0 and s["matched"]["gcp"] > 0

@@ -91,8 +91,10 @@ def _small_tmpfs(where: Path) -> bool:
     if sys.platform != "linux" or os.geteuid() != 0 or shutil.which("mount") is None:
         return False
     where.mkdir()
-    return subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(where)],
-                          capture_output=True).returncode == 0
+    return (
+        subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(where)], capture_output=True).returncode
+        == 0
+    )
 
 
 def test_a_real_full_disk_is_one_line_and_leaves_nothing(tmp_path):
@@ -100,8 +102,12 @@ def test_a_real_full_disk_is_one_line_and_leaves_nothing(tmp_path):
     if not _small_tmpfs(disk):
         pytest.skip("no small tmpfs can be mounted here (needs root on Linux)")
     try:
-        proc = subprocess.run([sys.executable, "-m", "misrgraph.commands.cli", "simulate", "--out", str(disk / "s"),
-                               *SMALL], capture_output=True, text=True, timeout=300)
+        proc = subprocess.run(
+            [sys.executable, "-m", "misrgraph.commands.cli", "simulate", "--out", str(disk / "s"), *SMALL],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         leftovers = list(disk.iterdir())
     finally:
         subprocess.run(["umount", str(disk)], capture_output=True)

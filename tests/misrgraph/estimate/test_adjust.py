@@ -11,12 +11,12 @@ import pytest
 from scipy import stats
 from typer.testing import CliRunner
 
-from misrgraph.estimate.adjust import AdjustConfig, adjust_pass
 from misrgraph.bench.studies import MODEL_TRUTH_ADJUST
-from misrgraph.runs.adjust import run_adjust
 from misrgraph.commands.cli import app
-from misrgraph.model.constants import CAMERAS
+from misrgraph.estimate.adjust import AdjustConfig, adjust_pass
 from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
+from misrgraph.model.constants import CAMERAS
+from misrgraph.runs.adjust import run_adjust
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
 
@@ -43,8 +43,10 @@ def test_checkpoints_improve_and_match_their_predicted_error(adjusted):
     assert set(cp) == set(CAMERAS)
     for cam, v in cp.items():
         assert v["after"]["mean"] < v["before"]["mean"], cam
-    ratio = np.sqrt(np.mean([v["after"]["rms"] ** 2 for v in cp.values()])
-                    / np.mean([v["after"]["predicted_rms"] ** 2 for v in cp.values()]))
+    ratio = np.sqrt(
+        np.mean([v["after"]["rms"] ** 2 for v in cp.values()])
+        / np.mean([v["after"]["predicted_rms"] ** 2 for v in cp.values()])
+    )
     k = 3
     lo, hi = (np.sqrt(stats.chi2.ppf(q, k) / k) for q in (0.005, 0.995))
     assert lo < ratio < hi, (ratio, lo, hi)
@@ -99,8 +101,16 @@ def test_cli_json_summary_shape(small_pass_dir):
     res = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--json"])
     assert res.exit_code == 0, res.output
     s = json.loads(res.stdout)
-    for key in ("iterations", "final_cost", "knots", "attitude_rms_arcsec", "ephemeris_rms_m",
-                "checkpoint_geolocation_m", "coregistration_px", "nees"):
+    for key in (
+        "iterations",
+        "final_cost",
+        "knots",
+        "attitude_rms_arcsec",
+        "ephemeris_rms_m",
+        "checkpoint_geolocation_m",
+        "coregistration_px",
+        "nees",
+    ):
         assert key in s
     assert set(s["knots"]) == {"roll", "pitch", "yaw"} and set(s["knots"]["pitch"]) == {"kept", "removed"}
     cam = s["checkpoint_geolocation_m"]["Df"]
@@ -133,8 +143,18 @@ def test_nees_inside_chi2_band_over_seeds(tmp_path):
     tot = {"knots": [0.0, 0], "state": [0.0, 0]}
     for seed in range(8):
         out = tmp_path / f"s{seed}"
-        run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=100 + seed, n_tie_points=80, n_check_points=0,
-                                    duration_s=600.0, start_lat_deg=50.0), out)
+        run_simulate(
+            ScenarioConfig(
+                truth="model",
+                scenario="pass",
+                seed=100 + seed,
+                n_tie_points=80,
+                n_check_points=0,
+                duration_s=600.0,
+                start_lat_deg=50.0,
+            ),
+            out,
+        )
         s = run_adjust(out, cfg=AdjustConfig(**MODEL_TRUTH_ADJUST))
         for k in tot:
             dim = s["nees"][f"{k}_dim"]
@@ -155,8 +175,7 @@ def test_knots_are_removed_where_tie_points_are_missing(small_pass):
     assert tie[gap].any()
     o = p.observations.subset(~gap)
     keep_lm = p.landmarks
-    q = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, keep_lm, o,
-                  p.temperature_c)
+    q = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, keep_lm, o, p.temperature_c)
     res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", knot_prior="independent"))
     pg = res.pass_graph
     from misrgraph.model.errormodels import AttitudeErrorModel, interval_counts
@@ -183,19 +202,29 @@ def test_knots_are_removed_where_tie_points_are_missing(small_pass):
 def _gap_pass(p, t_a, t_b):
     t = p.observation_times()
     gap = (t > t_a) & (t < t_b)
-    return OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
-                     p.observations.subset(~gap), p.temperature_c)
+    return OrbitPass(
+        p.pass_id,
+        p.path,
+        p.orbit,
+        p.ephemeris,
+        p.attitude,
+        p.t0,
+        p.line_time,
+        p.landmarks,
+        p.observations.subset(~gap),
+        p.temperature_c,
+    )
 
 
 def test_attitude_sigma_over_a_gap_stays_at_the_prior(small_pass):
     """With the process prior every knot stays, and over a 400 s data gap the attitude 1 sigma
     relaxes to the a-priori sigma and never exceeds it (up to the Hermite interpolant's 0.3 % at
     120 s, factors.priors); the seed's independent priors with knot removal exceed it."""
-    from factors.priors import process_transition
     from factors.geometry import hermite_weights
+    from factors.priors import process_transition
     from misrgraph.estimate.graph import GraphConfig
-    from misrgraph.model.errormodels import ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR
     from misrgraph.model.constants import ARCSEC
+    from misrgraph.model.errormodels import ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR
 
     sc, p = small_pass
     t_a, t_b = p.span[0] + 250.0, p.span[0] + 650.0
@@ -275,8 +304,20 @@ def test_tie_point_with_mostly_rejected_rays_is_dropped_whole(small_pass):
 def mismatched_pass(tmp_path_factory):
     """Independent truth with 5 % of the measurements 1-2 px mismatches (5-10 sigma)."""
     d = tmp_path_factory.mktemp("mis") / "p"
-    run_simulate(ScenarioConfig(scenario="pass", truth="independent", seed=23, n_tie_points=250, n_check_points=0,
-                                duration_s=900.0, start_lat_deg=55.0, mismatch_rate=0.05, gcp_blunder_rate=0.0), d)
+    run_simulate(
+        ScenarioConfig(
+            scenario="pass",
+            truth="independent",
+            seed=23,
+            n_tie_points=250,
+            n_check_points=0,
+            duration_s=900.0,
+            start_lat_deg=55.0,
+            mismatch_rate=0.05,
+            gcp_blunder_rate=0.0,
+        ),
+        d,
+    )
     sc = load_scenario(d)
     return sc, sc.load_pass(0), sc.load_truth(0)
 
@@ -308,24 +349,40 @@ def test_variance_components_recover_a_wrong_stated_sigma(small_pass):
 
     sc, p = small_pass
     kind = p.landmarks.kind[p.observations.landmark]
-    q = dataclasses.replace(p, observations=dataclasses.replace(
-        p.observations, sigma_px=np.where(kind == KIND_TIE, 2.0 * p.observations.sigma_px, p.observations.sigma_px)))
+    q = dataclasses.replace(
+        p,
+        observations=dataclasses.replace(
+            p.observations, sigma_px=np.where(kind == KIND_TIE, 2.0 * p.observations.sigma_px, p.observations.sigma_px)
+        ),
+    )
     res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(variance_component_rounds=4))
     scale = res.reliability["sigma_scale_applied"]["tie-point"]
     r_tie = res.reliability["variance_components"]["tie-point observations"]["redundancy"]
     assert abs(scale - 0.5) < 3 * 0.5 / np.sqrt(2 * r_tie) + 0.05 * 0.5, (scale, r_tie)
-    assert abs(res.reliability["variance_components"]["tie-point observations"]["sigma0"] - 1.0) < 0.05 + 3 / np.sqrt(2 * r_tie)
+    assert abs(res.reliability["variance_components"]["tie-point observations"]["sigma0"] - 1.0) < 0.05 + 3 / np.sqrt(
+        2 * r_tie
+    )
 
 
-@pytest.mark.parametrize("cls, field, value", [
-    ("AdjustConfig", "snooping_rounds", -1), ("AdjustConfig", "variance_component_rounds", 1.5),
-    ("AdjustConfig", "covariance", "exact"), ("AdjustConfig", "attitude_jitter_arcsec", -1.0),
-    ("GraphConfig", "knot_prior", "markov"), ("GraphConfig", "attitude_sigma_arcsec", (10.0, 0.0, 10.0)),
-    ("AdjustConfig", "camera_params", ("delta", "gamma")), ("AdjustConfig", "camera_params", ("f", "f")),
-    ("AdjustConfig", "camera_focal_prior_px", 0.0), ("GraphConfig", "camera_prior_px", -0.1),
-    ("AdjustConfig", "attitude_jitter_periods_s", (120.0, 8.0)), ("AdjustConfig", "attitude_jitter_periods_s", 8.0),
-    ("AdjustConfig", "ephemeris_once_per_rev_m", -1.0), ("GraphConfig", "ephemeris_once_per_rev_m", float("nan")),
-])
+@pytest.mark.parametrize(
+    "cls, field, value",
+    [
+        ("AdjustConfig", "snooping_rounds", -1),
+        ("AdjustConfig", "variance_component_rounds", 1.5),
+        ("AdjustConfig", "covariance", "exact"),
+        ("AdjustConfig", "attitude_jitter_arcsec", -1.0),
+        ("GraphConfig", "knot_prior", "markov"),
+        ("GraphConfig", "attitude_sigma_arcsec", (10.0, 0.0, 10.0)),
+        ("AdjustConfig", "camera_params", ("delta", "gamma")),
+        ("AdjustConfig", "camera_params", ("f", "f")),
+        ("AdjustConfig", "camera_focal_prior_px", 0.0),
+        ("GraphConfig", "camera_prior_px", -0.1),
+        ("AdjustConfig", "attitude_jitter_periods_s", (120.0, 8.0)),
+        ("AdjustConfig", "attitude_jitter_periods_s", 8.0),
+        ("AdjustConfig", "ephemeris_once_per_rev_m", -1.0),
+        ("GraphConfig", "ephemeris_once_per_rev_m", float("nan")),
+    ],
+)
 def test_bad_settings_name_the_field(cls, field, value):
     from misrgraph.errors import InputError
     from misrgraph.estimate.graph import GraphConfig
@@ -385,7 +442,10 @@ def test_unresolved_attitude_is_the_jitter_the_knots_cannot_follow(small_pass):
         resid.append(np.mean((e - hat @ e) ** 2))
     resid = np.array(resid)
     se = resid.std(ddof=1) / np.sqrt(resid.size)
-    assert abs(res.unresolved_attitude_rad**2 - resid.mean()) < 4 * se, (res.unresolved_attitude_rad / ARCSEC, np.sqrt(resid.mean()) / ARCSEC)
+    assert abs(res.unresolved_attitude_rad**2 - resid.mean()) < 4 * se, (
+        res.unresolved_attitude_rad / ARCSEC,
+        np.sqrt(resid.mean()) / ARCSEC,
+    )
     assert res.unresolved_attitude_rad < 0.95 * sig  # the knots take up part of it
     none = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", attitude_jitter_arcsec=0.0))
     assert none.unresolved_attitude_rad == 0.0
@@ -417,16 +477,20 @@ def test_once_per_rev_setting_gives_the_ephemeris_segments_one_joint_prior(small
             (f,) = on_eph
             a, _ = gtsam.JacobianFactor(f.factor()).jacobian()
             a = np.asarray(a)
-            want = ephemeris_prior_covariance(pg.ephemeris_model.boundaries, gc.ephemeris_a_sigma_mps,
-                                              gc.ephemeris_b_sigma_m, amp)
+            want = ephemeris_prior_covariance(
+                pg.ephemeris_model.boundaries, gc.ephemeris_a_sigma_mps, gc.ephemeris_b_sigma_m, amp
+            )
             np.testing.assert_allclose(np.linalg.inv(a.T @ a), want, rtol=1e-6, atol=1e-12 * np.max(want))
-        res = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps,
-                          AdjustConfig(robust="none", ephemeris_once_per_rev_m=amp, ephemeris_segments=n_seg))
+        res = adjust_pass(
+            p,
+            sc.camera_model,
+            sc.dem,
+            sc.gcps,
+            AdjustConfig(robust="none", ephemeris_once_per_rev_m=amp, ephemeris_segments=n_seg),
+        )
         sig[(amp, n_seg)] = np.sqrt(np.diag(res.marginals[res.pass_graph.ephemeris_keys()[0]]))
     assert np.all(sig[(30.0, 1)] >= sig[(0.0, 1)] * (1 - 1e-9)) and np.any(sig[(30.0, 1)] > 1.05 * sig[(0.0, 1)])
     from misrgraph.errors import InputError
 
     with pytest.raises(InputError, match="ephemeris_segments"):
         AdjustConfig(ephemeris_once_per_rev_m=30.0, ephemeris_segments=3)
-
-

@@ -9,15 +9,15 @@ import pytest
 from scipy import stats
 from typer.testing import CliRunner
 
-from misrgraph.estimate.calibrate import CalibrateConfig, calibrate_passes, summarise
-from misrgraph.runs.calibrate import run_calibrate
 from misrgraph.commands.cli import app
-from misrgraph.model.constants import CAMERAS
 from misrgraph.errors import DegenerateProblemError, InputError
-from misrgraph.io.passes import OrbitPass
-from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
-from misrgraph.io.camera import read_camera_file
+from misrgraph.estimate.calibrate import CalibrateConfig, calibrate_passes, summarise
 from misrgraph.evaluate.calibration import score_calibration
+from misrgraph.io.camera import read_camera_file
+from misrgraph.io.passes import OrbitPass
+from misrgraph.model.constants import CAMERAS
+from misrgraph.runs.calibrate import run_calibrate
+from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
 
 @pytest.fixture(scope="module")
@@ -72,14 +72,28 @@ def test_blunders_found_and_harmless(month):
     res = calibrate_passes(passes, sc.camera_model, sc.gcps, CalibrateConfig())
     truths = {p.pass_id: sc.load_truth(i) for i, p in enumerate(passes)}
     injected = sum(int(t.blunder.sum()) for t in truths.values())
-    true_pos = sum(1 for pi, o, _ in res.rejected if res.graphs and truths[_pass_of(res, passes, pi).pass_id].blunder[o])
+    true_pos = sum(
+        1 for pi, o, _ in res.rejected if res.graphs and truths[_pass_of(res, passes, pi).pass_id].blunder[o]
+    )
     assert true_pos == len(res.rejected)
     assert len(res.rejected) >= 0.9 * injected
     clean = []
     for p in passes:
         keep = ~truths[p.pass_id].blunder
-        clean.append(OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
-                               p.observations.subset(keep), p.temperature_c))
+        clean.append(
+            OrbitPass(
+                p.pass_id,
+                p.path,
+                p.orbit,
+                p.ephemeris,
+                p.attitude,
+                p.t0,
+                p.line_time,
+                p.landmarks,
+                p.observations.subset(keep),
+                p.temperature_c,
+            )
+        )
     oracle = calibrate_passes(clean, sc.camera_model, sc.gcps, CalibrateConfig(robust="none"))
     sig = np.sqrt(np.diag(oracle.covariance))
     assert np.all(np.abs(res.values - oracle.values) < sig)
@@ -114,9 +128,14 @@ def test_a_measured_focal_plane_prior_holds_f_and_alpha(month, nominal_camera):
     params = ("delta", "beta", "epsilon", "f", "alpha2", "alpha3")
     c = 4
     a1, f = abs(nominal_camera.alpha[c, 2, 1]), nominal_camera.focal_length[c, 2]
-    np.testing.assert_allclose(calibration_prior_sigma(nominal_camera, c, params, 0.05),
-                               [1.745e-3] * 3 + [f * 0.05 / 752, 0.05 * a1 / 752**2, 0.05 * a1 / 752**3], rtol=1e-12)
-    np.testing.assert_array_equal(calibration_prior_sigma(nominal_camera, c, params, 0.0), [CAMERA_PRIOR_SIGMA[p] for p in params])
+    np.testing.assert_allclose(
+        calibration_prior_sigma(nominal_camera, c, params, 0.05),
+        [1.745e-3] * 3 + [f * 0.05 / 752, 0.05 * a1 / 752**2, 0.05 * a1 / 752**3],
+        rtol=1e-12,
+    )
+    np.testing.assert_array_equal(
+        calibration_prior_sigma(nominal_camera, c, params, 0.0), [CAMERA_PRIOR_SIGMA[p] for p in params]
+    )
     sc, passes = month
     narrow = calibrate_passes(passes[:4], sc.camera_model, sc.gcps, CalibrateConfig(params=params, focal_prior_px=0.05))
     expect = np.concatenate([calibration_prior_sigma(sc.camera_model, k, params, 0.05) for k in range(len(CAMERAS))])
@@ -146,8 +165,8 @@ def test_json_caps_the_rejected_list_and_the_file_holds_it_all(small_month_dir, 
     the result file holds every one of them."""
     import h5py
 
-    from misrgraph.runs.calibrate import run_calibrate
     from misrgraph.io.results import capped_list
+    from misrgraph.runs.calibrate import run_calibrate
 
     out = tmp_path / "cal.h5"
     s = run_calibrate(small_month_dir, out=out, max_passes=12)
@@ -157,8 +176,11 @@ def test_json_caps_the_rejected_list_and_the_file_holds_it_all(small_month_dir, 
         res = f["calibration/rejected/normalised_residual"][()]
     assert res.size == rej["count"] > 0
     assert [e["normalised_residual"] for e in rej["largest"]] == sorted(res, key=abs, reverse=True)[:20]
-    many = capped_list([{"normalised_residual": float(i), "camera": "An" if i % 2 else "Df"} for i in range(500)],
-                       "x.h5:/r", group_by=("camera",))
+    many = capped_list(
+        [{"normalised_residual": float(i), "camera": "An" if i % 2 else "Df"} for i in range(500)],
+        "x.h5:/r",
+        group_by=("camera",),
+    )
     assert many["count"] == 500 and many["shown"] == 20 and many["largest"][0]["normalised_residual"] == 499.0
     assert many["by_camera"] == {"Df": 250, "An": 250}
 
@@ -186,8 +208,8 @@ def test_thermal_truth_recovered_by_temperature_bins(thermal_month_dir, tmp_path
     of the temperature range; three bins with the fitted line stay within 3 sigma, recover every
     camera's slopes with an honest covariance (NEES in its 95 % chi-square band), and write a
     temperature table that loads."""
-    from misrgraph.model.camera import TabulatedCameraModel
     from misrgraph.io.camera import load_camera_model
+    from misrgraph.model.camera import TabulatedCameraModel
 
     angles = ("delta", "beta", "epsilon")  # the thermal truth moves the angles (and f), not alpha
     one = run_calibrate(thermal_month_dir, cfg=CalibrateConfig(params=angles, temperature_bins=1))
@@ -240,8 +262,11 @@ def test_per_band_truth_recovered_per_band(band_month_dir, tmp_path):
     for name in ("delta", "beta", "epsilon"):
         np.testing.assert_array_equal(getattr(m, name), getattr(sc.camera_model, name))  # nothing summed in
         est = getattr(m, "band_" + name) - getattr(sc.camera_model, "band_" + name)
-        true = getattr(sc.camera_truth, name)[:, None] + getattr(sc.camera_truth, "band_" + name) \
+        true = (
+            getattr(sc.camera_truth, name)[:, None]
+            + getattr(sc.camera_truth, "band_" + name)
             - getattr(sc.camera_model, name)[:, None]
+        )
         for c, cam in enumerate(CAMERAS):
             for b, band in enumerate(BANDS):
                 z.append((est[c, b] - true[c, b]) / s["cameras"][cam]["params"][f"{band}.{name}"]["sigma"])
@@ -262,9 +287,16 @@ def test_camera_variance_components_recover_a_wrong_stated_sigma(month):
 
     sc, passes = month
     wrong = [CAMERAS.index("An"), CAMERAS.index("Bf")]
-    halved = [dataclasses.replace(p, observations=dataclasses.replace(
-        p.observations, sigma_px=np.where(np.isin(p.observations.camera, wrong), 0.5, 1.0) * p.observations.sigma_px))
-        for p in passes]
+    halved = [
+        dataclasses.replace(
+            p,
+            observations=dataclasses.replace(
+                p.observations,
+                sigma_px=np.where(np.isin(p.observations.camera, wrong), 0.5, 1.0) * p.observations.sigma_px,
+            ),
+        )
+        for p in passes
+    ]
     res = calibrate_passes(halved, sc.camera_model, sc.gcps, CalibrateConfig(variance_component_rounds=6))
     rounds, scale = res.variance_components["rounds"], res.variance_components["sigma_scale"]
     last = rounds[-1]
@@ -285,7 +317,9 @@ def test_an_unconverged_calibration_fails_unless_accepted(month):
     sc, passes = month
     with pytest.raises(ConvergenceError, match="did not converge.*--accept-unconverged"):
         calibrate_passes(passes[:6], sc.camera_model, sc.gcps, CalibrateConfig(max_iterations=1))
-    res = calibrate_passes(passes[:6], sc.camera_model, sc.gcps, CalibrateConfig(max_iterations=1, accept_unconverged=True))
+    res = calibrate_passes(
+        passes[:6], sc.camera_model, sc.gcps, CalibrateConfig(max_iterations=1, accept_unconverged=True)
+    )
     assert res.status == "iteration_limit"
     s = summarise(res, CalibrateConfig(), sc.camera_model)
     assert s["solver_status"] == "iteration_limit" and s["variance_factor"]["dof"] > 0
@@ -308,7 +342,9 @@ def test_sigma_px_agrees_with_a_monte_carlo(month):
     q = []
     for _ in range(400):
         m = calibrated_models(res, cfg, sc.camera_model, grid, res.values + chol @ rng.standard_normal(res.values.size))
-        q.append([np.mean([pointing_error_px(m[j], est[j], c) ** 2 for j in range(grid.size)]) for c in range(len(CAMERAS))])
+        q.append(
+            [np.mean([pointing_error_px(m[j], est[j], c) ** 2 for j in range(grid.size)]) for c in range(len(CAMERAS))]
+        )
     q = np.array(q)
     mc, se = q.mean(0), q.std(0, ddof=1) / np.sqrt(q.shape[0])
     for c, name in enumerate(CAMERAS):
@@ -327,18 +363,25 @@ def test_jitter_in_the_calibrations_weights(month):
 
     sc, passes = month
     p = passes[0]
-    with_j = build_pass_graph(p, sc.camera_model, None, sc.gcps, CalibrateConfig(attitude_jitter_arcsec=1.0).graph_config())
+    with_j = build_pass_graph(
+        p, sc.camera_model, None, sc.gcps, CalibrateConfig(attitude_jitter_arcsec=1.0).graph_config()
+    )
     plain = build_pass_graph(p, sc.camera_model, None, sc.gcps, CalibrateConfig().graph_config())
     rows = with_j.obs_index[with_j.collinearity.order]
     stated = p.observations.sigma_px[rows]
     np.testing.assert_array_equal(plain.collinearity.sigma_px, np.stack([stated] * 2, axis=1))
-    extra = with_j.collinearity.sigma_px ** 2 - stated[:, None] ** 2
+    extra = with_j.collinearity.sigma_px**2 - stated[:, None] ** 2
     assert np.all(extra > 0)
-    double = build_pass_graph(p, sc.camera_model, None, sc.gcps, CalibrateConfig(attitude_jitter_arcsec=2.0).graph_config())
-    np.testing.assert_allclose(double.collinearity.sigma_px ** 2 - stated[:, None] ** 2, 4.0 * extra, rtol=1e-9)
+    double = build_pass_graph(
+        p, sc.camera_model, None, sc.gcps, CalibrateConfig(attitude_jitter_arcsec=2.0).graph_config()
+    )
+    np.testing.assert_allclose(double.collinearity.sigma_px**2 - stated[:, None] ** 2, 4.0 * extra, rtol=1e-9)
     cams = p.observations.camera[rows]
-    line = {c: float(np.sqrt(extra[cams == CAMERAS.index(c), 0].mean())) for c in ("Df", "An", "Da")
-            if np.any(cams == CAMERAS.index(c))}
+    line = {
+        c: float(np.sqrt(extra[cams == CAMERAS.index(c), 0].mean()))
+        for c in ("Df", "An", "Da")
+        if np.any(cams == CAMERAS.index(c))
+    }
     assert "An" in line and all(line[c] > 4 * line["An"] for c in line if c != "An"), line
     with pytest.raises(InputError, match="attitude_jitter_arcsec"):
         CalibrateConfig(attitude_jitter_arcsec=-1.0)

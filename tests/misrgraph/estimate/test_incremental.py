@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from factors import keys as K
 from misrgraph.commands.cli import app
 from misrgraph.estimate.adjust import AdjustConfig, unresolved_attitude
 from misrgraph.estimate.graph import build_pass_graph
 from misrgraph.estimate.incremental import IncrementalSolver, batch_solution
+from misrgraph.estimate.problem import marginal_covariances
 from misrgraph.runs.update import load_state, run_update
 from misrgraph.sim.simulate import load_scenario
-from misrgraph.estimate.problem import marginal_covariances
-from factors import keys as K
-
 
 
 def test_incremental_over_ten_passes_equals_batch(path_dir):
@@ -32,8 +31,10 @@ def test_incremental_over_ten_passes_equals_batch(path_dir):
     m = marginal_covariances(prob, res.values)
 
     def worst_of(sol: IncrementalSolver) -> float:
-        return max(float(np.max(np.abs(sol.estimate.atVector(k) - res.values.atVector(k)) / np.sqrt(np.diag(m[k]))))
-                   for k in prob.dims)
+        return max(
+            float(np.max(np.abs(sol.estimate.atVector(k) - res.values.atVector(k)) / np.sqrt(np.diag(m[k]))))
+            for k in prob.dims
+        )
 
     # with every pass live, the tolerance alone: within 1 % of sigma for every variable
     live = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, linearization_tol=0.005, settle_after=None)
@@ -62,8 +63,9 @@ def test_incremental_over_ten_passes_equals_batch(path_dir):
             d = np.sqrt(np.diag(m[k]))
             assert np.max(np.abs(res_i.marginals[k] - m[k]) / np.outer(d, d)) < 1e-2, (i, k)
         # the jitter its knots cannot follow, from the solver's own settings
-        assert res_i.unresolved_attitude_rad == unresolved_attitude(res_i.pass_graph.attitude_model.knot_times,
-                                                                    solver.cfg.attitude_jitter_arcsec)
+        assert res_i.unresolved_attitude_rad == unresolved_attitude(
+            res_i.pass_graph.attitude_model.knot_times, solver.cfg.attitude_jitter_arcsec
+        )
     quiet = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, AdjustConfig(attitude_jitter_arcsec=0.0))
     quiet.add_passes([sc.load_pass(0)])
     assert quiet.pass_result(0).unresolved_attitude_rad == 0.0 < solver.pass_result(0).unresolved_attitude_rad
@@ -146,8 +148,13 @@ def test_marginalising_a_settled_pass_is_exact(path_dir):
     fg = solver.isam.getFactorsUnsafe()
     assert sorted(solver.settled) == [0, 1] and not fg.exists(first) and fg.exists(solver._merged)
     shared_letters = {K.LANDMARK, K.GCP, K.CAMERA, K.OMEGA}
-    wide = [i for i in range(fg.size()) if fg.exists(i) and len(fg.at(i).keys()) > 3
-            and all(chr(gtsam.Symbol(k).chr()) in shared_letters for k in fg.at(i).keys())]
+    wide = [
+        i
+        for i in range(fg.size())
+        if fg.exists(i)
+        and len(fg.at(i).keys()) > 3
+        and all(chr(gtsam.Symbol(k).chr()) in shared_letters for k in fg.at(i).keys())
+    ]
     assert wide == [solver._merged]  # the one factor over the shared variables alone
 
 
@@ -246,9 +253,24 @@ def test_state_refuses_changed_inputs_damaged_files_and_a_second_update(path_dir
 
 def test_update_cli(path_dir, tmp_path):
     sc = load_scenario(path_dir)
-    res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), str(sc.pass_files[0]), "--camera-model",
-                                   str(path_dir / "camera_model.h5"), "--gcps", str(path_dir / "gcp.h5"),
-                                   "--dem", str(path_dir / "dem.h5"), "--compare-batch", "--linearization-tol", "0.005", "--json"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "update",
+            str(tmp_path / "s"),
+            str(sc.pass_files[0]),
+            "--camera-model",
+            str(path_dir / "camera_model.h5"),
+            "--gcps",
+            str(path_dir / "gcp.h5"),
+            "--dem",
+            str(path_dir / "dem.h5"),
+            "--compare-batch",
+            "--linearization-tol",
+            "0.005",
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     u = json.loads(res.stdout)["updates"][0]
     assert u["linearization_error_sigma"] <= 0.005
@@ -284,8 +306,15 @@ def test_replay_in_one_update_builds_the_same_graphs(path_dir):
         np.testing.assert_array_equal(a.collinearity.const.along_scale, b.collinearity.const.along_scale)
         assert a.problem.dims == b.problem.dims
     # and later passes reuse the first pass's positions instead of a fresh ray cast of their own
-    fresh = build_pass_graph(passes[2], sc.camera_model, sc.dem, sc.gcps, one.cfg.graph_config(), pass_index=2,
-                             shared=set(one.graphs[0].problem.dims) | set(one.graphs[1].problem.dims))
+    fresh = build_pass_graph(
+        passes[2],
+        sc.camera_model,
+        sc.dem,
+        sc.gcps,
+        one.cfg.graph_config(),
+        pass_index=2,
+        shared=set(one.graphs[0].problem.dims) | set(one.graphs[1].problem.dims),
+    )
     assert not np.array_equal(fresh.collinearity.const.along_scale, one.graphs[2].collinearity.const.along_scale)
 
 
@@ -363,8 +392,22 @@ def test_update_cli_matched_observations(imagery_pass_dir, tmp_path):
     state refuses another set in one line (exit 2)."""
     d = imagery_pass_dir
     f = str(load_scenario(d).pass_files[0])
-    res = CliRunner().invoke(app, ["update", str(tmp_path / "s"), f, "--camera-model", str(d / "camera_model.h5"),
-                                   "--gcps", str(d / "gcp.h5"), "--dem", str(d / "dem.h5"), "--observations", "matched"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "update",
+            str(tmp_path / "s"),
+            f,
+            "--camera-model",
+            str(d / "camera_model.h5"),
+            "--gcps",
+            str(d / "gcp.h5"),
+            "--dem",
+            str(d / "dem.h5"),
+            "--observations",
+            "matched",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "(matched observations)" in res.output and "conjugates' shared offset" in res.output
     assert "(estimated)" in res.output and "px (matched)" in res.output

@@ -20,7 +20,6 @@ def solved(small_pass):
     return pg, solve(pg.problem)
 
 
-
 def _gtsam_marginals(problem, values) -> gtsam.Marginals:
     """``gtsam.Marginals`` of a problem at ``values``: the factor batches' caches filled there
     while GTSAM linearises and eliminates, cleared after (queries need neither)."""
@@ -31,6 +30,7 @@ def _gtsam_marginals(problem, values) -> gtsam.Marginals:
     finally:
         for b in problem.batches:
             b.clear()
+
 
 def test_each_flat_row_points_at_its_factor(solved):
     pg, _ = solved
@@ -70,7 +70,9 @@ def test_every_marginal_path_agrees_with_gtsam(solved):
     sparse_path = marginal_covariances(prob, res.values, joint_keys=joint_keys)
     ref_joint = _gtsam_marginals(prob, res.values).jointMarginalCovariance(gtsam.KeyVector(joint_keys)).fullMatrix()
     np.testing.assert_allclose(sparse_path.joint, ref_joint, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref_joint)))
-    np.testing.assert_allclose(lin_path.joint_of(joint_keys), ref_joint, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref_joint)))
+    np.testing.assert_allclose(
+        lin_path.joint_of(joint_keys), ref_joint, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref_joint))
+    )
     for k in list(prob.dims)[::11]:
         np.testing.assert_allclose(flat_path[k], lin_path[k], rtol=1e-8, atol=1e-12 * np.max(np.abs(lin_path[k])))
 
@@ -85,12 +87,15 @@ def test_landmark_cross_covariance_agrees_with_gtsam(solved):
     prob = pg.problem
     keys = [int(k) for k in pg.landmark_keys[[0, len(pg.landmark_keys) // 2, -1]]]
     ref = _gtsam_marginals(prob, res.values).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
-    for marg in (marginal_covariances(prob, res.values), flat_marginals(prob.flat(), prob.flat().from_values(res.values))):
+    for marg in (
+        marginal_covariances(prob, res.values),
+        flat_marginals(prob.flat(), prob.flat().from_values(res.values)),
+    ):
         g = marg.landmark_response_of(keys)
         for i in range(3):
             for j in range(3):
                 block = marg[keys[i]] if i == j else g[i] @ marg.joint @ g[j].T
-                want = ref[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+                want = ref[3 * i : 3 * i + 3, 3 * j : 3 * j + 3]
                 np.testing.assert_allclose(block, want, rtol=1e-6, atol=1e-8 * np.max(np.abs(np.diag(ref))))
     with pytest.raises(InputError, match="marginals"):
         marginal_covariances(prob, res.values, joint_keys=pg.ephemeris_keys()).landmark_response_of(keys[:1])
@@ -152,7 +157,9 @@ def test_variance_factor_is_one_where_the_weights_are_right(small_pass):
     sc, p = small_pass
     blunder = sc.load_truth(0).blunder
     assert blunder.any()
-    clean = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True), exclude_observations=blunder)
+    clean = build_pass_graph(
+        p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(use_dem=True), exclude_observations=blunder
+    )
     vf = variance_factor(clean.problem, solve(clean.problem).final_error)
     lo, hi = stats.chi2.ppf([0.0005, 0.9995], vf["dof"])
     assert vf["dof"] > 1000 and lo < vf["chi2"] < hi, vf
@@ -166,7 +173,9 @@ def test_hessian_marginals_are_the_inverse_of_jtj_plus_the_dem_curvature(small_p
     Jacobian) plus the DEM curvature per landmark, kept where it leaves >= 0.5 of the block's
     information in every direction; and the floor is what it says."""
     sc, p = small_pass
-    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(), exclude_observations=sc.load_truth(0).blunder)
+    pg = build_pass_graph(
+        p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(), exclude_observations=sc.load_truth(0).blunder
+    )
     flat = pg.problem.flat()
     x = flat.from_values(solve(pg.problem).values)
     j = flat.jacobian(x).toarray()
@@ -176,17 +185,19 @@ def test_hessian_marginals_are_the_inverse_of_jtj_plus_the_dem_curvature(small_p
     np.add.at(add, li, corr)
     kept = 0
     for i in np.unique(li):
-        old = h[3 * i:3 * i + 3, 3 * i:3 * i + 3]
+        old = h[3 * i : 3 * i + 3, 3 * i : 3 * i + 3]
         new = old + add[i]
         if np.linalg.eigvalsh(new)[0] > 0 and np.linalg.eigvals(np.linalg.solve(old, new)).real.min() >= 0.5:
-            h[3 * i:3 * i + 3, 3 * i:3 * i + 3] = new
+            h[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = new
             kept += 1
     assert kept > 0.5 * np.unique(li).size
     cov = np.linalg.inv(h)
     m = flat_marginals(flat, x, second_order=True)
     for k in list(pg.problem.eliminate_first[:20]) + pg.problem.other_keys[:20]:
         o, d = flat.offset[k], pg.problem.dims[k]
-        np.testing.assert_allclose(m[k], cov[o:o + d, o:o + d], rtol=1e-6, atol=1e-9 * np.abs(cov[o:o + d, o:o + d]).max())
+        np.testing.assert_allclose(
+            m[k], cov[o : o + d, o : o + d], rtol=1e-6, atol=1e-9 * np.abs(cov[o : o + d, o : o + d]).max()
+        )
     gn = flat_marginals(flat, x)
     k0 = pg.problem.eliminate_first[0]
     assert not np.allclose(m[k0], gn[k0])
@@ -213,7 +224,9 @@ def test_merge_flat_is_the_merged_problem_in_flat_form(small_pass):
     assert m.eliminate_first == ref.eliminate_first and m.dims == ref.dims and m.eliminate_last == ref.eliminate_last
     assert int(m.graph.size()) == int(ref.graph.size())
     flat = m.flat()
-    assert flat.m_coll == sum(2 * len(bt) for p in (a, b) for bt in p.batches if type(bt).__name__ == "CollinearityBatch")
+    assert flat.m_coll == sum(
+        2 * len(bt) for p in (a, b) for bt in p.batches if type(bt).__name__ == "CollinearityBatch"
+    )
     assert flat.cost(flat.initial()) == pytest.approx(ref.graph.error(ref.initial), rel=1e-12)
     assert m.graph.error(m.initial) == pytest.approx(ref.graph.error(ref.initial), rel=1e-12)
     tight = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12)
@@ -222,7 +235,9 @@ def test_merge_flat_is_the_merged_problem_in_flat_form(small_pass):
     assert rs.backend == "schur" and rg.backend == "gtsam"
     assert rs.final_error == pytest.approx(rg.final_error, rel=1e-7)
     cov = flat_marginals(flat, flat.from_values(rs.values))
-    worst = max(np.max(np.abs(rs.values.atVector(k) - rg.values.atVector(k)) / np.sqrt(np.diag(cov[k]))) for k in m.dims)
+    worst = max(
+        np.max(np.abs(rs.values.atVector(k) - rg.values.atVector(k)) / np.sqrt(np.diag(cov[k]))) for k in m.dims
+    )
     assert worst < 0.01
 
 
@@ -306,7 +321,9 @@ def test_gcp_scene_offsets_in_every_marginal_path(small_pass):
     # the scene's common error: the mean of its GCPs is known less well than with independent
     # priors (their differences better: the joint prior is not smaller in every direction)
     keys = [K.gcp_key(int(r)) for r in rows]
-    pg0 = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(), exclude_observations=sc.load_truth(0).blunder)
+    pg0 = build_pass_graph(
+        p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(), exclude_observations=sc.load_truth(0).blunder
+    )
     avg = np.kron(np.full((1, rows.size), 1.0 / rows.size), np.eye(3))
     var_mean = []
     for q, r_ in ((pg, res), (pg0, solve(pg0.problem))):
@@ -342,8 +359,16 @@ def test_dem_sigma_scale_multiplies_the_stated_dem_sigma(small_pass):
     from misrgraph.errors import InputError
 
     sc, p = small_pass
-    batches = [next(b for b in build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(dem_sigma_scale=f)).problem.batches
-                    if isinstance(b, DemBatch)) for f in (1.0, 2.0)]
+    batches = [
+        next(
+            b
+            for b in build_pass_graph(
+                p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(dem_sigma_scale=f)
+            ).problem.batches
+            if isinstance(b, DemBatch)
+        )
+        for f in (1.0, 2.0)
+    ]
     np.testing.assert_array_equal(batches[0].keys, batches[1].keys)
     np.testing.assert_allclose(batches[1].sigma_m, 2.0 * batches[0].sigma_m, rtol=1e-12)
     for bad in (0.0, -1.0, float("nan")):
@@ -362,14 +387,24 @@ def test_dem_smoothing_reads_the_low_passed_dem_with_the_raw_sigma(small_pass):
     from misrgraph.model.frames import ecef_to_geodetic
 
     sc, p = small_pass
-    raw, smooth = [next(b for b in build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(dem_smoothing_postings=f)).problem.batches
-                        if isinstance(b, DemBatch)) for f in (0.0, 1.0)]
+    raw, smooth = [
+        next(
+            b
+            for b in build_pass_graph(
+                p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(dem_smoothing_postings=f)
+            ).problem.batches
+            if isinstance(b, DemBatch)
+        )
+        for f in (0.0, 1.0)
+    ]
     np.testing.assert_array_equal(raw.keys, smooth.keys)
     cfg = GraphConfig(dem_smoothing_postings=1.0)
     pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, cfg)
     lat, lon, _ = ecef_to_geodetic(np.stack([pg.problem.initial.atVector(int(k)) for k in smooth.keys]))
     # sigma: the raw DEM's at the (initial) landmarks, times the scale
-    np.testing.assert_allclose(smooth.sigma_m, fit_local_surface(sc.dem, lat, lon).sigma * cfg.dem_sigma_scale, rtol=1e-12)
+    np.testing.assert_allclose(
+        smooth.sigma_m, fit_local_surface(sc.dem, lat, lon).sigma * cfg.dem_sigma_scale, rtol=1e-12
+    )
     h, dlat, dlon = smooth.surface(lat, lon)
     ref = fit_local_surface(sc.dem.smoothed(1.0), lat, lon)
     np.testing.assert_allclose(h, ref.height, atol=1e-9)
@@ -396,7 +431,11 @@ def test_knot_prior_damping_sets_the_process_prior(small_pass):
         g = pg.problem.graph
         for i in range(g.size()):
             f = g.at(i)
-            if f is not None and set(f.keys()) <= set(keys) and isinstance(f, gtsam.LinearContainerFactor | gtsam.PriorFactorVector):
+            if (
+                f is not None
+                and set(f.keys()) <= set(keys)
+                and isinstance(f, gtsam.LinearContainerFactor | gtsam.PriorFactorVector)
+            ):
                 prior.add(f)
         v = gtsam.Values()
         for k in keys:

@@ -14,8 +14,9 @@ from misrgraph.io.passes import KIND_TIE, Observations, OrbitPass
 
 
 def _with(p: OrbitPass, obs: Observations) -> OrbitPass:
-    return OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks, obs,
-                     p.temperature_c)
+    return OrbitPass(
+        p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks, obs, p.temperature_c
+    )
 
 
 def _solve(sc, p, exclude):
@@ -39,7 +40,7 @@ def test_redundancy_sums_to_the_degrees_of_freedom_and_matches_brute_force(clean
     x = flat.from_values(solve(pg.problem).values)
     j = flat.jacobian(x).toarray()
     hi = np.linalg.inv(j.T @ j)
-    rows = np.r_[0:8, flat.m_coll:flat.m_coll + 4, flat.m - 4:flat.m]
+    rows = np.r_[0:8, flat.m_coll : flat.m_coll + 4, flat.m - 4 : flat.m]
     np.testing.assert_allclose(np.einsum("ri,ij,rj->r", j[rows], hi, j[rows]), rel.h[rows], atol=1e-8)
     np.testing.assert_allclose(j[0] @ hi @ j[1], -rel.R_obs[0, 0, 1], atol=1e-8)
 

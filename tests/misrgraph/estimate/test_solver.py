@@ -5,11 +5,10 @@ import numpy as np
 import pytest
 
 from misrgraph.errors import DegenerateProblemError
-from misrgraph.estimate.problem import FlatProblem
 from misrgraph.estimate.graph import GraphConfig, build_pass_graph
-from misrgraph.io.passes import Observations, OrbitPass
+from misrgraph.estimate.problem import FlatProblem, marginal_covariances
 from misrgraph.estimate.solver import SolverParams, solve, solve_gtsam_lm
-from misrgraph.estimate.problem import marginal_covariances
+from misrgraph.io.passes import Observations, OrbitPass
 
 TIGHT = SolverParams(relative_error_tol=1e-12, absolute_error_tol=1e-12, max_iterations=60)
 
@@ -30,7 +29,10 @@ def test_core_reaches_the_gtsam_lm_optimum(small_pass):
     assert ours.final_error == pytest.approx(ref.final_error, rel=1e-6)
     # and the same solution, to well within the posterior sigma
     m = marginal_covariances(pg.problem, ours.values)
-    z = [np.max(np.abs(ours.values.atVector(k) - ref.values.atVector(k)) / np.sqrt(np.diag(m[k]))) for k in pg.problem.dims]
+    z = [
+        np.max(np.abs(ours.values.atVector(k) - ref.values.atVector(k)) / np.sqrt(np.diag(m[k])))
+        for k in pg.problem.dims
+    ]
     assert max(z) < 1e-3
 
 
@@ -44,7 +46,9 @@ def test_marginals_equal_gtsam_marginals(noisy_graph):
         ref = gtsam.Marginals(prob.graph, res.values)
         keys = list(prob.dims)[::7] + noisy_graph.knot_keys(1)[:3] + noisy_graph.ephemeris_keys()
         for k in keys:
-            np.testing.assert_allclose(mine[k], ref.marginalCovariance(k), rtol=1e-6, atol=1e-12 * np.max(np.abs(mine[k])))
+            np.testing.assert_allclose(
+                mine[k], ref.marginalCovariance(k), rtol=1e-6, atol=1e-12 * np.max(np.abs(mine[k]))
+            )
     finally:
         for b in prob.batches:
             b.clear()
@@ -104,12 +108,32 @@ def test_error_decreases_monotonically(noisy_graph):
 def test_degenerate_inputs_are_diagnosed(small_pass):
     sc, p = small_pass
     o = p.observations
-    none = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
-                     o.subset(np.zeros(len(o), bool)), p.temperature_c)
+    none = OrbitPass(
+        p.pass_id,
+        p.path,
+        p.orbit,
+        p.ephemeris,
+        p.attitude,
+        p.t0,
+        p.line_time,
+        p.landmarks,
+        o.subset(np.zeros(len(o), bool)),
+        p.temperature_c,
+    )
     with pytest.raises(DegenerateProblemError, match="no tie-point or GCP observations"):
         build_pass_graph(none, sc.camera_model, sc.dem, sc.gcps)
-    one = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, p.landmarks,
-                    o.subset(o.camera == 4), p.temperature_c)
+    one = OrbitPass(
+        p.pass_id,
+        p.path,
+        p.orbit,
+        p.ephemeris,
+        p.attitude,
+        p.t0,
+        p.line_time,
+        p.landmarks,
+        o.subset(o.camera == 4),
+        p.temperature_c,
+    )
     with pytest.raises(DegenerateProblemError, match="single camera"):
         build_pass_graph(one, sc.camera_model, sc.dem, sc.gcps)
     assert isinstance(o, Observations)
@@ -161,7 +185,9 @@ def test_schur_backend_equals_gtsam_elimination(noisy_graph):
     b = solve(prob, TIGHT.replace(backend="schur", dem_second_order=False))
     assert b.final_error == pytest.approx(a.final_error, rel=1e-8)
     m = marginal_covariances(prob, a.values)
-    worst = max(float(np.max(np.abs(a.values.atVector(k) - b.values.atVector(k)) / np.sqrt(np.diag(m[k])))) for k in prob.dims)
+    worst = max(
+        float(np.max(np.abs(a.values.atVector(k) - b.values.atVector(k)) / np.sqrt(np.diag(m[k])))) for k in prob.dims
+    )
     assert worst < 1e-3
 
 
@@ -247,7 +273,9 @@ def _toy_lm(step_decreases: bool, model: float | None = None, wall: float = np.i
     (a landmark stepping off the DEM)."""
     from misrgraph.estimate.solver import _levenberg_marquardt
 
-    cost = lambda x: float((x - 3.0) ** 2) if x <= wall else float("nan")
+    def cost(x):
+        return float((x - 3.0) ** 2) if x <= wall else float("nan")
+
     step = (lambda x, sys, lam: x + (3.0 - x) / (1.0 + lam)) if step_decreases else (lambda x, sys, lam: x)
     predicted = (lambda x, sys: float((x - 3.0) ** 2)) if model is None else (lambda x, sys: model)
     return _levenberg_marquardt(0.0, cost, lambda x, second: None, step, SolverParams(), None, lambda x: x, predicted)
@@ -302,7 +330,7 @@ def test_ceres_cost_rows_are_the_flat_rows(noisy_graph):
     n = lay.n_factors
     for factors in (range(0, 1), range(n // 2, n // 2 + 1), range(n - 1, n), range(3, min(n, 40))):
         rows = _CostRows(flat, factors, dem_of)
-        xl = np.concatenate([x[flat.offset[k]: flat.offset[k] + d] for k, d in zip(rows.keys, rows.dims)])
+        xl = np.concatenate([x[flat.offset[k] : flat.offset[k] + d] for k, d in zip(rows.keys, rows.dims)])
         r, jm = rows.evaluate(xl, True)
         idx = list(range(2 * rows.a, 2 * rows.z)) + [flat.m_coll + int(i) for i in rows.dem_index]
         assert len(idx) == rows.n_res and (len(factors) == 1 or rows.dem_index.size > 1)

@@ -22,10 +22,14 @@ AN = CAMERAS.index("An")
 def _draws(rng: np.random.Generator, s2: float, n: int = 800, reps: int = 300):
     sig = rng.choice([30.0, 60.0], n)
     q = rng.uniform(0.85, 1.0, n)
-    out = [shared_height_variance(np.sqrt(q * sig ** 2 + q ** 2 * s2) * rng.standard_normal(n), sig, q)
-           for _ in range(reps)]
-    return np.array([e.unclipped_m2 for e in out]), np.array([e.variance_m2 for e in out]), \
-        np.array([e.standard_error_m2 for e in out])
+    out = [
+        shared_height_variance(np.sqrt(q * sig**2 + q**2 * s2) * rng.standard_normal(n), sig, q) for _ in range(reps)
+    ]
+    return (
+        np.array([e.unclipped_m2 for e in out]),
+        np.array([e.variance_m2 for e in out]),
+        np.array([e.standard_error_m2 for e in out]),
+    )
 
 
 @pytest.mark.parametrize("s2", [0.0, 150.0, 900.0])
@@ -53,7 +57,7 @@ def test_pooling_short_passes_is_unbiased_and_states_its_scatter():
         for n in rng.integers(60, 91, 20):
             sig = rng.choice([30.0, 60.0], n)
             q = rng.uniform(0.85, 1.0, n)
-            ests.append(shared_height_variance(np.sqrt(q * sig ** 2 + q ** 2 * s2) * rng.standard_normal(n), sig, q))
+            ests.append(shared_height_variance(np.sqrt(q * sig**2 + q**2 * s2) * rng.standard_normal(n), sig, q))
         p = pool_shared_height([e.unclipped_m2 for e in ests], [e.n for e in ests])
         pooled.append(p.unclipped_m2)
         stated.append(p.standard_error_m2)
@@ -73,8 +77,12 @@ def test_pooling_equal_counts_is_the_plain_mean():
     assert p.standard_error_m2 == pytest.approx(u.std(ddof=1) / 2.0)
     assert p.n == 280
     assert pool_shared_height([-10.0, -30.0], [50, 50]).variance_m2 == 0.0
-    for args, field in ((([1.0], [5]), "unclipped_m2"), (([1.0, 2.0], [5]), "n"), (([1.0, np.nan], [5, 5]), "unclipped_m2"),
-                        (([1.0, 2.0], [5, 0]), "n")):
+    for args, field in (
+        (([1.0], [5]), "unclipped_m2"),
+        (([1.0, 2.0], [5]), "n"),
+        (([1.0, np.nan], [5, 5]), "unclipped_m2"),
+        (([1.0, 2.0], [5, 0]), "n"),
+    ):
         with pytest.raises(InputError, match=field):
             pool_shared_height(*args)
 
@@ -126,14 +134,22 @@ def _with_shared_heights(p, truth, sigma_m: float, rng: np.random.Generator):
         others = mine[obs.camera[mine] != AN]
         if an.size == 0 or others.size == 0:
             continue
-        _, d = geo.pixel_rays(obs.camera[an[:1]], obs.band[an[:1]], obs.line[an[:1]], obs.sample[an[:1]],
-                              exposure=obs.exposure_index[an[:1]])
+        _, d = geo.pixel_rays(
+            obs.camera[an[:1]],
+            obs.band[an[:1]],
+            obs.line[an[:1]],
+            obs.sample[an[:1]],
+            exposure=obs.exposure_index[an[:1]],
+        )
         u = -d[0] / np.linalg.norm(d[0])
         dh = float(rng.normal(0.0, sigma_m))
         x = truth.landmark_ecef[row]
-        at = geo.ground_to_pixel(obs.camera[others], obs.band[others], np.repeat(x[None], others.size, 0), continuous=True)
-        up = geo.ground_to_pixel(obs.camera[others], obs.band[others], np.repeat((x + dh * u)[None], others.size, 0),
-                                 continuous=True)
+        at = geo.ground_to_pixel(
+            obs.camera[others], obs.band[others], np.repeat(x[None], others.size, 0), continuous=True
+        )
+        up = geo.ground_to_pixel(
+            obs.camera[others], obs.band[others], np.repeat((x + dh * u)[None], others.size, 0), continuous=True
+        )
         ok = np.isfinite(at.line) & np.isfinite(up.line)
         line[others[ok]] += up.line[ok] - at.line[ok]
         sample[others[ok]] += up.sample[ok] - at.sample[ok]
@@ -157,7 +173,7 @@ def test_a_shared_height_error_is_estimated_and_makes_the_heights_honest(small_p
     res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, cfg.replace(tie_height_sigma_m="estimate"))
     th = res.tie_height
     assert th["source"] == "estimated" and th["tie_points"] > 0
-    drawn = np.mean([dh ** 2 for dh, _ in moved.values()])
+    drawn = np.mean([dh**2 for dh, _ in moved.values()])
     assert abs(th["unclipped_variance_m2"] - drawn) < 3 * th["standard_error_m2"], (th, drawn)
     off = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, cfg.replace(tie_height_sigma_m=0.0))
     assert off.tie_height["source"] == "off" and not off.landmark_extra_cov
@@ -169,7 +185,7 @@ def test_a_shared_height_error_is_estimated_and_makes_the_heights_honest(small_p
             if int(row) in moved:
                 _, u = moved[int(row)]
                 e = (r.values.atVector(int(k)) - truth.landmark_ecef[row]) @ u
-                out.append(e ** 2 / (u @ r.marginals[int(k)] @ u))
+                out.append(e**2 / (u @ r.marginals[int(k)] @ u))
         return float(np.mean(out)), len(out)
 
     with_term, n = z2(res)

@@ -53,7 +53,7 @@ def test_the_response_is_the_landmarks_move_under_a_common_shift_of_their_conjug
         q = dataclasses.replace(p, observations=dataclasses.replace(obs, **{coord: getattr(obs, coord) + by * mask}))
         f = build_pass_graph(q, sc.camera_model, sc.dem, sc.gcps, cfg).problem.flat()
         xx = f.from_values(values)
-        res = f.residual(xx)[:2 * len(rows)].reshape(-1, 2)
+        res = f.residual(xx)[: 2 * len(rows)].reshape(-1, 2)
         for _ in range(6):
             blk, _, _, g, _ = f.normal_equations(xx)
             xx[:n_l] -= np.linalg.solve(blk, g[:n_l].reshape(-1, 3, 1)).ravel()
@@ -70,7 +70,9 @@ def test_the_response_is_the_landmarks_move_under_a_common_shift_of_their_conjug
     cross = np.abs((r1 - r0)[conj[np.arange(len(rows))], 1] * sigma[conj, 1] / by).max()
     assert 0.0 < cross < 0.15, cross  # the predicted sample moves with the line's time
     want_l = r[:, :, 0] * by
-    assert np.all(np.abs(moved_l - base - want_l)[tie] <= 0.15 * np.abs(want_s[tie]).max() + 1e-3 * np.abs(want_l[tie]).max())
+    assert np.all(
+        np.abs(moved_l - base - want_l)[tie] <= 0.15 * np.abs(want_s[tie]).max() + 1e-3 * np.abs(want_l[tie]).max()
+    )
     cov = offset_covariance(r, 0.05)
     np.testing.assert_allclose(cov[tie], 0.05**2 * r[tie] @ np.swapaxes(r[tie], 1, 2))
 
@@ -88,10 +90,13 @@ def test_the_term_is_the_conjugates_true_covariance_propagated():
     rho = np.sqrt(1.0 - rng.uniform(0.0, 1.0, lm.size) * s_o**2 / sigma**2)  # sigma^2 (1 - rho^2) <= s_o^2
     shared = np.tile(np.arange(per) > 0, n_l)
     w = 1.0 / sigma**2
-    h = np.array([sum(w[n] * jac[n].T @ jac[n] for n in np.flatnonzero(lm == i)) + 1e-6 * np.eye(3) for i in range(n_l)])
+    h = np.array(
+        [sum(w[n] * jac[n].T @ jac[n] for n in np.flatnonzero(lm == i)) + 1e-6 * np.eye(3) for i in range(n_l)]
+    )
     counted = np.where(shared, sigma**2 * (1.0 - rho**2), 0.0)
-    term = (offset_covariance(offset_response(h, jac, np.c_[sigma, sigma], lm, shared), s_o)
-            - counted_covariance(h, jac, np.c_[sigma, sigma], lm, counted))
+    term = offset_covariance(offset_response(h, jac, np.c_[sigma, sigma], lm, shared), s_o) - counted_covariance(
+        h, jac, np.c_[sigma, sigma], lm, counted
+    )
     for i in range(n_l):
         idx = np.flatnonzero(lm == i)
         a = np.concatenate([w[n] * jac[n].T for n in idx], axis=1)  # (3, 2 per): J^T W
@@ -137,9 +142,20 @@ def test_a_matched_pass_carries_the_matchers_offset_into_its_tie_points(imagery_
 
     so = read_matched(load_scenario(imagery_pass_dir).pass_files[0]).summary["tie"]["shared_offset"]
     on = run_adjust(imagery_pass_dir, observations="matched", out=tmp_path / "on.h5")
-    off = run_adjust(imagery_pass_dir, observations="matched", out=tmp_path / "off.h5", cfg=AdjustConfig(tie_offset_sigma_px=0))
+    off = run_adjust(
+        imagery_pass_dir, observations="matched", out=tmp_path / "off.h5", cfg=AdjustConfig(tie_offset_sigma_px=0)
+    )
     assert on["tie_offset"]["source"] == "matched" and on["tie_offset"]["sigma_px"] == so["sigma_px"] > 0
-    assert on["tie_offset"]["own_scale_ratio"] == so["own_scale_ratio"] and set(so["own_scale_ratio"]) == {"Df", "Cf", "Bf", "Af", "Aa", "Ba", "Ca", "Da"}
+    assert on["tie_offset"]["own_scale_ratio"] == so["own_scale_ratio"] and set(so["own_scale_ratio"]) == {
+        "Df",
+        "Cf",
+        "Bf",
+        "Af",
+        "Aa",
+        "Ba",
+        "Ca",
+        "Da",
+    }
     assert off["tie_offset"]["source"] == "off"
     with h5py.File(tmp_path / "on.h5") as a, h5py.File(tmp_path / "off.h5") as b:
         kind = a["landmarks/kind"][:]

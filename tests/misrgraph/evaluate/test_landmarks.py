@@ -18,7 +18,7 @@ def _schur_system(rng: np.random.Generator, n_l: int = 12, n_c: int = 7):
     for i in range(n_l):
         for _ in range(4):  # four 2-row observations per landmark
             a = np.zeros((2, 3 * n_l + n_c))
-            a[:, 3 * i:3 * i + 3] = rng.normal(size=(2, 3))
+            a[:, 3 * i : 3 * i + 3] = rng.normal(size=(2, 3))
             cols = 3 * n_l + rng.choice(n_c, 3, replace=False)
             a[:, cols] = rng.normal(size=(2, 3))
             rows.append(a)
@@ -26,9 +26,9 @@ def _schur_system(rng: np.random.Generator, n_l: int = 12, n_c: int = 7):
     h = j.T @ j
     cov = np.linalg.inv(h)
     n3 = 3 * n_l
-    h_ll = np.array([h[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(n_l)])
-    g = np.array([np.linalg.solve(h_ll[i], h[3 * i:3 * i + 3, n3:]) for i in range(n_l)])  # G_i
-    p = np.array([cov[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(n_l)])
+    h_ll = np.array([h[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(n_l)])
+    g = np.array([np.linalg.solve(h_ll[i], h[3 * i : 3 * i + 3, n3:]) for i in range(n_l)])  # G_i
+    p = np.array([cov[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(n_l)])
     return cov[:n3, :n3], p, g, cov[n3:, n3:]
 
 
@@ -40,14 +40,14 @@ def _dense_split(e: np.ndarray, cov_ll: np.ndarray, group: np.ndarray) -> tuple[
         idx = np.flatnonzero(group == label)
         avg = np.zeros((3, 3 * n))
         for i in idx:
-            avg[:, 3 * i:3 * i + 3] = np.eye(3) / idx.size
+            avg[:, 3 * i : 3 * i + 3] = np.eye(3) / idx.size
         mean = avg @ e.ravel()
         common.append(mean @ np.linalg.solve(avg @ cov_ll @ avg.T, mean))
         if idx.size < 2:
             continue
         for i in idx:
             sel = np.zeros((3, 3 * n))
-            sel[:, 3 * i:3 * i + 3] = np.eye(3)
+            sel[:, 3 * i : 3 * i + 3] = np.eye(3)
             dev_map = sel - avg
             c = dev_map @ cov_ll @ dev_map.T
             d = dev_map @ e.ravel()
@@ -133,5 +133,7 @@ def test_an_adjusted_pass_s_split_reduces_to_its_landmark_nees(small_pass_dir):
     assert alone["common"] == pytest.approx(scored["nees"]["landmarks"], rel=1e-9)
     split = scored["landmark_split"]
     assert 2 <= split["groups"] <= 3 and split["window_s"] == 300.0  # a 15-minute pass, in 300 s windows
-    assert scored["nees"]["landmarks_common"] == split["common"] and scored["nees"]["landmarks_within"] == split["within"]
+    assert (
+        scored["nees"]["landmarks_common"] == split["common"] and scored["nees"]["landmarks_within"] == split["within"]
+    )
     assert np.isfinite(split["common"]) and np.isfinite(split["within"])

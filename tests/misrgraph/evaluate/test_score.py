@@ -20,11 +20,14 @@ def test_true_knots_are_the_truths_own_on_the_same_grid_and_its_projection_other
     the least-squares projection recovers the original knots (to the 2 s tabulation's accuracy)."""
     rng = np.random.default_rng(3)
     kt = np.arange(0.0, 601.0, 60.0)
-    coarse = AttitudeErrorModel([kt] * 3, [np.c_[rng.normal(0, 1e-4, kt.size), rng.normal(0, 1e-6, kt.size)]
-                                           for _ in range(3)])
+    coarse = AttitudeErrorModel(
+        [kt] * 3, [np.c_[rng.normal(0, 1e-4, kt.size), rng.normal(0, 1e-6, kt.size)] for _ in range(3)]
+    )
     np.testing.assert_array_equal(true_knots(_truth(coarse), kt, 1), coarse.knots[1])
     fine_t = np.arange(0.0, 601.0, 2.0)
-    fine = AttitudeErrorModel([fine_t] * 3, [np.c_[coarse.evaluate(fine_t)[:, a], coarse.rate(fine_t)[:, a]] for a in range(3)])
+    fine = AttitudeErrorModel(
+        [fine_t] * 3, [np.c_[coarse.evaluate(fine_t)[:, a], coarse.rate(fine_t)[:, a]] for a in range(3)]
+    )
     got = true_knots(_truth(fine), kt, 1)
     np.testing.assert_allclose(got[:, 0], coarse.knots[1][:, 0], atol=1e-9)
     np.testing.assert_allclose(got[:, 1], coarse.knots[1][:, 1], atol=1e-10)
@@ -39,8 +42,18 @@ def test_an_independent_truth_is_scored_on_what_it_defines(tmp_path):
     from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
     d = tmp_path / "ind"
-    run_simulate(ScenarioConfig(scenario="pass", truth="independent", seed=5, n_tie_points=80, n_check_points=10,
-                                duration_s=600.0, start_lat_deg=50.0), d)
+    run_simulate(
+        ScenarioConfig(
+            scenario="pass",
+            truth="independent",
+            seed=5,
+            n_tie_points=80,
+            n_check_points=10,
+            duration_s=600.0,
+            start_lat_deg=50.0,
+        ),
+        d,
+    )
     t = load_scenario(d).load_truth(0)
     assert np.allclose(np.diff(t.attitude_error.knot_times[1]), 2.0)
     assert np.allclose(np.diff(t.ephemeris_error.boundaries)[:-1], 60.0)
@@ -70,7 +83,13 @@ def test_predicted_checkpoint_rms_agrees_with_a_monte_carlo(small_pass_dir):
     Carlo's own mean (computed from its draws), plus 2 % for the geolocation's nonlinearity."""
     import gtsam
 
-    from misrgraph.estimate.adjust import AdjustConfig, adjust_pass, corrected_geometry, estimated_models, supplied_camera_of
+    from misrgraph.estimate.adjust import (
+        AdjustConfig,
+        adjust_pass,
+        corrected_geometry,
+        estimated_models,
+        supplied_camera_of,
+    )
     from misrgraph.evaluate.score import horizontal_error, predicted_checkpoint_rms
     from misrgraph.io.passes import KIND_CHECK
     from misrgraph.model.constants import BANDS, CAMERAS
@@ -88,9 +107,13 @@ def test_predicted_checkpoint_rms_agrees_with_a_monte_carlo(small_pass_dir):
     lin = predicted_checkpoint_rms(op, res, g, h, true_geo)
 
     red = BANDS.index("red")
-    views = [(c, p) for c, p in ((c, true_geo.ground_to_pixel(c, red, g)) for c in range(len(CAMERAS))) if p.visible.any()]
+    views = [
+        (c, p) for c, p in ((c, true_geo.ground_to_pixel(c, red, g)) for c in range(len(CAMERAS))) if p.visible.any()
+    ]
     cam_of = np.concatenate([np.full(int(p.visible.sum()), c) for c, p in views])
-    line, sample, expo = (np.concatenate([getattr(p, a)[p.visible] for _, p in views]) for a in ("line", "sample", "exposure"))
+    line, sample, expo = (
+        np.concatenate([getattr(p, a)[p.visible] for _, p in views]) for a in ("line", "sample", "exposure")
+    )
     height = np.concatenate([h[p.visible] for _, p in views])
     times = np.unique(true_geo.line_time(cam_of, red, line, expo))
     pg = res.pass_graph
@@ -101,7 +124,8 @@ def test_predicted_checkpoint_rms_agrees_with_a_monte_carlo(small_pass_dir):
 
     def ground(att, eph, cam, extra=None):
         return corrected_geometry(op, att, eph, cam, attitude_extra=extra).pixel_to_ground(
-            cam_of, red, line, sample, height=height, exposure=expo)
+            cam_of, red, line, sample, height=height, exposure=expo
+        )
 
     base = ground(res.attitude, res.ephemeris, res.camera)
     rng = np.random.default_rng(20261125)
@@ -111,10 +135,22 @@ def test_predicted_checkpoint_rms_agrees_with_a_monte_carlo(small_pass_dir):
         for k, seg in zip(keys, np.split(mean + chol @ rng.standard_normal(mean.size), sizes)):
             v.insert(k, seg)
         off = rng.standard_normal((times.size, 3)) * res.unresolved_attitude_rad  # one offset per view time
-        e2 = horizontal_error(ground(*estimated_models(pg, v, supplied_camera_of(res)),
-                                     lambda t, o=off: o[np.searchsorted(times, t)]), base) ** 2
+        e2 = (
+            horizontal_error(
+                ground(
+                    *estimated_models(pg, v, supplied_camera_of(res)), lambda t, o=off: o[np.searchsorted(times, t)]
+                ),
+                base,
+            )
+            ** 2
+        )
         q.append([e2[cam_of == c].mean() for c, _ in views])
     q = np.array(q)
     mc, se = q.mean(0), q.std(0, ddof=1) / np.sqrt(q.shape[0])
     for j, (c, _) in enumerate(views):
-        assert abs(lin[CAMERAS[c]] ** 2 - mc[j]) < 4 * se[j] + 0.02 * mc[j], (CAMERAS[c], lin[CAMERAS[c]] ** 2, mc[j], se[j])
+        assert abs(lin[CAMERAS[c]] ** 2 - mc[j]) < 4 * se[j] + 0.02 * mc[j], (
+            CAMERAS[c],
+            lin[CAMERAS[c]] ** 2,
+            mc[j],
+            se[j],
+        )

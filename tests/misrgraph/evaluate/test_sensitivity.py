@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.evaluate.sensitivity import reference_geometry, run_sensitivity
+from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 
 
 @pytest.fixture(scope="module")

@@ -24,6 +24,7 @@ from rasterio.transform import Affine  # noqa: E402
 def from_origin(west: float, north: float, xsize: float, ysize: float) -> Affine:
     return Affine(xsize, 0.0, west, 0.0, -ysize, north)
 
+
 runner = CliRunner()
 
 
@@ -34,8 +35,11 @@ def _write_csv(path: Path, header: str, rows: list[str]) -> Path:
 
 
 def test_csv_gcps_with_horizontal_and_vertical_sigma(tmp_path):
-    p = _write_csv(tmp_path / "gcps.csv", "ID,Latitude,Longitude,height,sigma_h_m,sigma_v_m,region",
-                   ["7,36.5,-84.2,300.5,12,25,Tennessee", "9,-33.9,151.2,40,5,8,Sydney"])
+    p = _write_csv(
+        tmp_path / "gcps.csv",
+        "ID,Latitude,Longitude,height,sigma_h_m,sigma_v_m,region",
+        ["7,36.5,-84.2,300.5,12,25,Tennessee", "9,-33.9,151.2,40,5,8,Sydney"],
+    )
     db = read_gcp_table(p)
     assert db.id.tolist() == [7, 9]
     np.testing.assert_allclose(db.lat, [36.5, -33.9])
@@ -66,8 +70,11 @@ def test_csv_gcps_one_sigma_round_trip_through_the_cli(tmp_path):
 def test_csv_gcps_with_source_scenes_through_the_cli(tmp_path):
     """A list that records each GCP's source scene: the shared sigma travels into the database
     (and the own covariance is what is left of the stated sigma); an empty scene is none."""
-    p = _write_csv(tmp_path / "s.csv", "lat,lon,height,sigma_m,scene,scene_sigma_m",
-                   ["10,20,5,30,3,18", "10.2,20.1,6,30,3,18", "40,-100,900,20,,"])
+    p = _write_csv(
+        tmp_path / "s.csv",
+        "lat,lon,height,sigma_m,scene,scene_sigma_m",
+        ["10,20,5,30,3,18", "10.2,20.1,6,30,3,18", "40,-100,900,20,,"],
+    )
     out = tmp_path / "gcp.h5"
     res = runner.invoke(app, ["import", "gcps", str(p), "--out", str(out), "--json"])
     assert res.exit_code == 0, res.output
@@ -80,11 +87,21 @@ def test_csv_gcps_with_source_scenes_through_the_cli(tmp_path):
 
 
 def test_geojson_gcps_height_from_the_third_coordinate(tmp_path):
-    doc = {"type": "FeatureCollection", "features": [
-        {"type": "Feature", "geometry": {"type": "Point", "coordinates": [-84.3, 36.6, 412.0]},
-         "properties": {"id": 3, "sigma_e_m": 4, "sigma_n_m": 5, "sigma_u_m": 9}},
-        {"type": "Feature", "geometry": {"type": "Point", "coordinates": [190.0, 1.0, 2.0]},
-         "properties": {"id": 4, "sigma_e_m": 1, "sigma_n_m": 2, "sigma_u_m": 3, "height": 50.0}}]}
+    doc = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": [-84.3, 36.6, 412.0]},
+                "properties": {"id": 3, "sigma_e_m": 4, "sigma_n_m": 5, "sigma_u_m": 9},
+            },
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": [190.0, 1.0, 2.0]},
+                "properties": {"id": 4, "sigma_e_m": 1, "sigma_n_m": 2, "sigma_u_m": 3, "height": 50.0},
+            },
+        ],
+    }
     p = tmp_path / "g.geojson"
     p.write_text(json.dumps(doc))
     db = read_gcp_table(p)
@@ -101,17 +118,20 @@ def test_heights_above_the_geoid_need_a_geoid(tmp_path):
     np.testing.assert_allclose(db.height, [70.0])
 
 
-@pytest.mark.parametrize(("header", "row", "field"), [
-    ("lat,lon,height,sigma_m", "10,abc,5,3", "row 0 (column lon)"),
-    ("lat,lon,height,sigma_m", "95,10,5,3", "row 0 (column lat)"),
-    ("lat,lon,height,sigma_m", "10,10,5,-3", "row 0 (sigma)"),
-    ("lat,lon,sigma_m", "10,10,3", "column height"),
-    ("lat,lon,height", "10,10,3", "column sigma_m"),
-    ("id,lat,lon,height,sigma_m", "1.5,10,10,3,3", "column id"),
-    ("lat,lon,height,sigma_m,scene", "10,10,3,3,1", "column scene_sigma_m"),
-    ("lat,lon,height,sigma_m,scene,scene_sigma_m", "10,10,3,30,1,40", "scene_sigma_m[0]"),
-    ("lat,lon,height,sigma_m,scene,scene_sigma_m", "10,10,3,30,1.5,10", "column scene"),
-])
+@pytest.mark.parametrize(
+    ("header", "row", "field"),
+    [
+        ("lat,lon,height,sigma_m", "10,abc,5,3", "row 0 (column lon)"),
+        ("lat,lon,height,sigma_m", "95,10,5,3", "row 0 (column lat)"),
+        ("lat,lon,height,sigma_m", "10,10,5,-3", "row 0 (sigma)"),
+        ("lat,lon,sigma_m", "10,10,3", "column height"),
+        ("lat,lon,height", "10,10,3", "column sigma_m"),
+        ("id,lat,lon,height,sigma_m", "1.5,10,10,3,3", "column id"),
+        ("lat,lon,height,sigma_m,scene", "10,10,3,3,1", "column scene_sigma_m"),
+        ("lat,lon,height,sigma_m,scene,scene_sigma_m", "10,10,3,30,1,40", "scene_sigma_m[0]"),
+        ("lat,lon,height,sigma_m,scene,scene_sigma_m", "10,10,3,30,1.5,10", "column scene"),
+    ],
+)
 def test_bad_gcp_list_names_row_and_column(tmp_path, header, row, field):
     p = _write_csv(tmp_path / "g.csv", header, [row])
     with pytest.raises(InputError) as exc:
@@ -134,8 +154,18 @@ def _jacksboro() -> tuple[np.ndarray, float, float, float]:
 
 
 def _geotiff(path: Path, z: np.ndarray, transform, crs: str, nodata=None) -> Path:
-    with rasterio.open(path, "w", driver="GTiff", height=z.shape[0], width=z.shape[1], count=1, dtype=z.dtype,
-                       crs=crs, transform=transform, nodata=nodata) as ds:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        height=z.shape[0],
+        width=z.shape[1],
+        count=1,
+        dtype=z.dtype,
+        crs=crs,
+        transform=transform,
+        nodata=nodata,
+    ) as ds:
         ds.write(z, 1)
     return path
 
@@ -181,12 +211,20 @@ def test_jacksboro_in_a_dted_cell_keeps_its_postings(tmp_path):
     j0 = int(round(((west + dx / 2) - lon_left) / dx))
     assert abs(lat_top - i0 * dx - (north - dx / 2)) < 1e-9 and abs(lon_left + j0 * dx - (west + dx / 2)) < 1e-9
     cell = np.full((n, n), -32767, np.int16)
-    cell[i0:i0 + z.shape[0], j0:j0 + z.shape[1]] = z
+    cell[i0 : i0 + z.shape[0], j0 : j0 + z.shape[1]] = z
     transform = from_origin(lon_left - dx / 2, lat_top + dx / 2, dx, dx)
     dt1 = tmp_path / "n36_w085.dt1"
     with MemoryFile() as mem:
-        with mem.open(driver="GTiff", height=n, width=n, count=1, dtype="int16", crs="EPSG:4326",
-                      transform=transform, nodata=-32767) as ds:
+        with mem.open(
+            driver="GTiff",
+            height=n,
+            width=n,
+            count=1,
+            dtype="int16",
+            crs="EPSG:4326",
+            transform=transform,
+            nodata=-32767,
+        ) as ds:
             ds.write(cell, 1)
         with mem.open() as ds:
             rio_copy(ds, dt1, driver="DTED")
@@ -231,7 +269,7 @@ def test_projected_raster_is_resampled_to_geographic_postings(tmp_path):
     lat, lon = np.broadcast_arrays(lat0, lon0)
     x, y = to_utm.transform(lon.ravel(), lat.ravel())
     # bilinear resampling of a 30 m grid: error ~ (30 m)^2 / 8 * curvature (80/4000^2 per m^2)
-    bound = 30.0 ** 2 / 8 * (80 / 4000 ** 2 + 60 / 5000 ** 2) * 2
+    bound = 30.0**2 / 8 * (80 / 4000**2 + 60 / 5000**2) * 2
     np.testing.assert_allclose(dem.heights.ravel(), height(np.asarray(x), np.asarray(y)), atol=bound)
 
 
@@ -263,8 +301,10 @@ def test_raster_with_no_data_drops_tiles_and_a_too_small_raster_is_refused(tmp_p
     z[:60, :60] = -32768  # a hole in the north-west corner
     tif = _geotiff(tmp_path / "hole.tif", z, from_origin(west, north, dx, dx), "EPSG:4326", -32768)
     dem = read_raster_dem([tif], tile_postings=128)
-    full = read_raster_dem([_geotiff(tmp_path / "full.tif", _jacksboro()[0], from_origin(west, north, dx, dx),
-                                     "EPSG:4326", -32768)], tile_postings=128)
+    full = read_raster_dem(
+        [_geotiff(tmp_path / "full.tif", _jacksboro()[0], from_origin(west, north, dx, dx), "EPSG:4326", -32768)],
+        tile_postings=128,
+    )
     assert 0 < dem.lat0.size < full.lat0.size
     assert np.all(dem.heights > 0)
     s = fit_local_surface(dem, np.array([north - 10 * dx]), np.array([west + 10 * dx]))

@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from misrgraph.io.camera import load_camera_model
 from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.camera import load_camera_model
+from misrgraph.io.dem import read_dem
+from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import DIGEST_ATTR, content_digest
 from misrgraph.io.passes import Observations, OrbitPass
 from misrgraph.io.truth import PassTruth, read_pass_truth, save_pass_with_truth
-from misrgraph.io.gcp import read_gcp_database
-from misrgraph.io.dem import read_dem
 
 LOADERS = {
     "orbit_pass": lambda d: (sorted((d / "passes").glob("*.h5"))[0], OrbitPass.load),
@@ -51,7 +51,7 @@ def test_random_corruption_is_refused_or_harmless(kind, small_pass_dir, tmp_path
         bad = bytearray(data)
         n = int(rng.integers(1, 4001))
         at = int(rng.integers(0, max(1, len(bad) - n)))
-        bad[at: at + n] = bytes(n) if trial % 2 else rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        bad[at : at + n] = bytes(n) if trial % 2 else rng.integers(0, 256, n, dtype=np.uint8).tobytes()
         f = tmp_path / f"{kind}_{trial}.h5"
         f.write_bytes(bytes(bad))
         try:
@@ -74,7 +74,7 @@ def _zeroed_pass_scenario(small_pass_dir: Path, tmp_path: Path) -> Path:
     p = sorted((d / "passes").glob("*.h5"))[0]
     data = bytearray(p.read_bytes())
     mid = len(data) // 2
-    data[mid: mid + 4000] = bytes(4000)
+    data[mid : mid + 4000] = bytes(4000)
     p.write_bytes(bytes(data))
     return d
 
@@ -82,22 +82,29 @@ def _zeroed_pass_scenario(small_pass_dir: Path, tmp_path: Path) -> Path:
 def test_cli_refuses_a_zeroed_pass_in_one_line_and_writes_nothing(small_pass_dir, tmp_path):
     d = _zeroed_pass_scenario(small_pass_dir, tmp_path)
     out = tmp_path / "result.h5"
-    r = subprocess.run([sys.executable, "-m", "misrgraph.commands.cli", "adjust", str(d), "--out", str(out), "--json"],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "misrgraph.commands.cli", "adjust", str(d), "--out", str(out), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 2, r.stderr
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("misrgraph: error:") and "Traceback" not in r.stderr
     assert r.stdout == "" and not out.exists() and not list(tmp_path.glob(".result.h5.*"))
 
 
-@pytest.mark.parametrize("field,value,pattern", [
-    ("line", np.nan, r"observations.line\[3\]"),
-    ("sample", np.inf, r"observations.sample\[3\]"),
-    ("sigma_px", np.nan, r"observations.sigma_px\[3\]"),
-    ("sigma_px", 0.0, r"observations.sigma_px\[3\]"),
-    ("exposure", 2.5, r"observations.exposure\[3\].*whole"),
-    ("camera", 9, r"observations.camera\[3\]"),
-])
+@pytest.mark.parametrize(
+    "field,value,pattern",
+    [
+        ("line", np.nan, r"observations.line\[3\]"),
+        ("sample", np.inf, r"observations.sample\[3\]"),
+        ("sigma_px", np.nan, r"observations.sigma_px\[3\]"),
+        ("sigma_px", 0.0, r"observations.sigma_px\[3\]"),
+        ("exposure", 2.5, r"observations.exposure\[3\].*whole"),
+        ("camera", 9, r"observations.camera\[3\]"),
+    ],
+)
 def test_bad_observation_rows_are_named(small_pass, field, value, pattern):
     _, p = small_pass
     cols = {k: np.array(getattr(p.observations, k), copy=True) for k in Observations.__dataclass_fields__}
@@ -153,12 +160,18 @@ def _keep(p: OrbitPass, t: PassTruth, mask: np.ndarray) -> PassTruth:
     return t.subset(mask)
 
 
-@pytest.mark.parametrize("case,pattern", [
-    ("empty", "no tie-point or GCP observations to adjust"),
-    ("single_camera", r"single camera \(An\).*at least two cameras"),
-    ("all_blunders", r"all \d+ tie-point and GCP observations were excluded|start off the DEM tiles|single camera"
-                         r"|observations\.line\[\d+\].*within the pass's navigation"),
-])
+@pytest.mark.parametrize(
+    "case,pattern",
+    [
+        ("empty", "no tie-point or GCP observations to adjust"),
+        ("single_camera", r"single camera \(An\).*at least two cameras"),
+        (
+            "all_blunders",
+            r"all \d+ tie-point and GCP observations were excluded|start off the DEM tiles|single camera"
+            r"|observations\.line\[\d+\].*within the pass's navigation",
+        ),
+    ],
+)
 def test_degenerate_passes_end_in_one_line(small_pass_dir, tmp_path, case, pattern):
     """Empty, single-camera and all-blunder passes: exit 2, one line saying what is wrong, no
     output file."""
@@ -170,8 +183,12 @@ def test_degenerate_passes_end_in_one_line(small_pass_dir, tmp_path, case, patte
     }
     d = _edited_pass(small_pass_dir, tmp_path, case, edits[case])
     out = tmp_path / f"{case}.h5"
-    r = subprocess.run([sys.executable, "-m", "misrgraph.commands.cli", "adjust", str(d), "--out", str(out)],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "misrgraph.commands.cli", "adjust", str(d), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
     assert re.search(pattern, lines[0]), lines[0]
@@ -186,13 +203,24 @@ def test_a_pass_across_the_antimeridian_adjusts(tmp_path):
     the covariance predicts. How much they improve depends on the draw (after / before was 0.63
     with the Matern-3/2 model truth, 0.79 with the damped one), so the improvement is checked for
     its sign and the error against its prediction."""
-    from misrgraph.runs.adjust import run_adjust
     from misrgraph.model.frames import ecef_to_geodetic
+    from misrgraph.runs.adjust import run_adjust
     from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
     d = tmp_path / "am"
-    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=6, path=91, n_tie_points=60, n_check_points=10,
-                                duration_s=300.0, start_lat_deg=72.0), d)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=6,
+            path=91,
+            n_tie_points=60,
+            n_check_points=10,
+            duration_s=300.0,
+            start_lat_deg=72.0,
+        ),
+        d,
+    )
     _, lon, _ = ecef_to_geodetic(load_scenario(d).load_truth(0).landmark_ecef)
     assert np.sum(lon > 179.0) > 3 and np.sum(lon < -179.0) > 3
     s = run_adjust(d)

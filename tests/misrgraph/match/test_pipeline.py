@@ -114,8 +114,18 @@ def test_pointing_sensitivities_against_the_projection_parameters_derivatives(sm
         rows = np.flatnonzero(ok)
         level = float(h[rows].mean())
         surface = lambda lat, lon: np.full(np.shape(lat), level)  # noqa: E731 -- K_An = -J_An on any surface
-        jac, kan = _pointing_sensitivity(geo, cams[rows], band, truth[rows], pred.line[rows], pred.sample[rows],
-                                         an.line[rows], an.sample[rows], np.arange(rows.size), surface)
+        jac, kan = _pointing_sensitivity(
+            geo,
+            cams[rows],
+            band,
+            truth[rows],
+            pred.line[rows],
+            pred.sample[rows],
+            an.line[rows],
+            an.sample[rows],
+            np.arange(rows.size),
+            surface,
+        )
         t = geo.line_time(cams[rows], band, pred.line[rows], pred.line[rows])
         want = image_derivatives(geo, c, band, truth[rows], t)[:, :, :3]
         scale = np.abs(want).max(axis=(1, 2), keepdims=True)

@@ -26,7 +26,7 @@ def _synthetic(seed: int, scales: np.ndarray, n_features: int = 1000, outlier_ra
             for _ in range(4):
                 per, ph, amp = rng.uniform(600, 3000), rng.uniform(0, 2 * np.pi), rng.normal(0, 1.5)
                 smooth[:, q] += amp * np.sin(2 * np.pi * t / per + ph) * (1 + 0.3 * x)
-            smooth[:, q] += rng.normal(0, 0.3) * x ** 2
+            smooth[:, q] += rng.normal(0, 0.3) * x**2
         epi = np.column_stack([np.full(f.size, 0.0035 * (c - 3.5)), np.full(f.size, 0.0004)])
         sigma = rng.uniform(0.03, 0.2, f.size)
         noise = rng.standard_normal((f.size, 2)) * (scales[c] * sigma)[:, None]
@@ -84,7 +84,7 @@ def test_schur_solution_and_redundancy_match_the_dense_hat_matrix():
     rows = {int(k): np.flatnonzero(c == k) for k in np.unique(c)}
     X = {k: _design(t[r], x[r], 600.0) for k, r in rows.items()}
     ids, feat_of = np.unique(f, return_inverse=True)
-    w = 1.0 / s ** 2
+    w = 1.0 / s**2
     res, red = _solve(X, rows, feat_of, ids.size, d, e, w, 1000.0)
     # dense stacked system: smooth blocks per (camera, coordinate), then heights; height prior rows
     p = [X[k].shape[1] for k in rows]
@@ -94,7 +94,7 @@ def test_schur_solution_and_redundancy_match_the_dense_hat_matrix():
     for k, r in rows.items():
         for q in range(2):
             blk = np.zeros((r.size, n_s + ids.size))
-            blk[:, o:o + X[k].shape[1]] = X[k]
+            blk[:, o : o + X[k].shape[1]] = X[k]
             blk[np.arange(r.size), n_s + feat_of[r]] = e[r, q]
             a_rows.append(blk), y.append(d[r, q]), wt.append(w[r]), cam_of.append(np.full(r.size, k))
             o += X[k].shape[1]
@@ -105,18 +105,24 @@ def test_schur_solution_and_redundancy_match_the_dense_hat_matrix():
     N = A.T @ (A * W[:, None])
     Ninv = np.linalg.pinv(N, hermitian=True)
     sol = Ninv @ (A.T @ (W * Y))
-    r_dense = (Y - A @ sol)[:-ids.size]
+    r_dense = (Y - A @ sol)[: -ids.size]
     hat = np.einsum("ij,jk,ik->i", A, Ninv, A) * W
     cams = np.concatenate(cam_of)
     res_stacked = np.concatenate([res[r, q] for k, r in rows.items() for q in range(2)])
     assert np.allclose(res_stacked, r_dense, atol=1e-8 * np.abs(Y).max())
     for k in rows:
-        dense_red = float(np.sum(1.0 - hat[:-ids.size][cams == k]))
+        dense_red = float(np.sum(1.0 - hat[: -ids.size][cams == k]))
         assert abs(red[k] - dense_red) < 1e-6 * dense_red, (k, red[k], dense_red)
 
 
-def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features: int = 150, duration_s: float = 600.0,
-                     gcps: dict | None = None):
+def _shared_attitude(
+    seed: int,
+    scales: np.ndarray,
+    seen: np.ndarray,
+    n_features: int = 150,
+    duration_s: float = 600.0,
+    gcps: dict | None = None,
+):
     """Differences from the shared-attitude model: one attitude correction a(t) (roll, pitch,
     yaw; sinusoids of 200-2000 s, 20" each) seen by camera c at its time and through An's ray at
     An's time, plus per-camera offsets, tilts and drifts, heights along the epipolar direction and
@@ -133,7 +139,9 @@ def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features
     waves = [(rng.uniform(200, 2000), rng.uniform(0, 2 * np.pi), 20 * arcsec) for _ in range(9)]
 
     def att(t):
-        return np.stack([sum(a * np.sin(2 * np.pi * t / p + f) for p, f, a in waves[3 * k:3 * k + 3]) for k in range(3)], axis=-1)
+        return np.stack(
+            [sum(a * np.sin(2 * np.pi * t / p + f) for p, f, a in waves[3 * k : 3 * k + 3]) for k in range(3)], axis=-1
+        )
 
     t_an = rng.uniform(420.0, 420.0 + duration_s, n_features)
     h = rng.normal(0.0, 30.0, n_features)
@@ -159,6 +167,7 @@ def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features
 
         def static_of(x, t):
             return static[0] + np.outer(x, static[1]) + np.outer((t - 720) / 600, static[2])
+
         smooth = np.einsum("nqa,na->nq", jc, att(t)) + np.einsum("nqa,na->nq", ka, att(t_an[f]) + d_an)
         smooth += static_of(x, t)
         epi = np.column_stack([np.full(f.size, 0.0035 * (c - 3.5)), np.full(f.size, 0.0004)])
@@ -170,8 +179,14 @@ def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features
             tg = t_gcp + offset_s
             jg = base[None] * (1.0 + 0.2 * x_gcp)[:, None, None]
             # px per metre east, north, up: ~1/275 across and along, the view angle's parallax
-            gg = np.repeat((np.array([[0.0, -1 / 275, 0.0035 * (c - 3.5)], [1 / 275, 0.0, 0.0004]])
-                            + rng.normal(0.0, 2e-4, (2, 3)))[None], n_gcp, axis=0)
+            gg = np.repeat(
+                (
+                    np.array([[0.0, -1 / 275, 0.0035 * (c - 3.5)], [1 / 275, 0.0, 0.0004]])
+                    + rng.normal(0.0, 2e-4, (2, 3))
+                )[None],
+                n_gcp,
+                axis=0,
+            )
             dg = np.einsum("nqa,na->nq", jg, att(tg) + (d_an if own else 0.0)) + np.einsum("nqk,nk->nq", gg, ground)
             if not own:
                 dg += static_of(x_gcp, tg)
@@ -181,8 +196,11 @@ def _shared_attitude(seed: int, scales: np.ndarray, seen: np.ndarray, n_features
     f, c, t, x, d, e, s, ta, jc, ka = (np.concatenate(v) for v in zip(*rows))
     if not n_gcp:
         return (f, c, t, x, d, e, s), Pointing(ta, jc, ka)
-    return (f, c, t, x, d, e, s), Pointing(ta, jc, ka), GcpRows(*(np.concatenate(v) for v in zip(*gcp_rows)),
-                                                              defining_camera=an)
+    return (
+        (f, c, t, x, d, e, s),
+        Pointing(ta, jc, ka),
+        GcpRows(*(np.concatenate(v) for v in zip(*gcp_rows)), defining_camera=an),
+    )
 
 
 def test_shared_attitude_estimates_a_camera_with_few_matches():
@@ -220,12 +238,14 @@ def test_shared_attitude_without_the_an_term_inflates_the_scales():
     scales = np.ones(8)
     args, pointing = _shared_attitude(7, scales, np.full(8, 0.8))
     fit = camera_sigma_scales(*args, pointing=pointing)
-    blind = camera_sigma_scales(*args, pointing=Pointing(pointing.an_time_s, pointing.camera_px_per_rad,
-                                                         np.zeros_like(pointing.an_px_per_rad)))
+    blind = camera_sigma_scales(
+        *args, pointing=Pointing(pointing.an_time_s, pointing.camera_px_per_rad, np.zeros_like(pointing.an_px_per_rad))
+    )
+
     def pooled(f):
         r = np.array([f.redundancy[c] for c in f.scale])
         k = np.array([f.scale[c] for c in f.scale])
-        return float(np.sqrt(np.sum(k ** 2 * r) / np.sum(r))), float(1.0 / np.sqrt(2.0 * np.sum(r)))
+        return float(np.sqrt(np.sum(k**2 * r) / np.sum(r))), float(1.0 / np.sqrt(2.0 * np.sum(r)))
 
     k_fit, se = pooled(fit)
     k_blind, _ = pooled(blind)
@@ -248,7 +268,7 @@ def _dense_feature_system(a, y, e, ff, n_f, w, prior):
     N = A.T @ (A * w[:, None]) + np.diag(np.r_[np.zeros(p), np.tile(prior, n_f)])
     Ninv = np.linalg.pinv(N, hermitian=True, rcond=1e-12)
     x_all = Ninv @ (A.T @ (w * y))
-    blocks = np.array([Ninv[p + q * k:p + q * (k + 1), p + q * k:p + q * (k + 1)] for k in range(n_f)])
+    blocks = np.array([Ninv[p + q * k : p + q * (k + 1), p + q * k : p + q * (k + 1)] for k in range(n_f)])
     return y - A @ x_all, np.einsum("ij,jk,ik->i", A, Ninv, A) * w, x_all[p:].reshape(n_f, q), blocks
 
 
@@ -257,11 +277,12 @@ def test_shared_attitude_solution_and_hat_diagonal_match_the_dense_system():
     computation (heights and their prior included; pseudo-inverse for the gauge)."""
     from misrgraph.match.precision import _shared_design, _solve_rows
 
-    (f, c, t, x, d, e, s), pointing = _shared_attitude(8, np.array([1.0, 2.0, 1.5]), np.array([0.6, 0.8, 0.7]),
-                                                       n_features=40)
+    (f, c, t, x, d, e, s), pointing = _shared_attitude(
+        8, np.array([1.0, 2.0, 1.5]), np.array([0.6, 0.8, 0.7]), n_features=40
+    )
     ids, feat_of = np.unique(f, return_inverse=True)
     a = _shared_design(c, [0, 1, 2], t, x, pointing, 120.0)
-    y, ee, ff, w = d.reshape(-1), e.reshape(-1), np.repeat(feat_of, 2), np.repeat(1.0 / s ** 2, 2)
+    y, ee, ff, w = d.reshape(-1), e.reshape(-1), np.repeat(feat_of, 2), np.repeat(1.0 / s**2, 2)
     res, hat = _solve_rows(a, y, ee, ff, ids.size, w, 1000.0)
     r_dense, hat_dense, _, _ = _dense_feature_system(a, y, ee[:, None], ff, ids.size, w, np.array([1e-6]))
     assert np.allclose(res, r_dense, atol=1e-6 * np.abs(y).max())
@@ -288,8 +309,9 @@ def test_gcp_scale_recovered_and_blind_to_what_a_gcps_views_share():
     seen = np.full(8, 0.8)
     fits = []
     for ground_m, an_arcsec in ((30.0, 10.0), (0.0, 0.0), (100.0, 20.0)):
-        args, pointing, gcp = _shared_attitude(11, scales, seen, gcps={"scale": 1.8, "n": 25, "ground_m": ground_m,
-                                                                         "an_static_arcsec": an_arcsec})
+        args, pointing, gcp = _shared_attitude(
+            11, scales, seen, gcps={"scale": 1.8, "n": 25, "ground_m": ground_m, "an_static_arcsec": an_arcsec}
+        )
         fits.append(camera_sigma_scales(*args, pointing=pointing, gcp=gcp))
     fit = fits[0]
     g = fit.gcp
@@ -308,8 +330,9 @@ def test_gcp_scale_recovered_and_blind_to_what_a_gcps_views_share():
 def test_gcp_rows_need_the_shared_attitude_and_the_right_shapes():
     from misrgraph.errors import InputError
 
-    args, pointing, gcp = _shared_attitude(12, np.ones(2), np.ones(2), n_features=30,
-                                           gcps={"scale": 1.0, "n": 4, "ground_m": 10.0})
+    args, pointing, gcp = _shared_attitude(
+        12, np.ones(2), np.ones(2), n_features=30, gcps={"scale": 1.0, "n": 4, "ground_m": 10.0}
+    )
     with pytest.raises(InputError, match="gcp"):
         camera_sigma_scales(*args, gcp=gcp)  # the per-camera form has no attitude to share
     with pytest.raises(InputError, match="gcp.d"):
@@ -324,13 +347,14 @@ def test_feature_blocks_solution_and_covariance_match_the_dense_system():
     the dense stacked computation."""
     from misrgraph.match.precision import _shared_design, _solve_blocks
 
-    (f, c, t, x, d, e, s), pointing = _shared_attitude(8, np.array([1.0, 2.0, 1.5]), np.array([0.6, 0.8, 0.7]),
-                                                       n_features=40)
+    (f, c, t, x, d, e, s), pointing = _shared_attitude(
+        8, np.array([1.0, 2.0, 1.5]), np.array([0.6, 0.8, 0.7]), n_features=40
+    )
     ids, of = np.unique(f, return_inverse=True)
     n_f = ids.size
     a = _shared_design(c, [0, 1, 2], t, x, pointing, 120.0)
     m = 2 * f.size
-    y, w, ff = d.reshape(-1), np.repeat(1.0 / s ** 2, 2), np.repeat(of, 2)
+    y, w, ff = d.reshape(-1), np.repeat(1.0 / s**2, 2), np.repeat(of, 2)
     e3 = np.zeros((m, 3))
     e3[:, 0], e3[0::2, 1], e3[1::2, 2] = e.reshape(-1), 1.0, 1.0
     prior = np.array([1e-6, 1 / 0.003, 1 / 0.003])
@@ -370,7 +394,11 @@ def test_shared_offset_recovered_and_kept_out_of_the_camera_scales():
         if sd:
             plain = camera_sigma_scales(f, c, t, x, dd, e, s, pointing=pointing)
             assert plain.shared_offset is None
-            inflated = [cam for cam in (2, 3, 4, 5) if plain.scale[cam] - scales[cam] > 4.0 * scales[cam] / np.sqrt(2.0 * plain.redundancy[cam])]
+            inflated = [
+                cam
+                for cam in (2, 3, 4, 5)
+                if plain.scale[cam] - scales[cam] > 4.0 * scales[cam] / np.sqrt(2.0 * plain.redundancy[cam])
+            ]
             assert len(inflated) >= 2, {cam: plain.scale[cam] for cam in range(8)}
     from misrgraph.errors import InputError
 

@@ -9,8 +9,15 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from misrgraph.errors import InputError
-from misrgraph.misr.orbits import (FIRST_ORBIT, ORBIT_PERIOD_DAYS, format_utc, orbit_time_range, orbit_to_path,
-                                   parse_utc, time_to_orbit)
+from misrgraph.misr.orbits import (
+    FIRST_ORBIT,
+    ORBIT_PERIOD_DAYS,
+    format_utc,
+    orbit_time_range,
+    orbit_to_path,
+    parse_utc,
+    time_to_orbit,
+)
 
 # MtkTimeToOrbitPath's cases, including both sides of the orbit 35999/36000 boundary
 TIME_CASES = [
@@ -41,10 +48,13 @@ def test_time_to_orbit_and_path(time, orbit, path) -> None:
     assert o == orbit and int(orbit_to_path(o)) == path
 
 
-@pytest.mark.parametrize("orbit,start,end", [
-    (30000, "2005-08-08T10:10:00Z", "2005-08-08T11:48:53Z"),  # MtkOrbitToTimeRange
-    (996, "2000-02-24T18:11:53Z", "2000-02-24T19:50:46Z"),
-])
+@pytest.mark.parametrize(
+    "orbit,start,end",
+    [
+        (30000, "2005-08-08T10:10:00Z", "2005-08-08T11:48:53Z"),  # MtkOrbitToTimeRange
+        (996, "2000-02-24T18:11:53Z", "2000-02-24T19:50:46Z"),
+    ],
+)
 def test_orbit_time_range(orbit, start, end) -> None:
     s, e = orbit_time_range(orbit)
     assert (format_utc(s), format_utc(e)) == (start, end)
@@ -82,13 +92,16 @@ def test_time_parsing() -> None:
     assert format_utc(dt.datetime(2005, 8, 8, 10, 9, 59, 600000, tzinfo=dt.timezone.utc)) == "2005-08-08T10:10:00Z"
 
 
-@pytest.mark.parametrize("call,field", [
-    (lambda: orbit_to_path(994), "orbit"),
-    (lambda: orbit_to_path(1000.5), "orbit"),
-    (lambda: orbit_time_range(34), "orbit"),
-    (lambda: time_to_orbit("1999-08-07T04:00:00Z"), "time"),
-    (lambda: time_to_orbit("2001-08-07 4 o'clock"), "time"),
-])
+@pytest.mark.parametrize(
+    "call,field",
+    [
+        (lambda: orbit_to_path(994), "orbit"),
+        (lambda: orbit_to_path(1000.5), "orbit"),
+        (lambda: orbit_time_range(34), "orbit"),
+        (lambda: time_to_orbit("1999-08-07T04:00:00Z"), "time"),
+        (lambda: time_to_orbit("2001-08-07 4 o'clock"), "time"),
+    ],
+)
 def test_bad_input_names_the_field(call, field) -> None:
     with pytest.raises(InputError, match=field):
         call()

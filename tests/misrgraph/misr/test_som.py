@@ -119,8 +119,13 @@ def test_the_simulated_orbit_flies_down_the_middle_of_the_blocks(path) -> None:
 resolutions = st.sampled_from([275, 1100])
 
 
-@given(path=st.integers(1, 233), res=resolutions, block=st.integers(1, N_BLOCKS),
-       u=st.floats(0.0, 1.0), v=st.floats(0.0, 1.0))
+@given(
+    path=st.integers(1, 233),
+    res=resolutions,
+    block=st.integers(1, N_BLOCKS),
+    u=st.floats(0.0, 1.0),
+    v=st.floats(0.0, 1.0),
+)
 @example(path=1, res=275, block=28, u=0.0, v=0.0)  # a block's first corner, which round-trips to a hair before it
 def test_round_trip_through_every_form(path, res, block, u, v) -> None:
     g = SomGrid(path, res)
@@ -145,18 +150,21 @@ def test_vectorised_shapes() -> None:
     np.testing.assert_allclose(s[0], np.arange(0, 512, 4), atol=1e-9)
 
 
-@pytest.mark.parametrize("call,field", [
-    (lambda: SomGrid(0), "path"),
-    (lambda: SomGrid(234), "path"),
-    (lambda: SomGrid(5, 500), "resolution_m"),
-    (lambda: SomGrid(5).bls_to_somxy(181, 0, 0), "block"),
-    (lambda: SomGrid(5).bls_to_somxy(1.5, 0, 0), "block"),
-    (lambda: SomGrid(5).bls_to_somxy([1, 2], [0, 128.0], 0), r"line\[1\]"),
-    (lambda: SomGrid(5).bls_to_somxy(1, 0, np.nan), "sample"),
-    (lambda: SomGrid(5).latlon_to_somxy(91.0, 0.0), "lat"),
-    (lambda: SomGrid(5).somxy_to_latlon(np.inf, 0.0), "som_x"),
-    (lambda: SomGrid(5).block_centres(3, step=3), "step"),
-])
+@pytest.mark.parametrize(
+    "call,field",
+    [
+        (lambda: SomGrid(0), "path"),
+        (lambda: SomGrid(234), "path"),
+        (lambda: SomGrid(5, 500), "resolution_m"),
+        (lambda: SomGrid(5).bls_to_somxy(181, 0, 0), "block"),
+        (lambda: SomGrid(5).bls_to_somxy(1.5, 0, 0), "block"),
+        (lambda: SomGrid(5).bls_to_somxy([1, 2], [0, 128.0], 0), r"line\[1\]"),
+        (lambda: SomGrid(5).bls_to_somxy(1, 0, np.nan), "sample"),
+        (lambda: SomGrid(5).latlon_to_somxy(91.0, 0.0), "lat"),
+        (lambda: SomGrid(5).somxy_to_latlon(np.inf, 0.0), "som_x"),
+        (lambda: SomGrid(5).block_centres(3, step=3), "step"),
+    ],
+)
 def test_bad_input_names_the_field(call, field) -> None:
     with pytest.raises(InputError, match=field):
         call()

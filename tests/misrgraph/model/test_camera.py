@@ -6,11 +6,11 @@ import h5py
 import numpy as np
 import pytest
 
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.camera import read_camera_file, save_camera_model
+from misrgraph.io.h5 import reseal
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, PITCH_CROSS_M
-from misrgraph.errors import FileFormatError, InputError
-from misrgraph.io.h5 import reseal
-from misrgraph.io.camera import read_camera_file, save_camera_model
 from misrgraph.model.nominal import nominal_camera_model, preflight_camera_model
 
 
@@ -199,8 +199,9 @@ def test_linear_thermal_table_is_exact_and_extrapolates_within_its_range(nominal
         np.testing.assert_allclose(m.delta - nominal_camera.delta, slopes["delta"] * dt, atol=1e-15)
         np.testing.assert_allclose(m.focal_length / nominal_camera.focal_length, 1 + 2e-5 * dt, rtol=1e-12)
         # the physical focal-plane polynomial f * alpha_i stays (to second order in the scale)
-        np.testing.assert_allclose(m.focal_length * m.alpha[..., 1], nominal_camera.focal_length * nominal_camera.alpha[..., 1],
-                                   rtol=1e-6)
+        np.testing.assert_allclose(
+            m.focal_length * m.alpha[..., 1], nominal_camera.focal_length * nominal_camera.alpha[..., 1], rtol=1e-6
+        )
     # a table with a wider valid range extends its end segments linearly, and clamps beyond
     ext = TabulatedCameraModel([t.at_temperature(0.0), t.at_temperature(10.0)], valid_range_c=(-5.0, 15.0))
     np.testing.assert_allclose(ext.at_temperature(-5.0).delta, t.at_temperature(-5.0).delta, atol=1e-15)
@@ -212,8 +213,8 @@ def test_linear_thermal_table_is_exact_and_extrapolates_within_its_range(nominal
 
 
 def test_thermal_table_round_trips_through_a_file(nominal_camera, tmp_path):
-    from misrgraph.model.camera import TabulatedCameraModel
     from misrgraph.io.camera import load_camera_model
+    from misrgraph.model.camera import TabulatedCameraModel
 
     warm = dataclasses.replace(nominal_camera.copy(), temperature_c=9.0)
     warm.delta += 4e-5  # the two entries differ, so a swapped or duplicated entry would show
@@ -255,7 +256,9 @@ def test_corrections_add_and_remove(nominal_camera):
         np.testing.assert_allclose(getattr(back, name), getattr(nominal_camera, name), rtol=0, atol=1e-18)
     b = nominal_camera.copy()
     b.add_correction("beta", 2, 1, 7e-6)
-    assert b.beta[2] == nominal_camera.beta[2] and b.band_beta[2, 1] - nominal_camera.band_beta[2, 1] == pytest.approx(7e-6)
+    assert b.beta[2] == nominal_camera.beta[2] and b.band_beta[2, 1] - nominal_camera.band_beta[2, 1] == pytest.approx(
+        7e-6
+    )
     b.add_correction("alpha3", 2, None, 1e-12)
     np.testing.assert_allclose(b.alpha[2, :, 3] - nominal_camera.alpha[2, :, 3], 1e-12, rtol=1e-6)
     with pytest.raises(InputError, match="alpha0..alpha5"):

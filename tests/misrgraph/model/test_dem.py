@@ -3,11 +3,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from misrgraph.model.dem import FLAG_BOUNDARY, FLAG_LAND, FLAG_WATER, POSTING_DEG, DemTiles, Geoid, fit_grid_surface, fit_local_surface
-from misrgraph.sim.terrain import SyntheticTerrain
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.dem import read_dem, save_dem
-from misrgraph.sim.terrain import simulate_dem_tiles
+from misrgraph.model.dem import (
+    FLAG_BOUNDARY,
+    FLAG_LAND,
+    FLAG_WATER,
+    POSTING_DEG,
+    DemTiles,
+    Geoid,
+    fit_grid_surface,
+    fit_local_surface,
+)
+from misrgraph.sim.terrain import SyntheticTerrain, simulate_dem_tiles
 
 
 def _grid(fun, n=20):
@@ -21,7 +29,11 @@ def _grid(fun, n=20):
         ("bilinear", lambda r, c: 3 + 2 * r - c + 0.5 * r * c, lambda r, c: (2 + 0.5 * c, -1 + 0.5 * r)),
         ("biquadratic", lambda r, c: 1 + r * r - 0.3 * c * c + r * c, lambda r, c: (2 * r + c, -0.6 * c + r)),
         # cubic convolution (Keys, a = -0.5) is exact up to degree 2
-        ("bicubic", lambda r, c: 2 + 0.3 * r * r - 0.2 * c * c + r * c - c, lambda r, c: (0.6 * r + c, -0.4 * c + r - 1)),
+        (
+            "bicubic",
+            lambda r, c: 2 + 0.3 * r * r - 0.2 * c * c + r * c - c,
+            lambda r, c: (0.6 * r + c, -0.4 * c + r - 1),
+        ),
     ],
 )
 def test_fits_reproduce_their_polynomial_class(method, fun, dfun, rng):
@@ -283,8 +295,13 @@ def test_smoothed_dem_keeps_planes_damps_noise_and_stays_continuous(rng):
     r, c = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
     plane = 100.0 + 3.0 * r - 2.0 * c
     noise = rng.standard_normal((200, n, n))
-    dem = DemTiles(np.zeros(201), np.zeros(201), np.concatenate([plane[None], noise]), np.ones((201, n, n), np.uint8),
-                   np.ones(201, np.int64))
+    dem = DemTiles(
+        np.zeros(201),
+        np.zeros(201),
+        np.concatenate([plane[None], noise]),
+        np.ones((201, n, n), np.uint8),
+        np.ones(201, np.int64),
+    )
     sm = dem.smoothed(s)
     assert dem.smoothed(0.0) is dem and dem.smoothed(s) is sm
     np.testing.assert_allclose(sm.heights[0, 2:-2, 2:-2], plane[2:-2, 2:-2], atol=1e-9)

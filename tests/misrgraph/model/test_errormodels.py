@@ -3,19 +3,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from misrgraph.errors import InputError
 from misrgraph.model.errormodels import (
     JITTER_PERIODS_S,
     AttitudeErrorModel,
     EphemerisErrorModel,
+    ephemeris_prior_covariance,
     interval_counts,
     knots_to_remove,
-    ephemeris_prior_covariance,
     projected_band_covariance,
     spline_design,
     uniform_knots,
     unresolved_band_sigma,
 )
-from misrgraph.errors import InputError
 
 
 def test_ephemeris_closed_form_and_jacobian(rng):
@@ -57,7 +57,9 @@ def test_spline_continuity_of_value_and_rate_at_knots(spline):
             assert rlo == pytest.approx(rhi, abs=1e-12)
         # knot value and rate are interpolated exactly
         np.testing.assert_allclose(spline.evaluate(spline.knot_times[a])[:, a], spline.knots[a][:, 0], atol=1e-15)
-        np.testing.assert_allclose(spline.rate(spline.knot_times[a])[:, a], spline.knots[a][:, 1], rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(
+            spline.rate(spline.knot_times[a])[:, a], spline.knots[a][:, 1], rtol=1e-9, atol=1e-15
+        )
 
 
 def test_spline_rate_is_derivative(spline, rng):
@@ -79,7 +81,7 @@ def test_spline_jacobian_wrt_knots(spline, rng):
             for n in range(t.size):
                 kn = [k.copy() for k in spline.knots]
                 kn[a][i[n] + off, comp] += 1e-3
-                num = (AttitudeErrorModel(spline.knot_times, kn).evaluate(t[n:n + 1])[0, a] - base[n]) / 1e-3
+                num = (AttitudeErrorModel(spline.knot_times, kn).evaluate(t[n : n + 1])[0, a] - base[n]) / 1e-3
                 assert w[n, col] == pytest.approx(num, rel=1e-6, abs=1e-9)
 
 
@@ -137,8 +139,9 @@ def test_spline_design_is_the_spline(spline, rng):
     for a in range(3):
         kt = spline.knot_times[a]
         t = rng.uniform(kt[0] - 50.0, kt[-1] + 50.0, 200)
-        np.testing.assert_allclose(spline_design(kt, t) @ spline.knots[a].ravel(), spline.evaluate(t)[:, a],
-                                   rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(
+            spline_design(kt, t) @ spline.knots[a].ravel(), spline.evaluate(t)[:, a], rtol=1e-12, atol=1e-18
+        )
 
 
 def _jitter_draws(kt, n, seed):
@@ -201,8 +204,9 @@ def test_ephemeris_prior_is_the_covariance_of_the_segments_fit_to_the_simulators
     from misrgraph.sim.simulate import ScenarioConfig, draw_ephemeris_error
 
     t0, t1, amp = 1000.0, 3700.0, 30.0
-    cfg = ScenarioConfig(truth="independent", once_per_rev_m=amp, nav_sigma_m=5.0, along_drift_sigma_mps=0.002,
-                         drift_sigma_mps=0.001)
+    cfg = ScenarioConfig(
+        truth="independent", once_per_rev_m=amp, nav_sigma_m=5.0, along_drift_sigma_mps=0.002, drift_sigma_mps=0.001
+    )
     gen = np.random.default_rng(11)
     t = np.arange(t0, t1 + 1e-9, 5.0)
     curves = np.array([draw_ephemeris_error(gen, cfg, t0, t1).evaluate(t) for _ in range(3000)])  # (draws, T, 3)
@@ -223,11 +227,12 @@ def test_ephemeris_prior_is_the_covariance_of_the_segments_fit_to_the_simulators
         assert np.all(err < 4.5 * se + 1e-12), (n_seg, np.max(err / (se + 1e-12)))
         wrong = ephemeris_prior_covariance(edges, [0.002, 0.001, 0.001], 5.0, amp * np.sqrt(2))
         assert np.any(np.abs(prod.mean(axis=0) - wrong / np.outer(d, d)) > 4.5 * se)
-    np.testing.assert_allclose(ephemeris_prior_covariance([t0, t1], [0.05, 0.01, 0.01], 50.0, 0.0),
-                               np.diag([0.05**2, 0.01**2, 0.01**2, 2500.0, 2500.0, 2500.0]), atol=1e-9)
+    np.testing.assert_allclose(
+        ephemeris_prior_covariance([t0, t1], [0.05, 0.01, 0.01], 50.0, 0.0),
+        np.diag([0.05**2, 0.01**2, 0.01**2, 2500.0, 2500.0, 2500.0]),
+        atol=1e-9,
+    )
     with pytest.raises(InputError, match="ephemeris_segments"):
         ephemeris_prior_covariance(np.linspace(t0, t1, 4), [0.05, 0.01, 0.01], 50.0, amp)
     with pytest.raises(InputError, match="ephemeris_once_per_rev_m"):
         ephemeris_prior_covariance([t0, t1], [0.05, 0.01, 0.01], 50.0, -1.0)
-
-

@@ -3,13 +3,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from misrgraph.sim.terrain import SyntheticTerrain, land_mask
 from misrgraph.errors import FileFormatError, InputError
+from misrgraph.io.gcp import read_gcp_database, save_gcp_database
+from misrgraph.io.truth import read_gcp_truth
 from misrgraph.model.frames import enu_basis
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.sim.gcps import generate_gcp_database
-from misrgraph.io.truth import read_gcp_truth
-from misrgraph.io.gcp import read_gcp_database, save_gcp_database
+from misrgraph.sim.terrain import SyntheticTerrain, land_mask
 
 
 @pytest.fixture(scope="module")
@@ -90,10 +90,14 @@ def test_scene_catalogue_shares_the_stated_part_of_the_error():
     rho = np.mean(prod) / np.mean(sq)
     n = len(prod) * 3
     assert n > 300
-    assert abs(rho - 0.5) < 4 * (1 - 0.25) / np.sqrt(n) + 0.05  # 4 standard errors of a correlation (heavy tails: + 0.05)
+    assert (
+        abs(rho - 0.5) < 4 * (1 - 0.25) / np.sqrt(n) + 0.05
+    )  # 4 standard errors of a correlation (heavy tails: + 0.05)
     own = d0.own_covariance_ecef()
     np.testing.assert_allclose(np.linalg.eigvalsh(own), 450.0, rtol=1e-9)
-    np.testing.assert_allclose(d0.covariance_ecef() - own, own, atol=1e-9)  # fraction 0.5: the shared part equals the own
+    np.testing.assert_allclose(
+        d0.covariance_ecef() - own, own, atol=1e-9
+    )  # fraction 0.5: the shared part equals the own
 
 
 def test_scene_round_trip_and_validation(tmp_path):
@@ -106,7 +110,9 @@ def test_scene_round_trip_and_validation(tmp_path):
     save_gcp_database(plain, tmp_path / "p.h5")
     assert read_gcp_database(tmp_path / "p.h5").scene is None and plain.scenes() == {}
     np.testing.assert_allclose(plain.own_covariance_ecef(), plain.covariance_ecef())
-    one = dict(id=np.arange(2), lat=[5.0, 5.1], lon=[0.0, 0.1], height=[0.0, 0.0], sigma_m=[30.0, 30.0], region=["x", "x"])
+    one = dict(
+        id=np.arange(2), lat=[5.0, 5.1], lon=[0.0, 0.1], height=[0.0, 0.0], sigma_m=[30.0, 30.0], region=["x", "x"]
+    )
     with pytest.raises(InputError, match="scene_sigma_m"):
         GcpDatabase(**one, scene=np.array([0, 0]))
     with pytest.raises(InputError, match=r"scene_sigma_m\[1\]"):

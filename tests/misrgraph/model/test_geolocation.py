@@ -2,7 +2,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import BANDS, CAMERAS
@@ -68,7 +69,9 @@ def test_ground_pixel_ground_round_trip_any_point(reference_pass, rng):
         for b in range(4):
             ln, sm, vis, exp, _ = reference_pass.ground_to_pixel(c, b, g)
             assert vis.mean() > 0.5
-            back = reference_pass.pixel_to_ground(c, b, ln[vis], sm[vis], height=ecef_to_geodetic(g[vis])[2], exposure=exp[vis])
+            back = reference_pass.pixel_to_ground(
+                c, b, ln[vis], sm[vis], height=ecef_to_geodetic(g[vis])[2], exposure=exp[vis]
+            )
             assert np.max(np.linalg.norm(back - g[vis], axis=1)) < 1e-3
 
 
@@ -146,8 +149,14 @@ def test_corrections_move_the_ground_point(reference_pass):
     an, red = CAMERAS.index("An"), BANDS.index("red")
     line = 0.5 * base.lines_in_pass(an, red)
     d = np.radians(10 / 3600)
-    pert = PassGeometry(base.ephemeris, base.attitude, base.camera, base.earth, base.t0,
-                        attitude_delta=lambda t: np.broadcast_to([0.0, d, 0.0], (np.size(t), 3)))
+    pert = PassGeometry(
+        base.ephemeris,
+        base.attitude,
+        base.camera,
+        base.earth,
+        base.t0,
+        attitude_delta=lambda t: np.broadcast_to([0.0, d, 0.0], (np.size(t), 3)),
+    )
     g0 = base.pixel_to_ground(an, red, line, 751.5)
     g1 = pert.pixel_to_ground(an, red, line, 751.5)
     origin, _ = base.pixel_rays(an, red, line, 751.5)

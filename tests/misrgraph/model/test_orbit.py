@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from factors.geometry import rot_z
-from misrgraph.model.constants import NODAL_PERIOD_S
 from misrgraph.errors import InputError
+from misrgraph.model.constants import NODAL_PERIOD_S
 from misrgraph.model.frames import WGS84_A, EarthOrientation, ecef_to_geodetic, parse_epoch
 from misrgraph.model.orbit import (
     AttitudeSeries,
@@ -79,8 +79,13 @@ def test_interpolation_outside_span_is_an_error(sso):
 
 def test_attitude_interpolation_exact_for_cubic():
     t = np.arange(0, 20.0, 1.024)
-    f = lambda x: 1e-5 * (x**3 - 3 * x)
-    df = lambda x: 1e-5 * (3 * x**2 - 3)
+
+    def f(x):
+        return 1e-5 * (x**3 - 3 * x)
+
+    def df(x):
+        return 1e-5 * (3 * x**2 - 3)
+
     a = np.stack([f(t), 2 * f(t), -f(t)], 1)
     r = np.stack([df(t), 2 * df(t), -df(t)], 1)
     s = AttitudeSeries(t, a, r)
@@ -97,6 +102,7 @@ def test_tle_orbit_is_terra_and_agrees_with_classic_teme_to_ecef():
     assert inc.mean() == pytest.approx(98.21, abs=0.1)
     # independent route: TEME -> PEF with GMST82 (Vallado), PEF ~ ITRF without polar motion
     from sgp4.api import Satrec
+
     from misrgraph.model.orbit import TERRA_TLE
 
     sat = Satrec.twoline2rv(*TERRA_TLE)

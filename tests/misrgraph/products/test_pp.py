@@ -14,9 +14,8 @@ from typer.testing import CliRunner
 
 from misrgraph.commands.cli import app
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.estimate.adjust import adjust_pass, corrected_geometry, estimated_models, supplied_camera_of
+from misrgraph.estimate.adjust import corrected_geometry, estimated_models, supplied_camera_of
 from misrgraph.evaluate.products import score_pp
-from misrgraph.io.camera import load_camera_model
 from misrgraph.io.products import read_pp, save_pp
 from misrgraph.io.truth import read_pass_truth
 from misrgraph.misr.som import SomGrid
@@ -62,8 +61,13 @@ def test_crossing_agrees_with_the_general_line_search(adjusted, cam) -> None:
     c_ = np.full(int(ok.sum()), c)
     y1 = geo._along_cross(c_, np.full_like(c_, RED), g[ok], t[ok] + 0.01)[1]
     y0 = geo._along_cross(c_, np.full_like(c_, RED), g[ok], t[ok] - 0.01)[1]
-    rate = np.abs(geo.camera.sample_from_focal_plane_y(c_, np.full_like(c_, RED), y1)
-                  - geo.camera.sample_from_focal_plane_y(c_, np.full_like(c_, RED), y0)) / 0.02  # pixels/s
+    rate = (
+        np.abs(
+            geo.camera.sample_from_focal_plane_y(c_, np.full_like(c_, RED), y1)
+            - geo.camera.sample_from_focal_plane_y(c_, np.full_like(c_, RED), y0)
+        )
+        / 0.02
+    )  # pixels/s
     assert np.all(np.abs(sample[ok] - ref.sample[ok]) <= rate * geo.camera.line_time / 2 + 1e-3)
 
 
@@ -155,7 +159,11 @@ def test_scores_per_block(adjusted, pp) -> None:
         b = scores["pp_error_by_block"][name]
         assert list(b) == [BLOCK]
         blk = b[BLOCK]
-        assert blk["n"] == v["n"] and blk["rms"] == pytest.approx(v["rms"]) and blk["error_px_rms"] == pytest.approx(v["error_px_rms"])
+        assert (
+            blk["n"] == v["n"]
+            and blk["rms"] == pytest.approx(v["rms"])
+            and blk["error_px_rms"] == pytest.approx(v["error_px_rms"])
+        )
         c = pp.cameras.index(name)
         sub = (slice(None, None, 8), slice(None, None, 8))
         ok = pp.seen()[c, 0][sub] & np.isfinite(pp.sigma_line[c, 0][sub])
@@ -188,7 +196,9 @@ def test_bad_input(adjusted, pp) -> None:
 
 
 def test_products_command(small_pass_dir, tmp_path) -> None:
-    res = CliRunner().invoke(app, ["products", str(small_pass_dir), "--out", str(tmp_path / "p"), "--blocks", "60", "--json"])
+    res = CliRunner().invoke(
+        app, ["products", str(small_pass_dir), "--out", str(tmp_path / "p"), "--blocks", "60", "--json"]
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["blocks"] == [60, 60] and set(out["pp_error_m"]) == set(CAMERAS)

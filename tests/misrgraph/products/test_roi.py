@@ -4,14 +4,12 @@ matching measures on it against that truth, and the GeoTIFF's georeferencing aga
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from misrgraph.commands.cli import app
-from misrgraph.io.products import read_pp
+from misrgraph.io.products import ProjectionParameters, read_pp
 from misrgraph.io.roi import read_roi
 from misrgraph.misr.som import SomGrid
 from misrgraph.runs.products import RoiOptions, run_products
@@ -66,13 +64,15 @@ def test_misregistration_against_truth(roi_run):
     pps = [read_pp(r["files"]["pp"]) for r in res["passes"]]
 
     def pp_sigma(cam: str) -> float:  # radial 1 sigma (px), worst pass, median over the block
-        return max(float(np.nanmedian(np.hypot(pp.sigma_line[pp.cameras.index(cam)], pp.sigma_sample[pp.cameras.index(cam)])))
-                   for pp in pps)
+        return max(
+            float(np.nanmedian(np.hypot(pp.sigma_line[pp.cameras.index(cam)], pp.sigma_sample[pp.cameras.index(cam)])))
+            for pp in pps
+        )
 
     block = int(res["blocks"][0])
     summary_pred = res["roi_predicted_px_by_block"][block]
     for cam in ("Df", "Da"):
-        predicted = np.sqrt(DEM_PARALLAX_PX**2 + pp_sigma(cam)**2 + pp_sigma("An")**2)
+        predicted = np.sqrt(DEM_PARALLAX_PX**2 + pp_sigma(cam) ** 2 + pp_sigma("An") ** 2)
         assert tr["between_cameras_px"][cam] < 3 * predicted, (cam, tr["between_cameras_px"][cam], predicted)
         # the summary's own prediction (RMS over the block, chosen pass) agrees with this one
         # (median over the block, worst pass) within the spread of the PP's sigma over a block
@@ -103,7 +103,11 @@ def test_matched_coregistration_against_truth(roi_run):
         assert st["matches"] >= 20 and st["failed"] <= 0.1 * st["matches"] and at["matches"] == st["matches"]
         assert abs(st["excess_px"] - at["truth_px"]) < 0.05, (cam, st)
         assert 0.7 < at["error_over_sigma"] < 1.6, (cam, at)
-        assert abs(at["truth_px"] - tr["between_passes_pooled_px"][cam]) < 0.1, (cam, at, tr["between_passes_pooled_px"])
+        assert abs(at["truth_px"] - tr["between_passes_pooled_px"][cam]) < 0.1, (
+            cam,
+            at,
+            tr["between_passes_pooled_px"],
+        )
     for cam in ("Df", "Da"):
         st = co[cam]["between_cameras"]
         at = st["truth_at_matches"]
@@ -216,7 +220,7 @@ def test_view_roi_and_pp_sigma(roi_run, tmp_path):
     assert "/roi" in paths and "/roi/An/source" in paths
 
 
-def _flat_pp(blocks: list[int], sigmas: dict[str, tuple[float, float]]) -> "ProjectionParameters":
+def _flat_pp(blocks: list[int], sigmas: dict[str, tuple[float, float]]) -> ProjectionParameters:
     """A PP whose 1-sigma is constant per camera (line, sample) over its blocks (other grids zero)."""
     from misrgraph.io.products import ProjectionParameters
 
@@ -235,17 +239,21 @@ def test_predicted_coregistration_closed_form():
     block is left out."""
     from misrgraph.products.roi import roi_predicted_coregistration
 
-    pps = [_flat_pp([70, 71], {"An": (0.06, 0.08), "Da": (0.3, 0.4)}),
-           _flat_pp([70, 71], {"An": (0.12, 0.16), "Da": (0.6, 0.8)}),
-           _flat_pp([70, 71], {"An": (0.09, 0.12), "Da": (0.36, 0.48)}),
-           _flat_pp([62], {"An": (3.0, 4.0), "Da": (3.0, 4.0)})]  # another block: not in 71's figures
+    pps = [
+        _flat_pp([70, 71], {"An": (0.06, 0.08), "Da": (0.3, 0.4)}),
+        _flat_pp([70, 71], {"An": (0.12, 0.16), "Da": (0.6, 0.8)}),
+        _flat_pp([70, 71], {"An": (0.09, 0.12), "Da": (0.36, 0.48)}),
+        _flat_pp([62], {"An": (3.0, 4.0), "Da": (3.0, 4.0)}),
+    ]  # another block: not in 71's figures
     out = roi_predicted_coregistration(pps, 71, 0, ("An", "Da"), dem_sigma_m=10.0, resolution_m=275.0)
     parallax = 10.0 * np.tan(np.radians(70.5)) / 275.0
     assert out["Da"]["vs_An"] == pytest.approx(np.sqrt(parallax**2 + 0.5**2 + 0.1**2))
     assert out["Da"]["between_passes"] == pytest.approx(np.hypot(1.0, 0.6))
     assert out["An"] == {"between_passes": pytest.approx(np.hypot(0.2, 0.15))}
     # with the second pass chosen, against An uses its sigmas
-    assert roi_predicted_coregistration(pps, 71, 1, ("An", "Da"), 0.0, 275.0)["Da"]["vs_An"] == pytest.approx(np.hypot(1.0, 0.2))
+    assert roi_predicted_coregistration(pps, 71, 1, ("An", "Da"), 0.0, 275.0)["Da"]["vs_An"] == pytest.approx(
+        np.hypot(1.0, 0.2)
+    )
 
 
 def test_consistent_matches_rejects_wrong_matches_only():
@@ -262,7 +270,9 @@ def test_consistent_matches_rejects_wrong_matches_only():
         field = 0.1 + 0.2 * pts[:, :1] / 512 * np.array([[1.0, -0.5]]) + 0.1 * pts[:, 1:] / 2048
         d = np.column_stack([field + rng.normal(0, 0.05, (60, 2)), np.full((60, 2), 0.05)])
         wrong = rng.choice(60, 4, replace=False)
-        d[wrong, :2] += rng.uniform(0.4, 0.9, (4, 1)) * np.array([[np.cos(a), np.sin(a)] for a in rng.uniform(0, 2 * np.pi, 4)])
+        d[wrong, :2] += rng.uniform(0.4, 0.9, (4, 1)) * np.array(
+            [[np.cos(a), np.sin(a)] for a in rng.uniform(0, 2 * np.pi, 4)]
+        )
         keep = consistent_matches(pts, d)
         assert not keep[wrong].any()
         false_rejects += int((~keep).sum()) - 4

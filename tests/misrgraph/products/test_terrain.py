@@ -23,7 +23,7 @@ def _wall_scene(direction: tuple[float, float], nl: int = 40, ns: int = 30, marg
     """Flat ground at 0 with a 3-pixel wall of 500 m across lines 20-22, rays climbing RISE_M per
     pixel along ``direction`` (unit, grid lines/samples)."""
     h = np.zeros((nl + 2 * margin, ns + 2 * margin), np.float32)
-    h[margin + 20:margin + 23, :] = 500.0
+    h[margin + 20 : margin + 23, :] = 500.0
     v = np.empty((2, nl, ns))
     v[0], v[1] = direction[0] / RISE_M, direction[1] / RISE_M
     return h, v, margin
@@ -51,7 +51,7 @@ def test_march_unknowns_hide_nothing() -> None:
     h, v, m = _wall_scene((1.0, 0.0))
     v[:, 17] = np.nan  # not imaged
     h2 = h.copy()
-    h2[m + 20:m + 23, m:m + 10] = np.nan  # no DEM there (block samples 0..9)
+    h2[m + 20 : m + 23, m : m + 10] = np.nan  # no DEM there (block samples 0..9)
     hidden = march_obscured(h2, m, v)
     assert not hidden[17].any() and not hidden[:, :10].any()
     assert hidden[[15, 16, 18, 19], 10:].all()
@@ -80,7 +80,7 @@ def test_extended_block_places_the_neighbours_by_the_som_grid() -> None:
     ok = np.isfinite(ext)
     np.testing.assert_allclose(ext[ok], field(x, y)[ok], rtol=1e-6)
     # block 56 lies 64 samples to the right: its rows hold data from column m + 64 on
-    assert np.isnan(ext[0, :m + 64]).all() and np.isfinite(ext[0, m + 64:]).all()
+    assert np.isnan(ext[0, : m + 64]).all() and np.isfinite(ext[0, m + 64 :]).all()
     assert ok[m:-m, m:-m].all() and not ok[m:-m, :m].any()
     # without the neighbours the margin is unknown
     alone = SomDem(37, 275, blocks[1:2], heights[1:2], 10.0).extended_block(57, m)

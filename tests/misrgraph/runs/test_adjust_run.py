@@ -38,8 +38,9 @@ def test_the_estimate_is_the_same_with_the_truth_removed(small_pass_dir, tmp_pat
     a, b = without["rejected_observations"], with_truth["rejected_observations"]
     assert a["count"] == b["count"] > 0
     assert [r["index"] for r in a["largest"]] == [r["index"] for r in b["largest"]]
-    np.testing.assert_allclose([r["normalised_residual"] for r in a["largest"]],
-                               [r["normalised_residual"] for r in b["largest"]], rtol=1e-9)
+    np.testing.assert_allclose(
+        [r["normalised_residual"] for r in a["largest"]], [r["normalised_residual"] for r in b["largest"]], rtol=1e-9
+    )
     for key in ("nees", "checkpoint_geolocation_m", "attitude_rms_arcsec"):
         assert key in with_truth and key not in without
 
@@ -71,8 +72,12 @@ def test_an_unconverged_adjustment_fails_unless_accepted(small_pass_dir, tmp_pat
     assert "not those of an optimum" in s["diagnostics"][0]
     with h5py.File(out) as f:
         assert f.attrs["solver_status"] == "iteration_limit"
-    r = subprocess.run([sys.executable, "-m", "misrgraph", "adjust", str(small_pass_dir), "--max-iterations", "1"],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "misrgraph", "adjust", str(small_pass_dir), "--max-iterations", "1"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 1 and len(lines) == 1 and "did not converge" in lines[0], r.stderr
     assert run_adjust(small_pass_dir)["solver_status"] == "converged"
@@ -102,7 +107,7 @@ def test_drop_rejected_tie_points_drops_every_tie_point_with_a_rejected_ray(smal
     assert not set(res.pass_graph.landmark_rows.tolist()) & with_rejection
     out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--drop-rejected-tie-points", "--json"])
     assert out.exit_code == 0, out.output
-    flagged = json.loads(out.stdout[out.stdout.index("{"):])
+    flagged = json.loads(out.stdout[out.stdout.index("{") :])
     assert flagged["dropped_tie_points"] == len(with_rejection)
     assert run_adjust(small_pass_dir)["dropped_tie_points"] < len(with_rejection)
 
@@ -121,7 +126,7 @@ def test_adjust_cli_jitter_options(small_pass_dir):
     def unresolved(*args):
         out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--json", *args])
         assert out.exit_code == 0, out.output
-        s = json.loads(out.stdout[out.stdout.index("{"):])
+        s = json.loads(out.stdout[out.stdout.index("{") :])
         return {v["unresolved_sigma_arcsec"] for v in s["attitude_sigma"].values()}
 
     (default,) = unresolved()
@@ -151,7 +156,7 @@ def test_adjust_cli_once_per_rev_option(small_pass_dir):
     def eph_sigma(*args):
         out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--json", *args])
         assert out.exit_code == 0, out.output
-        return np.array(json.loads(out.stdout[out.stdout.index("{"):])["ephemeris"]["sigma"])
+        return np.array(json.loads(out.stdout[out.stdout.index("{") :])["ephemeris"]["sigma"])
 
     base, wide = eph_sigma(), eph_sigma("--ephemeris-once-per-rev-m", "30")
     assert np.all(wide >= base * (1 - 1e-9)) and np.any(wide > 1.05 * base)
@@ -159,7 +164,9 @@ def test_adjust_cli_once_per_rev_option(small_pass_dir):
     assert base.shape == (1, 6) and two.shape == (2, 6)
     out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--ephemeris-once-per-rev-m", "-1"])
     assert out.exit_code == 2 and "ephemeris_once_per_rev_m" in out.output, out.output
-    out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--ephemeris-once-per-rev-m", "30", "--ephemeris-segments", "3"])
+    out = CliRunner().invoke(
+        app, ["adjust", str(small_pass_dir), "--ephemeris-once-per-rev-m", "30", "--ephemeris-segments", "3"]
+    )
     assert out.exit_code == 2 and "ephemeris_segments" in out.output, out.output
 
 

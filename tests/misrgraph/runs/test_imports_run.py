@@ -29,8 +29,15 @@ def test_adjust_on_imported_geotiff_dem_and_csv_gcps(small_pass_dir, tmp_path):
     # first quality class: the import writes one class and keeps 3" postings exactly
     keep = np.isclose(dem.lon_posting, dem.posting_deg) & (dem.quality == 1)
     assert keep.sum() > 50
-    sub = DemTiles(dem.lat0[keep], dem.lon0[keep], dem.heights[keep], dem.flags[keep], dem.quality[keep],
-                   dem.posting_deg, dem.lon_posting[keep])
+    sub = DemTiles(
+        dem.lat0[keep],
+        dem.lon0[keep],
+        dem.heights[keep],
+        dem.flags[keep],
+        dem.quality[keep],
+        dem.posting_deg,
+        dem.lon_posting[keep],
+    )
     save_dem(sub, tmp_path / "dem_native.h5")
     # each tile as a GeoTIFF (rows north to south, pixel-is-area around its postings, float64)
     n, p = sub.size, sub.posting_deg
@@ -39,8 +46,17 @@ def test_adjust_on_imported_geotiff_dem_and_csv_gcps(small_pass_dir, tmp_path):
         path = tmp_path / "tiles" / f"tile_{t:04d}.tif"
         path.parent.mkdir(exist_ok=True)
         top = sub.lat0[t] + (n - 1) * p
-        with rasterio.open(path, "w", driver="GTiff", height=n, width=n, count=1, dtype="float64", crs="EPSG:4326",
-                           transform=Affine(p, 0.0, sub.lon0[t] - p / 2, 0.0, -p, top + p / 2)) as ds:
+        with rasterio.open(
+            path,
+            "w",
+            driver="GTiff",
+            height=n,
+            width=n,
+            count=1,
+            dtype="float64",
+            crs="EPSG:4326",
+            transform=Affine(p, 0.0, sub.lon0[t] - p / 2, 0.0, -p, top + p / 2),
+        ) as ds:
             ds.write(sub.heights[t][::-1], 1)
         tifs.append(str(path))
     # the GCP database as a CSV list (repr keeps every float exactly)
@@ -50,7 +66,9 @@ def test_adjust_on_imported_geotiff_dem_and_csv_gcps(small_pass_dir, tmp_path):
         for row in zip(gcps.id, gcps.lat, gcps.lon, gcps.height, gcps.sigma_m, gcps.region):
             w.writerow([int(row[0]), *(repr(float(v)) for v in row[1:5]), row[5]])
     runner = CliRunner()
-    r = runner.invoke(app, ["import", "dem", *tifs, "--tile-postings", str(n), "--out", str(tmp_path / "dem.h5"), "--json"])
+    r = runner.invoke(
+        app, ["import", "dem", *tifs, "--tile-postings", str(n), "--out", str(tmp_path / "dem.h5"), "--json"]
+    )
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["tiles"] == len(tifs)
     r = runner.invoke(app, ["import", "gcps", str(tmp_path / "gcps.csv"), "--out", str(tmp_path / "gcp.h5"), "--json"])
@@ -67,4 +85,6 @@ def test_adjust_on_imported_geotiff_dem_and_csv_gcps(small_pass_dir, tmp_path):
     diff = np.abs(np.asarray(imported["ephemeris"]["params"]) - np.asarray(native["ephemeris"]["params"]))
     assert np.all(diff <= 1e-4 * sig)
     for cam, v in native["checkpoint_geolocation_m"].items():
-        assert imported["checkpoint_geolocation_m"][cam]["after"]["rms"] == pytest.approx(v["after"]["rms"], rel=1e-6), cam
+        assert imported["checkpoint_geolocation_m"][cam]["after"]["rms"] == pytest.approx(
+            v["after"]["rms"], rel=1e-6
+        ), cam

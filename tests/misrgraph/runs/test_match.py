@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from misrgraph.errors import FileFormatError, InputError
+from misrgraph.estimate.adjust import AdjustConfig
 from misrgraph.io.imagery import read_imagery, read_matched
 from misrgraph.model.constants import CAMERAS
-from misrgraph.estimate.adjust import AdjustConfig
 from misrgraph.runs.adjust import run_adjust
 from misrgraph.runs.match import run_match
 from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
@@ -65,7 +65,9 @@ def test_matched_adjustment_is_as_good_as_the_simulated_one(imagery_pass_dir):
     assert sim["tie_height"]["source"] == "off"
     th = mat["tie_height"]
     assert th["source"] == "estimated" and th["dem_factors"] > 10 and np.isfinite(th["standard_error_m2"]), th
-    assert th["variance_m2"] == max(th["unclipped_variance_m2"], 0.0) and th["sigma_m"] ** 2 == pytest.approx(th["variance_m2"])
+    assert th["variance_m2"] == max(th["unclipped_variance_m2"], 0.0) and th["sigma_m"] ** 2 == pytest.approx(
+        th["variance_m2"]
+    )
     # without DEM factors nothing sees it: left out, and the summary says so
     no_dem = run_adjust(imagery_pass_dir, observations="matched", cfg=AdjustConfig(use_dem=False))
     assert no_dem["tie_height"]["source"] == "off" and no_dem["tie_height"]["reason"] == "no DEM factors"
@@ -80,8 +82,12 @@ def test_matched_adjustment_is_as_good_as_the_simulated_one(imagery_pass_dir):
 
 
 def test_match_cli_json(imagery_pass_dir):
-    r = subprocess.run([sys.executable, "-m", "misrgraph.commands.cli", "match", str(imagery_pass_dir), "--json"],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "misrgraph.commands.cli", "match", str(imagery_pass_dir), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     for kind in ("gcp", "tie"):
@@ -145,8 +151,20 @@ def test_clouds_no_wrong_match_survives(tmp_path):
     """30 % cloud: wrong matches (more than 1 px from the truth) are rejected by matching or by the
     adjustment's blunder tests; none is left in the solution."""
     out = tmp_path / "cloudy"
-    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=5, n_tie_points=60, n_check_points=5, duration_s=900.0,
-                                start_lat_deg=45.0, imagery=True, cloud_fraction=0.3), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=5,
+            n_tie_points=60,
+            n_check_points=5,
+            duration_s=900.0,
+            start_lat_deg=45.0,
+            imagery=True,
+            cloud_fraction=0.3,
+        ),
+        out,
+    )
     res = run_match(out)
     s = run_adjust(out, observations="matched")
     wrong = res["tie"]["wrong_matches"] + res["gcp"]["wrong_matches"]
@@ -162,7 +180,9 @@ def test_info_shows_imagery_and_matched(imagery_pass_dir):
     f = load_scenario(imagery_pass_dir).pass_files[0]
     out = run_info(f)
     im = read_imagery(f)
-    assert out["imagery"]["tie_windows"] == len(im.tie) > 0 and out["imagery"]["gcp_chips"] == im.chip_landmark.size  # red only
+    assert (
+        out["imagery"]["tie_windows"] == len(im.tie) > 0 and out["imagery"]["gcp_chips"] == im.chip_landmark.size
+    )  # red only
     assert out["imagery"]["gcp_window_bands"] == ["red"]
     assert out["matched"]["observations"] == len(read_matched(f).observations) > 0
 
@@ -172,8 +192,19 @@ def dense_imagery_dir(tmp_path_factory):
     """A 25-minute pass with 250 tie points: enough redundancy in every camera (the D cameras see
     An's features of the middle 11 minutes only) to measure its precision."""
     out = tmp_path_factory.mktemp("scen") / "dense"
-    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=8, n_tie_points=250, n_check_points=5, duration_s=1500.0,
-                                start_lat_deg=55.0, imagery=True), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=8,
+            n_tie_points=250,
+            n_check_points=5,
+            duration_s=1500.0,
+            start_lat_deg=55.0,
+            imagery=True,
+        ),
+        out,
+    )
     return out
 
 
@@ -222,8 +253,10 @@ def test_a_month_calibrates_from_gcps_matched_in_its_imagery(matched_month_dir):
         assert v["pointing_error_px"] < 3 * v["sigma_px"], (cam, v["pointing_error_px"], v["sigma_px"])
         assert v["pointing_error_px"] < v["pointing_error_before_px"], cam
     # as good as the simulated observations (the criterion the matched adjustment meets, above)
-    assert mat["max_pointing_error_px"] <= 1.3 * sim["max_pointing_error_px"], (mat["max_pointing_error_px"],
-                                                                                sim["max_pointing_error_px"])
+    assert mat["max_pointing_error_px"] <= 1.3 * sim["max_pointing_error_px"], (
+        mat["max_pointing_error_px"],
+        sim["max_pointing_error_px"],
+    )
 
 
 def test_gcps_matched_in_two_bands_calibrate_each_band(tmp_path):
@@ -237,8 +270,19 @@ def test_gcps_matched_in_two_bands_calibrate_each_band(tmp_path):
     from misrgraph.model.constants import BANDS
 
     out = tmp_path / "month2"
-    run_simulate(ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=20, month_days=3, imagery=True,
-                                bands=("red", "nir"), band_misalignment_arcsec=10.0), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="month",
+            seed=1,
+            n_gcps=20,
+            month_days=3,
+            imagery=True,
+            bands=("red", "nir"),
+            band_misalignment_arcsec=10.0,
+        ),
+        out,
+    )
     im = read_imagery(load_scenario(out).pass_files[0])
     assert set(im.gcp.band.tolist()) == {BANDS.index("red"), BANDS.index("nir")}
     assert set(im.chip_index()) == {(int(r), int(b)) for r, b in zip(im.gcp.landmark, im.gcp.band)}
@@ -270,8 +314,20 @@ def test_the_search_range_defaults_to_the_windows_own(tmp_path):
     from misrgraph.match.pipeline import MatchConfig
 
     out = tmp_path / "wide"
-    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=4, n_tie_points=12, n_check_points=2, duration_s=300.0,
-                                start_lat_deg=45.0, imagery=True, search_px=12), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=4,
+            n_tie_points=12,
+            n_check_points=2,
+            duration_s=300.0,
+            start_lat_deg=45.0,
+            imagery=True,
+            search_px=12,
+        ),
+        out,
+    )
     assert read_imagery(load_scenario(out).pass_files[0]).gcp.pixels.shape[-1] == 64 + 2 * 12
     wide = run_match(out)["passes"][0]
     narrow = run_match(out, MatchConfig(search_px=8))["passes"][0]

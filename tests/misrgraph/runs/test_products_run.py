@@ -40,8 +40,20 @@ def test_pp_of_every_pass_of_a_state_against_truth(state, path_dir, tmp_path):
     assert json.loads((tmp_path / "pp" / "products.json").read_text())["state"] == str(state)
     # one pass, named by its file, from the command line; the same PP as above
     files = sorted((path_dir / "passes").glob("*.h5"))
-    cli = CliRunner().invoke(app, ["products", str(state), "--out", str(tmp_path / "one"), "--pass", str(files[1]),
-                                   "--blocks", str(res["blocks"][0]), "--json"])
+    cli = CliRunner().invoke(
+        app,
+        [
+            "products",
+            str(state),
+            "--out",
+            str(tmp_path / "one"),
+            "--pass",
+            str(files[1]),
+            "--blocks",
+            str(res["blocks"][0]),
+            "--json",
+        ],
+    )
     assert cli.exit_code == 0, cli.output
     one = json.loads(cli.stdout)["passes"]
     assert [r["pass_id"] for r in one] == [res["passes"][1]["pass_id"]]

@@ -21,12 +21,42 @@ def _json(args: list[str]) -> dict:
 
 def test_convert_from_each_form_agrees() -> None:
     # MtkBlsToLatLon's second case, entered in each of the three forms
-    a = _json(["som", "convert", "--path", "189", "--resolution", "275", "--block", "1", "--line", "127.5", "--sample", "1023.5"])
+    a = _json(
+        [
+            "som",
+            "convert",
+            "--path",
+            "189",
+            "--resolution",
+            "275",
+            "--block",
+            "1",
+            "--line",
+            "127.5",
+            "--sample",
+            "1023.5",
+        ]
+    )
     assert KEYS <= set(a)
     assert abs(a["lat"] - 65.821183366596) < 1e-6 and abs(a["lon"] - 173.816760521356) < 1e-6
     assert abs(a["som_x"] - 7495949.999777129851) < 0.01 and abs(a["som_y"] - 809049.999353842111) < 0.01
-    b = _json(["som", "convert", "--path", "189", "--resolution", "275", "--lat", str(a["lat"]), "--lon", str(a["lon"])])
-    c = _json(["som", "convert", "--path", "189", "--resolution", "275", "--som-x", str(a["som_x"]), "--som-y", str(a["som_y"])])
+    b = _json(
+        ["som", "convert", "--path", "189", "--resolution", "275", "--lat", str(a["lat"]), "--lon", str(a["lon"])]
+    )
+    c = _json(
+        [
+            "som",
+            "convert",
+            "--path",
+            "189",
+            "--resolution",
+            "275",
+            "--som-x",
+            str(a["som_x"]),
+            "--som-y",
+            str(a["som_y"]),
+        ]
+    )
     for other in (b, c):
         assert other["block"] == 1
         assert abs(other["line"] - 127.5) < 1e-3 and abs(other["sample"] - 1023.5) < 1e-3
@@ -41,22 +71,47 @@ def test_convert_off_the_grid_gives_null_block() -> None:
 
 def test_orbit_by_number_and_by_time() -> None:
     assert _json(["som", "orbit", "--orbit", "30000"]) == {
-        "orbit": 30000, "path": 197, "start": "2005-08-08T10:10:00Z", "end": "2005-08-08T11:48:53Z"}
+        "orbit": 30000,
+        "path": 197,
+        "start": "2005-08-08T10:10:00Z",
+        "end": "2005-08-08T11:48:53Z",
+    }
     by_time = _json(["som", "orbit", "--time", "2006-09-24T10:35:30Z"])
     assert (by_time["orbit"], by_time["path"]) == (36000, 201)
     assert run_som_orbit(time=by_time["start"])["orbit"] == 36000
 
 
-@pytest.mark.parametrize("args,field", [
-    (["som", "convert", "--path", "1", "--lat", "10"], "point"),
-    (["som", "convert", "--path", "1", "--lat", "10", "--lon", "3", "--block", "2", "--line", "0", "--sample", "0"], "point"),
-    (["som", "convert", "--path", "0", "--lat", "10", "--lon", "3"], "path"),
-    (["som", "convert", "--path", "1", "--resolution", "300", "--lat", "10", "--lon", "3"], "resolution_m"),
-    (["som", "convert", "--path", "1", "--block", "1", "--line", "0", "--sample", "600"], "sample"),
-    (["som", "orbit"], "orbit/time"),
-    (["som", "orbit", "--orbit", "100"], "orbit"),
-    (["som", "orbit", "--time", "yesterday"], "--time"),
-])
+@pytest.mark.parametrize(
+    "args,field",
+    [
+        (["som", "convert", "--path", "1", "--lat", "10"], "point"),
+        (
+            [
+                "som",
+                "convert",
+                "--path",
+                "1",
+                "--lat",
+                "10",
+                "--lon",
+                "3",
+                "--block",
+                "2",
+                "--line",
+                "0",
+                "--sample",
+                "0",
+            ],
+            "point",
+        ),
+        (["som", "convert", "--path", "0", "--lat", "10", "--lon", "3"], "path"),
+        (["som", "convert", "--path", "1", "--resolution", "300", "--lat", "10", "--lon", "3"], "resolution_m"),
+        (["som", "convert", "--path", "1", "--block", "1", "--line", "0", "--sample", "600"], "sample"),
+        (["som", "orbit"], "orbit/time"),
+        (["som", "orbit", "--orbit", "100"], "orbit"),
+        (["som", "orbit", "--time", "yesterday"], "--time"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(args, field) -> None:
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2

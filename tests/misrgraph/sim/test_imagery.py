@@ -76,8 +76,18 @@ def test_window_pixels_sit_at_the_geometry_s_image_coordinates(imagery_pass_dir)
     for k in range(len(im.gcp)):
         row, cam = int(im.gcp.landmark[k]), int(im.gcp.camera[k])
         ip = geo.ground_to_pixel(cam, 2, tp.landmark_ecef[row][None], continuous=True)
-        chip = render_chip(geo, scene.for_view(VIEW_ANGLE_DEG[CAMERAS[cam]]), cam, 2, float(ip.line[0]),
-                           float(ip.sample[0]), 32, terrain.height, gain=1.0, offset_dn=0.0)
+        chip = render_chip(
+            geo,
+            scene.for_view(VIEW_ANGLE_DEG[CAMERAS[cam]]),
+            cam,
+            2,
+            float(ip.line[0]),
+            float(ip.sample[0]),
+            32,
+            terrain.height,
+            gain=1.0,
+            offset_dn=0.0,
+        )
         r0, c0 = ip.line[0] - im.gcp.line0[k], ip.sample[0] - im.gcp.sample0[k]
         res = lsm(im.gcp.pixels[k].astype(float), chip, float(r0), float(c0))
         assert res.converged, res.reason
@@ -94,7 +104,7 @@ def test_render_window_is_deterministic_and_14_bit(imagery_pass_dir):
     scene = SceneRadiance(3, terrain.height)
     a = render_window(geo, scene, 4, 2, 5000, 700, 16, terrain.height, np.random.default_rng(0))
     b = render_window(geo, scene, 4, 2, 5000, 700, 16, terrain.height, np.random.default_rng(0))
-    assert a.dtype == np.uint16 and a.max() <= 2 ** 14 - 1 and np.array_equal(a, b) and a.std() > 50
+    assert a.dtype == np.uint16 and a.max() <= 2**14 - 1 and np.array_equal(a, b) and a.std() > 50
 
 
 def test_windows_cast_together_equal_windows_cast_alone(imagery_pass_dir):
@@ -110,11 +120,17 @@ def test_windows_cast_together_equal_windows_cast_alone(imagery_pass_dir):
     scene = SceneRadiance(3, terrain.height, cloud_fraction=0.3)
     line0, sample0 = np.array([5000, 5013, 4980]), np.array([700, 120, 1400])
     for cam in (0, 4, 8):
-        alone = np.stack([render_window(geo, scene, cam, 2, int(a), int(b), 24, terrain.height, rng)
-                          for rng in [np.random.default_rng(5)] for a, b in zip(line0, sample0)])
+        alone = np.stack(
+            [
+                render_window(geo, scene, cam, 2, int(a), int(b), 24, terrain.height, rng)
+                for rng in [np.random.default_rng(5)]
+                for a, b in zip(line0, sample0)
+            ]
+        )
         for batch in (2, 64):
-            together = render_windows(geo, scene, cam, 2, line0, sample0, 24, terrain.height,
-                                      np.random.default_rng(5), batch=batch)
+            together = render_windows(
+                geo, scene, cam, 2, line0, sample0, 24, terrain.height, np.random.default_rng(5), batch=batch
+            )
             assert together.shape == (3, 24, 24) and together.dtype == np.uint16
             assert np.array_equal(together, alone), (cam, batch, np.abs(together.astype(int) - alone).max())
 
@@ -134,8 +150,9 @@ def test_strip_equals_the_window_renderer(imagery_pass_dir):
     scene = SceneRadiance(3, terrain.height, cloud_fraction=0.3)
     for cam, view in ((4, 0.0), (8, -70.5)):
         sv = scene.for_view(view)
-        strip = render_strip(geo, sv, cam, 2, 5000, 40, 600, 96, terrain.height, np.random.default_rng(0), snr=1e12,
-                             chunk=16)
+        strip = render_strip(
+            geo, sv, cam, 2, 5000, 40, 600, 96, terrain.height, np.random.default_rng(0), snr=1e12, chunk=16
+        )
         lines, samples = 5000 + np.arange(40.0), 600 + np.arange(96.0)
         rate = _rate(geo, cam, 2, 5008.0, 648.0, terrain.height)  # the strip's first chunk's centre
         ref = _counts(_render(geo, sv, cam, 2, lines, samples, terrain.height, rate), np.random.default_rng(0), 1e12)
@@ -152,9 +169,9 @@ def test_pixels_show_the_first_ground_their_rays_meet(imagery_pass_dir):
     the ridge (:func:`cast_first`, from an end point below all terrain), in every camera; the
     bracketed search alone lands on hidden ground for some of the aft cameras' pixels (what
     the renderer showed before)."""
-    from misrgraph.model.frames import enu_basis, geodetic_to_ecef
-    from misrgraph.model.geolocation import cast_first, ray_ellipsoid
     from misrgraph.model.constants import CAMERAS
+    from misrgraph.model.frames import geodetic_to_ecef
+    from misrgraph.model.geolocation import cast_first, ray_ellipsoid
     from misrgraph.sim.imagery import _cast_grid
 
     sc = load_scenario(imagery_pass_dir)
@@ -162,7 +179,9 @@ def test_pixels_show_the_first_ground_their_rays_meet(imagery_pass_dir):
     geo = tp.geometry(p)
     mid = 0.5 * float(geo.lines_in_pass(4, 2))  # An's middle line: every camera sees the ridge
     g0 = geo.pixel_to_ground(np.array([4]), np.array([2]), np.array([mid]), np.array([750.0]), height=0.0)[0]
-    nadir_next = geo.pixel_to_ground(np.array([4]), np.array([2]), np.array([mid + 100]), np.array([750.0]), height=0.0)[0]
+    nadir_next = geo.pixel_to_ground(
+        np.array([4]), np.array([2]), np.array([mid + 100]), np.array([750.0]), height=0.0
+    )[0]
     along = (nadir_next - g0) / np.linalg.norm(nadir_next - g0)
 
     def ridge(lat, lon):
@@ -176,11 +195,20 @@ def test_pixels_show_the_first_ground_their_rays_meet(imagery_pass_dir):
         assert ip.visible[0], name
         ll, ss = np.meshgrid(ip.line[0] + np.arange(-50.0, 50.0), ip.sample[0] + np.arange(-8.0, 8.0), indexing="ij")
         got = _cast_grid(geo, cam, 2, ll, ss, ridge).reshape(-1, 3)
-        o, d = geo.pixel_rays(np.full(ll.size, cam), np.full(ll.size, 2), ll.ravel(), ss.ravel(), np.full(ll.size, np.nan))
+        o, d = geo.pixel_rays(
+            np.full(ll.size, cam), np.full(ll.size, 2), ll.ravel(), ss.ravel(), np.full(ll.size, np.nan)
+        )
         first = cast_first(o, d, ridge, ray_ellipsoid(o, d, np.full(ll.size, -100.0)), climb_m=4000.0)
         assert np.all(np.linalg.norm(got - first, axis=1) < 1.0), name
-        any_root = geo.pixel_to_ground(np.full(ll.size, cam), np.full(ll.size, 2), ll.ravel(), ss.ravel(), surface=ridge,
-                                       exposure=np.full(ll.size, np.nan), tol_m=0.05)
+        any_root = geo.pixel_to_ground(
+            np.full(ll.size, cam),
+            np.full(ll.size, 2),
+            ll.ravel(),
+            ss.ravel(),
+            surface=ridge,
+            exposure=np.full(ll.size, np.nan),
+            tol_m=0.05,
+        )
         hidden_by_bracketing[name] = int(np.sum(np.linalg.norm(any_root - first, axis=1) > 1.0))
     assert hidden_by_bracketing["Da"] > 0 or hidden_by_bracketing["Ca"] > 0, hidden_by_bracketing
 
@@ -197,8 +225,15 @@ def test_cast_from_a_poor_guess_agrees_with_the_bracketed_cast(imagery_pass_dir)
     s = np.linspace(0, 1503, 64)
     origin, direction = geo.line_rays(1, 2, np.array([6000.0]), s)
     o, d = np.repeat(origin, s.size, 0), direction[0]
-    ref = geo.pixel_to_ground(np.full(s.size, 1), np.full(s.size, 2), np.full(s.size, 6000.0), s, surface=terrain.height,
-                              exposure=np.full(s.size, 6000.0), tol_m=1e-3)
+    ref = geo.pixel_to_ground(
+        np.full(s.size, 1),
+        np.full(s.size, 2),
+        np.full(s.size, 6000.0),
+        s,
+        surface=terrain.height,
+        exposure=np.full(s.size, 6000.0),
+        tol_m=1e-3,
+    )
     lam = np.einsum("ni,ni->n", ref - o, d)
     guess = lam + np.where(np.arange(s.size) % 2, 300.0, -300.0)
     guess[::7] = np.nan

@@ -20,7 +20,9 @@ def test_same_answers_as_global_land_mask(tmp_path, monkeypatch):
 
         np.testing.assert_array_equal(mine, globe.is_land(lat.copy(), lon.copy()))
         assert 0.2 < mine[:20000].mean() < 0.4  # about 29 % of the Earth's surface is land
-        assert mine.reshape(-1)[:10].shape == (10,) and landmask.is_land(lat[:6].reshape(2, 3), lon[:6].reshape(2, 3)).shape == (2, 3)
+        assert mine.reshape(-1)[:10].shape == (10,) and landmask.is_land(
+            lat[:6].reshape(2, 3), lon[:6].reshape(2, 3)
+        ).shape == (2, 3)
     finally:
         landmask._mask.cache_clear()
 
@@ -44,7 +46,9 @@ def _brute_force_coast_distance(lat: float, lon: float, reach_m: float, step_m: 
     g = np.arange(-reach_m, reach_m + step_m / 2, step_m)
     e, n = np.meshgrid(g, g)
     r = 6371e3
-    water = ~landmask.is_land(lat + np.degrees(n / r), (lon + np.degrees(e / (r * np.cos(np.radians(lat)))) + 180) % 360 - 180)
+    water = ~landmask.is_land(
+        lat + np.degrees(n / r), (lon + np.degrees(e / (r * np.cos(np.radians(lat)))) + 180) % 360 - 180
+    )
     return float(np.hypot(e[water], n[water]).min()) if water.any() else np.inf
 
 

@@ -7,11 +7,11 @@ import h5py
 import numpy as np
 import pytest
 
-from misrgraph.model.constants import ARCSEC, CAMERAS
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.io.h5 import DIGEST_ATTR, atomic_h5, reseal, stamp_content_digest
 from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
+from misrgraph.model.constants import ARCSEC, CAMERAS
+from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.sim.simulate import (
     ScenarioConfig,
     draw_attitude_error,
@@ -32,8 +32,19 @@ def test_config_rejects_unknown_and_bad_values():
 
 def test_noise_free_observations_reproject_exactly(tmp_path):
     out = tmp_path / "nf"
-    run_simulate(ScenarioConfig(truth="model", scenario="pass", seed=2, n_tie_points=60, n_check_points=5, duration_s=900.0,
-                                start_lat_deg=55.0, noise_free=True), out)
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=2,
+            n_tie_points=60,
+            n_check_points=5,
+            duration_s=900.0,
+            start_lat_deg=55.0,
+            noise_free=True,
+        ),
+        out,
+    )
     sc = load_scenario(out)
     p, tp = sc.load_pass(0), sc.load_truth(0)
     o = p.observations
@@ -83,9 +94,11 @@ def test_pass_contents(small_pass):
     # the scenario records its world: seed 11 with the default coast ramp
     cfg = sc.config["config"]
     assert cfg["coast_ramp_m"] == 8000.0
-    np.testing.assert_allclose(h[p.landmarks.kind == KIND_TIE],
-                               SyntheticTerrain(seed=11, coast_ramp_m=8000.0).height(lat, lon)[p.landmarks.kind == KIND_TIE],
-                               atol=1e-3)
+    np.testing.assert_allclose(
+        h[p.landmarks.kind == KIND_TIE],
+        SyntheticTerrain(seed=11, coast_ramp_m=8000.0).height(lat, lon)[p.landmarks.kind == KIND_TIE],
+        atol=1e-3,
+    )
     assert scenario_terrain(cfg) == SyntheticTerrain(seed=11, coast_ramp_m=8000.0)
     old = {k: v for k, v in cfg.items() if k != "coast_ramp_m"}  # a scenario from before the ramp
     assert scenario_terrain(old).coast_ramp_m == 0.0
@@ -160,10 +173,15 @@ def test_corrupt_truncated_wrong_version_and_missing_fields(small_pass_dir, tmp_
                 stamp_content_digest(h)
         if case != "raw_edit":
             reseal(f)  # past the whole-file checksum, to reach the check under test
-        pattern = {"version": "format_version is 99", "missing_group": "missing group /timing",
-                   "missing_ds": "missing dataset /observations/sample", "bad_shape": r"t0 has shape \(9, 3\)",
-                   "edited": "content digest mismatch", "no_digest": "no content_sha256",
-                   "raw_edit": "file checksum mismatch"}[case]
+        pattern = {
+            "version": "format_version is 99",
+            "missing_group": "missing group /timing",
+            "missing_ds": "missing dataset /observations/sample",
+            "bad_shape": r"t0 has shape \(9, 3\)",
+            "edited": "content digest mismatch",
+            "no_digest": "no content_sha256",
+            "raw_edit": "file checksum mismatch",
+        }[case]
         with pytest.raises(FileFormatError, match=pattern):
             OrbitPass.load(f)
 
@@ -174,7 +192,7 @@ def test_zeroed_bytes_in_a_pass_file_are_refused(small_pass_dir, tmp_path):
     src = sorted((small_pass_dir / "passes").glob("*.h5"))[0]
     data = bytearray(src.read_bytes())
     mid = len(data) // 2
-    data[mid: mid + 4000] = bytes(4000)
+    data[mid : mid + 4000] = bytes(4000)
     bad = tmp_path / "zeroed.h5"
     bad.write_bytes(bytes(data))
     with pytest.raises(FileFormatError, match="zeroed.h5"):
@@ -216,8 +234,12 @@ def test_crash_during_simulation_leaves_no_directory(tmp_path, monkeypatch):
 
     monkeypatch.setattr(sim, "simulate_dem_tiles", boom)
     with pytest.raises(RuntimeError):
-        run_simulate(ScenarioConfig(truth="model", scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0,
-                                    start_lat_deg=45.0), tmp_path / "out")
+        run_simulate(
+            ScenarioConfig(
+                truth="model", scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0, start_lat_deg=45.0
+            ),
+            tmp_path / "out",
+        )
     assert list(tmp_path.iterdir()) == []
 
 
@@ -240,7 +262,9 @@ def test_refuses_to_overwrite_foreign_directory(tmp_path):
 def test_replacing_a_scenario_keeps_user_files_and_leaves_no_debris(tmp_path):
     """A scenario directory is replaced only if it holds nothing but what simulate writes; the
     replacement swaps directories (the old one is deleted after the new one is in place)."""
-    cfg = ScenarioConfig(truth="model", scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0, start_lat_deg=45.0)
+    cfg = ScenarioConfig(
+        truth="model", scenario="pass", n_tie_points=5, n_check_points=0, duration_s=300.0, start_lat_deg=45.0
+    )
     out = tmp_path / "scen"
     run_simulate(cfg, out)
     first = (out / "scenario.json").read_text()
@@ -256,8 +280,13 @@ def test_replacing_a_scenario_keeps_user_files_and_leaves_no_debris(tmp_path):
 
 
 def test_independent_truth_settings_are_checked():
-    for field, value in (("noise_tail_dof", 2.0), ("mismatch_rate", 1.5), ("mismatch_px", (2.0, 1.0)),
-                         ("dem_correlated_fraction", -0.1), ("subposting_relief_m", -1.0)):
+    for field, value in (
+        ("noise_tail_dof", 2.0),
+        ("mismatch_rate", 1.5),
+        ("mismatch_px", (2.0, 1.0)),
+        ("dem_correlated_fraction", -0.1),
+        ("subposting_relief_m", -1.0),
+    ):
         with pytest.raises(InputError, match=field):
             ScenarioConfig(**{field: value})
 
@@ -284,8 +313,9 @@ def test_sub_posting_relief_has_its_rms_and_is_finer_than_the_dem():
     d = SyntheticTerrain(seed=4, fine_relief_m=3.0).relief(lat, lon) - SyntheticTerrain(seed=4).relief(lat, lon)
     assert abs(np.sqrt(np.mean((d - d.mean()) ** 2)) - 3.0) < 0.3
     # 45 m away (half a 3" posting) the fine relief is nearly independent of itself
-    d2 = (SyntheticTerrain(seed=4, fine_relief_m=3.0).relief(lat + 45 / 111e3, lon)
-          - SyntheticTerrain(seed=4).relief(lat + 45 / 111e3, lon))
+    d2 = SyntheticTerrain(seed=4, fine_relief_m=3.0).relief(lat + 45 / 111e3, lon) - SyntheticTerrain(seed=4).relief(
+        lat + 45 / 111e3, lon
+    )
     assert abs(np.corrcoef(d, d2)[0, 1]) < 0.6
 
 
@@ -296,8 +326,9 @@ def test_scene_correlated_gcp_errors():
     from misrgraph.sim.gcps import generate_gcp_database
     from misrgraph.sim.terrain import SyntheticTerrain
 
-    db, truth = generate_gcp_database(np.random.default_rng(3), SyntheticTerrain(seed=3), 1500, 30.0,
-                                      scene_fraction=0.5)
+    db, truth = generate_gcp_database(
+        np.random.default_rng(3), SyntheticTerrain(seed=3), 1500, 30.0, scene_fraction=0.5
+    )
     lat, lon, _ = ecef_to_geodetic(truth)
     e = np.einsum("gji,gj->gi", enu_basis(lat, lon), db.ecef() - truth)
     assert abs(np.sqrt(np.mean(e**2)) - 30.0) < 3.0
@@ -321,7 +352,10 @@ def test_focal_plane_perturbation_moves_the_swath_edge_by_its_sigma(nominal_came
     shifts = []
     for _ in range(60):
         m = perturb_focal_plane(rng, nominal_camera, 0.05)
-        y0 = nominal_camera.focal_plane_y(np.arange(9), np.full(9, 2), nominal_camera.cy[:, 2] + 752.0) / nominal_camera.focal_length[:, 2]
+        y0 = (
+            nominal_camera.focal_plane_y(np.arange(9), np.full(9, 2), nominal_camera.cy[:, 2] + 752.0)
+            / nominal_camera.focal_length[:, 2]
+        )
         y1 = m.focal_plane_y(np.arange(9), np.full(9, 2), nominal_camera.cy[:, 2] + 752.0) / m.focal_length[:, 2]
         shifts.append((y1 - y0) / nominal_camera.alpha[:, 2, 1])
     rms = np.sqrt(np.mean(np.square(shifts)))
@@ -353,8 +387,18 @@ def test_measurements_moved_outside_the_pass_are_not_made(tmp_path):
     measurements instead of writing a pass file that fails its own check (seen at standard
     size: a mismatch put a line at -0.56). Large blunders at a high rate make it certain here."""
     out = tmp_path / "edge"
-    cfg = ScenarioConfig(truth="model", scenario="pass", seed=4, n_tie_points=60, n_check_points=5, duration_s=600.0,
-                         start_lat_deg=50.0, tie_blunder_rate=0.5, blunder_min_px=200.0, blunder_max_px=400.0)
+    cfg = ScenarioConfig(
+        truth="model",
+        scenario="pass",
+        seed=4,
+        n_tie_points=60,
+        n_check_points=5,
+        duration_s=600.0,
+        start_lat_deg=50.0,
+        tie_blunder_rate=0.5,
+        blunder_min_px=200.0,
+        blunder_max_px=400.0,
+    )
     run_simulate(cfg, out)
     sc = load_scenario(out)
     p, tp = sc.load_pass(0), sc.load_truth(0)
@@ -375,8 +419,11 @@ def test_cli_refuses_a_negative_coast_ramp(tmp_path):
     import sys
 
     out = tmp_path / "scen"
-    r = subprocess.run([sys.executable, "-m", "misrgraph", "simulate", "--coast-ramp-m", "-5", "--out", str(out)],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "misrgraph", "simulate", "--coast-ramp-m", "-5", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode != 0
     assert "coast_ramp_m" in r.stderr and "-5.0" in r.stderr and ">= 0" in r.stderr and "Traceback" not in r.stderr
     assert not out.exists()
@@ -396,7 +443,9 @@ def test_simulate_draws_the_independent_truth_unless_told(tmp_path):
     for name, extra in (("default", []), ("model", ["--truth", "model"])):
         r = CliRunner().invoke(app, [*args, *extra, "--out", str(tmp_path / name)])
         assert r.exit_code == 0, r.output
-        spacing[name] = float(np.median(np.diff(load_scenario(tmp_path / name).load_truth(0).attitude_error.knot_times[1])))
+        spacing[name] = float(
+            np.median(np.diff(load_scenario(tmp_path / name).load_truth(0).attitude_error.knot_times[1]))
+        )
     assert spacing == {"default": 2.0, "model": 60.0}
     assert json.loads((tmp_path / "default" / "scenario.json").read_text())["config"]["truth"] == "independent"
 
@@ -418,8 +467,17 @@ def test_paired_sources_leave_every_other_draw_unchanged(tmp_path, monkeypatch):
     monkeypatch.setattr(simulate, "_scenario_rng", recording)
 
     def final_state(**extra):
-        cfg = ScenarioConfig(scenario="pass", truth="independent", seed=21, n_tie_points=25, n_check_points=3,
-                             n_gcps=20, duration_s=300.0, start_lat_deg=50.0, **extra)
+        cfg = ScenarioConfig(
+            scenario="pass",
+            truth="independent",
+            seed=21,
+            n_tie_points=25,
+            n_check_points=3,
+            n_gcps=20,
+            duration_s=300.0,
+            start_lat_deg=50.0,
+            **extra,
+        )
         run_simulate(cfg, tmp_path / f"s{len(finals)}")
         return finals[-1].bit_generator.state["state"]
 

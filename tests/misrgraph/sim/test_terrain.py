@@ -66,7 +66,9 @@ def test_dem_tiles_hold_the_tapered_terrain():
     n = dem.heights.shape[1]
     g = np.arange(n)
     glat = dem.lat0[:, None, None] + dem.posting_deg * g[None, :, None] + 0 * g[None, None, :]
-    glon = (dem.lon0[:, None, None] + dem.lon_posting[:, None, None] * g[None, None, :] + 0 * g[None, :, None] + 180) % 360 - 180
+    glon = (
+        dem.lon0[:, None, None] + dem.lon_posting[:, None, None] * g[None, None, :] + 0 * g[None, :, None] + 180
+    ) % 360 - 180
     err = dem.heights - ramp.height(glat, glon)
     assert np.sqrt(np.mean(err**2)) < 3 * 30.0
     d = coast_distance_m(glat, glon, 8000.0)

@@ -6,9 +6,9 @@ import h5py
 import numpy as np
 import pytest
 
-from misrgraph.runs.adjust import run_adjust
-from misrgraph.model.constants import ANGLES, CAMERAS
 from misrgraph.errors import InputError
+from misrgraph.model.constants import ANGLES, CAMERAS
+from misrgraph.runs.adjust import run_adjust
 from misrgraph.viz.viewer import run_view
 
 
