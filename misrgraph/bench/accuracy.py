@@ -53,9 +53,9 @@ SOLVER_LABELS = {
     "16 landmarks on the pure functions",
 }
 
-#: landmarks per Ceres cost function of ``ceres_batched`` (16 and 32 were the fastest per
-#: iteration on the standard pass, 2026-11-24: 0.38 s; 8: 0.47 s, 64: 0.65 s, 256: 4.5 s, as the
-#: coupled landmarks fill the normal equations; per landmark with DENSE_SCHUR: ~2.2 s)
+#: landmarks per Ceres cost function of ``ceres_batched`` (16 and 32 are the fastest per
+#: iteration on the standard pass; larger groups fill the normal equations with coupled landmarks,
+#: one per landmark with DENSE_SCHUR is slower still)
 CERES_GROUP = 16
 
 

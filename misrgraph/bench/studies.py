@@ -228,7 +228,7 @@ def _interval(values: list[float]) -> dict[str, float]:
 
 #: the adjustment settings ``bench nees`` changes under the model truth, which has no attitude
 #: error faster than the knots: no fast attitude noise added to the predicted geolocation sigma
-#: (the DEM is weighted at its stated sigma by default since 2026-11-26, as that truth draws it)
+#: (the DEM is weighted at its stated sigma by default, as that truth draws it)
 MODEL_TRUTH_ADJUST: dict[str, Any] = {"attitude_jitter_arcsec": 0.0}
 
 

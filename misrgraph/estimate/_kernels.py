@@ -1,8 +1,8 @@
 """Optional numba kernel for the normal-equation accumulation of :mod:`misrgraph.estimate.problem`.
 
-Measured reason (``misrgraph bench sba``, 2000 tie points): the vectorised numpy accumulation
-(batched matmul + ``np.bincount`` scatter of ~9 M Hessian contributions) took ~70 ms of each
-~170 ms iteration; this fused loop does the same sums in one pass over the observations.
+Why: the vectorised numpy accumulation (batched matmul + ``np.bincount`` scatter of millions of
+Hessian contributions on a standard pass) is a large share of each iteration; this fused loop
+does the same sums in one pass over the observations (``misrgraph bench sba`` times both).
 :func:`accumulate` returns ``None`` when numba is not installed, and the caller falls back to
 the numpy path (both are tested to agree).
 """

@@ -28,7 +28,7 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import gtsam
 import numpy as np
@@ -73,43 +73,40 @@ Array = NDArray[np.float64]
 RED = BANDS.index("red")
 
 
-_GRAPH_DEFAULTS = GraphConfig()
 #: The camera corrections a pass adjustment estimates by default: the three angles, and the
 #: field-angle distortion alpha_2, alpha_3, which a calibration of the angles alone leaves at
 #: their pre-flight values: held by their prior, they carry that knowledge into every covariance
 #: the pass reports (the PP's 1 sigma among them). f is left out: it scales both focal-plane
-#: components alike, so it moves a red-band pixel only through the band's offset k (3-6 pixels):
-#: 0.0004 px for a relative error of 0.05/752, nothing a pass can see or a product would feel.
+#: components alike, so it moves a red-band pixel only through the band's offset k (3-6 pixels),
+#: nothing a pass can see or a product would feel.
 CAMERA_PARAMS_ADJUST = ("delta", "beta", "epsilon", "alpha2", "alpha3")
+
+#: The pass graph an adjustment builds by default: :class:`GraphConfig`'s defaults with the
+#: camera corrections of :data:`CAMERA_PARAMS_ADJUST` and 1 arcsec of attitude jitter (its
+#: unresolved part in the observations' weights and in every geolocation sigma)
+ADJUST_GRAPH = GraphConfig(camera_params=CAMERA_PARAMS_ADJUST, attitude_jitter_arcsec=1.0)
+_GRAPH_FIELDS = frozenset(f.name for f in dataclasses.fields(GraphConfig))
 
 
 @dataclass(frozen=True)
 class AdjustConfig(Config):
-    """Adjustment settings; the graph fields take their defaults from :class:`GraphConfig`."""
+    """Adjustment settings: how the pass becomes a graph (``graph``) and how it is solved.
 
-    knot_spacing_s: tuple = _GRAPH_DEFAULTS.knot_spacing_s
-    threshold1: int = _GRAPH_DEFAULTS.threshold1
-    threshold2: int = _GRAPH_DEFAULTS.threshold2
-    knot_rule: str = _GRAPH_DEFAULTS.knot_rule
-    knot_prior: str = _GRAPH_DEFAULTS.knot_prior
-    knot_prior_damping: float = _GRAPH_DEFAULTS.knot_prior_damping
-    ephemeris_segments: int = _GRAPH_DEFAULTS.ephemeris_segments
-    #: see ``GraphConfig.ephemeris_once_per_rev_m`` (0: the navigation's offset and drift alone)
-    ephemeris_once_per_rev_m: float = _GRAPH_DEFAULTS.ephemeris_once_per_rev_m
-    camera_prior_px: float = _GRAPH_DEFAULTS.camera_prior_px
+    ``from_dict`` also takes the graph's fields at the top level (``{"use_dem": false}`` means
+    ``{"graph": {"use_dem": false}}``), as ``--config`` files and earlier states write them.
+    """
+
+    #: how the pass becomes a graph: knots and their prior, ephemeris segments and prior, camera
+    #: corrections and their prior, the DEM factors, the attitude jitter
+    #: (``graph.attitude_jitter_arcsec``: 1 sigma per angle, arcsec; its unresolved part is added
+    #: to every geolocation sigma derived from the adjustment, and to the observations' weights
+    #: unless ``jitter_in_weights`` is off)
+    graph: GraphConfig = ADJUST_GRAPH
     #: a camera model written by ``misrgraph calibrate --out`` carries its corrections' joint
     #: covariance: the runs (adjust, update, products, campaign) then give it to the camera
-    #: corrections as their prior, in place of ``camera_prior_px`` per camera
+    #: corrections as their prior, in place of ``graph.camera_prior_px`` per camera
     #: (:func:`misrgraph.io.camera.read_calibration_prior`); False: ``camera_prior_px`` always
     camera_prior_from_calibration: bool = True
-    #: the camera corrections estimated per camera (:data:`factors.collinearity.CAMERA_PARAMS`);
-    #: f and alpha_i are held by ``camera_focal_prior_px`` (the supplied model's knowledge)
-    camera_params: tuple = CAMERA_PARAMS_ADJUST
-    camera_focal_prior_px: float = _GRAPH_DEFAULTS.camera_focal_prior_px
-    use_dem: bool = _GRAPH_DEFAULTS.use_dem
-    dem_sigma_scale: float = _GRAPH_DEFAULTS.dem_sigma_scale
-    dem_smoothing_postings: float = _GRAPH_DEFAULTS.dem_smoothing_postings
-    gcp_scenes: bool = _GRAPH_DEFAULTS.gcp_scenes
     robust: str = "cauchy"
     robust_k: float = 3.0
     reject_sigma: float = 5.0
@@ -127,16 +124,9 @@ class AdjustConfig(Config):
     #: every class is within ``variance_component_tol`` of 1; 0 (default) keeps the stated sigmas
     variance_component_rounds: int = 0
     variance_component_tol: float = 0.05
-    #: 1 sigma (arcsec, per angle) of the attitude jitter: the GN&C's error faster than the slow
-    #: 200-2000 s process (10 s Kalman updates, gyro noise), periods log-uniform in
-    #: ``attitude_jitter_periods_s``. The part the knots cannot follow (:func:`unresolved_attitude`:
-    #: 0.86 of it with knots every 60 s) is added to every geolocation sigma derived from the
-    #: adjustment (``AdjustResult.unresolved_attitude_rad``); the part they take up is the knots'.
-    attitude_jitter_arcsec: float = 1.0
-    attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
-    #: the unresolved jitter is also noise in every image observation (``GraphConfig.attitude_jitter_arcsec``:
-    #: through each observation's pointing sensitivity, ~0.075 px of a D camera's line sigma,
-    #: 0.01-0.04 px elsewhere); False weights the observations by the matcher's sigma alone
+    #: the unresolved attitude jitter (``graph.attitude_jitter_arcsec``) is also noise in every
+    #: image observation, through each observation's pointing sensitivity; False weights the
+    #: observations by the matcher's sigma alone (the geolocation sigmas still carry it)
     jitter_in_weights: bool = True
     #: the marginals' information matrix: "hessian" (default: J^T J plus the DEM heights' exact
     #: curvature, the Laplace approximation at the optimum) or "gauss_newton" (J^T J, what
@@ -168,7 +158,9 @@ class AdjustConfig(Config):
                 raise InputError(name, v, "an integer >= 0")
         if self.covariance not in ("hessian", "gauss_newton"):
             raise InputError("covariance", self.covariance, ("hessian", "gauss_newton"))
-        check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
+        if not isinstance(self.graph, GraphConfig):
+            raise InputError("graph", self.graph, "a GraphConfig")
+        check_jitter(self.graph.attitude_jitter_arcsec, self.graph.attitude_jitter_periods_s)
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
         for name, modes, unit in (
@@ -184,28 +176,25 @@ class AdjustConfig(Config):
                 raise InputError(name, v, f"one of {modes} or a finite 1 sigma >= 0 ({unit})")
         self.graph_config()  # the graph's fields (camera_params, priors, knots) checked now, not mid-run
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None = None, **overrides: Any) -> "AdjustConfig":
+        """Build from a mapping; the graph's fields may stand at the top level (see the class)."""
+        merged = {**dict(data or {}), **overrides}
+        graph = merged.pop("graph", None)
+        graph = graph.to_dict() if isinstance(graph, GraphConfig) else dict(graph or {})
+        own = {f.name for f in dataclasses.fields(cls)}
+        for key in [k for k in merged if k in _GRAPH_FIELDS and k not in own]:
+            graph[key] = merged.pop(key)
+        if graph:
+            merged["graph"] = ADJUST_GRAPH.replace(**graph)
+        return super().from_dict(merged)
+
     def graph_config(self, **overrides: Any) -> GraphConfig:
-        base = dict(
-            knot_spacing_s=self.knot_spacing_s,
-            threshold1=self.threshold1,
-            threshold2=self.threshold2,
-            knot_rule=self.knot_rule,
-            knot_prior=self.knot_prior,
-            knot_prior_damping=self.knot_prior_damping,
-            ephemeris_segments=self.ephemeris_segments,
-            ephemeris_once_per_rev_m=self.ephemeris_once_per_rev_m,
-            camera_prior_px=self.camera_prior_px,
-            camera_params=tuple(self.camera_params),
-            camera_focal_prior_px=self.camera_focal_prior_px,
-            use_dem=self.use_dem,
-            dem_sigma_scale=self.dem_sigma_scale,
-            dem_smoothing_postings=self.dem_smoothing_postings,
-            gcp_scenes=self.gcp_scenes,
-            attitude_jitter_arcsec=self.attitude_jitter_arcsec if self.jitter_in_weights else 0.0,
-            attitude_jitter_periods_s=tuple(self.attitude_jitter_periods_s),
-        )
-        base.update(overrides)
-        return GraphConfig.from_dict(base)
+        """The pass graph's configuration: ``graph``, without the jitter in the weights when
+        ``jitter_in_weights`` is off, with ``overrides`` applied."""
+        if not self.jitter_in_weights:
+            overrides = {"attitude_jitter_arcsec": 0.0, **overrides}
+        return self.graph.replace(**overrides) if overrides else self.graph
 
 
 @dataclass
@@ -386,28 +375,30 @@ def adjust_pass(
         rel["sigma_scale_applied"] = vc_scale
     rel["covariance"] = cov_used
     return AdjustResult(
-        pg,
-        res.values,
-        marg,
-        att,
-        eph,
-        cam,
-        rej,
-        norm[rej],
-        resid,
-        res.iterations,
-        res.final_error,
-        res.history,
-        time.perf_counter() - t0,
-        dropped,
-        res.status,
-        variance_factor(pg.problem, res.final_error),
-        rel,
-        unresolved_attitude(pg.attitude_model.knot_times, cfg.attitude_jitter_arcsec, cfg.attitude_jitter_periods_s),
-        np.flatnonzero(snooped),
-        tie_height,
-        extra,
-        offset,
+        pass_graph=pg,
+        values=res.values,
+        marginals=marg,
+        attitude=att,
+        ephemeris=eph,
+        camera=cam,
+        rejected=rej,
+        rejected_norm=norm[rej],
+        residuals_px=resid,
+        iterations=res.iterations,
+        final_cost=res.final_error,
+        history=res.history,
+        seconds=time.perf_counter() - t0,
+        dropped_landmarks=dropped,
+        status=res.status,
+        variance_factor=variance_factor(pg.problem, res.final_error),
+        reliability=rel,
+        unresolved_attitude_rad=unresolved_attitude(
+            pg.attitude_model.knot_times, cfg.graph.attitude_jitter_arcsec, cfg.graph.attitude_jitter_periods_s
+        ),
+        snooped=np.flatnonzero(snooped),
+        tie_height=tie_height,
+        landmark_extra_cov=extra,
+        tie_offset=offset,
     )
 
 

@@ -122,7 +122,7 @@ class CalibrateConfig(Config):
     #: 1 sigma (arcsec, per angle) of the GN&C's attitude jitter (periods log-uniform in
     #: ``attitude_jitter_periods_s``, s): the part the knots cannot follow is noise in every GCP
     #: observation, carried into its line and sample sigma by its pointing sensitivity, as in the
-    #: pass adjustment (``AdjustConfig.attitude_jitter_arcsec``). 0 (default): the matcher's sigma alone
+    #: pass adjustment (``AdjustConfig.graph.attitude_jitter_arcsec``). 0 (default): the matcher's sigma alone
     attitude_jitter_arcsec: float = 0.0
     attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
 

@@ -161,9 +161,8 @@ class GraphConfig(Config):
     omega_prior_rad: float = 1.745e-3
     use_dem: bool = True
     #: the DEM height factors' sigma is the DEM's stated 1 sigma (quality class, local fit) times
-    #: this. 1 (the stated sigma) since 2026-11-26; it was 2, an empirical factor, until the
-    #: cause of the DEM's excess pull was found (docs/design.md, "The DEM weight"): the DEM's
-    #: posting-level roughness, which ``dem_smoothing_postings`` now removes
+    #: this; 1 weights the DEM as stated (the posting-level roughness that would make the term
+    #: pull too hard is removed by ``dem_smoothing_postings``; docs, "The DEM weight")
     dem_sigma_scale: float = 1.0
     #: 1 sigma (DEM postings) of the Gaussian low-pass applied to the DEM before the height
     #: factors read it (:meth:`DemTiles.smoothed`; their sigma keeps the raw DEM's local

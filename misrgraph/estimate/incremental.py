@@ -20,10 +20,9 @@ new estimate ``x`` each factor's staleness is
   out, as is the correlation between landmarks, so the measure is a proxy, not a bound).
 
 Rounds re-linearise the factors with the largest staleness (until the rest holds a quarter of the
-budget) and stop once the total is at most ``linearization_tol**2``. Measured on the 50-pass
-repeat path (``misrgraph bench incremental --passes 50``, 2026-11-24), the default 0.01 leaves
-the estimate up to 0.028 sigma (largest over every variable) from the converged batch: the
-tolerance bounds the linearisation error of a round, not the distance to the optimum.
+budget) and stop once the total is at most ``linearization_tol**2``. The tolerance bounds the
+linearisation error of a round, not the distance to the optimum; ``misrgraph bench
+incremental`` measures that distance against the converged batch.
 
 Shared variables: the camera corrections and GCPs (one key each for every pass), and the tie
 points of repeat passes of the same path (keyed by path and feature id).
@@ -45,8 +44,8 @@ Keeping the update flat as passes accumulate (issue 20):
   (``ISAM2.marginalizeLeavesWithIndices``, cheap: the shared variables are eliminated last, so they
   are leaves and their marginal is the cached factor of their subtree), and the marginal factors
   of every settled pass are summed into one ``HessianFactor`` on the shared variables. The tree's
-  root then receives one factor for all settled passes instead of one per pass (measured on the
-  50-pass repeat path, this took the iSAM2 part of an update at pass 50 from 0.084 to 0.050 s).
+  root then receives one factor for all settled passes instead of one per pass, so its
+  re-elimination does not grow with the number of passes.
   The pass's DEM factors (on its landmarks; the DEM curves at its posting scale) and GCP priors
   stay live. Its knots and ephemeris keep estimates and marginals through their conditional on
   the shared variables (:class:`_Conditional`; exact, as the own variables enter no other
@@ -617,8 +616,8 @@ class IncrementalSolver:
         knots = [k for a in range(3) for k in pg.knot_keys(a)]
         joint_keys = knots + pg.ephemeris_keys() + list(pg.camera_keys.values())
         # one joint covariance of all the pass's variables, sliced: iSAM2 gives it in the time of
-        # two or three single-key marginals (measured at 20 passes: 0.15 s for 180 keys, against
-        # 9.9 s key by key), and a settled pass's own keys need the shared keys' joint anyway
+        # two or three single-key marginals (key by key is far slower on a long path), and a
+        # settled pass's own keys need the shared keys' joint anyway
         order = list(dict.fromkeys(joint_keys + keys))
         full = self.joint_marginal_covariance(order)
         o = np.concatenate([[0], np.cumsum([pg.problem.dims[k] for k in order])]).astype(int)
@@ -635,21 +634,23 @@ class IncrementalSolver:
         resid[pg.obs_index[pg.collinearity.order]] = r
         rej = np.flatnonzero(self.exclusions[index])
         return AdjustResult(
-            pg,
-            v,
-            marg,
-            att,
-            eph,
-            cam,
-            rej,
-            np.zeros(rej.size),
-            resid,
-            self.last_rounds,
-            float(self.isam.getFactorsUnsafe().error(v)),
-            [],
-            seconds,
+            pass_graph=pg,
+            values=v,
+            marginals=marg,
+            attitude=att,
+            ephemeris=eph,
+            camera=cam,
+            rejected=rej,
+            rejected_norm=np.zeros(rej.size),
+            residuals_px=resid,
+            iterations=self.last_rounds,
+            final_cost=float(self.isam.getFactorsUnsafe().error(v)),
+            history=[],
+            seconds=seconds,
             unresolved_attitude_rad=unresolved_attitude(
-                pg.attitude_model.knot_times, self.cfg.attitude_jitter_arcsec, self.cfg.attitude_jitter_periods_s
+                pg.attitude_model.knot_times,
+                self.cfg.graph.attitude_jitter_arcsec,
+                self.cfg.graph.attitude_jitter_periods_s,
             ),
         )
 

@@ -31,9 +31,8 @@ conditional on the other variables, like the tie points' shared height term
 is evaluated at, and with it the predicted sample (up to 0.15 px per px of line on a test pass);
 ``R`` treats the offset as a shift of the measured coordinates only and leaves that out.
 
-Measured 2026-11-26 on passes matched from images under the independent truth (docs/design.md,
-"The landmarks' NEES, split by time"): the tie landmarks' per-landmark NEES part went from 1.36 to
-1.06 (0.99-1.12) at reduced size (40 passes) and to 0.96 (0.91-1.00) at standard size (20 passes).
+Its effect on the tie landmarks' NEES is measured by ``misrgraph bench nees`` on matched passes
+(docs, "The landmarks' NEES, split by time").
 """
 
 from __future__ import annotations

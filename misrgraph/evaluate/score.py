@@ -331,10 +331,9 @@ def predicted_checkpoint_rms(
     columns ``l_i`` of ``L`` (exact to first order: ``tr(G S G^T)`` with ``G = de/dx``), plus
     ``sigma_u^2 sum_a |de/d(angle a)|^2`` with each angle offset by ``sigma_u`` over the whole
     pass (a view's displacement depends on the angle at its own time only). ``rel_step``: the step
-    in units of 1 sigma (the geolocation is linear over it: 1 and 0.3 agree to 0.1 m on a
-    standard pass). One geolocation per column: no sampling error. (A Monte Carlo of 40 draws
-    with a fixed seed, used until 2026-11-25, put the same sampling error into every pass: 4-16 %
-    too much predicted variance on each standard pass measured.)"""
+    in units of 1 sigma (the geolocation is linear over it). One geolocation per column: no
+    sampling error, unlike a Monte Carlo of a few draws, whose error would be the same in every
+    pass scored with the same draws."""
     pg = res.pass_graph
     keys = [k for a in range(3) for k in pg.knot_keys(a)] + pg.ephemeris_keys() + list(pg.camera_keys.values())
     cov = res.marginals.joint_of(keys)

@@ -286,11 +286,12 @@ def _restore(
                 f"{meta['input_sha256'][key][:12]}...; it is now {now[:12]}...: restore it "
                 "or start a new state)",
             )
-    conf = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["config"].items()}
-    # a state written before the DEM's low-pass existed (2026-11-26) read the raw DEM: it goes on so
-    conf.setdefault("dem_smoothing_postings", 0.0)
-    # and one written before the calibration's covariance became the camera prior (2026-11-26) used camera_prior_px
-    conf.setdefault("camera_prior_from_calibration", False)
+    conf = dict(meta["config"])
+    if "graph" not in conf:
+        # a state whose settings are flat predates settings it does not name and keeps the
+        # behaviour it was created with: the raw DEM (no low-pass) and the per-camera prior
+        conf.setdefault("dem_smoothing_postings", 0.0)
+        conf.setdefault("camera_prior_from_calibration", False)
     cfg = AdjustConfig.from_dict(conf)
     camera = load_camera_model(meta["camera_model"])
     if not isinstance(camera, CameraModel):

@@ -88,7 +88,7 @@ def test_result_file_contents(adjusted):
         assert f["landmarks/covariance"].shape[1:] == (3, 3)
         assert np.all(np.linalg.eigvalsh(f["landmarks/covariance"][()]) > 0)
         assert f["ephemeris_error/covariance"].shape == (1, 6, 6)
-        params = AdjustConfig().camera_params
+        params = AdjustConfig().graph.camera_params
         corr = f["camera_corrections/values"]
         assert corr.attrs["order"] == ",".join(params) and corr.shape == (len(CAMERAS), len(params))
         assert np.all(np.linalg.eigvalsh(f["camera_corrections/covariance"][()]) > 0)
@@ -155,7 +155,7 @@ def test_nees_inside_chi2_band_over_seeds(tmp_path):
             ),
             out,
         )
-        s = run_adjust(out, cfg=AdjustConfig(**MODEL_TRUTH_ADJUST))
+        s = run_adjust(out, cfg=AdjustConfig.from_dict(**MODEL_TRUTH_ADJUST))
         for k in tot:
             dim = s["nees"][f"{k}_dim"]
             tot[k][0] += s["nees"][k] * dim
@@ -176,12 +176,14 @@ def test_knots_are_removed_where_tie_points_are_missing(small_pass):
     o = p.observations.subset(~gap)
     keep_lm = p.landmarks
     q = OrbitPass(p.pass_id, p.path, p.orbit, p.ephemeris, p.attitude, p.t0, p.line_time, keep_lm, o, p.temperature_c)
-    res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", knot_prior="independent"))
+    res = adjust_pass(
+        q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig.from_dict(robust="none", knot_prior="independent")
+    )
     pg = res.pass_graph
     from misrgraph.model.errormodels import AttitudeErrorModel, interval_counts
 
-    cfg = AdjustConfig(knot_prior="independent")
-    grid = AttitudeErrorModel.zeros(*p.span, cfg.knot_spacing_s).knot_times[1]
+    cfg = AdjustConfig.from_dict(knot_prior="independent")
+    grid = AttitudeErrorModel.zeros(*p.span, cfg.graph.knot_spacing_s).knot_times[1]
     t_used = q.observation_times()[pg.obs_index]
     counts = interval_counts(grid, t_used, q.observations.camera[pg.obs_index])
     support = counts[np.maximum(np.arange(grid.size) - 1, 0)] + np.vstack([counts, np.zeros((1, 9), int)])
@@ -190,7 +192,7 @@ def test_knots_are_removed_where_tie_points_are_missing(small_pass):
     inside = np.flatnonzero((grid > t_a + 60.0) & (grid < t_b - 60.0))
     assert set(inside) <= set(removed)
     # ... and every removed knot fails eq. 28 or eq. 29 on its support, every kept interior one passes
-    fails = (support.sum(1) < cfg.threshold1) | ((support > 0).sum(1) < cfg.threshold2)
+    fails = (support.sum(1) < cfg.graph.threshold1) | ((support > 0).sum(1) < cfg.graph.threshold2)
     assert np.all(fails[removed])
     kept = np.setdiff1d(np.arange(1, grid.size - 1), removed)
     assert not np.any(fails[kept])
@@ -233,7 +235,7 @@ def test_attitude_sigma_over_a_gap_stays_at_the_prior(small_pass):
     prior = np.asarray(GraphConfig().attitude_sigma_arcsec) * ARCSEC
     ratios = {}
     for kp in ("process", "independent"):
-        res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", knot_prior=kp))
+        res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig.from_dict(robust="none", knot_prior=kp))
         pg = res.pass_graph
         ratios[kp] = [pg.attitude_sigma(res.marginals, a, tt).max() / prior[a] for a in range(3)]
         if kp == "process":
@@ -388,7 +390,7 @@ def test_bad_settings_name_the_field(cls, field, value):
     from misrgraph.estimate.graph import GraphConfig
 
     with pytest.raises(InputError, match=field):
-        {"AdjustConfig": AdjustConfig, "GraphConfig": GraphConfig}[cls](**{field: value})
+        {"AdjustConfig": AdjustConfig, "GraphConfig": GraphConfig}[cls].from_dict({field: value})
 
 
 def test_camera_corrections_enter_the_model_in_si(small_pass):
@@ -401,7 +403,7 @@ def test_camera_corrections_enter_the_model_in_si(small_pass):
 
     sc, op = small_pass
     supplied = sc.camera_model.at_temperature(op.temperature_c)
-    cfg = AdjustConfig(camera_params=("delta", "f", "alpha2"))
+    cfg = AdjustConfig.from_dict(camera_params=("delta", "f", "alpha2"))
     pg = build_pass_graph(op, supplied, sc.dem, sc.gcps, cfg.graph_config())
     values = gtsam.Values(pg.problem.initial)
     c = 3
@@ -435,7 +437,7 @@ def test_unresolved_attitude_is_the_jitter_the_knots_cannot_follow(small_pass):
     b = spline_design(kt, t)
     hat = b @ np.linalg.solve(b.T @ b, b.T)
     rng = np.random.default_rng(7)
-    sig = AdjustConfig().attitude_jitter_arcsec * ARCSEC
+    sig = AdjustConfig().graph.attitude_jitter_arcsec * ARCSEC
     resid = []
     for _ in range(300):
         e = smooth_process(rng, sig, n_terms=12, periods_s=JITTER_PERIODS_S)(t)[0]
@@ -447,7 +449,9 @@ def test_unresolved_attitude_is_the_jitter_the_knots_cannot_follow(small_pass):
         np.sqrt(resid.mean()) / ARCSEC,
     )
     assert res.unresolved_attitude_rad < 0.95 * sig  # the knots take up part of it
-    none = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(robust="none", attitude_jitter_arcsec=0.0))
+    none = adjust_pass(
+        p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig.from_dict(robust="none", attitude_jitter_arcsec=0.0)
+    )
     assert none.unresolved_attitude_rad == 0.0
 
 
@@ -464,7 +468,7 @@ def test_once_per_rev_setting_gives_the_ephemeris_segments_one_joint_prior(small
     sc, p = small_pass
     sig = {}
     for amp, n_seg in ((0.0, 1), (30.0, 1), (30.0, 2)):
-        gc = AdjustConfig(ephemeris_once_per_rev_m=amp, ephemeris_segments=n_seg).graph_config()
+        gc = AdjustConfig.from_dict(ephemeris_once_per_rev_m=amp, ephemeris_segments=n_seg).graph_config()
         pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, gc)
         keys = pg.ephemeris_keys()
         assert len(keys) == n_seg
@@ -486,11 +490,11 @@ def test_once_per_rev_setting_gives_the_ephemeris_segments_one_joint_prior(small
             sc.camera_model,
             sc.dem,
             sc.gcps,
-            AdjustConfig(robust="none", ephemeris_once_per_rev_m=amp, ephemeris_segments=n_seg),
+            AdjustConfig.from_dict(robust="none", ephemeris_once_per_rev_m=amp, ephemeris_segments=n_seg),
         )
         sig[(amp, n_seg)] = np.sqrt(np.diag(res.marginals[res.pass_graph.ephemeris_keys()[0]]))
     assert np.all(sig[(30.0, 1)] >= sig[(0.0, 1)] * (1 - 1e-9)) and np.any(sig[(30.0, 1)] > 1.05 * sig[(0.0, 1)])
     from misrgraph.errors import InputError
 
     with pytest.raises(InputError, match="ephemeris_segments"):
-        AdjustConfig(ephemeris_once_per_rev_m=30.0, ephemeris_segments=3)
+        AdjustConfig.from_dict(ephemeris_once_per_rev_m=30.0, ephemeris_segments=3)

@@ -64,9 +64,9 @@ def test_incremental_over_ten_passes_equals_batch(path_dir):
             assert np.max(np.abs(res_i.marginals[k] - m[k]) / np.outer(d, d)) < 1e-2, (i, k)
         # the jitter its knots cannot follow, from the solver's own settings
         assert res_i.unresolved_attitude_rad == unresolved_attitude(
-            res_i.pass_graph.attitude_model.knot_times, solver.cfg.attitude_jitter_arcsec
+            res_i.pass_graph.attitude_model.knot_times, solver.cfg.graph.attitude_jitter_arcsec
         )
-    quiet = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, AdjustConfig(attitude_jitter_arcsec=0.0))
+    quiet = IncrementalSolver(sc.camera_model, sc.gcps, sc.dem, AdjustConfig.from_dict(attitude_jitter_arcsec=0.0))
     quiet.add_passes([sc.load_pass(0)])
     assert quiet.pass_result(0).unresolved_attitude_rad == 0.0 < solver.pass_result(0).unresolved_attitude_rad
 
@@ -329,14 +329,18 @@ def test_a_state_from_before_the_dem_low_pass_keeps_the_raw_dem(path_dir, tmp_pa
     state = tmp_path / "state"
     run_update(state, [str(sc.pass_files[0])], **kw)
     meta = json.loads((state / "state.json").read_text())
-    assert meta["config"]["dem_smoothing_postings"] == 1.0
-    assert _restore(state, meta, None, None)[0].cfg.dem_smoothing_postings == 1.0
-    del meta["config"]["dem_smoothing_postings"]
-    assert _restore(state, meta, None, None)[0].cfg.dem_smoothing_postings == 0.0
+    assert meta["config"]["graph"]["dem_smoothing_postings"] == 1.0
+    assert _restore(state, meta, None, None)[0].cfg.graph.dem_smoothing_postings == 1.0
+    # an older state's settings were flat and lack the fields added since
+    flat = {k: v for k, v in meta["config"].items() if k != "graph"} | meta["config"]["graph"]
+    del flat["dem_smoothing_postings"]
+    old = {**meta, "config": flat}
+    assert _restore(state, old, None, None)[0].cfg.graph.dem_smoothing_postings == 0.0
+    assert _restore(state, old, None, None)[0].cfg.graph.knot_spacing_s == tuple(flat["knot_spacing_s"])
     # likewise the camera prior: a new state takes a calibrated model's covariance, an old one did not
     assert meta["config"]["camera_prior_from_calibration"] is True
-    del meta["config"]["camera_prior_from_calibration"]
-    assert _restore(state, meta, None, None)[0].cfg.camera_prior_from_calibration is False
+    del flat["camera_prior_from_calibration"]
+    assert _restore(state, old, None, None)[0].cfg.camera_prior_from_calibration is False
 
 
 def test_update_with_matched_observations_is_adjust_on_the_same_pass(imagery_pass_dir, tmp_path):

@@ -169,7 +169,9 @@ def test_a_shared_height_error_is_estimated_and_makes_the_heights_honest(small_p
     sc, p = small_pass
     truth = sc.load_truth(0)
     q, moved = _with_shared_heights(p, truth, 40.0, np.random.default_rng(2))
-    cfg = AdjustConfig(attitude_jitter_arcsec=0.0)  # the model truth has no jitter; blunders: the default screen
+    cfg = AdjustConfig.from_dict(
+        attitude_jitter_arcsec=0.0
+    )  # the model truth has no jitter; blunders: the default screen
     res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, cfg.replace(tie_height_sigma_m="estimate"))
     th = res.tie_height
     assert th["source"] == "estimated" and th["tie_points"] > 0

@@ -76,7 +76,7 @@ def test_adjust_on_imported_geotiff_dem_and_csv_gcps(small_pass_dir, tmp_path):
     native = run_adjust(small_pass_dir, dem_file=tmp_path / "dem_native.h5")
     imported = run_adjust(small_pass_dir, dem_file=tmp_path / "dem.h5", gcp_file=tmp_path / "gcp.h5")
     # the DEM mattered: without it the adjustment differs
-    no_dem = run_adjust(small_pass_dir, dem_file=tmp_path / "dem_native.h5", cfg=AdjustConfig(use_dem=False))
+    no_dem = run_adjust(small_pass_dir, dem_file=tmp_path / "dem_native.h5", cfg=AdjustConfig.from_dict(use_dem=False))
     assert abs(no_dem["final_cost"] - native["final_cost"]) > 1e-3 * native["final_cost"]
     for key in ("iterations", "observations", "landmarks", "knots"):
         assert imported[key] == native[key], key

@@ -69,7 +69,7 @@ def test_matched_adjustment_is_as_good_as_the_simulated_one(imagery_pass_dir):
         th["variance_m2"]
     )
     # without DEM factors nothing sees it: left out, and the summary says so
-    no_dem = run_adjust(imagery_pass_dir, observations="matched", cfg=AdjustConfig(use_dem=False))
+    no_dem = run_adjust(imagery_pass_dir, observations="matched", cfg=AdjustConfig.from_dict(use_dem=False))
     assert no_dem["tie_height"]["source"] == "off" and no_dem["tie_height"]["reason"] == "no DEM factors"
     assert any("shared height error was not estimated" in d for d in no_dem["diagnostics"])
 
