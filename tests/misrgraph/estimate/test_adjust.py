@@ -498,3 +498,26 @@ def test_once_per_rev_setting_gives_the_ephemeris_segments_one_joint_prior(small
 
     with pytest.raises(InputError, match="ephemeris_segments"):
         AdjustConfig.from_dict(ephemeris_once_per_rev_m=30.0, ephemeris_segments=3)
+
+
+def test_adjust_config_nests_its_graph_config():
+    """AdjustConfig holds one GraphConfig: flat keys (as --config files and older states write
+    them) and nested ones build the same config, a round trip through a dict is exact, and
+    ``graph_config`` hands the graph on (without the jitter in the weights when they are off)."""
+    from misrgraph.errors import InputError
+    from misrgraph.estimate.adjust import ADJUST_GRAPH
+    from misrgraph.estimate.graph import GraphConfig
+
+    flat = AdjustConfig.from_dict({"use_dem": False, "knot_spacing_s": [120, 60, 120], "robust": "huber"})
+    nested = AdjustConfig.from_dict({"graph": {"use_dem": False, "knot_spacing_s": [120, 60, 120]}, "robust": "huber"})
+    assert flat == nested
+    assert flat.graph.use_dem is False and flat.graph.knot_spacing_s == (120, 60, 120)
+    assert flat.robust == "huber" and flat.graph.robust == GraphConfig().robust  # the solve's, not the graph's
+    assert flat.graph.camera_params == ADJUST_GRAPH.camera_params  # the adjustment's defaults kept
+    assert AdjustConfig.from_dict(flat.to_dict()) == flat
+    assert flat.replace(dem_sigma_scale=2.0).graph.dem_sigma_scale == 2.0
+    assert flat.graph_config() is flat.graph
+    assert AdjustConfig.from_dict(jitter_in_weights=False).graph_config().attitude_jitter_arcsec == 0.0
+    assert AdjustConfig().graph.attitude_jitter_arcsec == 1.0
+    with pytest.raises(InputError, match="AdjustConfig.grpah"):
+        AdjustConfig.from_dict({"grpah": {}})
