@@ -46,7 +46,7 @@ from misrgraph.io.passes import KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles
-from misrgraph.model.errormodels import JITTER_PERIODS_S, AttitudeErrorModel, EphemerisErrorModel, unresolved_attitude
+from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel, unresolved_attitude
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
 

@@ -57,18 +57,33 @@ def test_a_page_names_its_command_commit_and_machine(tmp_path):
             "command": "misrgraph bench solver --tie-points 50",
             "bench": "solver",
             "commit": "0123456789ab",
-            "machine": {"cpu": "CPU X", "cores": 2, "memory_gib": 8.0, "os": "Linux", "python": "3.11",
-                        "numpy": "2.0", "gtsam": "4.3"},
+            "machine": {
+                "cpu": "CPU X",
+                "cores": 2,
+                "memory_gib": 8.0,
+                "os": "Linux",
+                "python": "3.11",
+                "numpy": "2.0",
+                "gtsam": "4.3",
+            },
         },
-        "variables": 10, "factors": 20, "observations": 30, "ratio_gtsam_lm_over_core": 4.25,
+        "variables": 10,
+        "factors": 20,
+        "observations": 30,
+        "ratio_gtsam_lm_over_core": 4.25,
         "core": {"seconds": 1.0, "iterations": 5, "seconds_per_iteration": 0.2, "final_cost": 1.5},
         "gtsam_lm": {"seconds": 4.25, "iterations": 5, "seconds_per_iteration": 0.85, "final_cost": 1.5},
     }
     (data / "solver.json").write_text(json.dumps(result))
     pages = render_report(ReportConfig(data=data, pages=tmp_path, readme=None))
     text = pages[tmp_path / "solver.md"]
-    for needle in ("`misrgraph bench solver --tie-points 50`", "`0123456789ab`", "CPU X, 2 cores", "| core | 1.00 | 5 |",
-                   "gtsam_lm / core: 4.2x"):
+    for needle in (
+        "`misrgraph bench solver --tie-points 50`",
+        "`0123456789ab`",
+        "CPU X, 2 cores",
+        "| core | 1.00 | 5 |",
+        "gtsam_lm / core: 4.2x",
+    ):
         assert needle in text, needle
 
 
@@ -102,8 +117,11 @@ def test_provenance_is_the_command_as_typed(tmp_path):
     out = tmp_path / "r.json"
 
     @mini.command()
-    def study(runs: int = typer.Option(3, "--runs"), seed: int = typer.Option(0, "--seed"),
-              quick: bool = typer.Option(False, "--quick")) -> None:
+    def study(
+        runs: int = typer.Option(3, "--runs"),
+        seed: int = typer.Option(0, "--seed"),
+        quick: bool = typer.Option(False, "--quick"),
+    ) -> None:
         finish({"runs": runs}, out)
 
     @mini.command()
