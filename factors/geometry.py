@@ -3,7 +3,7 @@
 Everything here is numpy-only (no GTSAM), arrays in and arrays out, so it can be tested alone and
 imported by both packages without cycles.
 
-Conventions (docs/conventions.md):
+Conventions (docs/explanation/conventions.md):
 
 * Rotation matrices are *active* right-handed rotations; ``rot_z(a) @ v`` rotates ``v`` by ``a``
   about +z. Angles are radians. Leading dimensions broadcast: an angle array of shape ``(N,)``

@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("misrgraph", "factors")
 
 #: Which rooms a room may import (besides itself, ``factors`` and the top-level ``errors`` and
-#: ``config`` modules). The data flow of docs/design.md: model -> misr -> io -> sim / estimate ->
+#: ``config`` modules). The data flow of docs/explanation/design.md: model -> misr -> io -> sim / estimate ->
 #: products -> evaluate -> runs -> campaign -> bench -> commands (viz beside them, on model, misr and io only).
 ALLOWED = {
     "model": set(),
@@ -116,7 +116,8 @@ def test_no_import_cycle() -> None:
 @pytest.mark.parametrize("module", sorted(m for m in MODULES if _room(m)))
 def test_rooms_import_only_rooms_below(module: str) -> None:
     room = _room(module)
-    assert room in ALLOWED, f"{module}: room {room!r} is not in the layout map (tests/test_layout.py, docs/design.md)"
+    where = "tests/test_layout.py, docs/explanation/design.md"
+    assert room in ALLOWED, f"{module}: room {room!r} is not in the layout map ({where})"
     for n in GRAPH[module]:
         other = _room(n)
         if n.split(".")[0] == "factors" or n in BASE or other == room:

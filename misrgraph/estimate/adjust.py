@@ -117,7 +117,7 @@ class AdjustConfig(Config):
     #: drop a tie point whole when any of its observations is rejected (robust screen or data
     #: snooping) instead of only that observation: the tie point's other rays were selected by
     #: the same test, and its estimate from them is biased beyond its covariance (see
-    #: docs/design.md, "Rejections and the landmarks' covariance"); GCPs keep their other rays
+    #: docs/explanation/design.md, "Rejections and the landmarks' covariance"); GCPs keep their other rays
     drop_rejected_tie_points: bool = False
     #: rounds of variance-component estimation after snooping: the tie-point and GCP observation
     #: sigmas are rescaled by their class's sigma0 (Foerstner) and the pass re-solved, until

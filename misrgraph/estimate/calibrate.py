@@ -13,7 +13,7 @@ nuisance variables carrying honest priors, the only way to explain a residual th
 one camera across many passes is a camera correction -- the averaging over passes is what
 separates the two (seed 2: "each GCP seen in at least three passes"). Knots are never removed
 here (GCP views are sparse, and merged spline segments would mis-fit them, see
-docs/conventions.md); knots without data are held by their priors. ``misrgraph bench
+docs/explanation/conventions.md); knots without data are held by their priors. ``misrgraph bench
 separation`` measures how the camera error shrinks with the number of passes.
 
 Procedure: robust (Cauchy) solve -> reject observations above ``reject_sigma`` -> least-squares
@@ -87,11 +87,10 @@ class CalibrateConfig(Config):
     """Calibration settings. ``params`` from :data:`factors.collinearity.CAMERA_PARAMS`."""
 
     #: the three angles, and alpha_2, alpha_3 held by the focal plane's pre-flight knowledge
-    #: (``focal_prior_px``): with the angles alone, 30-day months under the independent truth
-    #: (f and alpha off by 0.05 px) gave NEES 1.92 and pointing errors up to 0.094 px; with the
-    #: field-angle terms, about 1.0 and 0.08 px, and 16-day months lost nothing (docs/design.md,
-    #: "The calibration's parameters"). f stays out, as in the pass adjustment: it moves a
-    #: red-band pixel by 0.0004 px and no month determines it beyond its prior
+    #: (``focal_prior_px``): with the angles alone, a month precise enough biases them with the
+    #: focal plane's unmodelled error (docs/explanation/design.md, "The calibration's
+    #: parameters"). f stays out, as in the pass adjustment: it moves a red-band pixel by a tiny
+    #: fraction of a pixel and no month determines it beyond its prior
     params: tuple = ("delta", "beta", "epsilon", "alpha2", "alpha3")
     per_band: bool = False
     estimate_omega: bool = False

@@ -16,7 +16,7 @@ copy. So the core:
    them by a numpy Schur complement on the 3x3 landmark blocks -- no Python callback at all, ~4x faster
    than GTSAM's elimination at 2000 tie points, identical iterates with
    ``dem_second_order=False``; by default it adds the DEM factors' second-order term near the
-   minimum (``SolverParams.dem_second_order``; docs/conventions.md), where Gauss-Newton creeps;
+   minimum (``SolverParams.dem_second_order``; docs/explanation/conventions.md), where Gauss-Newton creeps;
 4. accepts/rejects the step and updates lambda exactly as ``gtsam.LevenbergMarquardtOptimizer``
    does (same initial lambda, factor 10, same convergence test), so both reach the same optimum.
 

@@ -7,7 +7,7 @@ matcher's affine model cannot follow (the terrain's departure from a plane over 
 the view-dependent change of the pattern move all the conjugates of one point along their
 epipolar directions together. To the adjustment that is an error ``dh`` of the point's height
 along An's ray, and the point's own (free) height absorbs it: the rays cannot see it, and the
-covariance from them states the height too well (docs/conventions.md, "Matched tie points'
+covariance from them states the height too well (docs/explanation/conventions.md, "Matched tie points'
 heights").
 
 Only the DEM factor sees it, because it compares the rays' point with the DEM under An's centre.

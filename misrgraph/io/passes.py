@@ -1,6 +1,6 @@
 """One orbit pass as data: supplied navigation, camera/band timing, observations.
 
-HDF5 layout (kind ``orbit_pass``, see docs/data-model.md)::
+HDF5 layout (kind ``orbit_pass``, see docs/reference/data-model.md)::
 
     /                 attrs: pass_id, path, orbit, temperature_c, epoch_utc
     /ephemeris        t (s), position (m, J2000), velocity (m/s)
@@ -66,7 +66,7 @@ class Observations:
     image position: ``line`` is the continuous time index at which the point crossed the array
     centre (time ``t0 + line * line_time``, focal-plane fraction 0). A whole ``exposure`` L is
     eq. 2's discrete form: time ``t0 + L * line_time`` and focal-plane fraction ``line - L``.
-    :attr:`exposure_index` gives L for both (docs/conventions.md, "Observations")."""
+    :attr:`exposure_index` gives L for both (docs/explanation/conventions.md, "Observations")."""
 
     landmark: NDArray[np.int64]
     camera: NDArray[np.int64]

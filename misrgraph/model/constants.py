@@ -1,4 +1,4 @@
-"""Names and nominal instrument/orbit numbers fixed by the project's conventions (docs/conventions.md).
+"""Names and nominal instrument/orbit numbers fixed by the project's conventions (docs/explanation/conventions.md).
 
 Everything numeric that describes the *nominal* instrument lives here; derived parameters (the
 camera geometric model) are computed from these in :mod:`misrgraph.model.camera`.

@@ -336,7 +336,7 @@ class DemTiles:
         Why: posting-level roughness (white DEM noise, relief aliased from below the posting)
         curves the surface at the scale of a landmark's horizontal uncertainty; the sum of those
         curvatures over hundreds of landmarks makes the DEM cost non-quadratic along the pass's
-        common horizontal position (docs/design.md, "The DEM weight")."""
+        common horizontal position (docs/explanation/design.md, "The DEM weight")."""
         s = float(sigma_postings)
         if not (np.isfinite(s) and s >= 0):
             raise InputError("dem smoothing", sigma_postings, "a sigma >= 0 in DEM postings")

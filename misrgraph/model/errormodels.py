@@ -422,7 +422,7 @@ def knots_to_remove(counts: ArrayLike, threshold1: int, threshold2: int, rule: s
 
     With ``rule="support"`` and ``threshold1 = threshold2 = 1`` only knots with no data at all
     in their support go, so every merged segment is free of data and no observation is fitted by
-    a spline coarser than its own (see docs/conventions.md for the measured consequence).
+    a spline coarser than its own (see docs/explanation/conventions.md for the measured consequence).
     """
     c = np.asarray(counts)
     if c.ndim != 2:

@@ -1,6 +1,6 @@
 """Reference frames and time: WGS84 geodetic <-> ECEF, ECEF <-> ECI (J2000), local ENU.
 
-Conventions (docs/conventions.md):
+Conventions (docs/explanation/conventions.md):
 
 * ECEF is the conventional terrestrial frame (ITRF), metres.
 * ECI is J2000 / GCRS ("GCI" in the seed), metres. ECEF <-> ECI uses the IAU 2006/2000A

@@ -1,6 +1,6 @@
 """Pushbroom geolocation: pixel -> ground (ray casting) and ground -> pixel (line search).
 
-Model (eqs. 1, 2, 5, 6 and docs/conventions.md). For camera ``c``, band ``b`` and image
+Model (eqs. 1, 2, 5, 6 and docs/explanation/conventions.md). For camera ``c``, band ``b`` and image
 coordinates ``(l, s)`` the line is exposed at ``t = t0[c, b] + INT(l + 0.5) * dt_line`` and
 
     r_eci = T_go(t) @ T_os(A(t) + dA(t)) @ r_scs(c, b, l, s)
@@ -276,7 +276,7 @@ class PassGeometry:
         With ``continuous=True`` the result is what an image matcher measures: ``line`` =
         ``exposure`` = ``crossing_line`` (the continuous time index at which the point crosses the
         array centre, focal-plane fraction 0) and ``sample`` the sample seen at that time
-        (docs/conventions.md, "Observations").
+        (docs/explanation/conventions.md, "Observations").
         """
         g = np.atleast_2d(np.asarray(ground, dtype=float))
         if g.ndim != 2 or g.shape[-1] != 3:

@@ -1,4 +1,6 @@
-"""Derivation of the nominal Camera Geometric Model from the nominal instrument geometry (docs/conventions.md).
+"""Derivation of the nominal Camera Geometric Model from the nominal instrument geometry.
+
+Conventions: docs/explanation/conventions.md.
 
 Given only the design numbers (view angles at the surface, focal lengths, detector pitches,
 1504 pixels, band layout, a Terra-like orbit), the parameters of eq. 2 follow:

@@ -51,7 +51,7 @@ def write_adjust_result(
     provenance: dict[str, str],
     truth: PassTruth | None = None,
 ) -> None:
-    """Write RESULT.h5 (HDF5 kind ``adjustment_result``, docs/data-model.md) atomically; with
+    """Write RESULT.h5 (HDF5 kind ``adjustment_result``, docs/reference/data-model.md) atomically; with
     ``truth`` also ``/landmarks/truth_ecef`` for the views."""
     pg = res.pass_graph
     with atomic_h5(path, "adjustment_result") as f:

@@ -17,7 +17,7 @@ Injected navigation errors per pass: ephemeris (eq. 19) b ~ N(0, 50 m) per orbit
 estimator's own process prior (damped oscillator, :mod:`factors.priors`); with the independent truth a smooth random
 process (periods 200-2000 s) plus jitter; 1 sigma 41/3, 44/3, 36/3 arcsec for roll, pitch, yaw (the
 3-sigma knowledge requirement). The supplied navigation is the measured
-one; the truth is ``P = P_meas - T_go e``, ``A = A_meas - E`` (docs/conventions.md). All
+one; the truth is ``P = P_meas - T_go e``, ``A = A_meas - E`` (docs/explanation/conventions.md). All
 randomness comes from one ``numpy`` generator seeded by ``seed``.
 """
 
