@@ -79,7 +79,10 @@ GRAPH = {m: _imports(p) - {m} for m, p in MODULES.items()}
 
 
 def _room(module: str) -> str | None:
+    """The room of a module: ``misrgraph.<room>.<module>``, or the room's own package."""
     parts = module.split(".")
+    if parts[0] == "misrgraph" and len(parts) == 2 and parts[1] in ALLOWED:
+        return parts[1]
     return parts[1] if parts[0] == "misrgraph" and len(parts) > 2 else None
 
 

@@ -261,8 +261,8 @@ def os_reason(exc: OSError) -> str:
 def check_writable(path: str | os.PathLike[str], field: str) -> None:
     """Refuse, before any work, an output at ``path`` that cannot be written.
 
-    The parent directories are created (as ``mkdir -p``); a temporary file is made and removed in
-    the directory that will hold ``path``.
+    Nothing is left behind: a temporary file is made and removed in the nearest directory that
+    exists on the way to ``path`` (the directories below it are created later, by the writer).
 
     Raises
     ------
@@ -270,8 +270,11 @@ def check_writable(path: str | os.PathLike[str], field: str) -> None:
         Naming ``field``, the path and the operating system's reason.
     """
     parent = Path(path).absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
     try:
-        parent.mkdir(parents=True, exist_ok=True)
+        if not parent.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(parent))
         fd, tmp = tempfile.mkstemp(prefix=".misrgraph-write-check.", dir=parent)
         os.close(fd)
         os.unlink(tmp)

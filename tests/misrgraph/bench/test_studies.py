@@ -306,10 +306,11 @@ def test_bench_sources_compares_each_row_with_its_base_seed_by_seed(monkeypatch)
     from rich.console import Console
     from typer.testing import CliRunner
 
-    import misrgraph.commands.cli as cli
+    import misrgraph.commands.bench as bench_commands
     from misrgraph.commands.cli import app
 
-    monkeypatch.setattr(cli, "console", Console(width=300))  # the table's width, not the CI terminal's
+    # the table's width, not the CI terminal's
+    monkeypatch.setattr(bench_commands, "console", Console(width=300))
     out = CliRunner().invoke(app, ["bench", "sources", "--runs", "3", "--mode", "without"])
     assert out.exit_code == 0, out.output
     for k, eff in effects.items():
