@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
-MARKER = "<!-- cli-reference -->"
+MARKERS = {
+    "<!-- cli-reference -->": ("misrgraph.commands.reference", "cli_markdown"),
+    "<!-- noise-levels -->": ("misrgraph.model.noise", "levels_markdown"),
+}
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ANN001 - MkDocs' hook signature
-    if MARKER not in markdown:
-        return markdown
-    from misrgraph.commands.reference import cli_markdown
+    import importlib
 
-    return markdown.replace(MARKER, cli_markdown())
+    for marker, (module, function) in MARKERS.items():
+        if marker in markdown:
+            markdown = markdown.replace(marker, getattr(importlib.import_module(module), function)())
+    return markdown

@@ -63,6 +63,15 @@ def _coerce(name: str, value: Any, hint: Any) -> Any:
         if not isinstance(value, str):
             raise InputError(name, value, "a string")
         return value
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if value is not None and len(args) == 1 and len(typing.get_args(hint)) == 2:
+        hint = args[0]  # Optional[X]: a value is an X
+    if isinstance(hint, type) and issubclass(hint, Config):
+        if isinstance(value, hint):
+            return value
+        if not isinstance(value, Mapping):
+            raise InputError(name, value, f"a mapping of {hint.__name__} fields")
+        return hint.from_dict(value)
     origin = typing.get_origin(hint)
     if (hint is tuple or origin is tuple) and isinstance(value, (list, tuple)):
         return tuple(value)

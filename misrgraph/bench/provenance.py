@@ -113,7 +113,11 @@ def _command_line() -> tuple[str, str]:
     ctx, source = _click_context()
     if ctx is None:
         return "(Python API)", "api"
-    words = ["misrgraph", *ctx.command_path.split()[1:]]
+    names, c = [], ctx
+    while c is not None and c.parent is not None:  # the root's name is the program's, however started
+        names.append(c.info_name)
+        c = c.parent
+    words = ["misrgraph", *reversed(names)]
     for param in ctx.command.params:
         if ctx.get_parameter_source(param.name) is not source.COMMANDLINE or param.name in ("save", "as_json"):
             continue
@@ -125,7 +129,7 @@ def _command_line() -> tuple[str, str]:
             words.extend(str(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
         else:
             words += [opt, str(value)]
-    return " ".join(words), ctx.command_path.split()[-1]
+    return " ".join(words), (names[0] if names else "misrgraph")
 
 
 def provenance() -> dict[str, Any]:

@@ -10,11 +10,13 @@ from rich.table import Table
 
 from misrgraph.commands.common import (
     CONFIG_HELP,
+    NOISE_HELP,
     check_output,
     console,
     err_console,
     fail,
     handle_errors,
+    load_noise,
     merge_config,
     mode_or_sigma,
     parse_comma_list,
@@ -145,6 +147,7 @@ def adjust(
         "measured and leaves it out for simulated tie points; a number fixes it (0: off).",
     ),
     config: Optional[Path] = typer.Option(None, "--config", help=CONFIG_HELP.format(cls="AdjustConfig")),
+    noise_model: Optional[Path] = typer.Option(None, "--noise-model", help=NOISE_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
@@ -180,6 +183,9 @@ def adjust(
     )
     merge_config(fields, config)
     cfg = AdjustConfig.from_dict(fields)
+    noise = load_noise(noise_model)
+    if noise is not None:
+        cfg = cfg.with_noise(noise)
     if plots is not None and out is None:
         fail("--plots: needs --out RESULT.h5 (the plots are drawn from it)")
     check_output(out, "--out")

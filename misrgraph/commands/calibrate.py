@@ -10,11 +10,13 @@ from rich.table import Table
 
 from misrgraph.commands.common import (
     CONFIG_HELP,
+    NOISE_HELP,
     check_output,
     console,
     err_console,
     fail,
     handle_errors,
+    load_noise,
     merge_config,
     print_json,
 )
@@ -79,6 +81,9 @@ def calibrate(
         "observation's sigma, as adjust does. 0: the matcher's sigma alone.",
     ),
     config: Optional[Path] = typer.Option(None, "--config", help=CONFIG_HELP.format(cls="CalibrateConfig")),
+    noise_model: Optional[Path] = typer.Option(
+        None, "--noise-model", help=NOISE_HELP + " The calibration takes its attitude and ephemeris levels."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Camera calibration by space resection over GCP passes (per-pass navigation errors as nuisance)."""
@@ -104,6 +109,9 @@ def calibrate(
         attitude_jitter_arcsec=jitter_arcsec,
     )
     merge_config(fields, config)
+    noise = load_noise(noise_model)
+    if noise is not None:
+        fields["noise"] = noise
     cfg = CalibrateConfig.from_dict(fields)
     check_output(out, "--out")
     with err_console.status("calibrating...") as st:

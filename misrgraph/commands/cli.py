@@ -18,6 +18,7 @@ from misrgraph.commands import (
     imports,
     info,
     match,
+    noise,
     products,
     sensitivity,
     simulate,
@@ -65,6 +66,7 @@ app.command(help=sensitivity.SENS_HELP)(sensitivity.sensitivity)
 app.command()(demo.demo)
 app.add_typer(som.app, name="som")
 app.add_typer(imports.app, name="import")
+app.add_typer(noise.app, name="noise")
 app.add_typer(bench.app, name="bench")
 
 

@@ -57,6 +57,8 @@ __all__ = [
     "parse_comma_list",
     "print_coregistration",
     "CONFIG_HELP",
+    "NOISE_HELP",
+    "load_noise",
 ]
 
 console = Console()
@@ -64,6 +66,22 @@ err_console = Console(stderr=True)
 
 #: The help text of every command's ``--config`` option (the dataclass is named by the command).
 CONFIG_HELP = "JSON file of {cls} fields; its values replace the options' (unknown keys are refused)."
+
+#: The help text of every command's ``--noise-model`` option
+NOISE_HELP = (
+    "Noise-model file (JSON; 'misrgraph noise init' writes the defaults): the levels the estimator assumes. "
+    "Default: the pre-flight levels."
+)
+
+
+def load_noise(path: Optional[Path]) -> Any:
+    """The :class:`~misrgraph.model.noise.NoiseModel` in ``path``, or None."""
+    if path is None:
+        return None
+    from misrgraph.io.noise import read_noise_model
+
+    return read_noise_model(path)[0]
+
 
 _STATE = {"debug": False, "hard_exit": False}
 

@@ -10,9 +10,11 @@ from rich.table import Table
 
 from misrgraph.commands.common import (
     CONFIG_HELP,
+    NOISE_HELP,
     check_output,
     console,
     handle_errors,
+    load_noise,
     merge_config,
     print_coregistration,
     print_json,
@@ -65,6 +67,9 @@ def products(
     config: Optional[Path] = typer.Option(
         None, "--config", help=CONFIG_HELP.format(cls="AdjustConfig") + " For a scenario directory, not a state."
     ),
+    noise_model: Optional[Path] = typer.Option(
+        None, "--noise-model", help=NOISE_HELP + " For a scenario directory, not a state."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Projection Parameters of an adjusted pass on its path's 1.1 km SOM grid, with their 1 sigma.
@@ -81,6 +86,9 @@ def products(
     fields: dict[str, Any] = {}
     merge_config(fields, config)
     cfg = AdjustConfig.from_dict(fields)
+    noise = load_noise(noise_model)
+    if noise is not None:
+        cfg = cfg.with_noise(noise)
     check_output(out / "products.json", "--out")
     opts = (
         RoiOptions(

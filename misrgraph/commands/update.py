@@ -9,10 +9,12 @@ import typer
 
 from misrgraph.commands.common import (
     CONFIG_HELP,
+    NOISE_HELP,
     console,
     err_console,
     fail,
     handle_errors,
+    load_noise,
     merge_config,
     print_json,
 )
@@ -53,6 +55,9 @@ def update(
     config: Optional[Path] = typer.Option(
         None, "--config", help=CONFIG_HELP.format(cls="AdjustConfig") + " Fixed when the state is created."
     ),
+    noise_model: Optional[Path] = typer.Option(
+        None, "--noise-model", help=NOISE_HELP + " Fixed when the state is created."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON."),
 ) -> None:
     """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
@@ -62,10 +67,13 @@ def update(
     from misrgraph.runs.update import run_update
 
     cfg = None
-    if config is not None:
+    if config is not None or noise_model is not None:
         fields: dict[str, Any] = {}
         merge_config(fields, config)
         cfg = AdjustConfig.from_dict(fields)
+        noise = load_noise(noise_model)
+        if noise is not None:
+            cfg = cfg.with_noise(noise)
     if not passes and report is None:
         fail("PASSES: give new pass files to add, or --report PASS_ID for an earlier pass")
     with err_console.status("updating...") as st:

@@ -49,6 +49,7 @@ from misrgraph.model.dem import DemTiles
 from misrgraph.model.errormodels import AttitudeErrorModel, EphemerisErrorModel, unresolved_attitude
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.geolocation import PassGeometry
+from misrgraph.model.noise import NoiseModel
 
 __all__ = [
     "AdjustConfig",
@@ -188,6 +189,10 @@ class AdjustConfig(Config):
         if graph:
             merged["graph"] = ADJUST_GRAPH.replace(**graph)
         return super().from_dict(merged)
+
+    def with_noise(self, noise: NoiseModel) -> "AdjustConfig":
+        """A copy whose graph takes every level of ``noise`` (:class:`~misrgraph.model.noise.NoiseModel`)."""
+        return self.replace(graph=self.graph.replace(**noise.graph_fields()))
 
     def graph_config(self, **overrides: Any) -> GraphConfig:
         """The pass graph's configuration: ``graph``, without the jitter in the weights when

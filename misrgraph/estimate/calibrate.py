@@ -56,6 +56,7 @@ from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.model.constants import BANDS, CAMERAS
 from misrgraph.model.errormodels import JITTER_PERIODS_S
 from misrgraph.model.gcp import GcpDatabase
+from misrgraph.model.noise import NoiseModel
 
 __all__ = [
     "CalibrateConfig",
@@ -124,6 +125,10 @@ class CalibrateConfig(Config):
     #: pass adjustment (``AdjustConfig.graph.attitude_jitter_arcsec``). 0 (default): the matcher's sigma alone
     attitude_jitter_arcsec: float = 0.0
     attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
+    #: the navigation's error levels (attitude process, ephemeris) of every pass's nuisance
+    #: variables (:class:`~misrgraph.model.noise.NoiseModel`, ``--noise-model``); None: the
+    #: pre-flight defaults of :class:`~misrgraph.estimate.graph.GraphConfig`
+    noise: NoiseModel | None = None
 
     def __post_init__(self) -> None:
         check_jitter(self.attitude_jitter_arcsec, self.attitude_jitter_periods_s)
@@ -155,6 +160,8 @@ class CalibrateConfig(Config):
             attitude_jitter_arcsec=self.attitude_jitter_arcsec,
             attitude_jitter_periods_s=tuple(self.attitude_jitter_periods_s),
         )
+        if self.noise is not None:
+            base.update(self.noise.navigation_fields())
         base.update(kw)
         return GraphConfig.from_dict(base)
 

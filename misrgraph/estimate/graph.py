@@ -126,6 +126,9 @@ class GraphConfig(Config):
     knot_prior_damping: float = ATTITUDE_DAMPING
     ephemeris_segments: int = 1
     attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
+    #: the attitude error rate's 1 sigma per angle (arcsec/s); empty: the value's sigma times
+    #: :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR` (:class:`~misrgraph.model.noise.AttitudeNoise`)
+    attitude_rate_sigma_arcsec_per_s: tuple = ()
     ephemeris_b_sigma_m: float = 50.0
     ephemeris_a_sigma_mps: tuple = (0.05, 0.01, 0.01)
     #: 1 sigma amplitude (m, per orbital axis) of a once-per-revolution ephemeris error (orbit
@@ -216,6 +219,13 @@ class GraphConfig(Config):
                 "attitude_sigma_arcsec",
                 self.attitude_sigma_arcsec,
                 "three positive sigmas (roll, pitch, yaw) in arcsec",
+            )
+        rate = self.attitude_rate_sigma_arcsec_per_s
+        if len(rate) not in (0, 3) or (len(rate) and not min(rate) > 0):
+            raise InputError(
+                "attitude_rate_sigma_arcsec_per_s",
+                rate,
+                "empty or three positive sigmas (roll, pitch, yaw) in arcsec/s",
             )
         if len(self.knot_spacing_s) != 3 or min(self.knot_spacing_s) <= 0:
             raise InputError("knot_spacing_s", self.knot_spacing_s, "three positive spacings (roll, pitch, yaw) in s")
@@ -516,18 +526,23 @@ def build_pass_graph(
         problem.add_batch(DemBatch(np.array(dem_keys), np.array(dem_sig), surface))
     # navigation variables and priors
     att_sig = np.asarray(cfg.attitude_sigma_arcsec) * ARCSEC
+    rate_sig = (
+        np.asarray(cfg.attitude_rate_sigma_arcsec_per_s) * ARCSEC
+        if len(cfg.attitude_rate_sigma_arcsec_per_s)
+        else att_sig * ATTITUDE_RATE_FACTOR
+    )
     for a in range(3):
         ks = [K.knot_key(a, pass_index, j) for j in range(att_kept.knot_times[a].size)]
         for k in ks:
             add(k, np.zeros(2))
         if cfg.knot_prior == "process":
             for f in process_prior_factors(
-                ks, att_kept.knot_times[a], float(att_sig[a]), ATTITUDE_RATE_FACTOR, cfg.knot_prior_damping
+                ks, att_kept.knot_times[a], float(att_sig[a]), float(rate_sig[a] / att_sig[a]), cfg.knot_prior_damping
             ):
                 graph.add(f)
         else:
             for k in ks:
-                graph.add(vector_prior(k, np.zeros(2), [att_sig[a], att_sig[a] * ATTITUDE_RATE_FACTOR]))
+                graph.add(vector_prior(k, np.zeros(2), [att_sig[a], rate_sig[a]]))
     eph_keys = [K.ephemeris_key(pass_index, s) for s in range(eph.n_segments)]
     for k in eph_keys:
         add(k, np.zeros(6))

@@ -1,0 +1,219 @@
+"""The noise model: every level the estimator assumes about its inputs' errors, in one place.
+
+A level is a 1 sigma (or a shape parameter) of an error the adjustment and the calibration model
+but do not observe directly: the attitude error process, the jitter faster than the knots, the
+ephemeris error, the camera model's residual error, the DEM's stated accuracy. Each comes from
+one of three places, and :data:`LEVELS` says which for every field:
+
+- **pre-flight**: the defaults here, documented knowledge before any data (the navigation's
+  stated accuracy, the pre-flight camera calibration's residual);
+- **input**: a noise-model file the user gives (``--noise-model FILE``; :mod:`misrgraph.io.noise`);
+- **learned**: estimated from adjusted passes (a later ``misrgraph noise fit`` writes the same file).
+
+Units are in the field names: ``arcsec`` (angles), ``arcsec_per_s`` (rates), ``m``, ``mps``
+(m/s), ``px`` (pixels of the red band at the swath edge), ``s`` (periods). Axis triples are
+(roll, pitch, yaw) for the attitude and (along, cross, radial) for the ephemeris.
+
+The model maps onto the pass graph's configuration (:meth:`NoiseModel.graph_fields`); the
+calibration takes its navigation levels (:meth:`NoiseModel.navigation_fields`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from misrgraph.config import Config
+from misrgraph.errors import InputError
+from misrgraph.model.errormodels import ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR, JITTER_PERIODS_S
+
+__all__ = [
+    "levels_markdown",
+    "NOISE_MODEL_VERSION",
+    "AttitudeNoise",
+    "JitterNoise",
+    "EphemerisNoise",
+    "CameraNoise",
+    "DemNoise",
+    "NoiseModel",
+    "LEVELS",
+]
+
+#: the version of the noise model's fields (a file of another version is refused)
+NOISE_MODEL_VERSION = 1
+
+#: the GN&C's stated attitude knowledge, 3 sigma (41, 44, 36 arcsec roll, pitch, yaw), as 1 sigma
+_ATTITUDE_SIGMA = (41.0 / 3, 44.0 / 3, 36.0 / 3)
+
+
+def _positive(name: str, values: Any, n: int | None = None, allow_zero: bool = False) -> None:
+    v = np.atleast_1d(np.asarray(values, dtype=float))
+    if (n is not None and v.size != n) or not np.all(np.isfinite(v)) or not np.all(v >= 0 if allow_zero else v > 0):
+        what = f"{n} " if n else ""
+        raise InputError(name, values, f"{what}finite numbers {'>= 0' if allow_zero else '> 0'}")
+
+
+@dataclass(frozen=True)
+class AttitudeNoise(Config):
+    """The slow attitude error each knot's prior and the process between knots describe.
+
+    ``value_sigma_arcsec``: its 1 sigma per angle. ``rate_sigma_arcsec_per_s``: its rate's 1 sigma
+    (with the value, it sets the process's natural frequency); empty: the value's sigma times
+    :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR` (0.0146/s). ``damping``: the
+    process's damping ratio (1: Matern-3/2).
+    """
+
+    value_sigma_arcsec: tuple = _ATTITUDE_SIGMA
+    rate_sigma_arcsec_per_s: tuple = ()
+    damping: float = ATTITUDE_DAMPING
+
+    def __post_init__(self) -> None:
+        _positive("attitude.value_sigma_arcsec", self.value_sigma_arcsec, 3)
+        if len(self.rate_sigma_arcsec_per_s):
+            _positive("attitude.rate_sigma_arcsec_per_s", self.rate_sigma_arcsec_per_s, 3)
+        _positive("attitude.damping", self.damping)
+
+
+@dataclass(frozen=True)
+class JitterNoise(Config):
+    """The attitude error faster than the knots: 1 sigma per angle, equal power per log-period
+    between the two periods. Its unresolved part weights the observations and widens every
+    geolocation sigma."""
+
+    sigma_arcsec: float = 1.0
+    periods_s: tuple = JITTER_PERIODS_S
+
+    def __post_init__(self) -> None:
+        _positive("jitter.sigma_arcsec", self.sigma_arcsec, allow_zero=True)
+        _positive("jitter.periods_s", self.periods_s, 2)
+        if not self.periods_s[0] < self.periods_s[1]:
+            raise InputError("jitter.periods_s", self.periods_s, "MIN, MAX with MIN < MAX (s)")
+
+
+@dataclass(frozen=True)
+class EphemerisNoise(Config):
+    """The supplied ephemeris's error: an offset and a drift per orbital axis (eq. 19), and
+    optionally a once-per-revolution term of the orbit determination."""
+
+    offset_sigma_m: float = 50.0
+    drift_sigma_mps: tuple = (0.05, 0.01, 0.01)
+    once_per_rev_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        _positive("ephemeris.offset_sigma_m", self.offset_sigma_m)
+        _positive("ephemeris.drift_sigma_mps", self.drift_sigma_mps, 3)
+        _positive("ephemeris.once_per_rev_m", self.once_per_rev_m, allow_zero=True)
+
+
+@dataclass(frozen=True)
+class CameraNoise(Config):
+    """The supplied camera model's residual error where no calibration covariance is given: the
+    angles' 1 sigma and the focal plane's (f, alpha_i), as pixels moved at the swath edge."""
+
+    angle_prior_px: float = 0.0625
+    focal_prior_px: float = 0.05
+
+    def __post_init__(self) -> None:
+        _positive("camera.angle_prior_px", self.angle_prior_px)
+        _positive("camera.focal_prior_px", self.focal_prior_px)
+
+
+@dataclass(frozen=True)
+class DemNoise(Config):
+    """The DEM height factors' 1 sigma is the DEM's stated 1 sigma times ``sigma_scale``."""
+
+    sigma_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        _positive("dem.sigma_scale", self.sigma_scale)
+
+
+@dataclass(frozen=True)
+class NoiseModel(Config):
+    """Every level the estimator assumes (module docstring); the defaults are pre-flight knowledge."""
+
+    version: int = NOISE_MODEL_VERSION
+    attitude: AttitudeNoise = field(default_factory=AttitudeNoise)
+    jitter: JitterNoise = field(default_factory=JitterNoise)
+    ephemeris: EphemerisNoise = field(default_factory=EphemerisNoise)
+    camera: CameraNoise = field(default_factory=CameraNoise)
+    dem: DemNoise = field(default_factory=DemNoise)
+
+    def __post_init__(self) -> None:
+        if self.version != NOISE_MODEL_VERSION:
+            raise InputError("version", self.version, f"{NOISE_MODEL_VERSION} (the noise model's version)")
+        for name, cls in (
+            ("attitude", AttitudeNoise),
+            ("jitter", JitterNoise),
+            ("ephemeris", EphemerisNoise),
+            ("camera", CameraNoise),
+            ("dem", DemNoise),
+        ):
+            if not isinstance(getattr(self, name), cls):
+                raise InputError(name, getattr(self, name), f"a mapping of {cls.__name__} fields")
+
+    def navigation_fields(self) -> dict[str, Any]:
+        """The attitude and ephemeris levels as :class:`~misrgraph.estimate.graph.GraphConfig`
+        fields (what a calibration's navigation nuisance needs)."""
+        a, e = self.attitude, self.ephemeris
+        return {
+            "attitude_sigma_arcsec": tuple(float(x) for x in a.value_sigma_arcsec),
+            "attitude_rate_sigma_arcsec_per_s": tuple(float(x) for x in a.rate_sigma_arcsec_per_s),
+            "knot_prior_damping": float(a.damping),
+            "ephemeris_b_sigma_m": float(e.offset_sigma_m),
+            "ephemeris_a_sigma_mps": tuple(float(x) for x in e.drift_sigma_mps),
+            "ephemeris_once_per_rev_m": float(e.once_per_rev_m),
+        }
+
+    def graph_fields(self) -> dict[str, Any]:
+        """Every level as :class:`~misrgraph.estimate.graph.GraphConfig` fields (a pass adjustment)."""
+        return {
+            **self.navigation_fields(),
+            "attitude_jitter_arcsec": float(self.jitter.sigma_arcsec),
+            "attitude_jitter_periods_s": tuple(float(x) for x in self.jitter.periods_s),
+            "camera_prior_px": float(self.camera.angle_prior_px),
+            "camera_focal_prior_px": float(self.camera.focal_prior_px),
+            "dem_sigma_scale": float(self.dem.sigma_scale),
+        }
+
+
+#: every level: (section, field) -> (unit, where its default comes from)
+LEVELS: dict[tuple[str, str], tuple[str, str]] = {
+    ("attitude", "value_sigma_arcsec"): (
+        "arcsec",
+        "pre-flight: the GN&C's stated attitude knowledge, 41/44/36 arcsec 3 sigma",
+    ),
+    ("attitude", "rate_sigma_arcsec_per_s"): (
+        "arcsec/s",
+        f"pre-flight assumption: empty, the value's sigma times {ATTITUDE_RATE_FACTOR:.4f}/s "
+        "(errors with periods of 200-2000 s)",
+    ),
+    ("attitude", "damping"): ("1", "pre-flight assumption: the process fitted to errors with periods of 200-2000 s"),
+    ("jitter", "sigma_arcsec"): ("arcsec", "pre-flight assumption: the GN&C's error faster than the knots"),
+    ("jitter", "periods_s"): ("s", "pre-flight assumption: 10 s Kalman updates and gyro noise, 8-120 s"),
+    ("ephemeris", "offset_sigma_m"): ("m", "pre-flight: the navigation's stated position accuracy"),
+    ("ephemeris", "drift_sigma_mps"): ("m/s", "pre-flight: the navigation's stated velocity accuracy"),
+    ("ephemeris", "once_per_rev_m"): ("m", "input: 0 unless the orbit determination states such a term"),
+    ("camera", "angle_prior_px"): (
+        "px",
+        "pre-flight: the calibration requirement, 1/16 px; a calibrated model's own covariance replaces it",
+    ),
+    ("camera", "focal_prior_px"): ("px", "pre-flight: the focal plane's ground calibration, 0.05 px at the swath edge"),
+    ("dem", "sigma_scale"): ("1", "input: 1 takes the DEM's stated accuracy as it is"),
+}
+
+
+def levels_markdown(model: NoiseModel | None = None) -> str:
+    """A Markdown table of every level: its name, pre-flight value, unit and where it comes from."""
+    model = model or NoiseModel()
+    rows = ["| level | pre-flight value | unit | where it comes from |", "|---|---|---|---|"]
+    for (section, name), (unit, source) in LEVELS.items():
+        value = getattr(getattr(model, section), name)
+        if isinstance(value, tuple):
+            text = ", ".join(f"{x:.6g}" for x in value) if value else "(from the value)"
+        else:
+            text = f"{value:.6g}"
+        rows.append(f"| `{section}.{name}` | {text} | {unit} | {source} |")
+    return "\n".join(rows) + "\n"

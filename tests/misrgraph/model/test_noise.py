@@ -1,0 +1,126 @@
+"""The noise model: one home for every level the estimator assumes, a file a user edits, and the
+levels reaching the graph and the summaries."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from misrgraph.commands.cli import app
+from misrgraph.errors import FileFormatError, InputError
+from misrgraph.estimate.adjust import AdjustConfig
+from misrgraph.estimate.calibrate import CalibrateConfig
+from misrgraph.estimate.graph import GraphConfig
+from misrgraph.io.noise import read_noise_model, save_noise_model
+from misrgraph.model.noise import LEVELS, NoiseModel
+
+runner = CliRunner()
+
+
+def test_the_pre_flight_model_is_what_the_estimator_assumes_without_one():
+    """Given the defaults, an adjustment and a calibration are configured exactly as without."""
+    assert AdjustConfig().with_noise(NoiseModel()) == AdjustConfig()
+    assert CalibrateConfig(noise=NoiseModel()).graph_config() == CalibrateConfig().graph_config()
+    g = GraphConfig()
+    for k, v in NoiseModel().navigation_fields().items():
+        assert getattr(g, k) == v, k
+
+
+def test_every_level_is_listed_with_its_source():
+    m = NoiseModel()
+    listed = set(LEVELS)
+    fields = {(s, f) for s in ("attitude", "jitter", "ephemeris", "camera", "dem") for f in getattr(m, s).to_dict()}
+    assert listed == fields
+    assert all(unit and source for unit, source in LEVELS.values())
+
+
+def test_file_round_trip_and_partial_files(tmp_path):
+    m = NoiseModel.from_dict(
+        {"attitude": {"value_sigma_arcsec": [20, 30, 25], "damping": 0.9}, "ephemeris": {"offset_sigma_m": 150.0}}
+    )
+    save_noise_model(m, tmp_path / "n.json", source={"ephemeris": "learned"})
+    back, source = read_noise_model(tmp_path / "n.json")
+    assert back == m and source["ephemeris"] == "learned" and source["attitude"] == "pre-flight"
+    # a section left out takes the pre-flight levels
+    (tmp_path / "p.json").write_text(
+        json.dumps({"kind": "misrgraph noise model", "version": 1, "jitter": {"sigma_arcsec": 2.0}})
+    )
+    part, _ = read_noise_model(tmp_path / "p.json")
+    assert part.jitter.sigma_arcsec == 2.0 and part.attitude == NoiseModel().attitude
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("{", "not JSON"),
+        (json.dumps({"kind": "something else", "version": 1}), "not a noise model"),
+        (json.dumps({"kind": "misrgraph noise model", "version": 9}), "version 9"),
+        (json.dumps({"kind": "misrgraph noise model", "version": 1, "jiter": {}}), "NoiseModel.jiter"),
+        (
+            json.dumps({"kind": "misrgraph noise model", "version": 1, "attitude": {"value_sigma_arcsec": [1, 2]}}),
+            "attitude.value_sigma_arcsec",
+        ),
+        (
+            json.dumps({"kind": "misrgraph noise model", "version": 1, "jitter": {"periods_s": [120, 8]}}),
+            "jitter.periods_s",
+        ),
+    ],
+)
+def test_bad_files_are_refused_naming_the_field(tmp_path, content, message):
+    p = tmp_path / "bad.json"
+    p.write_text(content)
+    with pytest.raises(FileFormatError, match=message) as err:
+        read_noise_model(p)
+    assert str(p) in str(err.value)
+
+
+def test_bad_levels_name_the_field():
+    with pytest.raises(InputError, match="camera.angle_prior_px"):
+        NoiseModel.from_dict({"camera": {"angle_prior_px": 0.0}})
+    with pytest.raises(InputError, match="attitude_rate_sigma_arcsec_per_s"):
+        GraphConfig(attitude_rate_sigma_arcsec_per_s=(1.0, 2.0))
+
+
+def test_the_levels_reach_the_adjustment(small_pass_dir, tmp_path):
+    """With the attitude's value sigma doubled and the jitter doubled, the adjustment's summary
+    states the file's prior and an unresolved jitter twice the default (it is linear in the
+    jitter's sigma: closed form), and its posterior attitude sigma grows; the ephemeris offset's
+    prior widened tenfold widens the ephemeris posterior."""
+    runner.invoke(app, ["noise", "init", "--out", str(tmp_path / "pre.json")])
+    m = NoiseModel.from_dict(
+        {
+            "attitude": {"value_sigma_arcsec": [27.0, 29.0, 24.0]},
+            "jitter": {"sigma_arcsec": 2.0},
+            "ephemeris": {"offset_sigma_m": 500.0},
+        }
+    )
+    save_noise_model(m, tmp_path / "wide.json")
+    out = {}
+    for name in ("pre", "wide"):
+        res = runner.invoke(
+            app, ["adjust", str(small_pass_dir), "--noise-model", str(tmp_path / f"{name}.json"), "--json"]
+        )
+        assert res.exit_code == 0, res.output
+        out[name] = json.loads(res.stdout)
+    plain = runner.invoke(app, ["adjust", str(small_pass_dir), "--json"])
+    pre, wide = out["pre"], out["wide"]
+    assert json.loads(plain.stdout)["nees"] == pre["nees"]  # the pre-flight file changes nothing
+    for axis, value in zip(("roll", "pitch", "yaw"), (27.0, 29.0, 24.0)):
+        a, b = pre["attitude_sigma"][axis], wide["attitude_sigma"][axis]
+        assert b["prior_sigma_arcsec"] == pytest.approx(value)
+        assert b["unresolved_sigma_arcsec"] == pytest.approx(2 * a["unresolved_sigma_arcsec"], rel=1e-9)
+        assert b["max_sigma_arcsec"] > a["max_sigma_arcsec"]
+    assert np.all(np.array(wide["ephemeris"]["sigma"])[:, 3:] > np.array(pre["ephemeris"]["sigma"])[:, 3:])
+
+
+def test_noise_show_and_a_bad_file_on_the_cli(tmp_path):
+    res = runner.invoke(app, ["noise", "show", "--json"])
+    assert res.exit_code == 0
+    levels = {r["level"]: r for r in json.loads(res.stdout)["levels"]}
+    assert levels["ephemeris.offset_sigma_m"]["value"] == 50.0 and levels["ephemeris.offset_sigma_m"]["unit"] == "m"
+    (tmp_path / "bad.json").write_text("{}")
+    res = runner.invoke(app, ["adjust", str(tmp_path), "--noise-model", str(tmp_path / "bad.json")])
+    assert res.exit_code == 2 and "bad.json: not a noise model" in res.stderr
