@@ -28,6 +28,7 @@ from misrgraph.config import Config
 from misrgraph.errors import InputError
 from misrgraph.io.imagery import OBSERVATION_SETS
 from misrgraph.misr.som import N_BLOCKS
+from misrgraph.model.noise import NoiseModel
 from misrgraph.model.orbit import REPEAT_PATHS
 
 __all__ = [
@@ -97,6 +98,9 @@ class CampaignConfig(Config):
     roi: bool = False
     roi_blocks: int = 1
     observations: str = "simulated"
+    #: the levels the calibration and the adjustments assume (:class:`~misrgraph.model.noise.NoiseModel`,
+    #: ``campaign --noise-model``); None: the pre-flight levels
+    noise: NoiseModel | None = None
 
     def __post_init__(self) -> None:
         if not self.months > 0:
@@ -149,7 +153,8 @@ class CampaignPlan:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "config": self.config.to_dict(),
+            # a campaign without a noise model plans as one did before the field existed
+            "config": {k: v for k, v in self.config.to_dict().items() if not (k == "noise" and v is None)},
             "paths": {
                 str(p.path): {"available": p.available, "cycles": list(p.cycles), "pass_ids": list(p.pass_ids)}
                 for p in self.paths

@@ -309,7 +309,8 @@ def _execute(
         month = submit("inputs", "month", tasks.existing_inputs, "month", str(month_dir), cfg.observations, priority=10)
     else:
         month = submit("inputs", "month", tasks.simulate_month, out, cfg, priority=10)
-    cal = submit("calibration", "month", tasks.calibrate, out, month, cfg.observations, priority=9)
+    noise = None if cfg.noise is None else cfg.noise.to_dict()
+    cal = submit("calibration", "month", tasks.calibrate, out, month, cfg.observations, noise, priority=9)
     for pp in plan.paths:
         if pp.path in path_dirs:
             pin = submit(
@@ -337,10 +338,11 @@ def _execute(
                 cfg.blocks,
                 cfg.roi,
                 cfg.observations,
+                noise,
                 priority=2,
             )
         for pid in pp.pass_ids:
-            submit("adjust", pid, tasks.adjust, out, pp.path, pid, pin, cal, cfg.observations)
+            submit("adjust", pid, tasks.adjust, out, pp.path, pid, pin, cal, cfg.observations, noise)
     cluster = ex.describe()
     if progress and cluster.get("dashboard"):
         progress(0, len(futs), f"Dask dashboard: {cluster['dashboard']}")

@@ -237,9 +237,26 @@ def existing_inputs(name: str, directory: str, observations: str = "simulated") 
 
 
 # ---------------------------------------------------------------------------- calibration
-def calibrate(out: str, month: dict[str, Any], observations: str = "simulated") -> dict[str, Any]:
+def _noise(noise: dict[str, Any] | None) -> Any:
+    """The campaign's noise model (a NoiseModel's fields, as tasks carry it), or None."""
+    from misrgraph.model.noise import NoiseModel
+
+    return None if noise is None else NoiseModel.from_dict(noise)
+
+
+def _adjust_config(noise: dict[str, Any] | None) -> Any:
+    from misrgraph.estimate.adjust import AdjustConfig
+
+    model = _noise(noise)
+    return AdjustConfig() if model is None else AdjustConfig().with_noise(model)
+
+
+def calibrate(
+    out: str, month: dict[str, Any], observations: str = "simulated", noise: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """Calibrate the cameras on the GCP month into ``OUT/calibration/camera_model-<digest>.h5``,
-    from the ``observations`` set."""
+    from the ``observations`` set, with the navigation levels of the ``noise`` model (None: the
+    pre-flight levels)."""
     from misrgraph.estimate.calibrate import CalibrateConfig
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
@@ -247,7 +264,7 @@ def calibrate(out: str, month: dict[str, Any], observations: str = "simulated") 
         from misrgraph.runs.calibrate import run_calibrate
 
         d = Path(month["output"])
-        cfg = CalibrateConfig()
+        cfg = CalibrateConfig(noise=_noise(noise))
         key = digest("calibrate", _scenario_sha(d), cfg.to_dict(), {"observations": observations})
         f = Path(out) / "calibration" / f"camera_model-{key[:12]}.h5"
         if f.exists():
@@ -275,10 +292,11 @@ def adjust(
     inputs: dict[str, Any],
     calibration: dict[str, Any],
     observations: str = "simulated",
+    noise: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Adjust one pass with the calibrated model into ``OUT/adjusted/path_PPP/<pass id>-<digest>.h5``
-    (RESULT.h5), from the ``observations`` set; the graph is built and solved here, on the worker."""
-    from misrgraph.estimate.adjust import AdjustConfig
+    (RESULT.h5), from the ``observations`` set, with the levels of the ``noise`` model; the graph
+    is built and solved here, on the worker."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
         from misrgraph.io.h5 import open_h5
@@ -289,7 +307,7 @@ def adjust(
         if not pass_file.exists():
             raise FileFormatError(pass_file, "the planned pass is not in the scenario")
         cam = Path(calibration["output"])
-        cfg = AdjustConfig()
+        cfg = _adjust_config(noise)
         key = digest(
             "adjust",
             _sha(pass_file),
@@ -354,6 +372,7 @@ def path_products(
     blocks: int,
     roi: bool = False,
     observations: str = "simulated",
+    noise: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The path's incremental state over its passes (``misrgraph update``, one pass at a time)
     and the Projection Parameters of its first pass (``misrgraph products``) into
@@ -363,7 +382,6 @@ def path_products(
     --roi``), into ``products/roi/``."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
-        from misrgraph.estimate.adjust import AdjustConfig
         from misrgraph.runs.products import run_products
         from misrgraph.runs.update import run_update
 
@@ -373,13 +391,14 @@ def path_products(
         if missing:
             raise FileFormatError(d / "passes", f"planned passes missing: {', '.join(missing)}")
         cam = Path(calibration["output"])
+        cfg = _adjust_config(noise)
         key = digest(
             "path",
             [_sha(f) for f in files],
             _sha(cam),
             _sha(d / "gcp.h5"),
             _sha(d / "dem.h5"),
-            AdjustConfig().to_dict(),
+            cfg.to_dict(),
             blocks,
             {"roi": True} if roi else {},
             {"observations": observations},
@@ -395,6 +414,7 @@ def path_products(
                 camera_model=cam,
                 gcp_file=d / "gcp.h5",
                 dem_file=d / "dem.h5",
+                cfg=cfg,
                 observations=observations,
             )
             t_update = time.perf_counter() - t0
@@ -404,6 +424,7 @@ def path_products(
                 pass_file=files[0],
                 camera_model=cam,
                 default_blocks=blocks,
+                cfg=cfg,
                 observations=observations,
             )
             pp_name = Path(prod["files"]["pp"]).name

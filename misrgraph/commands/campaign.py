@@ -10,11 +10,13 @@ from rich.table import Table
 
 from misrgraph.commands.common import (
     CONFIG_HELP,
+    NOISE_HELP,
     check_output,
     console,
     err_console,
     fail,
     handle_errors,
+    load_noise,
     merge_config,
     print_json,
     progress_bar,
@@ -84,6 +86,7 @@ def campaign(
         "the path states.",
     ),
     config: Optional[Path] = typer.Option(None, "--config", help=CONFIG_HELP.format(cls="CampaignConfig")),
+    noise_model: Optional[Path] = typer.Option(None, "--noise-model", help=NOISE_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     from misrgraph.campaign.plan import CampaignConfig, parse_paths
@@ -106,6 +109,9 @@ def campaign(
         observations=observations,
     )
     merge_config(fields, config)
+    noise = load_noise(noise_model)
+    if noise is not None:
+        fields["noise"] = noise
     cfg = CampaignConfig.from_dict(fields)
     check_output(out / "summary.json", "--out")
     with progress_bar("campaign: starting", disable=as_json, counts=True) as update:

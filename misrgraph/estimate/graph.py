@@ -47,9 +47,7 @@ from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
 from misrgraph.model.errormodels import (
-    ATTITUDE_DAMPING,
     ATTITUDE_RATE_FACTOR,
-    JITTER_PERIODS_S,
     AttitudeErrorModel,
     EphemerisErrorModel,
     ephemeris_prior_covariance,
@@ -59,6 +57,7 @@ from misrgraph.model.errormodels import (
 )
 from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.model.gcp import GcpDatabase
+from misrgraph.model.noise import NoiseModel
 
 __all__ = [
     "GraphConfig",
@@ -110,6 +109,10 @@ def check_jitter(jitter_arcsec: float, periods_s: Any) -> None:
         raise InputError("attitude_jitter_periods_s", periods_s, "two periods 0 < min < max in s")
 
 
+#: the pre-flight levels the graph's configuration defaults to
+_PRE_FLIGHT = NoiseModel()
+
+
 @dataclass(frozen=True)
 class GraphConfig(Config):
     """How a pass becomes a graph (units in the names). ``knot_prior``: see :data:`KNOT_PRIORS`
@@ -123,20 +126,22 @@ class GraphConfig(Config):
     #: damping ratio of the ``"process"`` knot prior (1: Matern-3/2); the default fits the
     #: correlation of an attitude error with periods of 200-2000 s
     #: (:data:`~misrgraph.model.errormodels.ATTITUDE_DAMPING`)
-    knot_prior_damping: float = ATTITUDE_DAMPING
+    knot_prior_damping: float = _PRE_FLIGHT.attitude.damping
     ephemeris_segments: int = 1
-    attitude_sigma_arcsec: tuple = (41.0 / 3, 44.0 / 3, 36.0 / 3)
+    #: the levels below default to the pre-flight noise model (:class:`~misrgraph.model.noise.NoiseModel`,
+    #: their one home; ``--noise-model`` replaces them)
+    attitude_sigma_arcsec: tuple = _PRE_FLIGHT.attitude.value_sigma_arcsec
     #: the attitude error rate's 1 sigma per angle (arcsec/s); empty: the value's sigma times
     #: :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR` (:class:`~misrgraph.model.noise.AttitudeNoise`)
-    attitude_rate_sigma_arcsec_per_s: tuple = ()
-    ephemeris_b_sigma_m: float = 50.0
-    ephemeris_a_sigma_mps: tuple = (0.05, 0.01, 0.01)
+    attitude_rate_sigma_arcsec_per_s: tuple = _PRE_FLIGHT.attitude.rate_sigma_arcsec_per_s
+    ephemeris_b_sigma_m: float = _PRE_FLIGHT.ephemeris.offset_sigma_m
+    ephemeris_a_sigma_mps: tuple = _PRE_FLIGHT.ephemeris.drift_sigma_mps
     #: 1 sigma amplitude (m, per orbital axis) of a once-per-revolution ephemeris error (orbit
     #: determination's periodic term). With it the segments get one joint prior: the covariance
     #: of their least-squares fit to the offset, the drift and the term
     #: (:func:`~misrgraph.model.errormodels.ephemeris_prior_covariance`; 1 or 2 segments, 2
     #: follow the term's curvature over a long pass); 0: independent offset and drift priors
-    ephemeris_once_per_rev_m: float = 0.0
+    ephemeris_once_per_rev_m: float = _PRE_FLIGHT.ephemeris.once_per_rev_m
     #: 1 sigma (arcsec, per angle) of attitude jitter with periods log-uniform in
     #: ``attitude_jitter_periods_s`` (s). The part the knots cannot follow
     #: (:func:`~misrgraph.model.errormodels.unresolved_attitude`, on this pass's knots) is noise in
@@ -145,15 +150,15 @@ class GraphConfig(Config):
     #: ``sigma_line^2 = sigma_px^2 + sigma_u^2 |d line / d angles|^2`` (likewise the sample).
     #: 0: the matcher's sigma alone
     attitude_jitter_arcsec: float = 0.0
-    attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
+    attitude_jitter_periods_s: tuple = _PRE_FLIGHT.jitter.periods_s
     estimate_camera: bool = True
     camera_params: tuple = ("delta", "beta", "epsilon")
     camera_per_band: bool = False
-    camera_prior_px: float = 0.0625
+    camera_prior_px: float = _PRE_FLIGHT.camera.angle_prior_px
     #: 1 sigma of a calibrated model's f and alpha_i among ``camera_params``, in pixels moved at
     #: the swath edge (|s - c_y| = 752) by an alpha_i; f to the same relative amount
     #: (:func:`calibrated_camera_sigma`)
-    camera_focal_prior_px: float = 0.05
+    camera_focal_prior_px: float = _PRE_FLIGHT.camera.focal_prior_px
     camera_prior_calibration: bool = False
     #: with ``camera_prior_calibration``: 0 gives f and alpha_i the wide pre-flight prior of
     #: :data:`CAMERA_PRIOR_SIGMA`; a positive value gives them the prior of a measured focal plane
@@ -166,7 +171,7 @@ class GraphConfig(Config):
     #: the DEM height factors' sigma is the DEM's stated 1 sigma (quality class, local fit) times
     #: this; 1 weights the DEM as stated (the posting-level roughness that would make the term
     #: pull too hard is removed by ``dem_smoothing_postings``; docs, "The DEM weight")
-    dem_sigma_scale: float = 1.0
+    dem_sigma_scale: float = _PRE_FLIGHT.dem.sigma_scale
     #: 1 sigma (DEM postings) of the Gaussian low-pass applied to the DEM before the height
     #: factors read it (:meth:`DemTiles.smoothed`; their sigma keeps the raw DEM's local
     #: roughness). Posting-level roughness (DEM noise, relief the posting aliases) curves the

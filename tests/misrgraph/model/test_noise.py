@@ -124,3 +124,22 @@ def test_noise_show_and_a_bad_file_on_the_cli(tmp_path):
     (tmp_path / "bad.json").write_text("{}")
     res = runner.invoke(app, ["adjust", str(tmp_path), "--noise-model", str(tmp_path / "bad.json")])
     assert res.exit_code == 2 and "bad.json: not a noise model" in res.stderr
+
+
+def test_the_campaign_carries_a_noise_model_and_plans_as_before_without_one():
+    """A campaign's noise model reaches the calibration's and the adjustments' configurations and
+    its plan; without one the plan's configuration is the one earlier campaigns stored, so they
+    resume."""
+    from misrgraph.campaign import tasks
+    from misrgraph.campaign.plan import CampaignConfig, plan_campaign
+
+    m = NoiseModel.from_dict({"ephemeris": {"offset_sigma_m": 120.0}, "attitude": {"damping": 1.0}})
+    assert tasks._adjust_config(None) == AdjustConfig()
+    assert tasks._adjust_config(m.to_dict()) == AdjustConfig().with_noise(m)
+    assert tasks._adjust_config(m.to_dict()).graph.ephemeris_b_sigma_m == 120.0
+    base = CampaignConfig(paths=(37,), months=1.0, size="reduced")
+    plain = plan_campaign(base).to_dict()["config"]
+    assert "noise" not in plain
+    withm = CampaignConfig.from_dict({**base.to_dict(), "noise": m.to_dict()})
+    assert withm.noise == m
+    assert plan_campaign(withm).to_dict()["config"]["noise"]["ephemeris"]["offset_sigma_m"] == 120.0
