@@ -25,6 +25,7 @@ def generate_gcp_database(
     geoid: Geoid | None = None,
     with_chips: bool = False,
     scene_fraction: float | None = None,
+    true_over_stated: float = 1.0,
 ) -> tuple[GcpDatabase, Array]:
     """Draw GCPs on land in the seed's regions: the database and the true positions ``(G, 3)`` m
     ECEF. The catalogue error per ENU axis is N(0, sigma) (``scene_fraction=None``, what the
@@ -32,7 +33,8 @@ def generate_gcp_database(
     of the variance common to the GCPs of one 2 x 2 deg cell (the scene's registration error)
     plus Student-t (4 degrees of freedom) per GCP, sigma per axis in total; the database then
     names each GCP's scene and the shared sigma (``scene``, ``scene_sigma_m``), as a catalogue
-    that records its source imagery would."""
+    that records its source imagery would. ``true_over_stated``: the errors are drawn with that
+    many times the sigma the database states (a catalogue that misstates its accuracy)."""
     if n_total < len(GCP_REGIONS):
         raise InputError("n_gcps", n_total, f"at least {len(GCP_REGIONS)}")
     geoid = geoid or Geoid("zero")
@@ -69,7 +71,7 @@ def generate_gcp_database(
         err = sigma_m * (np.sqrt(scene_fraction) * common + np.sqrt(1.0 - scene_fraction) * own)
         scene_of = scene.ravel().astype(np.int64)
         scene_sig = np.full(lat.size, sigma_m * np.sqrt(scene_fraction))
-    measured = truth + np.einsum("gij,gj->gi", enu, err)
+    measured = truth + np.einsum("gij,gj->gi", enu, err * true_over_stated)
     mlat, mlon, mh = ecef_to_geodetic(measured)
     chips = None
     if with_chips:

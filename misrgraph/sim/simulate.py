@@ -270,8 +270,24 @@ class ScenarioConfig(Config):
     strip_samples: tuple = ()
     roi_dem_sigma_m: float = 10.0
     feature_windows: bool = True
+    #: files that misstate their accuracy: each error is drawn with this many times the sigma its
+    #: file states (1: as stated). Tie-point and GCP image observations (the simulated ones; matched
+    #: observations carry the matcher's own sigma), GCP positions, DEM heights
+    tie_sigma_true_over_stated: float = 1.0
+    gcp_pixel_sigma_true_over_stated: float = 1.0
+    gcp_sigma_true_over_stated: float = 1.0
+    dem_sigma_true_over_stated: float = 1.0
 
     def __post_init__(self) -> None:
+        for name in (
+            "tie_sigma_true_over_stated",
+            "gcp_pixel_sigma_true_over_stated",
+            "gcp_sigma_true_over_stated",
+            "dem_sigma_true_over_stated",
+        ):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.1 <= v <= 10):
+                raise InputError(name, v, "a factor from 0.1 to 10 (the true sigma over the stated one)")
         if self.scenario not in ("pass", "month", "path"):
             raise InputError("scenario", self.scenario, ("pass", "month", "path"))
         if self.truth not in TRUTHS:
@@ -681,8 +697,16 @@ def simulate_pass(
     sigma = cols[6]
     independent = cfg.truth == "independent"
     if not cfg.noise_free:
-        line += matching_noise(rng, n_obs, cfg.noise_tail_dof if independent else 0.0) * sigma
-        sample += matching_noise(rng, n_obs, cfg.noise_tail_dof if independent else 0.0) * sigma
+        true_sigma = sigma
+        if cfg.tie_sigma_true_over_stated != 1.0 or cfg.gcp_pixel_sigma_true_over_stated != 1.0:
+            kinds_o = kinds[cols[0].astype(np.int64)]
+            true_sigma = sigma * np.select(
+                [kinds_o == KIND_GCP, kinds_o == KIND_TIE],
+                [cfg.gcp_pixel_sigma_true_over_stated, cfg.tie_sigma_true_over_stated],
+                1.0,
+            )
+        line += matching_noise(rng, n_obs, cfg.noise_tail_dof if independent else 0.0) * true_sigma
+        sample += matching_noise(rng, n_obs, cfg.noise_tail_dof if independent else 0.0) * true_sigma
     kind_obs = np.array([kept[i].kind for i in obs_lm], np.int64) if n_obs else np.zeros(0, np.int64)
     rate = np.where(kind_obs == KIND_GCP, cfg.gcp_blunder_rate, cfg.tie_blunder_rate)
     blunder = (rng.random(n_obs) < rate) & (kind_obs != KIND_CHECK) & (not cfg.noise_free)
@@ -872,6 +896,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
         geoid,
         cfg.with_chips,
         scene_fraction=cfg.gcp_scene_fraction if independent else None,
+        true_over_stated=cfg.gcp_sigma_true_over_stated,
     )
     truth_cam = draw_camera_misalignment(rng, nominal, cfg.camera_misalignment_arcsec * ARCSEC)
     if independent and cfg.camera_f_alpha_px > 0:
@@ -1006,6 +1031,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                 cfg.dted1_fraction,
                 pad=IMAGERY_DEM_PAD if cfg.imagery else 8,
                 correlated_fraction=cfg.dem_correlated_fraction if independent else 0.0,
+                true_over_stated=cfg.dem_sigma_true_over_stated,
             ),
             tmp / "dem.h5",
         )

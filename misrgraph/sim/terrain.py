@@ -188,6 +188,7 @@ def simulate_dem_tiles(
     margin: int = 3,
     pad: int = 8,
     correlated_fraction: float = 0.0,
+    true_over_stated: float = 1.0,
 ) -> DemTiles:
     """Tiles of ``size x size`` postings covering each (lat, lon) and the ``pad`` postings
     around it (room for the adjustment to move a landmark), at least ``margin`` postings
@@ -201,7 +202,8 @@ def simulate_dem_tiles(
     1-sigma of the quality class of the 1-degree cell (DTED-1 with probability
     ``dted1_fraction``). ``correlated_fraction`` moves that share of the smooth field's variance
     to a field correlated over ~28 km (:data:`LONG_CORRELATION_POSTINGS`), the spacing of tie
-    points, which the DEM factor does not know of (the independent truth). A DEM
+    points, which the DEM factor does not know of (the independent truth). ``true_over_stated``:
+    the error is that many times the quality class's sigma, which the tiles still state. A DEM
     whose value depended on which of two overlapping tiles was picked would be discontinuous
     (seen: re-linearisation cycling in repeat-path scenarios).
     """
@@ -253,7 +255,7 @@ def simulate_dem_tiles(
             smooth = np.sqrt(1.0 - correlated_fraction) * smooth + np.sqrt(correlated_fraction) * value_noise(
                 gi, gj, seed + 3, LONG_CORRELATION_POSTINGS
             )
-        err = sig_q * (smooth + 0.1 * _hash_normal(gi, gj, seed + 2))
+        err = sig_q * true_over_stated * (smooth + 0.1 * _hash_normal(gi, gj, seed + 2))
         return true_h + err, flags
 
     # in chunks of tiles: the terrain's wave sum is (tiles, n, n, waves) in memory

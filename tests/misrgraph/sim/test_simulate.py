@@ -485,3 +485,61 @@ def test_paired_sources_leave_every_other_draw_unchanged(tmp_path, monkeypatch):
     assert final_state() == everything  # the check itself is deterministic
     moves_nothing = {k for k, off in simulate.INDEPENDENT_SOURCES.items() if final_state(**{k: off}) == everything}
     assert moves_nothing == simulate.PAIRED_SOURCES
+
+
+def test_files_that_misstate_their_accuracy(tmp_path):
+    """Each misstatement knob draws its error with that many times the sigma its file states:
+    against the noise-free observations of the same seed (the truth), the tie-point and GCP image
+    errors scale by their factors exactly, the GCP catalogue's error likewise, the DEM's error
+    field is drawn again at the factor's size, and every stated sigma stays as it was."""
+    from misrgraph.model.dem import QUALITY_SIGMA_M
+    from misrgraph.model.frames import geodetic_to_ecef
+    from misrgraph.sim.simulate import KIND_CHECK, KIND_GCP, KIND_TIE, ScenarioConfig, load_scenario, run_simulate
+
+    base = dict(
+        truth="model",
+        scenario="pass",
+        seed=21,
+        n_tie_points=40,
+        n_check_points=10,
+        n_gcps=20,
+        duration_s=600.0,
+        start_lat_deg=50.0,
+        gcp_blunder_rate=0.0,
+        tie_blunder_rate=0.0,
+    )
+    knobs = dict(
+        tie_sigma_true_over_stated=2.5,
+        gcp_pixel_sigma_true_over_stated=0.5,
+        gcp_sigma_true_over_stated=3.0,
+        dem_sigma_true_over_stated=2.0,
+    )
+    sc = {}
+    for name, extra in (("stated", {}), ("misstated", knobs), ("truth", {"noise_free": True})):
+        run_simulate(ScenarioConfig.from_dict({**base, **extra}), tmp_path / name)
+        sc[name] = load_scenario(tmp_path / name)
+    p = {k: v.load_pass(0) for k, v in sc.items()}
+    o1, o2, o0 = p["stated"].observations, p["misstated"].observations, p["truth"].observations
+    assert np.array_equal(o1.landmark, o2.landmark) and np.array_equal(o1.landmark, o0.landmark)
+    np.testing.assert_array_equal(o1.sigma_px, o2.sigma_px)  # what the file states is unchanged
+    kind = p["stated"].landmarks.kind[o1.landmark]
+    for k, f in ((KIND_TIE, 2.5), (KIND_GCP, 0.5), (KIND_CHECK, 1.0)):
+        m = kind == k
+        assert m.sum() > 5
+        for c in ("line", "sample"):
+            e1, e2 = getattr(o1, c)[m] - getattr(o0, c)[m], getattr(o2, c)[m] - getattr(o0, c)[m]
+            assert np.abs(e1).max() > 1e-3
+            np.testing.assert_allclose(e2, f * e1, atol=1e-9)
+    g1, g2, truth = sc["stated"].gcps, sc["misstated"].gcps, sc["stated"].gcp_truth()
+    np.testing.assert_array_equal(g1.sigma_m, g2.sigma_m)
+    d1 = geodetic_to_ecef(g1.lat, g1.lon, g1.height) - truth
+    d2 = geodetic_to_ecef(g2.lat, g2.lon, g2.height) - truth
+    np.testing.assert_allclose(d2, 3.0 * d1, atol=1e-3)
+    dem1, dem2 = sc["stated"].dem, sc["misstated"].dem
+    np.testing.assert_array_equal(dem1.quality, dem2.quality)
+    # the same draw at twice its size: the difference is one stated-sigma draw of the error field
+    sig_q = np.vectorize(QUALITY_SIGMA_M.get)(dem1.quality)[:, None, None]
+    z = (dem2.heights - dem1.heights) / sig_q
+    assert 0.5 < np.sqrt(np.mean(z**2)) < 1.5
+    with pytest.raises(InputError, match="dem_sigma_true_over_stated"):
+        ScenarioConfig(dem_sigma_true_over_stated=20.0)
