@@ -213,6 +213,15 @@ class ScenarioConfig(Config):
     scenario: str = "pass"
     truth: str = "independent"
     jitter_arcsec: float = 1.0
+    #: the independent truth's attitude spectrum: the slow process's band (s), the slope of its
+    #: power per log-period against the period (0: equal power; 1: power growing with the period),
+    #: discrete lines ``((period_s, amplitude_arcsec), ...)`` added to every angle with a random
+    #: phase each; the jitter's band (s) and its own lines (reaction wheels, say)
+    attitude_periods_s: tuple = (200.0, 2000.0)
+    attitude_spectral_slope: float = 0.0
+    attitude_lines: tuple = ()
+    jitter_periods_s: tuple = (8.0, 120.0)
+    jitter_lines: tuple = ()
     once_per_rev_m: float = 30.0
     subposting_relief_m: float = 3.0
     coast_ramp_m: float = 8000.0
@@ -279,6 +288,16 @@ class ScenarioConfig(Config):
     dem_sigma_true_over_stated: float = 1.0
 
     def __post_init__(self) -> None:
+        for name in ("attitude_periods_s", "jitter_periods_s"):
+            v = getattr(self, name)
+            if not (len(v) == 2 and 0 < float(v[0]) < float(v[1]) and np.isfinite(float(v[1]))):
+                raise InputError(name, v, "two periods MIN, MAX in s with 0 < MIN < MAX")
+        if not (np.isfinite(self.attitude_spectral_slope) and abs(self.attitude_spectral_slope) <= 4):
+            raise InputError("attitude_spectral_slope", self.attitude_spectral_slope, "a slope from -4 to 4")
+        for name in ("attitude_lines", "jitter_lines"):
+            for line in getattr(self, name):
+                if not (len(line) == 2 and float(line[0]) > 0 and float(line[1]) >= 0):
+                    raise InputError(name, getattr(self, name), "pairs (period_s > 0, amplitude_arcsec >= 0)")
         for name in (
             "tie_sigma_true_over_stated",
             "gcp_pixel_sigma_true_over_stated",
@@ -417,15 +436,29 @@ def draw_ephemeris_error(
 
 
 def smooth_process(
-    rng: np.random.Generator, sigma: float, n_terms: int = 6, periods_s: tuple[float, float] = (200.0, 2000.0)
+    rng: np.random.Generator,
+    sigma: float,
+    n_terms: int = 6,
+    periods_s: tuple[float, float] = (200.0, 2000.0),
+    slope: float = 0.0,
+    lines: tuple = (),
 ) -> Callable[[Array], tuple[Array, Array]]:
-    """A zero-mean random sum of sinusoids (periods log-uniform in ``periods_s``) with standard
-    deviation ``sigma``; returns ``f(t) -> (value, rate)``."""
+    """A zero-mean random sum of sinusoids (periods log-uniform in ``periods_s``, power per
+    log-period proportional to ``period**slope``) with standard deviation ``sigma``, plus the
+    discrete ``lines`` (``(period_s, amplitude)`` pairs, amplitude in the units of ``sigma``, a
+    random phase each); returns ``f(t) -> (value, rate)``."""
     period = np.exp(rng.uniform(np.log(periods_s[0]), np.log(periods_s[1]), n_terms))
     w = 2 * np.pi / period
     ph = rng.uniform(0, 2 * np.pi, n_terms)
     amp = rng.rayleigh(1.0, n_terms)
+    if slope:
+        amp = amp * (period / periods_s[0]) ** (slope / 2.0)
     amp *= sigma / np.sqrt(np.sum(amp**2) / 2)
+    if len(lines):
+        line_p = np.array([float(p) for p, _ in lines])
+        w = np.r_[w, 2 * np.pi / line_p]
+        ph = np.r_[ph, rng.uniform(0, 2 * np.pi, line_p.size)]
+        amp = np.r_[amp, [float(a) for _, a in lines]]
     return lambda t: (
         np.sum(amp * np.sin(np.multiply.outer(t, w) + ph), -1),
         np.sum(amp * w * np.cos(np.multiply.outer(t, w) + ph), -1),
@@ -443,8 +476,20 @@ def draw_attitude_error(
     if cfg.truth == "independent":
         times = np.arange(t_start, t_end + 2.0, 2.0)
         for a in range(3):
-            slow = smooth_process(rng, cfg.attitude_sigma_arcsec[a] * ARCSEC)
-            fast = smooth_process(rng, cfg.jitter_arcsec * ARCSEC, n_terms=12, periods_s=(8.0, 120.0))
+            slow = smooth_process(
+                rng,
+                cfg.attitude_sigma_arcsec[a] * ARCSEC,
+                periods_s=tuple(cfg.attitude_periods_s),
+                slope=cfg.attitude_spectral_slope,
+                lines=tuple((p, amp * ARCSEC) for p, amp in cfg.attitude_lines),
+            )
+            fast = smooth_process(
+                rng,
+                cfg.jitter_arcsec * ARCSEC,
+                n_terms=12,
+                periods_s=tuple(cfg.jitter_periods_s),
+                lines=tuple((p, amp * ARCSEC) for p, amp in cfg.jitter_lines),
+            )
             (v1, r1), (v2, r2) = slow(times), fast(times)
             kt.append(times.copy())
             kv.append(np.stack([v1 + v2, r1 + r2], -1))

@@ -543,3 +543,45 @@ def test_files_that_misstate_their_accuracy(tmp_path):
     assert 0.5 < np.sqrt(np.mean(z**2)) < 1.5
     with pytest.raises(InputError, match="dem_sigma_true_over_stated"):
         ScenarioConfig(dem_sigma_true_over_stated=20.0)
+
+
+def test_the_attitude_spectrum_is_a_knob_of_the_world(tmp_path):
+    """The independent truth's attitude follows the band, slope and lines it is given: the ratio of
+    the rate's RMS to the value's lies between the band's angular frequencies (a weighted mean of
+    the terms' frequencies), and a discrete line stands out at its period in the spectrum."""
+    from misrgraph.model.constants import ARCSEC
+    from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
+
+    base = dict(
+        truth="independent",
+        scenario="pass",
+        seed=5,
+        n_tie_points=20,
+        n_check_points=5,
+        n_gcps=20,
+        duration_s=1200.0,
+        jitter_arcsec=0.0,
+    )
+    worlds = {
+        "default": {},
+        "fast": {"attitude_periods_s": [30.0, 300.0], "attitude_spectral_slope": 1.0},
+        "line": {"attitude_lines": [[50.0, 20.0]]},
+    }
+    truth = {}
+    for name, extra in worlds.items():
+        run_simulate(ScenarioConfig.from_dict({**base, **extra}), tmp_path / name)
+        truth[name] = load_scenario(tmp_path / name).load_truth(0).attitude_error
+    for name, band in (("default", (200.0, 2000.0)), ("fast", (30.0, 300.0))):
+        for a in range(3):
+            v = truth[name].knots[a]
+            ratio = np.sqrt(np.mean(v[:, 1] ** 2) / np.mean(v[:, 0] ** 2))
+            assert 2 * np.pi / band[1] * 0.8 < ratio < 2 * np.pi / band[0] * 1.2, (name, a, ratio)
+    v = truth["line"].knots[0][:, 0] / ARCSEC  # roll on its 2 s grid
+    spec = np.abs(np.fft.rfft(v - v.mean()))
+    f = np.fft.rfftfreq(v.size, 2.0)
+    at = np.argmin(np.abs(f - 1 / 50.0))
+    assert spec[at] > 10 * np.median(spec[f > 1 / 150.0])
+    with pytest.raises(InputError, match="attitude_periods_s"):
+        ScenarioConfig(attitude_periods_s=(300.0, 30.0))
+    with pytest.raises(InputError, match="jitter_lines"):
+        ScenarioConfig(jitter_lines=((10.0,),))
