@@ -531,18 +531,19 @@ def build_pass_graph(
         problem.add_batch(DemBatch(np.array(dem_keys), np.array(dem_sig), surface))
     # navigation variables and priors
     att_sig = np.asarray(cfg.attitude_sigma_arcsec) * ARCSEC
-    rate_sig = (
-        np.asarray(cfg.attitude_rate_sigma_arcsec_per_s) * ARCSEC
-        if len(cfg.attitude_rate_sigma_arcsec_per_s)
-        else att_sig * ATTITUDE_RATE_FACTOR
-    )
+    if len(cfg.attitude_rate_sigma_arcsec_per_s):
+        rate_sig = np.asarray(cfg.attitude_rate_sigma_arcsec_per_s) * ARCSEC
+        lam = rate_sig / att_sig  # the process's natural frequency (1/s)
+    else:
+        rate_sig = att_sig * ATTITUDE_RATE_FACTOR
+        lam = np.full(3, ATTITUDE_RATE_FACTOR)
     for a in range(3):
         ks = [K.knot_key(a, pass_index, j) for j in range(att_kept.knot_times[a].size)]
         for k in ks:
             add(k, np.zeros(2))
         if cfg.knot_prior == "process":
             for f in process_prior_factors(
-                ks, att_kept.knot_times[a], float(att_sig[a]), float(rate_sig[a] / att_sig[a]), cfg.knot_prior_damping
+                ks, att_kept.knot_times[a], float(att_sig[a]), float(lam[a]), cfg.knot_prior_damping
             ):
                 graph.add(f)
         else:
