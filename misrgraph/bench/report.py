@@ -169,7 +169,9 @@ def _render_nees(r: dict[str, Any]) -> str:
                     _ci(v["per_run"], fmt=".3f") + (f"; RMS of runs {_ci(rr, 'rms', '.3f')}" if rr else ""),
                 ]
             )
-    head = f"{r['runs']} {r['size']} {r['study']} runs under the {r['truth']} truth (seeds from {r.get('seed', '?')})."
+    seeds = sorted(int(x["seed"]) for x in r.get("per_run", []) if "seed" in x)
+    which = f" (seeds {seeds[0]}-{seeds[-1]})" if seeds else ""
+    head = f"{r['runs']} {r['size']} {r['study']} runs under the {r['truth']} truth{which}."
     return (
         head
         + "\n\n"
