@@ -286,8 +286,16 @@ class ScenarioConfig(Config):
     gcp_pixel_sigma_true_over_stated: float = 1.0
     gcp_sigma_true_over_stated: float = 1.0
     dem_sigma_true_over_stated: float = 1.0
+    #: the lattice spacing (3-arcsec postings) of the DEM error's long-correlated share
+    #: (``dem_correlated_fraction``); 300 postings is ~28 km, points two spacings apart are
+    #: independent; it must divide the 432000 postings of 360 degrees
+    dem_correlation_postings: int = 300
 
     def __post_init__(self) -> None:
+        if not (self.dem_correlation_postings > 0 and 432000 % self.dem_correlation_postings == 0):
+            raise InputError(
+                "dem_correlation_postings", self.dem_correlation_postings, "a divisor of 432000 (postings), e.g. 300"
+            )
         for name in ("attitude_periods_s", "jitter_periods_s"):
             v = getattr(self, name)
             if not (len(v) == 2 and 0 < float(v[0]) < float(v[1]) and np.isfinite(float(v[1]))):
@@ -1077,6 +1085,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                 pad=IMAGERY_DEM_PAD if cfg.imagery else 8,
                 correlated_fraction=cfg.dem_correlated_fraction if independent else 0.0,
                 true_over_stated=cfg.dem_sigma_true_over_stated,
+                correlation_postings=cfg.dem_correlation_postings,
             ),
             tmp / "dem.h5",
         )

@@ -189,6 +189,7 @@ def simulate_dem_tiles(
     pad: int = 8,
     correlated_fraction: float = 0.0,
     true_over_stated: float = 1.0,
+    correlation_postings: int = LONG_CORRELATION_POSTINGS,
 ) -> DemTiles:
     """Tiles of ``size x size`` postings covering each (lat, lon) and the ``pad`` postings
     around it (room for the adjustment to move a landmark), at least ``margin`` postings
@@ -203,7 +204,9 @@ def simulate_dem_tiles(
     ``dted1_fraction``). ``correlated_fraction`` moves that share of the smooth field's variance
     to a field correlated over ~28 km (:data:`LONG_CORRELATION_POSTINGS`), the spacing of tie
     points, which the DEM factor does not know of (the independent truth). ``true_over_stated``:
-    the error is that many times the quality class's sigma, which the tiles still state. A DEM
+    the error is that many times the quality class's sigma, which the tiles still state.
+    ``correlation_postings``: the correlated share's lattice spacing (postings; points two
+    spacings apart are independent; it divides :data:`POSTINGS_360`). A DEM
     whose value depended on which of two overlapping tiles was picked would be discontinuous
     (seen: re-linearisation cycling in repeat-path scenarios).
     """
@@ -253,7 +256,7 @@ def simulate_dem_tiles(
         smooth = value_noise(gi, gj, seed + 1, ERROR_CORRELATION_POSTINGS)
         if correlated_fraction > 0:
             smooth = np.sqrt(1.0 - correlated_fraction) * smooth + np.sqrt(correlated_fraction) * value_noise(
-                gi, gj, seed + 3, LONG_CORRELATION_POSTINGS
+                gi, gj, seed + 3, correlation_postings
             )
         err = sig_q * true_over_stated * (smooth + 0.1 * _hash_normal(gi, gj, seed + 2))
         return true_h + err, flags

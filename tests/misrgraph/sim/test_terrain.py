@@ -4,6 +4,7 @@ cliff, and is untouched farther inland than the ramp."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from misrgraph.sim.landmask import coast_distance_m
 from misrgraph.sim.terrain import SyntheticTerrain, land_mask, simulate_dem_tiles
@@ -76,3 +77,35 @@ def test_dem_tiles_hold_the_tapered_terrain():
     assert near.sum() > 50
     untapered = dem.heights - SyntheticTerrain(seed=6).height(glat, glon)
     assert np.sqrt(np.mean(untapered[near] ** 2)) > 3 * np.sqrt(np.mean(err[near] ** 2))
+
+
+def test_the_dem_errors_correlation_length_is_a_knob():
+    """With all of the smooth error in the long-correlated share, DEM errors ~11 km apart are
+    nearly the same where its lattice is ~111 km (1200 postings) and independent where it is
+    ~4.6 km (50 postings); a spacing that does not divide 360 degrees is refused."""
+    from misrgraph.errors import InputError
+    from misrgraph.sim.simulate import ScenarioConfig, scenario_terrain
+    from misrgraph.sim.terrain import simulate_dem_tiles
+
+    terrain = scenario_terrain(ScenarioConfig())
+    lat = np.full(60, 40.05) + 0 * np.arange(60)
+    lon = -100.0 + 0.1 * np.arange(60)  # ~8.5 km apart at 40 N
+    corr = {}
+    for spacing in (50, 1200):
+        h = {}
+        for f in (1.0, 2.0):
+            dem = simulate_dem_tiles(
+                lat,
+                lon,
+                terrain,
+                np.random.default_rng(4),
+                correlated_fraction=1.0,
+                true_over_stated=f,
+                correlation_postings=spacing,
+            )
+            h[f] = dem.surface(lat, lon).height
+        e = h[2.0] - h[1.0]  # one draw of the error field
+        corr[spacing] = np.corrcoef(e[:-1], e[1:])[0, 1]
+    assert corr[1200] > 0.8 and abs(corr[50]) < 0.4, corr
+    with pytest.raises(InputError, match="dem_correlation_postings"):
+        ScenarioConfig(dem_correlation_postings=7)
