@@ -226,8 +226,9 @@ def dir_mode() -> int:
 
 
 def make_temp_dir(prefix: str, parent: str | os.PathLike[str], suffix: str = "") -> Path:
-    """A hidden temporary directory in ``parent`` with the umask's mode (``mkdtemp`` alone gives
-    0700, which the directory would keep once renamed into place)."""
+    """A hidden temporary directory in ``parent`` (created if missing) with the umask's mode
+    (``mkdtemp`` alone gives 0700, which the directory would keep once renamed into place)."""
+    Path(parent).mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=parent))
     os.chmod(tmp, dir_mode())
     return tmp
