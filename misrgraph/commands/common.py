@@ -97,6 +97,9 @@ def configure_logging(verbose: bool) -> None:
     logging.basicConfig(
         level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
     )
+    if _STATE.get("hooks"):  # once per process, however many commands it runs
+        return
+    _STATE["hooks"] = True
     default_hook = sys.unraisablehook
 
     def hook(unraisable: Any) -> None:
