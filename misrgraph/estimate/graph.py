@@ -42,7 +42,7 @@ from factors.priors import (
 from misrgraph.config import Config
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.estimate.problem import Problem
-from misrgraph.io.passes import KIND_CHECK, KIND_GCP, OrbitPass
+from misrgraph.io.passes import KIND_CHECK, KIND_GCP, KIND_TIE, OrbitPass
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ARCSEC, BANDS, CAMERAS
 from misrgraph.model.dem import DemTiles, Geoid, fit_local_surface
@@ -172,6 +172,11 @@ class GraphConfig(Config):
     #: this; 1 weights the DEM as stated (the posting-level roughness that would make the term
     #: pull too hard is removed by ``dem_smoothing_postings``; docs, "The DEM weight")
     dem_sigma_scale: float = _PRE_FLIGHT.dem.sigma_scale
+    #: every tie point's image sigma, every GCP's image sigma and every GCP's position sigma (and
+    #: its scene's) are their files' stated sigma times these (:class:`~misrgraph.model.noise.ObservationNoise`)
+    tie_sigma_scale: float = _PRE_FLIGHT.observations.tie_sigma_scale
+    gcp_pixel_sigma_scale: float = _PRE_FLIGHT.observations.gcp_pixel_sigma_scale
+    gcp_sigma_scale: float = _PRE_FLIGHT.observations.gcp_sigma_scale
     #: 1 sigma (DEM postings) of the Gaussian low-pass applied to the DEM before the height
     #: factors read it (:meth:`DemTiles.smoothed`; their sigma keeps the raw DEM's local
     #: roughness). Posting-level roughness (DEM noise, relief the posting aliases) curves the
@@ -225,6 +230,9 @@ class GraphConfig(Config):
                 self.attitude_sigma_arcsec,
                 "three positive sigmas (roll, pitch, yaw) in arcsec",
             )
+        for name in ("tie_sigma_scale", "gcp_pixel_sigma_scale", "gcp_sigma_scale"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise InputError(name, getattr(self, name), "a positive factor on the stated sigma")
         rate = self.attitude_rate_sigma_arcsec_per_s
         if len(rate) not in (0, 3) or (len(rate) and not min(rate) > 0):
             raise InputError(
@@ -460,8 +468,14 @@ def build_pass_graph(
     group = obs.landmark[idx] if cfg.group_by == "landmark" else np.arange(idx.size)
     robust = None if cfg.robust == "none" else (cfg.robust, cfg.robust_k)
     cam_params = camera_parameter_matrix(camera, cam, band)
+    sigma_px = obs.sigma_px[idx]
+    if cfg.tie_sigma_scale != 1.0 or cfg.gcp_pixel_sigma_scale != 1.0:
+        kind = orbit_pass.landmarks.kind[obs.landmark[idx]]
+        sigma_px = sigma_px * np.select(
+            [kind == KIND_TIE, kind == KIND_GCP], [cfg.tie_sigma_scale, cfg.gcp_pixel_sigma_scale], 1.0
+        )
     sigma = observation_sigma(
-        obs.sigma_px[idx],
+        sigma_px,
         const,
         lm_init,
         cam_params,
@@ -492,6 +506,8 @@ def build_pass_graph(
     scene_of = {int(g): sc for sc, rows in scenes.items() for g in rows}
     # each GCP's own error: all of it where it has no scene (there the two are the same)
     gcp_cov = (gcps.own_covariance_ecef() if scenes else gcps.covariance_ecef()) if gcps is not None else None
+    if gcp_cov is not None and cfg.gcp_sigma_scale != 1.0:
+        gcp_cov = gcp_cov * cfg.gcp_sigma_scale**2
     scene_keys: list[int] = []
     for row in lm_rows:
         key = lm_key_of[row]
@@ -513,7 +529,7 @@ def build_pass_graph(
                     c_s = enu_covariance(
                         np.radians(gcps.lat[r].mean()),
                         np.radians(gcps.lon[r].mean()),
-                        np.full(3, gcps.scene_sigma_m[r[0]]),
+                        np.full(3, gcps.scene_sigma_m[r[0]] * cfg.gcp_sigma_scale),
                     )
                     graph.add(scene_offset_prior(sk, c_s))
             if add(key, gcp_ecef[gi]):

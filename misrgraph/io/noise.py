@@ -8,6 +8,7 @@ Layout (UTF-8 JSON, written atomically)::
      "ephemeris": {"offset_sigma_m": b, "drift_sigma_mps": [along, cross, radial], "once_per_rev_m": a},
      "camera": {"angle_prior_px": p, "focal_prior_px": q},
      "dem": {"sigma_scale": k},
+     "observations": {"tie_sigma_scale": t, "gcp_pixel_sigma_scale": g, "gcp_sigma_scale": p},
      "source": {"attitude": "pre-flight", ...}}
 
 A section or a field left out takes its pre-flight default; an unknown one is refused, naming it.
@@ -29,7 +30,7 @@ from misrgraph.model.noise import NOISE_MODEL_VERSION, NoiseModel
 __all__ = ["read_noise_model", "save_noise_model", "NOISE_MODEL_KIND", "SECTIONS"]
 
 NOISE_MODEL_KIND = "misrgraph noise model"
-SECTIONS = ("attitude", "jitter", "ephemeris", "camera", "dem")
+SECTIONS = ("attitude", "jitter", "ephemeris", "camera", "dem", "observations")
 
 
 def save_noise_model(model: NoiseModel, path: str | os.PathLike[str], source: dict[str, str] | None = None) -> None:

@@ -37,6 +37,7 @@ __all__ = [
     "EphemerisNoise",
     "CameraNoise",
     "DemNoise",
+    "ObservationNoise",
     "NoiseModel",
     "LEVELS",
 ]
@@ -131,6 +132,21 @@ class DemNoise(Config):
 
 
 @dataclass(frozen=True)
+class ObservationNoise(Config):
+    """Each class of inputs' sigma is its file's stated sigma times these: tie points' and GCPs'
+    image sigma (the matcher's or the pass file's), GCPs' position sigma (the catalogue's, its
+    source scene's shared part too). 1 takes every file as it states itself."""
+
+    tie_sigma_scale: float = 1.0
+    gcp_pixel_sigma_scale: float = 1.0
+    gcp_sigma_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("tie_sigma_scale", "gcp_pixel_sigma_scale", "gcp_sigma_scale"):
+            _positive(f"observations.{name}", getattr(self, name))
+
+
+@dataclass(frozen=True)
 class NoiseModel(Config):
     """Every level the estimator assumes (module docstring); the defaults are pre-flight knowledge."""
 
@@ -140,6 +156,7 @@ class NoiseModel(Config):
     ephemeris: EphemerisNoise = field(default_factory=EphemerisNoise)
     camera: CameraNoise = field(default_factory=CameraNoise)
     dem: DemNoise = field(default_factory=DemNoise)
+    observations: ObservationNoise = field(default_factory=ObservationNoise)
 
     def __post_init__(self) -> None:
         if self.version != NOISE_MODEL_VERSION:
@@ -150,15 +167,18 @@ class NoiseModel(Config):
             ("ephemeris", EphemerisNoise),
             ("camera", CameraNoise),
             ("dem", DemNoise),
+            ("observations", ObservationNoise),
         ):
             if not isinstance(getattr(self, name), cls):
                 raise InputError(name, getattr(self, name), f"a mapping of {cls.__name__} fields")
 
     def navigation_fields(self) -> dict[str, Any]:
-        """The attitude and ephemeris levels as :class:`~misrgraph.estimate.graph.GraphConfig`
-        fields (what a calibration's navigation nuisance needs)."""
-        a, e = self.attitude, self.ephemeris
+        """The attitude, ephemeris and GCP levels as :class:`~misrgraph.estimate.graph.GraphConfig`
+        fields (what a calibration needs: its navigation nuisance and its GCPs)."""
+        a, e, o = self.attitude, self.ephemeris, self.observations
         return {
+            "gcp_pixel_sigma_scale": float(o.gcp_pixel_sigma_scale),
+            "gcp_sigma_scale": float(o.gcp_sigma_scale),
             "attitude_sigma_arcsec": tuple(float(x) for x in a.value_sigma_arcsec),
             "attitude_rate_sigma_arcsec_per_s": tuple(float(x) for x in a.rate_sigma_arcsec_per_s),
             "knot_prior_damping": float(a.damping),
@@ -176,6 +196,7 @@ class NoiseModel(Config):
             "camera_prior_px": float(self.camera.angle_prior_px),
             "camera_focal_prior_px": float(self.camera.focal_prior_px),
             "dem_sigma_scale": float(self.dem.sigma_scale),
+            "tie_sigma_scale": float(self.observations.tie_sigma_scale),
         }
 
 
@@ -202,6 +223,9 @@ LEVELS: dict[tuple[str, str], tuple[str, str]] = {
     ),
     ("camera", "focal_prior_px"): ("px", "pre-flight: the focal plane's ground calibration, 0.05 px at the swath edge"),
     ("dem", "sigma_scale"): ("1", "input: 1 takes the DEM's stated accuracy as it is"),
+    ("observations", "tie_sigma_scale"): ("1", "input: 1 takes the tie points' stated sigma as it is"),
+    ("observations", "gcp_pixel_sigma_scale"): ("1", "input: 1 takes the GCP measurements' stated sigma as it is"),
+    ("observations", "gcp_sigma_scale"): ("1", "input: 1 takes the GCP catalogue's stated sigma as it is"),
 }
 
 

@@ -32,7 +32,11 @@ def test_the_pre_flight_model_is_what_the_estimator_assumes_without_one():
 def test_every_level_is_listed_with_its_source():
     m = NoiseModel()
     listed = set(LEVELS)
-    fields = {(s, f) for s in ("attitude", "jitter", "ephemeris", "camera", "dem") for f in getattr(m, s).to_dict()}
+    fields = {
+        (s, f)
+        for s in ("attitude", "jitter", "ephemeris", "camera", "dem", "observations")
+        for f in getattr(m, s).to_dict()
+    }
     assert listed == fields
     assert all(unit and source for unit, source in LEVELS.values())
 
@@ -143,3 +147,43 @@ def test_the_campaign_carries_a_noise_model_and_plans_as_before_without_one():
     withm = CampaignConfig.from_dict({**base.to_dict(), "noise": m.to_dict()})
     assert withm.noise == m
     assert plan_campaign(withm).to_dict()["config"]["noise"]["ephemeris"]["offset_sigma_m"] == 120.0
+
+
+def test_observation_scales_correct_files_that_misstate_their_accuracy(tmp_path):
+    """A pass whose tie-point file understates its sigma by half (the simulator draws them at
+    twice the stated sigma) reads a tie-point variance factor near 2; with the noise model's tie
+    scale at 2 it reads near 1, the other classes unmoved. The GCP scales reach the GCP rows."""
+    from misrgraph.estimate.adjust import adjust_pass
+    from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
+
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=31,
+            n_tie_points=150,
+            n_check_points=10,
+            n_gcps=20,
+            duration_s=900.0,
+            start_lat_deg=55.0,
+            gcp_blunder_rate=0.0,
+            tie_sigma_true_over_stated=2.0,
+        ),
+        tmp_path / "s",
+    )
+    sc = load_scenario(tmp_path / "s")
+    p = sc.load_pass(0)
+    base = AdjustConfig.from_dict(attitude_jitter_arcsec=0.0, snooping_rounds=0)  # the model truth has no jitter
+    vc = {}
+    for name, m in (
+        ("stated", NoiseModel()),
+        ("scaled", NoiseModel.from_dict({"observations": {"tie_sigma_scale": 2.0}})),
+    ):
+        cfg = base.replace(graph=base.graph.replace(**{**m.graph_fields(), "attitude_jitter_arcsec": 0.0}))
+        res = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, cfg)
+        vc[name] = {k: v["sigma0"] for k, v in res.reliability["variance_components"].items()}
+    tie = "tie-point observations"
+    assert 1.7 < vc["stated"][tie] < 2.3, vc
+    assert 0.85 < vc["scaled"][tie] < 1.15, vc
+    g = base.graph.replace(**NoiseModel.from_dict({"observations": {"gcp_sigma_scale": 3.0}}).graph_fields())
+    assert g.gcp_sigma_scale == 3.0 and g.tie_sigma_scale == 1.0
