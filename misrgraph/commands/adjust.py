@@ -11,13 +11,12 @@ from rich.table import Table
 from misrgraph.commands.common import (
     CONFIG_HELP,
     NOISE_HELP,
+    adjust_config,
     check_output,
     console,
     err_console,
     fail,
     handle_errors,
-    load_noise,
-    merge_config,
     mode_or_sigma,
     parse_comma_list,
     print_json,
@@ -151,7 +150,6 @@ def adjust(
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Simultaneous bundle adjustment of one pass: ephemeris and attitude error models with covariances."""
-    from misrgraph.estimate.adjust import AdjustConfig
     from misrgraph.runs.adjust import run_adjust
 
     periods = parse_comma_list("--jitter-periods-s", jitter_periods, float, "8,120")
@@ -181,11 +179,7 @@ def adjust(
         tie_height_sigma_m=tie_height_setting,
         tie_offset_sigma_px=tie_offset_setting,
     )
-    merge_config(fields, config)
-    cfg = AdjustConfig.from_dict(fields)
-    noise = load_noise(noise_model)
-    if noise is not None:
-        cfg = cfg.with_noise(noise)
+    cfg = adjust_config(fields, config, noise_model)
     if plots is not None and out is None:
         fail("--plots: needs --out RESULT.h5 (the plots are drawn from it)")
     check_output(out, "--out")

@@ -9,7 +9,6 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from misrgraph.bench.provenance import finish
 from misrgraph.commands.common import (
     console,
     err_console,
@@ -39,6 +38,14 @@ __all__ = [
     "bench_kill",
     "bench_report",
 ]
+
+
+def finish(result: dict, save: Optional[Path]) -> dict:
+    """:func:`misrgraph.bench.provenance.finish`, imported when a bench ends (not at start-up)."""
+    from misrgraph.bench.provenance import finish as stamp
+
+    return stamp(result, save)
+
 
 app = typer.Typer(
     help="Speed, memory and statistical studies; each prints ratios and intervals measured in one run.",

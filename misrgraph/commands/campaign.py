@@ -118,7 +118,7 @@ def campaign(
 
         def progress(done: int, total: int, message: str) -> None:
             if message.startswith("Dask dashboard"):
-                update.console.print(message)
+                err_console.print(message)  # the bar's console: printed above the live bar
             update(message, done, total)
 
         res = run_campaign(out, cfg, inputs=inputs, workers=workers, scheduler=scheduler, progress=progress)

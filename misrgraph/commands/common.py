@@ -39,7 +39,6 @@ from rich.progress import (
 from rich.table import Table
 
 from misrgraph.errors import InputError, MisrGraphError, OutputError
-from misrgraph.io.h5 import check_writable, is_write_failure, os_reason
 
 __all__ = [
     "console",
@@ -59,6 +58,7 @@ __all__ = [
     "CONFIG_HELP",
     "NOISE_HELP",
     "load_noise",
+    "adjust_config",
 ]
 
 console = Console()
@@ -72,6 +72,17 @@ NOISE_HELP = (
     "Noise-model file (JSON; 'misrgraph noise init' writes the defaults): the levels the estimator assumes. "
     "Default: the pre-flight levels."
 )
+
+
+def adjust_config(fields: dict[str, Any], config: Optional[Path], noise_model: Optional[Path]) -> Any:
+    """The :class:`~misrgraph.estimate.adjust.AdjustConfig` of a command: its options' ``fields``,
+    then the ``--config`` file's, then the ``--noise-model`` file's levels."""
+    from misrgraph.estimate.adjust import AdjustConfig
+
+    merge_config(fields, config)
+    cfg = AdjustConfig.from_dict(fields)
+    noise = load_noise(noise_model)
+    return cfg if noise is None else cfg.with_noise(noise)
 
 
 def load_noise(path: Optional[Path]) -> Any:
@@ -140,6 +151,8 @@ def fail(message: str, code: int = 2) -> None:
 def _io_message(exc: OSError) -> str | None:
     """One line for an operating-system write failure that no writer caught: the path (when the
     error names one) and the reason, no library detail; ``None`` for any other OSError."""
+    from misrgraph.io.h5 import is_write_failure, os_reason  # h5py: not at start-up
+
     if not is_write_failure(exc):
         return None
     return f"{exc.filename or 'output'}: cannot write ({os_reason(exc)})"
@@ -214,6 +227,8 @@ def check_output(path: Optional[Path], option: str) -> None:
     """Refuse, before any work, an output location that cannot be written
     (:func:`misrgraph.io.h5.check_writable`); ``None`` is accepted (no output)."""
     if path is not None:
+        from misrgraph.io.h5 import check_writable  # h5py: not at start-up
+
         check_writable(path, option)
 
 
@@ -233,7 +248,6 @@ def progress_bar(description: str, disable: bool = False, counts: bool = False) 
         def update(desc: str, done: int, total: int | None) -> None:
             bar.update(task, description=desc, completed=done, total=None if total is None else max(total, 1))
 
-        update.console = bar.console  # type: ignore[attr-defined]
         yield update
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Optional
+from typing import Optional
 
 import typer
 from rich.table import Table
@@ -11,11 +11,10 @@ from rich.table import Table
 from misrgraph.commands.common import (
     CONFIG_HELP,
     NOISE_HELP,
+    adjust_config,
     check_output,
     console,
     handle_errors,
-    load_noise,
-    merge_config,
     print_coregistration,
     print_json,
     progress_bar,
@@ -78,17 +77,11 @@ def products(
     estimate. Scored against the simulator's truth when the pass has it. With --roi, the Reference
     Orbit Imagery of the path from all passes with imagery.
     """
-    from misrgraph.estimate.adjust import AdjustConfig
     from misrgraph.runs.products import RoiOptions, run_products
 
     if not roi and (geotiff or quicklooks or som_dem):
         raise InputError("--geotiff/--quicklooks/--som-dem", "given without --roi", "--roi as well")
-    fields: dict[str, Any] = {}
-    merge_config(fields, config)
-    cfg = AdjustConfig.from_dict(fields)
-    noise = load_noise(noise_model)
-    if noise is not None:
-        cfg = cfg.with_noise(noise)
+    cfg = adjust_config({}, config, noise_model)
     check_output(out / "products.json", "--out")
     opts = (
         RoiOptions(

@@ -3,19 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Optional
+from typing import Optional
 
 import typer
 
 from misrgraph.commands.common import (
     CONFIG_HELP,
     NOISE_HELP,
+    adjust_config,
     console,
     err_console,
     fail,
     handle_errors,
-    load_noise,
-    merge_config,
     print_json,
 )
 
@@ -63,17 +62,10 @@ def update(
     """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
     import numpy as np
 
-    from misrgraph.estimate.adjust import AdjustConfig
     from misrgraph.runs.update import run_update
 
-    cfg = None
-    if config is not None or noise_model is not None:
-        fields: dict[str, Any] = {}
-        merge_config(fields, config)
-        cfg = AdjustConfig.from_dict(fields)
-        noise = load_noise(noise_model)
-        if noise is not None:
-            cfg = cfg.with_noise(noise)
+    # None: a new state takes the defaults, an existing one keeps its own
+    cfg = adjust_config({}, config, noise_model) if config is not None or noise_model is not None else None
     if not passes and report is None:
         fail("PASSES: give new pass files to add, or --report PASS_ID for an earlier pass")
     with err_console.status("updating...") as st:
