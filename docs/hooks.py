@@ -1,10 +1,11 @@
-"""MkDocs build hook: the command-line reference is generated from the CLI itself."""
+"""MkDocs build hook: the CLI reference, the noise levels and the sensitivity table come from the code."""
 
 from __future__ import annotations
 
 MARKERS = {
     "<!-- cli-reference -->": ("misrgraph.commands.reference", "cli_markdown"),
     "<!-- noise-levels -->": ("misrgraph.model.noise", "levels_markdown"),
+    "<!-- table3 -->": ("misrgraph.evaluate.sensitivity", "table3_markdown"),
 }
 
 

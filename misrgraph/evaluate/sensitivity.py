@@ -30,7 +30,7 @@ from misrgraph.model.geolocation import PassGeometry
 from misrgraph.model.nominal import nominal_camera_model
 from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 
-__all__ = ["run_sensitivity", "reference_geometry"]
+__all__ = ["run_sensitivity", "reference_geometry", "table3_markdown"]
 
 
 def reference_geometry(camera: CameraModel | None = None) -> PassGeometry:
@@ -104,3 +104,18 @@ def run_sensitivity(
             {"ephemeris": entry["ephemeris"]} if "ephemeris" in entry else {}
         )
     return out
+
+
+def table3_markdown(arcsec: float = 10.0, pixel: float = 0.0, band: str = "red") -> str:
+    """The seed's Table 3 for every camera as a Markdown table, computed with the nominal model.
+
+    Columns are the along- and cross-track ground displacement (m) for ``+arcsec`` of yaw, pitch
+    and roll at sample ``pixel`` of ``band``, with the sign conventions of this module.
+    """
+    res = run_sensitivity(arcsec=arcsec, pixel=pixel, band=band)
+    head = "| camera | " + " | ".join(f"{a} along (m) | {a} cross (m)" for a in ("yaw", "pitch", "roll")) + " |"
+    rows = [head, "|---" * 7 + "|"]
+    for cam, v in res["cameras"].items():
+        cells = [f"{v[a][d]:.1f}" for a in ("yaw", "pitch", "roll") for d in ("along_m", "cross_m")]
+        rows.append(f"| {cam} | " + " | ".join(cells) + " |")
+    return "\n".join(rows) + "\n"

@@ -68,6 +68,7 @@ from misrgraph.errors import InputError
 from misrgraph.io.imagery import INTEREST_RADIUS_PX, PassImagery
 from misrgraph.match.lsm import lsm, ncc_search
 from misrgraph.match.precision import GcpRows, Pointing, PrecisionFit, camera_sigma_scales
+from misrgraph.model.camera import sample_direction
 from misrgraph.model.constants import CAMERAS, N_PIXELS
 from misrgraph.model.frames import ecef_to_geodetic, enu_basis
 from misrgraph.model.geolocation import ImagePoints, PassGeometry
@@ -515,6 +516,7 @@ def match_ties(
         times = supplied_geo.line_time(rate_cams, band, rate_lines, rate_lines)
         rates = supplied_geo.line_rate(rate_cams, band, np.repeat(ground, ks.size + 1, axis=0), times)
         rate_an = float(rates[0])
+        mirrored = sample_direction(supplied_geo.camera, cams, band) != sample_direction(supplied_geo.camera, AN, band)
         for j, k in enumerate(ks):
             out.candidates += 1
             img = _pixels(wins.pixels[k])
@@ -533,6 +535,11 @@ def match_ties(
             blur = np.sqrt(max(1.0 / float(rates[j + 1]) ** 2 - 1.0 / rate_an**2, 0.0) / 12.0)
             ref = ndimage.gaussian_filter1d(an_img, blur, axis=0, mode="nearest") if blur > 0.05 else an_img
             tpl_c = ref[r0 - half : r0 + half + 1, c0 - half : c0 + half + 1]
+            # a camera whose samples run the other way across the ground (the aft cameras) sees An's
+            # patch mirrored in the sample direction
+            mirror = bool(mirrored[j])
+            if mirror:
+                tpl_c = tpl_c[:, ::-1]
             m = _match_one(
                 img, tpl_c, float(pred.line[j] - wins.line0[k]), float(pred.sample[j] - wins.sample0[k]), cfg, search
             )
@@ -546,7 +553,9 @@ def match_ties(
             if back_tpl.shape != tpl.shape:
                 out.reasons["match at the window edge"] += 1
                 continue
-            er, ec = r0 + (ri - r), c0 + (ci - c)
+            if mirror:
+                back_tpl = back_tpl[:, ::-1]
+            er, ec = r0 + (ri - r), c0 + ((c - ci) if mirror else (ci - c))
             b = _match_one(ref, back_tpl, er, ec, cfg, 2)
             if isinstance(b, str) or np.hypot(b[0] - er, b[1] - ec) > min(
                 max(cfg.back_tolerance_px, cfg.back_tolerance_sigma * np.hypot(s, b[2])), 1.0

@@ -30,7 +30,14 @@ from factors.geometry import detector_vector, rot_x, rot_y, rot_z
 from misrgraph.errors import InputError
 from misrgraph.model.constants import BANDS, CAMERAS, LINE_TIME_S, N_PIXELS, PITCH_ALONG_M, PITCH_CROSS_M
 
-__all__ = ["CameraModel", "TabulatedCameraModel", "N_ALPHA", "BAND_ANGLE_DEG", "validate_pixel_inputs"]
+__all__ = [
+    "CameraModel",
+    "TabulatedCameraModel",
+    "N_ALPHA",
+    "BAND_ANGLE_DEG",
+    "validate_pixel_inputs",
+    "sample_direction",
+]
 
 Array = NDArray[np.float64]
 N_ALPHA = 6
@@ -231,16 +238,23 @@ class CameraModel:
         return s
 
     def ifov_cross_rad(self, cam: ArrayLike, band: ArrayLike, sample: ArrayLike) -> Array:
-        """Cross-track angular size of one pixel (rad) at a sample."""
+        """Cross-track angular size of one pixel (rad, positive whichever way the samples run) at a sample."""
         c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
         y = self.focal_plane_y(c, b, sample)
         f = self.focal_length[c, b]
-        return self.focal_plane_dy_ds(c, b, sample) * f / (f * f + y * y)
+        return np.abs(self.focal_plane_dy_ds(c, b, sample)) * f / (f * f + y * y)
 
     # ------------------------------------------------------------------ temperature
     def at_temperature(self, temperature_c: float) -> "CameraModel":
         """This model (single temperature) unchanged; tabulated models override (see TabulatedCameraModel)."""
         return self
+
+
+def sample_direction(camera: CameraModel, cam: ArrayLike, band: ArrayLike) -> Array:
+    """+1 where the cross-track focal-plane coordinate grows with the sample number, -1 where it
+    falls (the sign of ``dy/ds`` at the boresight; see :data:`misrgraph.model.constants.SAMPLE_DIRECTION`)."""
+    c, b = np.asarray(cam, dtype=int), np.asarray(band, dtype=int)
+    return np.sign(camera.focal_plane_dy_ds(c, b, camera.cy[c, b])).astype(int)
 
 
 def validate_pixel_inputs(camera: str, band: str, sample: float | None = None) -> tuple[int, int]:

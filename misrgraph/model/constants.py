@@ -15,6 +15,7 @@ __all__ = [
     "N_PIXELS",
     "VIEW_ANGLE_DEG",
     "FOCAL_LENGTH_M",
+    "SAMPLE_DIRECTION",
     "PITCH_CROSS_M",
     "PITCH_ALONG_M",
     "LINE_TIME_S",
@@ -48,6 +49,13 @@ VIEW_ANGLE_DEG: dict[str, float] = {
 }
 _F = {"A": 58.9e-3, "B": 73.4e-3, "C": 95.3e-3, "D": 123.7e-3}
 FOCAL_LENGTH_M: dict[str, float] = {c: _F[c[0]] for c in CAMERAS}
+
+# Which way a camera's samples run across the focal plane: +1 where the cross-track focal-plane
+# coordinate y of eq. 2 grows with the sample number (An and the fore cameras), -1 where it
+# falls (the aft cameras, which look backwards: sample 0 of Da lies on the side of the swath
+# opposite to sample 0 of Df, so that the seed's Table 3 gives mirrored sensitivities for the
+# fore and aft cameras at pixel 0). It is the sign of the nominal alpha_1.
+SAMPLE_DIRECTION: dict[str, int] = {c: (-1 if VIEW_ANGLE_DEG[c] < 0 else 1) for c in CAMERAS}
 
 PITCH_CROSS_M = 21e-6  # detector pitch across track (sample direction)
 PITCH_ALONG_M = 18e-6  # detector pitch along track (line direction), d_x of eq. 2

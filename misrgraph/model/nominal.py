@@ -5,8 +5,11 @@ Conventions: docs/explanation/conventions.md.
 Given only the design numbers (view angles at the surface, focal lengths, detector pitches,
 1504 pixels, band layout, a Terra-like orbit), the parameters of eq. 2 follow:
 
-* ``alpha = [0, dy/f, 0, 0, 0, 0]`` (ideal optics: the cross-track focal-plane coordinate is
-  ``dy (s - c_y)``), ``c_y = 751.5`` (centre of the 1504-pixel array), ``eps = 0``.
+* ``alpha = [0, +-dy/f, 0, 0, 0, 0]`` (ideal optics: the cross-track focal-plane coordinate is
+  ``+-dy (s - c_y)``), ``c_y = 751.5`` (centre of the 1504-pixel array), ``eps = 0``. The sign
+  is the camera's sample direction (:data:`~misrgraph.model.constants.SAMPLE_DIRECTION`): +
+  for An and the fore cameras, - for the aft cameras, whose samples run the other way across
+  the ground (sample 0 of Da lies on the side of the swath opposite to sample 0 of Df).
 * ``k = f tan(phi_band)`` with the band angles of :data:`misrgraph.model.camera.BAND_ANGLE_DEG`.
 * ``omega``: the instrument-to-spacecraft angles measured once mounted (Table 1, common to all
   cameras): (wx, wy, wz) = (-0.0658333, -0.041111, 0.006666) deg.
@@ -39,7 +42,15 @@ import numpy as np
 
 from misrgraph.errors import ConvergenceError
 from misrgraph.model.camera import BAND_ANGLE_DEG, N_ALPHA, CameraModel
-from misrgraph.model.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, N_PIXELS, PITCH_CROSS_M, VIEW_ANGLE_DEG
+from misrgraph.model.constants import (
+    BANDS,
+    CAMERAS,
+    FOCAL_LENGTH_M,
+    N_PIXELS,
+    PITCH_CROSS_M,
+    SAMPLE_DIRECTION,
+    VIEW_ANGLE_DEG,
+)
 
 __all__ = [
     "nominal_camera_model",
@@ -95,7 +106,7 @@ def _initial_model() -> CameraModel:
     nc, nb = len(CAMERAS), len(BANDS)
     f = np.array([[FOCAL_LENGTH_M[c]] * nb for c in CAMERAS])
     alpha = np.zeros((nc, nb, N_ALPHA))
-    alpha[..., 1] = PITCH_CROSS_M / f
+    alpha[..., 1] = np.array([SAMPLE_DIRECTION[c] for c in CAMERAS])[:, None] * PITCH_CROSS_M / f
     band_angle = np.radians([BAND_ANGLE_DEG[b] for b in BANDS])
     k = f * np.tan(band_angle)[None, :]
     # first guess for beta: spherical Earth, R = 6371 km, H = 705 km
@@ -234,8 +245,10 @@ def preflight_camera_model() -> CameraModel:
     tangent of that pixel's cross-track field angle (0.127 for the D cameras and 0.272 for An
     match half the 1504 x 21 um array over f). In eq. 2's form, ``f sum alpha_i (s - c_y)^i``,
     that is the boresight sample ``c_y = alpha_0 f / d_y`` with ``alpha = [0, d_y/f, 0...]``
-    (Df 750.7, An 763.4, Da 762.0); the table does not say which way samples run, and the
-    model keeps +y for increasing sample.
+    (Df 750.7, An 763.4, Da 762.0). The table does not say which way samples run; alpha_1 takes
+    the sign of :data:`~misrgraph.model.constants.SAMPLE_DIRECTION` (negative for the aft
+    cameras), the convention under which the sensitivities at pixel 0 of the fore and aft cameras
+    mirror each other as the seed's Table 3 gives them.
 
     The other cameras: beta from the nominal derivation; delta the derived value scaled by
     Table 1's Df (fore cameras) or Da (aft cameras) delta over the derived one, so the whole
@@ -251,7 +264,7 @@ def preflight_camera_model() -> CameraModel:
         model.focal_length[c, :] = f
         model.k[c, :] = f * np.tan(np.radians(row["k_deg"]) + offsets)
         model.alpha[c, :, :] = 0.0
-        model.alpha[c, :, 1] = PITCH_CROSS_M / f
+        model.alpha[c, :, 1] = SAMPLE_DIRECTION[cam] * PITCH_CROSS_M / f
         model.cy[c, :] = row["alpha0"] * f / PITCH_CROSS_M
         model.epsilon[c] = np.radians(row["epsilon_deg"])
         model.delta[c] = np.radians(row["delta_deg"])
@@ -265,7 +278,7 @@ def preflight_camera_model() -> CameraModel:
         if cam[0] == "A":
             f = TABLE1["An"]["f_mm"] * 1e-3
             model.focal_length[c, :] = f
-            model.alpha[c, :, 1] = PITCH_CROSS_M / f
+            model.alpha[c, :, 1] = SAMPLE_DIRECTION[cam] * PITCH_CROSS_M / f
             model.k[c, :] = f * np.tan(np.radians(BAND_ANGLE_DEG["red"]) + offsets)
     model.temperature_c = 5.0
     model.provenance = {

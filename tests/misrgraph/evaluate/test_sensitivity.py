@@ -78,3 +78,31 @@ def test_linear_in_arcsec():
     a = run_sensitivity(arcsec=5.0, pixel=100.0, cameras=("Bf",))
     b = run_sensitivity(arcsec=10.0, pixel=100.0, cameras=("Bf",))
     assert b["cameras"]["Bf"]["pitch"]["along_m"] == pytest.approx(2 * a["cameras"]["Bf"]["pitch"]["along_m"], rel=1e-3)
+
+
+def _side_of_track(cam: str, pixel: float) -> float:
+    """Signed cross-track distance (m, > 0 right of the flight direction) of a camera's pixel from
+    the same camera's boresight ground point at the same line."""
+    geo = reference_geometry()
+    c, b = CAMERAS.index(cam), BANDS.index("red")
+    t_mid = 0.5 * (geo.ephemeris.t[0] + geo.ephemeris.t[-1])
+    line = (t_mid - geo.t0[c, b]) / geo.camera.line_time
+    g = geo.pixel_to_ground(c, b, line, pixel)
+    g0 = geo.pixel_to_ground(c, b, line, geo.camera.cy[c, b])
+    _, cross, _ = geo.track_frame(g0, geo.line_time(c, b, line))
+    return float((g - g0)[0] @ cross[0])
+
+
+@pytest.mark.parametrize("fore, aft", [("Af", "Aa"), ("Bf", "Ba"), ("Cf", "Ca"), ("Df", "Da")])
+def test_aft_cameras_mirror_fore_cameras_at_pixel_0(edge, fore, aft):
+    """The seed's Table 3 gives mirrored sensitivities at pixel 0: roll and pitch move pixel 0 of an
+    aft camera as they move its fore twin's, yaw the other way. That needs the aft cameras' sample
+    0 on the other side of the swath (their samples run the other way across the ground)."""
+    f, a = edge["cameras"][fore], edge["cameras"][aft]
+    for ang, sign in (("roll", 1.0), ("pitch", 1.0), ("yaw", -1.0)):
+        for d in ("along_m", "cross_m"):
+            if abs(f[ang][d]) < 1.0:
+                continue
+            assert a[ang][d] == pytest.approx(sign * f[ang][d], rel=0.05), (aft, ang, d)
+    assert np.sign(_side_of_track(fore, 0.0)) == -np.sign(_side_of_track(aft, 0.0))
+    assert abs(_side_of_track(aft, 0.0)) > 100e3

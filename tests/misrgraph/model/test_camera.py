@@ -10,7 +10,7 @@ from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.camera import read_camera_file, save_camera_model
 from misrgraph.io.h5 import reseal
 from misrgraph.model.camera import CameraModel
-from misrgraph.model.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, PITCH_CROSS_M
+from misrgraph.model.constants import BANDS, CAMERAS, FOCAL_LENGTH_M, PITCH_CROSS_M, SAMPLE_DIRECTION
 from misrgraph.model.nominal import nominal_camera_model, preflight_camera_model
 
 
@@ -61,8 +61,10 @@ def test_preflight_model_holds_table1_as_printed():
         assert np.degrees(m.epsilon[c]) == pytest.approx(row["epsilon_deg"], abs=1e-12)
         assert m.focal_length[c, red] * 1e3 == pytest.approx(row["f_mm"], rel=1e-12)
         assert np.degrees(np.arctan(m.k[c, red] / m.focal_length[c, red])) == pytest.approx(row["k_deg"], abs=1e-12)
-        # alpha_0 (tan of the first pixel's field angle) is where the boresight sample lies
-        assert -m.focal_plane_y(c, red, 0.0) / m.focal_length[c, red] == pytest.approx(row["alpha0"], rel=1e-12)
+        # alpha_0 (tan of the first pixel's field angle) is where the boresight sample lies; the
+        # first pixel is on -y in An and the fore cameras, on +y in the aft ones
+        side = -SAMPLE_DIRECTION[cam]
+        assert side * m.focal_plane_y(c, red, 0.0) / m.focal_length[c, red] == pytest.approx(row["alpha0"], rel=1e-12)
     np.testing.assert_allclose(np.degrees(m.omega), [-0.0658333, -0.041111, 0.006666])
     # the other cameras follow the table's sides: fore delta < 0, aft > 0, |delta| rising with view angle
     d = np.degrees(m.delta)
@@ -101,7 +103,12 @@ def test_nominal_ifov_matches_seed_ground_sampling(nominal_camera):
     ifov = nominal_camera.ifov_cross_rad(an, 2, 751.5)
     assert ifov * 705e3 == pytest.approx(250.0, rel=0.02)
     assert nominal_camera.focal_length[an, 0] == FOCAL_LENGTH_M["An"]
-    np.testing.assert_allclose(nominal_camera.alpha[..., 1] * nominal_camera.focal_length, PITCH_CROSS_M)
+    # the pixel pitch, signed by the camera's sample direction (aft cameras' samples run the other way)
+    direction = np.array([SAMPLE_DIRECTION[c] for c in CAMERAS])[:, None]
+    np.testing.assert_allclose(
+        nominal_camera.alpha[..., 1] * nominal_camera.focal_length, np.broadcast_to(direction * PITCH_CROSS_M, (9, 4))
+    )
+    assert list(direction[:, 0]) == [1, 1, 1, 1, 1, -1, -1, -1, -1]
 
 
 def test_boresight_directions(nominal_camera):

@@ -134,8 +134,9 @@ def test_coregistration_pools_the_pairs(roi_run):
             assert st["excess_px"] <= st["worst_pair"]["excess_px"] + 1e-12, (cam, kind)
             at = st["truth_at_matches"]  # what was rejected was wrong (where anything was)
             assert at["rejected"] == st["rejected"] and at["rejected"] <= 0.05 * at["matches"], (cam, kind, at)
-            if at["rejected"]:
-                assert at["rejected_error_px"] > 2 * at["error_px"], (cam, kind, at)
+            if at["rejected"]:  # worse than the kept ones; twice as bad once there are a few to average
+                factor = 2.0 if at["rejected"] >= 3 else 1.0
+                assert at["rejected_error_px"] > factor * at["error_px"], (cam, kind, sorted(at.items()))
             assert st["worst_pair"]["matches"] < st["matches"]
             assert by_block[st["block"]][cam][kind] == st["excess_px"]
         assert res["roi_coregistration_px"][cam] == max(st["excess_px"] for st in kinds.values())
