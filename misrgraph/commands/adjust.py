@@ -93,10 +93,10 @@ def adjust(
         help="Drop a tie point whole when any of its observations is rejected (robust screen or snooping).",
     ),
     variance_components: int = typer.Option(
-        0,
+        3,
         "--variance-components",
-        help="Rounds of variance-component estimation (tie-point and GCP sigmas rescaled by their sigma0); "
-        "0: keep the stated sigmas.",
+        help="Rounds of variance-component estimation: the sigmas of each class (tie points per camera, GCP "
+        "measurements) are learned from the pass when its redundancy is at least 30; 0: keep the stated sigmas.",
     ),
     jitter_arcsec: float = typer.Option(
         1.0,
@@ -238,6 +238,26 @@ def tie_height(
     )
 
 
+def _print_learned_sigma(vc: dict | None) -> None:
+    """The observation sigmas the variance components learned, one row per class."""
+    if not vc or not vc.get("classes"):
+        return
+    t = Table(title=f"observation sigmas (variance components, {vc['rounds']} rounds)")
+    for col in ("class", "stated (px)", "used (px)", "scale", "+-1 sigma", "redundancy", "status"):
+        t.add_column(col, justify="right")
+    for name, v in vc["classes"].items():
+        t.add_row(
+            name,
+            f"{v['stated_sigma_px']:.3f}",
+            f"{v['sigma_px']:.3f}",
+            f"{v['scale']:.3f}",
+            f"{v['scale_sd']:.3f}",
+            f"{v['redundancy']:.0f}",
+            v["status"],
+        )
+    console.print(t)
+
+
 def _print_adjust_summary(s: dict) -> None:
     console.print(
         f"pass {s['pass_id']}: {s['observations']} observations, {s['landmarks']} landmarks, "
@@ -251,6 +271,7 @@ def _print_adjust_summary(s: dict) -> None:
     )
     for d in s.get("diagnostics", []):
         console.print(f"[yellow]note:[/] {d}")
+    _print_learned_sigma(s.get("reliability", {}).get("observation_sigma"))
     th = s.get("tie_height", {})
     if th.get("source") == "estimated":
         console.print(

@@ -10,7 +10,7 @@ from rich.table import Table
 
 from misrgraph.commands.common import check_output, console, handle_errors, print_json
 
-__all__ = ["app", "noise_init", "noise_show"]
+__all__ = ["app", "noise_init", "noise_show", "noise_fit"]
 
 app = typer.Typer(
     help="The noise model: every level the estimator assumes (attitude, jitter, ephemeris, camera, DEM).",
@@ -68,3 +68,47 @@ def noise_show(
     for r in rows:
         table.add_row(r["level"], str(r["value"]) if r["value"] != [] else "(from the value)", r["unit"], r["source"])
     console.print(table)
+
+
+@app.command("fit")
+@handle_errors
+def noise_fit(
+    results: list[Path] = typer.Argument(..., help="RESULT.h5 files of 'misrgraph adjust --out', one per pass."),
+    out: Optional[Path] = typer.Option(
+        None, "--out", help="Noise-model file to write (JSON), for --noise-model of adjust, update, products, campaign."
+    ),
+    base: Optional[Path] = typer.Option(
+        None, "--base", help="Noise-model file whose levels the passes do not carry are kept. Default: pre-flight."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print the fitted levels as JSON."),
+) -> None:
+    """Learn the noise levels from adjusted passes: attitude, ephemeris, observation and DEM scales.
+
+    Each level is one expectation-maximisation step of the passes' marginal likelihood from the
+    levels they were adjusted with, averaged over passes; its 1 sigma is the standard error over
+    the passes (from one pass, none for the attitude and ephemeris). Jitter, the attitude damping,
+    the camera prior and the GCP positions' scale are not fitted and keep the base's levels.
+    """
+    from misrgraph.runs.noise import run_noise_fit
+
+    if out is not None:
+        check_output(out, "--out")
+    res = run_noise_fit(results, out, base)
+    if as_json:
+        print_json(res)
+        return
+    table = Table(title=f"noise levels learned from {res['passes']} passes")
+    for col in ("level", "learned", "+-1 sigma", "adjusted with", "unit"):
+        table.add_column(col, justify="right")
+    for name, v in res["levels"].items():
+        table.add_row(
+            name,
+            f"{v['value']:.4g}",
+            "-" if v["sigma"] is None else f"{v['sigma']:.2g}",
+            "-" if v["previous"] is None else f"{v['previous']:.4g}",
+            v["unit"],
+        )
+    console.print(table)
+    console.print("not fitted (kept from the base): " + ", ".join(res["not_fitted"]), highlight=False)
+    if out is not None:
+        console.print(f"noise model -> {out}", highlight=False)

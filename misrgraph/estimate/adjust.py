@@ -55,6 +55,8 @@ __all__ = [
     "AdjustConfig",
     "AdjustResult",
     "adjust_pass",
+    "observation_classes",
+    "learned_sigma_summary",
     "corrected_geometry",
     "find_blunders",
     "estimated_models",
@@ -120,11 +122,17 @@ class AdjustConfig(Config):
     #: the same test, and its estimate from them is biased beyond its covariance (see
     #: docs/explanation/design.md, "Rejections and the landmarks' covariance"); GCPs keep their other rays
     drop_rejected_tie_points: bool = False
-    #: rounds of variance-component estimation after snooping: the tie-point and GCP observation
-    #: sigmas are rescaled by their class's sigma0 (Foerstner) and the pass re-solved, until
-    #: every class is within ``variance_component_tol`` of 1; 0 (default) keeps the stated sigmas
-    variance_component_rounds: int = 0
+    #: rounds of variance-component estimation after snooping (Foerstner): each observation class
+    #: (the tie points seen by each camera, the GCP measurements) whose sigma0 departs from 1 by
+    #: more than ``variance_component_tol`` and by more than ``variance_component_z`` of its
+    #: standard errors (``sigma0 / sqrt(2 r)``; 3: a class of a pass whose stated sigma is right
+    #: moves by chance 0.3 % of the time) has its sigmas rescaled by it, and the pass is
+    #: re-solved, until no class moves; 0 keeps the stated sigmas. A class whose redundancy is
+    #: below ``variance_component_min_redundancy`` keeps its stated sigma (the guard), and says so
+    variance_component_rounds: int = 3
     variance_component_tol: float = 0.05
+    variance_component_z: float = 3.0
+    variance_component_min_redundancy: float = 30.0
     #: the unresolved attitude jitter (``graph.attitude_jitter_arcsec``) is also noise in every
     #: image observation, through each observation's pointing sensitivity; False weights the
     #: observations by the matcher's sigma alone (the geolocation sigmas still carry it)
@@ -164,6 +172,12 @@ class AdjustConfig(Config):
         check_jitter(self.graph.attitude_jitter_arcsec, self.graph.attitude_jitter_periods_s)
         if not self.variance_component_tol > 0:
             raise InputError("variance_component_tol", self.variance_component_tol, "a positive fraction")
+        if not (np.isfinite(self.variance_component_z) and self.variance_component_z >= 0):
+            raise InputError("variance_component_z", self.variance_component_z, "a number of standard errors >= 0")
+        if not (np.isfinite(self.variance_component_min_redundancy) and self.variance_component_min_redundancy >= 2):
+            raise InputError(
+                "variance_component_min_redundancy", self.variance_component_min_redundancy, "a redundancy >= 2"
+            )
         for name, modes, unit in (
             ("tie_height_sigma_m", TIE_HEIGHT_MODES, "m"),
             ("tie_offset_sigma_px", TIE_OFFSET_MODES, "px"),
@@ -330,38 +344,51 @@ def adjust_pass(
         check_converged(r, f"the least-squares solve after {after}", cfg.accept_unconverged)
         return g, r
 
-    # the reliability at the current optimum serves snooping, variance components and the summary
+    # the reliability at the current optimum serves snooping, variance components and the summary.
+    # Variance components come first and after each snooping round: data snooping's critical value
+    # is in sigmas, so a class whose stated sigma is too small would lose its good observations
     at = _reliability_at(orbit_pass, pg, res.values)
     snooped = np.zeros(len(obs), bool)
-    for rnd in range(cfg.snooping_rounds):
+    obs_class = observation_classes(orbit_pass)
+    vc_scale: dict[str, float] = {}
+    stated = obs.sigma_px.copy()
+    rounds = snoop_rounds = 0
+    while True:
+        if rounds < cfg.variance_component_rounds:
+            comps = _variance_components(at, obs_class)
+            moved = {
+                k: v["sigma0"]
+                for k, v in comps.items()
+                if v["redundancy"] >= cfg.variance_component_min_redundancy
+                and abs(v["sigma0"] - 1.0) > max(cfg.variance_component_tol, cfg.variance_component_z * v["sigma0_sd"])
+            }
+            if moved:
+                rounds += 1
+                for k, v in moved.items():
+                    vc_scale[k] = vc_scale.get(k, 1.0) * v
+                if progress:
+                    progress(
+                        f"variance components: round {rounds}, sigma scale "
+                        + ", ".join(f"{k} {v:.3f}" for k, v in sorted(vc_scale.items()))
+                    )
+                orbit_pass = _with_sigma_scale(orbit_pass, stated, obs_class, vc_scale)
+                pg, res = resolve(orbit_pass, rejected, res.values, "variance-component estimation")
+                at = _reliability_at(orbit_pass, pg, res.values)
+                continue
+        if snoop_rounds >= cfg.snooping_rounds:
+            break
         worst = snoop(orbit_pass, pg, res.values, at)
         if worst.size == 0:
             break
+        snoop_rounds += 1
         if progress:
-            progress(f"data snooping: round {rnd + 1}, {worst.size} observations rejected")
+            progress(f"data snooping: round {snoop_rounds}, {worst.size} observations rejected")
         snooped[worst] = True
         rejected, more = drop_unsupported_landmarks(orbit_pass, rejected | snooped, cfg.drop_rejected_tie_points)
         dropped = np.union1d(dropped, more)
         pg, res = resolve(orbit_pass, rejected, res.values, "data snooping")
         at = _reliability_at(orbit_pass, pg, res.values)
     blunder_mask = blunder_mask | snooped
-    vc_scale = {"tie-point": 1.0, "GCP": 1.0}
-    stated = obs.sigma_px.copy()
-    for rnd in range(cfg.variance_component_rounds):
-        factors = _variance_components(at)
-        moved = {k: v for k, v in factors.items() if abs(v - 1.0) > cfg.variance_component_tol}
-        if not moved:
-            break
-        for k, v in moved.items():
-            vc_scale[k] *= v
-        if progress:
-            progress(
-                f"variance components: round {rnd + 1}, sigma scale "
-                + ", ".join(f"{k} {v:.3f}" for k, v in vc_scale.items())
-            )
-        orbit_pass = _with_sigma_scale(orbit_pass, stated, vc_scale)
-        pg, res = resolve(orbit_pass, rejected, res.values, "variance-component estimation")
-        at = _reliability_at(orbit_pass, pg, res.values)
     if progress:
         progress("marginal covariances")
     marg, cov_used = adjustment_marginals(pg, res.values, cfg.covariance)
@@ -376,8 +403,10 @@ def adjust_pass(
     att, eph, cam = estimated_models(pg, res.values, camera)
     rej = np.flatnonzero(blunder_mask)
     rel = reliability_summary(orbit_pass, pg, res.values, at)
-    if cfg.variance_component_rounds:
-        rel["sigma_scale_applied"] = vc_scale
+    rel["observation_sigma"] = learned_sigma_summary(
+        _variance_components(at, obs_class), vc_scale, cfg, rounds, orbit_pass, stated, obs_class
+    )
+    rel["sigma_scale_applied"] = {k: vc_scale.get(k, 1.0) for k in rel["observation_sigma"]["classes"]}
     rel["covariance"] = cov_used
     return AdjustResult(
         pass_graph=pg,
@@ -571,30 +600,84 @@ def adjustment_marginals(pg: PassGraph, values: gtsam.Values, covariance: str = 
     return marginal_covariances(pg.problem, values), "gauss_newton"
 
 
-def _variance_components(at: "_ReliabilityAt | None") -> dict[str, float]:
-    """sigma0 of the tie-point and of the GCP observations (classes with a redundancy of at least
-    10; the others are left out), from :func:`_reliability_at`."""
+def observation_classes(orbit_pass: OrbitPass) -> NDArray[np.str_]:
+    """Each observation's variance-component class: ``"tie-point <camera>"`` or ``"GCP"``."""
+    obs = orbit_pass.observations
+    kind = orbit_pass.landmarks.kind[obs.landmark]
+    tie = np.array([f"tie-point {c}" for c in CAMERAS])[np.asarray(obs.camera, int)]
+    return np.where(kind == KIND_GCP, "GCP", np.where(kind == KIND_TIE, tie, "other"))
+
+
+def _variance_components(at: "_ReliabilityAt | None", obs_class: NDArray[np.str_]) -> dict[str, dict[str, float]]:
+    """Per observation class (:func:`observation_classes`, observations in the solve): ``sigma0``,
+    its standard error ``sigma0_sd = sigma0 / sqrt(2 r)``, the redundancy ``r`` and the rows, from
+    :func:`_reliability_at`."""
     if at is None:
         return {}
-    rel, _, kind_obs = at
-    kind = np.repeat(kind_obs, 2)
+    rel, obs_of_row, _ = at
+    cls_row = np.repeat(obs_class[obs_of_row], 2)
+    coll = np.arange(rel.e.size)[rel.families["collinearity"]]
     out = {}
-    for name, k in (("tie-point", KIND_TIE), ("GCP", KIND_GCP)):
+    for name in sorted(set(cls_row.tolist()) - {"other"}):
         rows = np.zeros(rel.e.size, bool)
-        rows[rel.families["collinearity"]] = kind == k
+        rows[coll[cls_row == name]] = True
         vc = rel.variance_component(rows)
-        if vc["redundancy"] >= 10.0:
-            out[name] = vc["sigma0"]
+        r = vc["redundancy"]
+        vc["sigma0_sd"] = float(vc["sigma0"] / np.sqrt(2.0 * r)) if r > 0 else float("inf")
+        out[name] = vc
     return out
 
 
-def _with_sigma_scale(orbit_pass: OrbitPass, stated: Array, scale: dict[str, float]) -> OrbitPass:
-    """The pass with the ``stated`` tie-point and GCP observation sigmas multiplied by ``scale``."""
+def learned_sigma_summary(
+    comps: dict[str, dict[str, float]],
+    scale: dict[str, float],
+    cfg: AdjustConfig,
+    rounds: int,
+    orbit_pass: OrbitPass,
+    stated: Array,
+    obs_class: NDArray[np.str_],
+) -> dict[str, Any]:
+    """What the variance components did: per class the scale applied to the stated sigmas, the
+    learned sigma (px, median over the class: stated x scale) with its 1 sigma, the final sigma0,
+    the redundancy, and ``status``: ``"learned"`` (rescaled), ``"stated"`` (sigma0 within the
+    tolerance) or ``"guard"`` (too little redundancy to learn from; the stated sigma is kept)."""
+    classes = {}
+    for name, v in comps.items():
+        k = scale.get(name, 1.0)
+        med = float(np.median(stated[obs_class == name])) if np.any(obs_class == name) else float("nan")
+        if not cfg.variance_component_rounds:
+            status = "off"
+        elif v["redundancy"] < cfg.variance_component_min_redundancy:
+            status = "guard"
+        else:
+            status = "learned" if k != 1.0 else "stated"
+        classes[name] = {
+            "status": status,
+            "scale": k,
+            "scale_sd": k * v["sigma0_sd"],
+            "sigma_px": med * k,
+            "stated_sigma_px": med,
+            "sigma0": v["sigma0"],
+            "redundancy": v["redundancy"],
+        }
+    return {
+        "rounds": rounds,
+        "min_redundancy": cfg.variance_component_min_redundancy,
+        "tolerance": cfg.variance_component_tol,
+        "classes": classes,
+    }
+
+
+def _with_sigma_scale(
+    orbit_pass: OrbitPass, stated: Array, obs_class: NDArray[np.str_], scale: dict[str, float]
+) -> OrbitPass:
+    """The pass with the ``stated`` observation sigmas multiplied by their class's ``scale`` (1 for
+    a class not in it)."""
     obs = orbit_pass.observations
-    kind = orbit_pass.landmarks.kind[obs.landmark]
-    sig = np.where(
-        kind == KIND_TIE, stated * scale["tie-point"], np.where(kind == KIND_GCP, stated * scale["GCP"], stated)
-    )
+    factor = np.ones(len(obs))
+    for name, k in scale.items():
+        factor[obs_class == name] = k
+    sig = stated * factor
     return dataclasses.replace(orbit_pass, observations=dataclasses.replace(obs, sigma_px=sig))
 
 
@@ -685,6 +768,11 @@ def reliability_summary(
     return out
 
 
+#: the largest robust scale the blunder screen gives a class of observations whose residuals say
+#: its file understates its sigma (the screen's threshold is ``reject_sigma`` times it)
+ROBUST_SCALE_MAX = 3.0
+
+
 def find_blunders(
     orbit_pass: OrbitPass,
     camera: CameraModel,
@@ -714,13 +802,25 @@ def find_blunders(
     r, _ = pg_r.collinearity.residuals(res_r.values)
     whit = np.linalg.norm(r / pg_r.collinearity.sigma_px, axis=1)
     idx = pg_r.obs_index[pg_r.collinearity.order]
-    norm[idx] = whit
-    rejected[idx] = whit > cfg.reject_sigma
+    # each class's robust scale (the median of a 2-D unit normal's norm is sqrt(2 ln 2)): a file
+    # that understates its sigma must not have its good observations screened out as blunders,
+    # so the threshold grows with a scale above 1, up to ROBUST_SCALE_MAX (a class further off is
+    # a class of blunders: GCPs shifted whole, say); one below 1 keeps it (the screen is for blunders)
+    cls = observation_classes(orbit_pass)[idx]
+    scale = np.ones(idx.size)
+    for name in np.unique(cls):
+        m = cls == name
+        if m.sum() >= 30:
+            s_c = float(np.median(whit[m])) / np.sqrt(2.0 * np.log(2.0))
+            scale[m] = min(max(1.0, s_c), ROBUST_SCALE_MAX)
+    norm[idx] = whit / scale
+    rejected[idx] = whit > cfg.reject_sigma * scale
     log.info(
-        "robust solve: %d iterations; %d observations rejected (> %.1f sigma)",
+        "robust solve: %d iterations; %d observations rejected (> %.1f sigma, robust scale up to %.2f)",
         res_r.iterations,
         int(rejected.sum()),
         cfg.reject_sigma,
+        float(scale.max()) if scale.size else 1.0,
     )
     return rejected, norm
 

@@ -9,11 +9,12 @@ Layout (UTF-8 JSON, written atomically)::
      "camera": {"angle_prior_px": p, "focal_prior_px": q},
      "dem": {"sigma_scale": k},
      "observations": {"tie_sigma_scale": t, "gcp_pixel_sigma_scale": g, "gcp_sigma_scale": p},
-     "source": {"attitude": "pre-flight", ...}}
+     "source": {"attitude": "pre-flight", ...},
+     "fit": {"passes": [...], "levels": {"attitude.value_sigma_arcsec.roll": {"value", "sigma", ...}}}}
 
 A section or a field left out takes its pre-flight default; an unknown one is refused, naming it.
 ``source`` says where each section's levels came from (``pre-flight``, ``input``, ``learned``)
-and is informative only.
+and ``fit`` how ``misrgraph noise fit`` learned them; both are informative only.
 """
 
 from __future__ import annotations
@@ -33,10 +34,19 @@ NOISE_MODEL_KIND = "misrgraph noise model"
 SECTIONS = ("attitude", "jitter", "ephemeris", "camera", "dem", "observations")
 
 
-def save_noise_model(model: NoiseModel, path: str | os.PathLike[str], source: dict[str, str] | None = None) -> None:
-    """Write ``model`` to ``path`` atomically; ``source`` names where each section's levels came from."""
+def save_noise_model(
+    model: NoiseModel,
+    path: str | os.PathLike[str],
+    source: dict[str, str] | None = None,
+    fit: dict[str, Any] | None = None,
+) -> None:
+    """Write ``model`` to ``path`` atomically; ``source`` names where each section's levels came
+    from; ``fit``: how the learned levels were estimated (``misrgraph noise fit``: the passes and
+    each level's estimate with its 1 sigma), kept in the file for the record."""
     data = {"kind": NOISE_MODEL_KIND, **model.to_dict()}
     data["source"] = {s: (source or {}).get(s, "pre-flight") for s in SECTIONS}
+    if fit is not None:
+        data["fit"] = fit
     with atomic_file(path) as fh:
         fh.write(json.dumps(data, indent=2) + "\n")
 
@@ -66,7 +76,7 @@ def read_noise_model(path: str | os.PathLike[str]) -> tuple[NoiseModel, dict[str
             p, f"noise model version {data.get('version')!r}; this misrgraph reads {NOISE_MODEL_VERSION}"
         )
     source = {s: str((data.get("source") or {}).get(s, "input")) for s in SECTIONS}
-    fields = {k: v for k, v in data.items() if k not in ("kind", "source")}
+    fields = {k: v for k, v in data.items() if k not in ("kind", "source", "fit")}
     try:
         return NoiseModel.from_dict(fields), source
     except InputError as exc:

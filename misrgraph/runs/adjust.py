@@ -32,6 +32,7 @@ from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, CAMERAS
 from misrgraph.model.dem import DemTiles
 from misrgraph.model.gcp import GcpDatabase
+from misrgraph.model.noise import NoiseModel
 
 __all__ = [
     "run_adjust",
@@ -262,6 +263,8 @@ def run_adjust(
             group_by=("camera", "landmark_kind"),
         ),
         "attitude_sigma": attitude_sigma_summary(res, cfg.graph_config().attitude_sigma_arcsec),
+        # the levels the pass was adjusted with, for 'misrgraph noise fit'
+        "noise_levels": {k: getattr(cfg.graph, k) for k in (*NoiseModel().graph_fields(), "knot_prior")},
         "tie_height": res.tie_height,
         "tie_offset": res.tie_offset,
         "ephemeris": {

@@ -136,12 +136,13 @@ def test_cli_tie_height_option(small_pass_dir):
 
 
 def test_nees_inside_chi2_band_over_seeds(tmp_path):
-    """Eight seeded reduced passes: the aggregated NEES of the knots (joint covariance) and of the
-    whole state (e^T H e) each lie in the two-sided 95 % chi-square band of their total dimension.
+    """Sixteen seeded reduced passes: the aggregated NEES of the knots (joint covariance) and of the
+    whole state (e^T H e) each lie in the two-sided 95 % chi-square band of their total dimension
+    (~6000 for the state: the band is +-3.5 %).
     The model truth draws the DEM errors with the DEM's stated sigma, so the DEM is weighted at
     that sigma here (as ``bench nees`` does under this truth)."""
     tot = {"knots": [0.0, 0], "state": [0.0, 0]}
-    for seed in range(8):
+    for seed in range(16):
         out = tmp_path / f"s{seed}"
         run_simulate(
             ScenarioConfig(
@@ -345,8 +346,9 @@ def test_data_snooping_finds_the_small_mismatches(mismatched_pass):
 
 
 def test_variance_components_recover_a_wrong_stated_sigma(small_pass):
-    """Tie points measured at 0.2 px but stated at 0.4 px: the estimated scale is 0.5 within
-    three standard errors of a sigma0 from ~1500 redundant rows (1 / sqrt(2 r) each)."""
+    """Tie points measured at 0.2 px but stated at 0.4 px: by default each camera's tie class
+    learns a scale of 0.5 within three standard errors of its sigma0 (1 / sqrt(2 r)), the GCP
+    class stays at its stated sigma, and the stated-sigma solve (rounds 0) shows sigma0 ~ 0.5."""
     import dataclasses
 
     sc, p = small_pass
@@ -357,13 +359,38 @@ def test_variance_components_recover_a_wrong_stated_sigma(small_pass):
             p.observations, sigma_px=np.where(kind == KIND_TIE, 2.0 * p.observations.sigma_px, p.observations.sigma_px)
         ),
     )
-    res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(variance_component_rounds=4))
-    scale = res.reliability["sigma_scale_applied"]["tie-point"]
-    r_tie = res.reliability["variance_components"]["tie-point observations"]["redundancy"]
-    assert abs(scale - 0.5) < 3 * 0.5 / np.sqrt(2 * r_tie) + 0.05 * 0.5, (scale, r_tie)
-    assert abs(res.reliability["variance_components"]["tie-point observations"]["sigma0"] - 1.0) < 0.05 + 3 / np.sqrt(
-        2 * r_tie
+    res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig())
+    classes = res.reliability["observation_sigma"]["classes"]
+    ties = {k: v for k, v in classes.items() if k.startswith("tie-point")}
+    assert len(ties) == 9
+    for name, v in ties.items():
+        assert v["status"] == "learned", (name, v)
+        assert abs(v["scale"] - 0.5) < 3 * 0.5 / np.sqrt(2 * v["redundancy"]) + 0.05 * 0.5, (name, v)
+        assert v["scale_sd"] == pytest.approx(v["scale"] * v["sigma0"] / np.sqrt(2 * v["redundancy"]))
+        assert v["sigma_px"] == pytest.approx(v["stated_sigma_px"] * v["scale"])
+    assert classes["GCP"]["status"] in ("stated", "learned")
+    assert abs(classes["GCP"]["scale"] - 1.0) < 0.2
+    off = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(variance_component_rounds=0))
+    s0 = off.reliability["observation_sigma"]["classes"]["tie-point An"]
+    assert s0["status"] == "off" and abs(s0["sigma0"] - 0.5) < 0.1
+
+
+def test_variance_component_guard_keeps_the_stated_sigma(small_pass):
+    """A class below the redundancy guard keeps its stated sigma, however far off its sigma0."""
+    import dataclasses
+
+    sc, p = small_pass
+    kind = p.landmarks.kind[p.observations.landmark]
+    q = dataclasses.replace(
+        p,
+        observations=dataclasses.replace(
+            p.observations, sigma_px=np.where(kind == KIND_TIE, 2.0 * p.observations.sigma_px, p.observations.sigma_px)
+        ),
     )
+    res = adjust_pass(q, sc.camera_model, sc.dem, sc.gcps, AdjustConfig(variance_component_min_redundancy=1e6))
+    for name, v in res.reliability["observation_sigma"]["classes"].items():
+        assert v["status"] == "guard" and v["scale"] == 1.0, (name, v)
+    assert res.reliability["observation_sigma"]["rounds"] == 0
 
 
 @pytest.mark.parametrize(

@@ -354,7 +354,8 @@ def test_update_with_matched_observations_is_adjust_on_the_same_pass(imagery_pas
 
     d = imagery_pass_dir
     f = str(load_scenario(d).pass_files[0])
-    cfg = AdjustConfig(snooping_rounds=0, covariance="gauss_newton")
+    # no snooping, no variance components (the update keeps the stated sigmas): the same problem
+    cfg = AdjustConfig(snooping_rounds=0, variance_component_rounds=0, covariance="gauss_newton")
     kw = dict(camera_model=d / "camera_model.h5", gcp_file=d / "gcp.h5", dem_file=d / "dem.h5", cfg=cfg)
     out = run_update(tmp_path / "m", [f], observations="matched", **kw)
     u = out["updates"][0]
@@ -369,7 +370,13 @@ def test_update_with_matched_observations_is_adjust_on_the_same_pass(imagery_pas
         assert u["nees"][cls] == pytest.approx(ref["nees"][cls], rel=1e-2), cls
     # with the two terms off both read alike again, and the terms move this pass's landmarks by more
     # than that 1 % (so an update without them could not have passed the comparison above)
-    off = AdjustConfig(snooping_rounds=0, covariance="gauss_newton", tie_height_sigma_m=0.0, tie_offset_sigma_px=0.0)
+    off = AdjustConfig(
+        snooping_rounds=0,
+        variance_component_rounds=0,
+        covariance="gauss_newton",
+        tie_height_sigma_m=0.0,
+        tie_offset_sigma_px=0.0,
+    )
     bare = run_update(tmp_path / "b", [f], observations="matched", **{**kw, "cfg": off})["updates"][0]
     ref_bare = run_adjust(d, observations="matched", cfg=off)
     assert bare["tie_height"]["source"] == bare["tie_offset"]["source"] == "off"

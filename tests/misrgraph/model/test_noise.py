@@ -173,7 +173,8 @@ def test_observation_scales_correct_files_that_misstate_their_accuracy(tmp_path)
     )
     sc = load_scenario(tmp_path / "s")
     p = sc.load_pass(0)
-    base = AdjustConfig.from_dict(attitude_jitter_arcsec=0.0, snooping_rounds=0)  # the model truth has no jitter
+    # the model truth has no jitter; the variance components off, so that sigma0 shows the stated scale
+    base = AdjustConfig.from_dict(attitude_jitter_arcsec=0.0, snooping_rounds=0, variance_component_rounds=0)
     vc = {}
     for name, m in (
         ("stated", NoiseModel()),

@@ -1,0 +1,337 @@
+"""Noise levels learned from adjusted passes: marginal likelihood of the priors, variance
+components of the observation classes.
+
+**Priors** (the attitude process per angle, the ephemeris offset and drifts). A pass's adjusted
+values ``x_hat`` of a block of variables (one angle's knots, knot-major ``(value rad, rate
+rad/s)``; one ephemeris segment's ``(a m/s x y z, b m x y z)``) and their joint marginal
+covariance ``P`` hold, in information form, what the data say about the block once everything
+else is marginalised: ``D = P^-1 - L0`` and ``d = P^-1 x_hat``, with ``L0`` the precision of the
+prior the pass was adjusted with (zero mean). For another prior precision ``L`` the block's
+marginal likelihood is, up to a constant,
+
+    log p(data | L) = 1/2 log|L| - 1/2 log|D + L| + 1/2 d^T (D + L)^-1 d,                   (1)
+
+exact for a linear-Gaussian model whatever prior the pass used. The levels maximise (1) summed
+over the passes (type-II maximum likelihood, the empirical-Bayes estimate): per angle the
+process's sigma and natural frequency ``lam`` (the rate's sigma is ``lam sigma``; the damping
+ratio stays as used), and the ephemeris offset sigma (the three axes pooled) and the drift sigma
+per axis. Each level's 1 sigma is from the curvature of the summed (1) at its maximum, in the
+logarithm of the level (the Laplace approximation). The blocks are taken one at a time, each
+with the others' priors as they were (a pass stores each angle's and each segment's joint
+covariance, not their cross-covariance).
+
+**Observation classes** (tie points, GCP measurements, DEM heights): a pass's variance
+components give each class's sigma0 after any rescaling (:mod:`misrgraph.estimate.adjust`); the
+level is ``k_used * scale * sigma0`` pooled over the passes' classes with their redundancies
+``r`` as weights,
+
+    k^2 = sum r (k_used scale sigma0)^2 / sum r,                                            (2)
+
+with 1 sigma the standard error over passes (from several) or ``k / sqrt(2 sum r)`` (from one).
+
+What adjusted passes do not carry is not fitted and keeps its level from the base model: the
+jitter, the attitude damping ratio, the camera prior, the GCP positions' scale and the
+once-per-revolution term. :class:`NoiseFit` says which levels were learned and from how many
+passes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+from scipy import optimize
+
+from factors.priors import process_transition
+from misrgraph.errors import InputError
+from misrgraph.model.constants import ANGLES, ARCSEC
+from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, ephemeris_prior_covariance
+from misrgraph.model.noise import NoiseModel
+
+__all__ = [
+    "PassLevels",
+    "NoiseFit",
+    "fit_noise_model",
+    "knot_prior_precision",
+    "log_marginal_likelihood",
+    "pooled_scale",
+]
+
+
+@dataclass
+class PassLevels:
+    """What one adjusted pass tells about the noise levels (read from its RESULT.h5).
+
+    Per angle ``a`` (roll, pitch, yaw): ``knot_times[a]`` ``(n,)`` s, ``knots[a]`` ``(n, 2)``
+    value (rad) and rate (rad/s), ``knot_cov[a]`` ``(2n, 2n)`` their joint covariance
+    (knot-major). ``ephemeris_boundaries`` ``(S+1,)`` s, ``ephemeris`` ``(S, 6)`` drift (m/s, x y
+    z) and offset (m, x y z) per segment, ``ephemeris_cov`` ``(S, 6, 6)``. ``classes``: per
+    observation class ``{"kind": "tie"|"gcp"|"dem", "factor": scale * sigma0, "redundancy": r}``.
+    ``used``: the levels the pass was adjusted with (:meth:`NoiseModel.graph_fields` names, and
+    ``knot_prior``)."""
+
+    name: str
+    knot_times: list[np.ndarray]
+    knots: list[np.ndarray]
+    knot_cov: list[np.ndarray]
+    ephemeris_boundaries: np.ndarray
+    ephemeris: np.ndarray
+    ephemeris_cov: np.ndarray
+    classes: dict[str, dict[str, Any]]
+    used: dict[str, Any]
+
+
+@dataclass
+class NoiseFit:
+    """A fitted noise model and, per learned level, its estimate, 1 sigma and the passes behind it."""
+
+    model: NoiseModel
+    #: "section.field[.axis]" -> {"value", "sigma" (None when not determined), "previous", "passes", "unit"}
+    levels: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: the sections holding a learned level (the file's ``source``)
+    learned_sections: tuple[str, ...] = ()
+    passes: list[str] = field(default_factory=list)
+
+
+def knot_prior_precision(times: np.ndarray, sigma: float, lam: float, zeta: float, kind: str = "process") -> np.ndarray:
+    """Precision ``(2n, 2n)`` (knot-major ``(value, rate)``) of one angle's knot prior: the damped
+    process (:func:`factors.priors.process_prior_factors`) or, ``kind="independent"``, each knot
+    ``N(0, diag(sigma^2, (lam sigma)^2))``."""
+    t = np.asarray(times, float)
+    n = t.size
+    first = np.diag([1.0 / sigma**2, 1.0 / (lam * sigma) ** 2])
+    if kind != "process":
+        return np.kron(np.eye(n), first)
+    out = np.zeros((2 * n, 2 * n))
+    out[:2, :2] = first
+    blocks: dict[float, np.ndarray] = {}  # one transition per distinct spacing (knots are mostly uniform)
+    for k, dt in enumerate(np.diff(t)):
+        key = round(float(dt), 9)
+        if key not in blocks:
+            phi, q = process_transition(float(dt), sigma, lam, zeta)
+            a = np.hstack([-phi, np.eye(2)])
+            blocks[key] = a.T @ np.linalg.solve(q, a)
+        out[2 * k : 2 * k + 4, 2 * k : 2 * k + 4] += blocks[key]
+    return out
+
+
+def _logdet(m: np.ndarray) -> float:
+    sign, val = np.linalg.slogdet(m)
+    return float(val) if sign > 0 else -np.inf
+
+
+def log_marginal_likelihood(data_info: np.ndarray, data_vec: np.ndarray, prior_precision: np.ndarray) -> float:
+    """Eq. (1): the block's log marginal likelihood under a zero-mean prior of the given precision,
+    from the data's information ``D`` and vector ``d`` (up to a constant)."""
+    a = data_info + prior_precision
+    ld = _logdet(a)
+    if not np.isfinite(ld):
+        return -np.inf
+    return 0.5 * _logdet(prior_precision) - 0.5 * ld + 0.5 * float(data_vec @ np.linalg.solve(a, data_vec))
+
+
+def _data_terms(x: np.ndarray, cov: np.ndarray, prior0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``D = P^-1 - L0`` and ``d = P^-1 x`` of a block (in units scaled to order 1)."""
+    p_inv = np.linalg.inv(0.5 * (cov + cov.T))
+    return p_inv - prior0, p_inv @ x
+
+
+def _maximise(
+    objective: Callable[[np.ndarray], float], start: np.ndarray, bounds: list[tuple[float, float]]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Maximise ``objective`` over log-levels; the maximum and the covariance of the log-levels
+    from the curvature there (None where it is not negative definite: a level the data do not fix)."""
+    res = optimize.minimize(lambda th: -objective(th), start, method="L-BFGS-B", bounds=bounds)
+    th = res.x
+    n, h = th.size, 1e-3
+    hess = np.zeros((n, n))
+    f0 = objective(th)
+    for i in range(n):
+        for j in range(i, n):
+            ei, ej = np.eye(n)[i] * h, np.eye(n)[j] * h
+            if i == j:
+                v = (objective(th + ei) - 2 * f0 + objective(th - ei)) / h**2
+            else:
+                v = (
+                    objective(th + ei + ej)
+                    - objective(th + ei - ej)
+                    - objective(th - ei + ej)
+                    + objective(th - ei - ej)
+                ) / (4 * h * h)
+            hess[i, j] = hess[j, i] = v
+    try:
+        cov = np.linalg.inv(-hess)
+        if not np.all(np.linalg.eigvalsh(cov) > 0):
+            cov = None
+    except np.linalg.LinAlgError:
+        cov = None
+    return th, cov
+
+
+def _mean_and_se(per_pass: list[float]) -> tuple[float, float]:
+    x = np.asarray(per_pass, float)
+    return float(x.mean()), float(x.std(ddof=1) / np.sqrt(x.size))
+
+
+def pooled_scale(factors: list[float], redundancies: list[float]) -> tuple[float, float]:
+    """Eq. (2) for one pass's classes: the pooled factor and its 1 sigma ``k / sqrt(2 sum r)``."""
+    f = np.asarray(factors, float)
+    r = np.asarray(redundancies, float)
+    k = float(np.sqrt(np.sum(r * f**2) / np.sum(r)))
+    return k, float(k / np.sqrt(2.0 * np.sum(r)))
+
+
+def _level(
+    levels: dict[str, dict[str, Any]], name: str, value: float, sigma: float | None, previous: Any, n: int, unit: str
+) -> None:
+    levels[name] = {"value": float(value), "sigma": sigma, "previous": previous, "passes": n, "unit": unit}
+
+
+def _sd(cov: np.ndarray | None, i: int, value: float) -> float | None:
+    """1 sigma of a level from its log's variance."""
+    return None if cov is None else float(value * np.sqrt(cov[i, i]))
+
+
+def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict) -> Any:
+    value_sig = list(base.attitude.value_sigma_arcsec)
+    rate_sig = list(base.attitude.rate_sigma_arcsec_per_s) or [v * ATTITUDE_RATE_FACTOR for v in value_sig]
+    for a, ang in enumerate(ANGLES):
+        blocks = []
+        for p in passes:
+            if p.knots[a].shape[0] < 2:
+                continue
+            u = p.used
+            s0 = float(u.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]) * ARCSEC
+            rates = u.get("attitude_rate_sigma_arcsec_per_s") or ()
+            lam0 = float(rates[a]) * ARCSEC / s0 if len(rates) else ATTITUDE_RATE_FACTOR
+            zeta = float(u.get("knot_prior_damping", base.attitude.damping))
+            kind = str(u.get("knot_prior", "process"))
+            # work in arcsec and arcsec/s: the blocks' entries are then of order 1
+            x = p.knots[a].reshape(-1) / ARCSEC
+            cov = p.knot_cov[a] / ARCSEC**2
+            prior0 = knot_prior_precision(p.knot_times[a], s0 / ARCSEC, lam0, zeta, kind)
+            d_info, d_vec = _data_terms(x, cov, prior0)
+            blocks.append((p.knot_times[a], d_info, d_vec, zeta, kind))
+        if not blocks:
+            continue
+
+        def objective(th: np.ndarray, blocks=blocks) -> float:
+            sig, lam = np.exp(th)
+            return sum(
+                log_marginal_likelihood(d, v, knot_prior_precision(t, sig, lam, z, k)) for t, d, v, z, k in blocks
+            )
+
+        start = np.log([value_sig[a], rate_sig[a] / value_sig[a]])
+        th, cov = _maximise(objective, start, [(np.log(0.01), np.log(1e4)), (np.log(1e-5), np.log(1.0))])
+        sig, lam = np.exp(th)
+        value_sig[a], rate_sig[a] = float(sig), float(sig * lam)
+        _level(
+            levels,
+            f"attitude.value_sigma_arcsec.{ang}",
+            sig,
+            _sd(cov, 0, sig),
+            float(passes[0].used.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]),
+            len(blocks),
+            "arcsec",
+        )
+        rate_sd = None if cov is None else float(sig * lam * np.sqrt(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1]))
+        _level(levels, f"attitude.rate_sigma_arcsec_per_s.{ang}", sig * lam, rate_sd, None, len(blocks), "arcsec/s")
+    return base.attitude.replace(value_sigma_arcsec=tuple(value_sig), rate_sigma_arcsec_per_s=tuple(rate_sig))
+
+
+def _fit_ephemeris(passes: list[PassLevels], base: NoiseModel, levels: dict) -> Any:
+    e = base.ephemeris
+    blocks = []
+    for p in passes:
+        u = p.used
+        a0 = np.broadcast_to(np.asarray(u.get("ephemeris_a_sigma_mps", e.drift_sigma_mps), float), (3,))
+        b0 = float(u.get("ephemeris_b_sigma_m", e.offset_sigma_m))
+        amp = float(u.get("ephemeris_once_per_rev_m", e.once_per_rev_m))
+        edges = np.asarray(p.ephemeris_boundaries, float)
+        for s in range(p.ephemeris.shape[0]):
+            seg = edges[s : s + 2] if amp > 0 else np.array([0.0, 1.0])
+            prior0 = np.linalg.inv(ephemeris_prior_covariance(seg, a0, b0, amp))
+            d_info, d_vec = _data_terms(p.ephemeris[s], p.ephemeris_cov[s], prior0)
+            blocks.append((seg, amp, d_info, d_vec))
+
+    def objective(th: np.ndarray) -> float:
+        b, a = np.exp(th[0]), np.exp(th[1:])
+        return sum(
+            log_marginal_likelihood(d, v, np.linalg.inv(ephemeris_prior_covariance(seg, a, b, amp)))
+            for seg, amp, d, v in blocks
+        )
+
+    start = np.log([e.offset_sigma_m, *np.broadcast_to(np.asarray(e.drift_sigma_mps, float), (3,))])
+    th, cov = _maximise(objective, start, [(np.log(0.01), np.log(1e5))] + [(np.log(1e-6), np.log(10.0))] * 3)
+    b, a = float(np.exp(th[0])), np.exp(th[1:])
+    n = len(passes)
+    prev_b = float(passes[0].used.get("ephemeris_b_sigma_m", e.offset_sigma_m))
+    _level(levels, "ephemeris.offset_sigma_m", b, _sd(cov, 0, b), prev_b, n, "m")
+    for i, axis in enumerate(("along", "cross", "radial")):
+        _level(levels, f"ephemeris.drift_sigma_mps.{axis}", a[i], _sd(cov, 1 + i, float(a[i])), None, n, "m/s")
+    return e.replace(offset_sigma_m=b, drift_sigma_mps=tuple(float(x) for x in a))
+
+
+def fit_noise_model(passes: list[PassLevels], base: NoiseModel | None = None) -> NoiseFit:
+    """The noise model learned from adjusted passes (module docstring); levels the passes do not
+    carry keep ``base``'s (default: the pre-flight model).
+
+    Raises
+    ------
+    InputError
+        With no pass.
+    """
+    if not passes:
+        raise InputError("RESULTS", 0, "at least one adjusted pass (RESULT.h5 of 'misrgraph adjust --out')")
+    base = base or NoiseModel()
+    levels: dict[str, dict[str, Any]] = {}
+    sections = {"attitude", "ephemeris"}
+    attitude = _fit_attitude(passes, base, levels)
+    ephemeris = _fit_ephemeris(passes, base, levels)
+
+    # observation classes and the DEM: eq. (2)
+    scales: dict[str, float] = {}
+    for kind, section, fname, used_key in (
+        ("tie", "observations", "tie_sigma_scale", "tie_sigma_scale"),
+        ("gcp", "observations", "gcp_pixel_sigma_scale", "gcp_pixel_sigma_scale"),
+        ("dem", "dem", "sigma_scale", "dem_sigma_scale"),
+    ):
+        per_pass, r_all, f_all = [], [], []
+        for p in passes:
+            cls = [c for c in p.classes.values() if c["kind"] == kind and c["redundancy"] > 0]
+            if not cls:
+                continue
+            used = float(p.used.get(used_key, 1.0))
+            f = [used * c["factor"] for c in cls]
+            r = [c["redundancy"] for c in cls]
+            k, _ = pooled_scale(f, r)
+            per_pass.append(k**2)
+            r_all += r
+            f_all += f
+        if not per_pass:
+            continue
+        if len(per_pass) >= 2:
+            m2, se2 = _mean_and_se(per_pass)
+            k, sk = float(np.sqrt(m2)), float(se2 / (2 * np.sqrt(m2)))
+        else:
+            k, sk = pooled_scale(f_all, r_all)
+        scales[fname] = k
+        sections.add(section)
+        _level(
+            levels,
+            f"{section}.{fname}",
+            k,
+            sk,
+            float(passes[0].used.get(used_key, 1.0)),
+            len(per_pass),
+            "1",
+        )
+    observations = base.observations.replace(
+        **{k: v for k, v in scales.items() if k in ("tie_sigma_scale", "gcp_pixel_sigma_scale")}
+    )
+    dem = base.dem.replace(sigma_scale=scales["sigma_scale"]) if "sigma_scale" in scales else base.dem
+    model = base.replace(attitude=attitude, ephemeris=ephemeris, observations=observations, dem=dem)
+    return NoiseFit(
+        model=model, levels=levels, learned_sections=tuple(sorted(sections)), passes=[p.name for p in passes]
+    )

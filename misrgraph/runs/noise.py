@@ -1,0 +1,107 @@
+"""``misrgraph noise fit``: a noise model learned from adjusted passes (:mod:`misrgraph.estimate.noisefit`)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from misrgraph.errors import FileFormatError
+from misrgraph.estimate.noisefit import NoiseFit, PassLevels, fit_noise_model
+from misrgraph.model.constants import ANGLES
+from misrgraph.model.noise import NoiseModel
+
+__all__ = ["read_pass_levels", "run_noise_fit"]
+
+log = logging.getLogger(__name__)
+
+
+def read_pass_levels(path: str | os.PathLike[str]) -> PassLevels:
+    """What an adjustment result (RESULT.h5 of ``misrgraph adjust --out``) tells about the levels.
+
+    Raises
+    ------
+    FileFormatError
+        When the file is not an adjustment result, is damaged, or lacks a field the fit needs.
+    """
+    from misrgraph.io.h5 import open_h5
+
+    p = Path(path)
+    with open_h5(p, "adjustment_result") as f:
+        try:
+            summary = json.loads(f.attrs["summary_json"])
+            times = [np.asarray(f[f"attitude_error/{a}/knot_times"]) for a in ANGLES]
+            knots = [np.asarray(f[f"attitude_error/{a}/knots"]) for a in ANGLES]
+            cov = [np.asarray(f[f"attitude_error/{a}/joint_covariance"]) for a in ANGLES]
+            edges = np.asarray(f["ephemeris_error/boundaries"])
+            eph = np.asarray(f["ephemeris_error/params"])
+            eph_cov = np.asarray(f["ephemeris_error/covariance"])
+        except KeyError as exc:
+            raise FileFormatError(p, f"lacks {exc.args[0]!r}, which the noise fit needs") from None
+    rel = summary.get("reliability") or {}
+    classes: dict[str, dict[str, Any]] = {}
+    for name, v in ((rel.get("observation_sigma") or {}).get("classes") or {}).items():
+        classes[name] = {
+            "kind": "gcp" if name == "GCP" else "tie",
+            "factor": float(v["scale"]) * float(v["sigma0"]),
+            "redundancy": float(v["redundancy"]),
+        }
+    if not classes:  # a result written before the per-class variance components: the stated sigmas
+        for name, v in (rel.get("variance_components") or {}).items():
+            if name in ("tie-point observations", "GCP observations"):
+                classes[name] = {
+                    "kind": "gcp" if name.startswith("GCP") else "tie",
+                    "factor": float(v["sigma0"]),
+                    "redundancy": float(v["redundancy"]),
+                }
+    dem = (rel.get("variance_components") or {}).get("dem")
+    if dem and dem.get("redundancy", 0) > 0:
+        classes["DEM"] = {"kind": "dem", "factor": float(dem["sigma0"]), "redundancy": float(dem["redundancy"])}
+    used = summary.get("noise_levels")
+    if used is None:
+        log.warning("%s does not say which noise levels it was adjusted with; taking the pre-flight ones", p)
+        used = NoiseModel().graph_fields()
+    return PassLevels(
+        name=str(p),
+        knot_times=times,
+        knots=knots,
+        knot_cov=cov,
+        ephemeris_boundaries=edges,
+        ephemeris=eph,
+        ephemeris_cov=eph_cov,
+        classes=classes,
+        used=used,
+    )
+
+
+def run_noise_fit(
+    results: list[str | os.PathLike[str]],
+    out: str | os.PathLike[str] | None = None,
+    base: str | os.PathLike[str] | None = None,
+) -> dict[str, Any]:
+    """Fit the noise model on adjusted passes (:func:`~misrgraph.estimate.noisefit.fit_noise_model`)
+    and, with ``out``, write it as a noise-model file that ``--noise-model`` reads; the levels the
+    passes do not carry come from ``base`` (a noise-model file; default the pre-flight model).
+
+    Returns ``{"passes", "levels": {"section.field[.axis]": {"value", "sigma", "previous",
+    "passes", "unit"}}, "not_fitted": [...], "out"}``."""
+    from misrgraph.io.noise import SECTIONS, read_noise_model, save_noise_model
+
+    base_model, base_source = (NoiseModel(), {}) if base is None else read_noise_model(base)
+    fit: NoiseFit = fit_noise_model([read_pass_levels(r) for r in results], base_model)
+    if out is not None:
+        source = {s: ("learned" if s in fit.learned_sections else base_source.get(s, "pre-flight")) for s in SECTIONS}
+        save_noise_model(fit.model, out, source, fit={"passes": fit.passes, "levels": fit.levels})
+    fitted = {k.split(".")[0] + "." + k.split(".")[1] for k in fit.levels}
+    from misrgraph.model.noise import LEVELS
+
+    return {
+        "passes": len(fit.passes),
+        "levels": fit.levels,
+        "not_fitted": [f"{s}.{n}" for (s, n) in LEVELS if f"{s}.{n}" not in fitted],
+        "out": str(out) if out is not None else None,
+    }
