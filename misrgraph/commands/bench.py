@@ -37,6 +37,7 @@ __all__ = [
     "bench_campaign_kill",
     "bench_kill",
     "bench_report",
+    "bench_worlds",
 ]
 
 
@@ -872,3 +873,70 @@ def bench_report(
         console.print(f"{len(res['changed'])} of {len(res['files'])} generated files written", highlight=False)
     if check and res["changed"]:
         raise typer.Exit(1)
+
+
+@app.command("worlds")
+@handle_errors
+def bench_worlds(
+    passes: int = typer.Option(4, "--passes", help="Passes scored per world."),
+    fit_passes: int = typer.Option(
+        2, "--fit-passes", help="Passes per world the noise model is fitted on (not scored)."
+    ),
+    worlds: Optional[str] = typer.Option(
+        None, "--worlds", help="Comma-separated world names (default all; 'misrgraph bench worlds --list' names them)."
+    ),
+    list_worlds: bool = typer.Option(False, "--list", help="List the worlds and what each changes, and exit."),
+    seed: int = typer.Option(20000, "--seed", help="First seed (world w uses seed + 100 w + i)."),
+    size: str = typer.Option("reduced", "--size", help="reduced (20-minute passes, 300 tie points) or tiny."),
+    workdir: Optional[Path] = typer.Option(
+        None, "--workdir", help="Keep the simulated passes here (a rerun reuses them)."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
+    save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
+) -> None:
+    """Honesty in worlds the estimator was not tuned for: fixed, learned and oracle noise levels.
+
+    Per world: NEES of landmarks, knots and camera and the check points' actual/predicted RMS, each
+    with a 95 % interval from the run-to-run scatter, and the check points' RMS error (m).
+    """
+    from misrgraph.bench.worlds import WORLDS, run_bench_worlds
+
+    if list_worlds:
+        for name, over in WORLDS.items():
+            console.print(f"{name}: {over or 'the base world'}", highlight=False)
+        return
+    names = [w.strip() for w in worlds.split(",")] if worlds else None
+    with err_console.status("worlds...") as st:
+        res = run_bench_worlds(passes, fit_passes, names, seed, size, workdir, progress=lambda m: st.update(m))
+    res = finish(res, save)
+    if as_json:
+        print_json(res)
+        return
+    _print_worlds(res)
+
+
+def _print_worlds(res: dict) -> None:
+    table = Table(title=f"worlds: {res['passes']} scored passes each (mean, 95 % interval)")
+    for col in ("world", "way", "landmark NEES", "knot NEES", "camera NEES", "check pts act/pred", "check RMS (m)"):
+        table.add_column(col, justify="right")
+
+    def cell(v: dict | None, key: str = "mean") -> str:
+        if not v:
+            return "-"
+        lo, hi = v["ci95"]
+        return f"{v[key]:.2f} [{lo:.2f}, {hi:.2f}]"
+
+    for name, w in res["worlds"].items():
+        for way, s in w["ways"].items():
+            table.add_row(
+                name if way == "fixed" else "",
+                way,
+                cell(s.get("landmarks")),
+                cell(s.get("knots")),
+                cell(s.get("camera")),
+                cell(s.get("checkpoint_ratio"), "rms"),
+                f"{s['checkpoint_rms_m']['mean']:.1f}" if "checkpoint_rms_m" in s else "-",
+            )
+    console.print(table)
+    a = res["acceptance"]
+    console.print(f"learned levels meet the acceptance bounds in {a['worlds_passing']} of {a['worlds']} worlds")

@@ -1,0 +1,256 @@
+"""``misrgraph bench worlds``: honesty in worlds the estimator was not tuned for.
+
+Each world is the simulator's independent truth with some of its error levels changed (the files
+misstate their accuracy, the attitude error is larger or has another band, the jitter, the
+navigation, the once-per-revolution term, the DEM error's correlation). Per world, passes are
+simulated with distinct seeds; the first ``fit_passes`` are adjusted with the defaults and give a
+noise model (:func:`misrgraph.runs.noise.run_noise_fit`); the other ``passes`` are scored three
+ways:
+
+- ``fixed``: the pre-flight levels, stated sigmas taken as they are (no variance components);
+- ``learned``: the noise model fitted on the world's unscored passes, variance components on;
+- ``oracle``: the world's true levels (:func:`oracle_noise_model`), no variance components.
+
+Per world and way: the landmark, knot and camera NEES/dim and the check points' actual over
+predicted RMS, each with a 95 % interval from the run-to-run scatter (Student t; for the check
+points the RMS of the runs' ratios), and the check points' RMS error (m). ``acceptance`` applies
+the issue's bounds to the learned way: landmark NEES and check points' ratio in 0.8-1.25, knot
+NEES in 0.7-1.4, check-point RMS within 5 % of the oracle's.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from misrgraph.bench.studies import _checkpoint_rms_after, _interval, _rms_interval
+from misrgraph.errors import InputError
+from misrgraph.model.noise import NoiseModel
+from misrgraph.sim.simulate import ScenarioConfig, run_simulate
+
+__all__ = ["WORLDS", "WORLD_SIZES", "oracle_noise_model", "run_bench_worlds"]
+
+log = logging.getLogger(__name__)
+
+_BASE = ScenarioConfig()
+_ATT = tuple(float(s) for s in _BASE.attitude_sigma_arcsec)
+
+#: the worlds: name -> the :class:`ScenarioConfig` fields that differ from the base world
+WORLDS: dict[str, dict[str, Any]] = {
+    "base": {},
+    "tie stated x0.5": {"tie_sigma_true_over_stated": 2.0},
+    "tie stated x2": {"tie_sigma_true_over_stated": 0.5},
+    "GCP stated x0.5": {"gcp_pixel_sigma_true_over_stated": 2.0, "gcp_sigma_true_over_stated": 2.0},
+    "GCP stated x2": {"gcp_pixel_sigma_true_over_stated": 0.5, "gcp_sigma_true_over_stated": 0.5},
+    "DEM stated x0.5": {"dem_sigma_true_over_stated": 2.0},
+    "DEM stated x2": {"dem_sigma_true_over_stated": 0.5},
+    "jitter x0.3": {"jitter_arcsec": 0.3 * _BASE.jitter_arcsec},
+    "jitter x2": {"jitter_arcsec": 2.0 * _BASE.jitter_arcsec},
+    "attitude sigma x2": {"attitude_sigma_arcsec": tuple(2.0 * s for s in _ATT)},
+    "attitude band 30-300 s": {"attitude_periods_s": (30.0, 300.0)},
+    "attitude band 2000-10000 s": {"attitude_periods_s": (2000.0, 10000.0)},
+    "navigation x3": {
+        "nav_sigma_m": 3.0 * _BASE.nav_sigma_m,
+        "along_drift_sigma_mps": 3.0 * _BASE.along_drift_sigma_mps,
+        "drift_sigma_mps": 3.0 * _BASE.drift_sigma_mps,
+    },
+    "once-per-rev 100 m": {"once_per_rev_m": 100.0},
+    "DEM error fully correlated": {"dem_correlated_fraction": 1.0},
+}
+
+#: pass sizes: the issue's reduced passes (20 minutes, 300 tie points) and the suite's tiny ones
+WORLD_SIZES: dict[str, dict[str, Any]] = {
+    "reduced": {"n_tie_points": 300, "n_check_points": 20, "duration_s": 1200.0},
+    "tiny": {"n_tie_points": 100, "n_check_points": 10, "n_gcps": 20, "duration_s": 600.0},
+}
+
+WAYS = ("fixed", "learned", "oracle")
+
+
+def _band_rate_factor(periods_s: tuple[float, float]) -> float:
+    """RMS angular frequency (1/s) of a process with equal power per log-period over ``periods_s``:
+    the rate's sigma over the value's."""
+    w1, w2 = 2 * np.pi / periods_s[1], 2 * np.pi / periods_s[0]
+    return float(np.sqrt((w2**2 - w1**2) / (2.0 * np.log(w2 / w1))))
+
+
+def oracle_noise_model(cfg: ScenarioConfig) -> NoiseModel:
+    """The noise model holding a simulated world's true levels: the files' true-over-stated sigma
+    as the observation and DEM scales, the truth's attitude sigma (its rate from the band's RMS
+    frequency, its damping fitted to the band's correlation), jitter, navigation sigmas and
+    once-per-revolution amplitude. The camera prior stays pre-flight (the truth's camera residual
+    is the pre-flight one)."""
+    from misrgraph.model.errormodels import fit_damping
+
+    base = NoiseModel()
+    factor = _band_rate_factor(tuple(cfg.attitude_periods_s))
+    att = tuple(float(s) for s in cfg.attitude_sigma_arcsec)
+    return base.replace(
+        attitude=base.attitude.replace(
+            value_sigma_arcsec=att,
+            rate_sigma_arcsec_per_s=tuple(s * factor for s in att),
+            damping=fit_damping(lam=factor, periods_s=tuple(cfg.attitude_periods_s)),
+        ),
+        jitter=base.jitter.replace(sigma_arcsec=float(cfg.jitter_arcsec), periods_s=tuple(cfg.jitter_periods_s)),
+        ephemeris=base.ephemeris.replace(
+            offset_sigma_m=float(cfg.nav_sigma_m),
+            drift_sigma_mps=(float(cfg.along_drift_sigma_mps), float(cfg.drift_sigma_mps), float(cfg.drift_sigma_mps)),
+            once_per_rev_m=float(cfg.once_per_rev_m),
+        ),
+        dem=base.dem.replace(sigma_scale=float(cfg.dem_sigma_true_over_stated)),
+        observations=base.observations.replace(
+            tie_sigma_scale=float(cfg.tie_sigma_true_over_stated),
+            gcp_pixel_sigma_scale=float(cfg.gcp_pixel_sigma_true_over_stated),
+            gcp_sigma_scale=float(cfg.gcp_sigma_true_over_stated),
+        ),
+    )
+
+
+def _score(summary: dict[str, Any]) -> dict[str, float]:
+    nees = summary.get("nees", {})
+    out = {k: float(nees[k]) for k in ("landmarks", "knots", "camera") if k in nees}
+    if "checkpoint_rms_over_predicted" in summary:
+        out["checkpoint_ratio"] = float(summary["checkpoint_rms_over_predicted"])
+    cp = _checkpoint_rms_after(summary)
+    if cp is not None:
+        out["checkpoint_rms_m"] = cp
+    return out
+
+
+def _summarise(runs: list[dict[str, float]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k in ("landmarks", "knots", "camera", "checkpoint_rms_m"):
+        v = [r[k] for r in runs if k in r]
+        if v:
+            out[k] = _interval(v)
+    v = [r["checkpoint_ratio"] for r in runs if "checkpoint_ratio" in r]
+    if v:
+        out["checkpoint_ratio"] = _rms_interval(v)
+    return out
+
+
+def _accept(ways: dict[str, dict[str, Any]]) -> dict[str, bool]:
+    learned, oracle = ways["learned"], ways["oracle"]
+    ok: dict[str, bool] = {}
+    if "landmarks" in learned:
+        ok["landmarks_0.8_1.25"] = 0.8 <= learned["landmarks"]["mean"] <= 1.25
+    if "checkpoint_ratio" in learned:
+        ok["checkpoint_ratio_0.8_1.25"] = 0.8 <= learned["checkpoint_ratio"]["rms"] <= 1.25
+    if "knots" in learned:
+        ok["knots_0.7_1.4"] = 0.7 <= learned["knots"]["mean"] <= 1.4
+    if "checkpoint_rms_m" in learned and "checkpoint_rms_m" in oracle:
+        ok["checkpoint_rms_within_5pct_of_oracle"] = (
+            learned["checkpoint_rms_m"]["mean"] <= 1.05 * oracle["checkpoint_rms_m"]["mean"]
+        )
+    return ok
+
+
+def run_bench_worlds(
+    passes: int = 4,
+    fit_passes: int = 2,
+    worlds: list[str] | None = None,
+    seed: int = 20000,
+    size: str = "reduced",
+    workdir: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Score the three ways in each world (module docstring). ``worlds``: names of :data:`WORLDS`
+    (default all); ``passes`` scored and ``fit_passes`` fitted per world, seeds from ``seed`` (world
+    ``w`` uses ``seed + 100 w + i``); ``size``: :data:`WORLD_SIZES`; ``workdir`` keeps the
+    simulated passes (a rerun reuses them).
+
+    Returns ``{"passes", "fit_passes", "size", "seconds", "worlds": {name: {"overrides",
+    "ways": {way: summary}, "learned_levels", "true_levels", "acceptance"}}, "acceptance":
+    {"worlds_passing", "worlds"}}``."""
+    from misrgraph.estimate.adjust import AdjustConfig
+    from misrgraph.runs.adjust import run_adjust
+    from misrgraph.runs.noise import run_noise_fit
+
+    names = list(WORLDS) if worlds is None else list(worlds)
+    for n in names:
+        if n not in WORLDS:
+            raise InputError("worlds", n, tuple(WORLDS))
+    if size not in WORLD_SIZES:
+        raise InputError("size", size, tuple(WORLD_SIZES))
+    if passes < 1 or fit_passes < 1:
+        raise InputError("passes", (passes, fit_passes), "at least 1 scored and 1 fitted pass per world")
+    t0 = time.perf_counter()
+    tmp = None
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="misrgraph-worlds-")
+        workdir = tmp.name
+    wd = Path(workdir)
+    out: dict[str, Any] = {}
+    for w_i, name in enumerate(names):
+        over = WORLDS[name]
+        w_index = list(WORLDS).index(name)
+        cfgs = [
+            ScenarioConfig.from_dict(
+                {
+                    **WORLD_SIZES[size],
+                    "scenario": "pass",
+                    "start_lat_deg": 50.0,
+                    **over,
+                    "seed": seed + 100 * w_index + i,
+                }
+            )
+            for i in range(fit_passes + passes)
+        ]
+        dirs = []
+        for i, cfg in enumerate(cfgs):
+            d = wd / f"world{w_index:02d}_{size}_{cfg.seed}"
+            if not (d / "scenario.json").exists():
+                if progress:
+                    progress(f"{name}: simulating pass {i + 1}/{len(cfgs)}")
+                run_simulate(cfg, d)
+            dirs.append(d)
+        results = []
+        for i, d in enumerate(dirs[:fit_passes]):
+            if progress:
+                progress(f"{name}: adjusting fit pass {i + 1}/{fit_passes}")
+            r = d / "fit_result.h5"
+            run_adjust(d, out=r, cfg=AdjustConfig())
+            results.append(r)
+        fit = run_noise_fit(results, out=wd / f"world{w_index:02d}_{size}_noise.json")
+        from misrgraph.io.noise import read_noise_model
+
+        learned_model, _ = read_noise_model(wd / f"world{w_index:02d}_{size}_noise.json")
+        oracle = oracle_noise_model(cfgs[0])
+        configs = {
+            "fixed": AdjustConfig(variance_component_rounds=0),
+            "learned": AdjustConfig().with_noise(learned_model),
+            "oracle": AdjustConfig(variance_component_rounds=0).with_noise(oracle),
+        }
+        per_way: dict[str, list[dict[str, float]]] = {w: [] for w in WAYS}
+        for i, d in enumerate(dirs[fit_passes:]):
+            for way in WAYS:
+                if progress:
+                    progress(f"{name}: scoring pass {i + 1}/{passes} ({way})")
+                per_way[way].append(_score(run_adjust(d, cfg=configs[way])))
+        ways = {w: _summarise(per_way[w]) for w in WAYS}
+        out[name] = {
+            "overrides": {k: (list(v) if isinstance(v, tuple) else v) for k, v in over.items()},
+            "ways": ways,
+            "per_pass": per_way,
+            "learned_levels": {k: {"value": v["value"], "sigma": v["sigma"]} for k, v in fit["levels"].items()},
+            "true_levels": oracle.to_dict(),
+            "acceptance": _accept(ways),
+        }
+        log.info("world %d/%d (%s) done", w_i + 1, len(names), name)
+    if tmp is not None:
+        tmp.cleanup()
+    passing = [n for n, v in out.items() if v["acceptance"] and all(v["acceptance"].values())]
+    return {
+        "passes": passes,
+        "fit_passes": fit_passes,
+        "size": size,
+        "seed": seed,
+        "seconds": time.perf_counter() - t0,
+        "worlds": out,
+        "acceptance": {"worlds_passing": len(passing), "worlds": len(out), "passing": passing},
+    }

@@ -1,0 +1,65 @@
+"""``bench worlds`` at the suite's size: the three ways scored, the oracle holding the world's levels."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from misrgraph.bench.worlds import WORLDS, oracle_noise_model
+from misrgraph.commands.cli import app
+from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR
+from misrgraph.sim.simulate import ScenarioConfig
+
+
+def test_oracle_holds_the_worlds_levels():
+    """The oracle of a world is read from the simulator's own settings, field by field; the base
+    world's attitude rate factor equals the pre-flight one (both from the 200-2000 s band)."""
+    cfg = ScenarioConfig.from_dict(
+        {**WORLDS["navigation x3"], **WORLDS["tie stated x0.5"], "attitude_periods_s": (200.0, 2000.0)}
+    )
+    m = oracle_noise_model(cfg)
+    assert m.observations.tie_sigma_scale == 2.0 and m.observations.gcp_pixel_sigma_scale == 1.0
+    assert m.ephemeris.offset_sigma_m == 3 * ScenarioConfig().nav_sigma_m
+    assert m.ephemeris.drift_sigma_mps == pytest.approx((0.15, 0.03, 0.03))
+    assert m.ephemeris.once_per_rev_m == ScenarioConfig().once_per_rev_m
+    rate = [r / v for r, v in zip(m.attitude.rate_sigma_arcsec_per_s, m.attitude.value_sigma_arcsec)]
+    assert rate == pytest.approx([ATTITUDE_RATE_FACTOR] * 3, rel=0.02)
+    assert len(WORLDS) >= 12
+
+
+def test_bench_worlds_cli_scores_three_ways(tmp_path):
+    """One tiny world whose tie file states half its sigma, one fitted and one scored pass: every
+    way is scored, the learned tie scale is near the true 2 (the oracle's), and the learned way's
+    check points are predicted no worse than the fixed way's."""
+    r = CliRunner().invoke(
+        app,
+        [
+            "bench",
+            "worlds",
+            "--worlds",
+            "tie stated x0.5",
+            "--passes",
+            "1",
+            "--fit-passes",
+            "1",
+            "--size",
+            "tiny",
+            "--workdir",
+            str(tmp_path),
+            "--json",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    res = json.loads(r.output)
+    w = res["worlds"]["tie stated x0.5"]
+    assert set(w["ways"]) == {"fixed", "learned", "oracle"}
+    for way in w["ways"].values():
+        assert {"landmarks", "knots", "checkpoint_ratio", "checkpoint_rms_m"} <= set(way)
+    assert w["true_levels"]["observations"]["tie_sigma_scale"] == 2.0
+    assert w["learned_levels"]["observations.tie_sigma_scale"]["value"] == pytest.approx(2.0, rel=0.15)
+    assert set(w["acceptance"]) >= {"landmarks_0.8_1.25", "knots_0.7_1.4"}
+    assert "provenance" in res
+    bad = CliRunner().invoke(app, ["bench", "worlds", "--worlds", "mars", "--size", "tiny"])
+    assert bad.exit_code == 2 and "worlds" in bad.output
