@@ -52,6 +52,13 @@ TITLES: dict[str, tuple[str, str]] = {
         "batch re-solve of all k passes at the same accuracy.",
     ),
     "scaling": ("Scaling with the number of tie points", "Time and memory of a pass adjustment against its size."),
+    "worlds": (
+        "Honesty in worlds nobody tuned for",
+        "Each world changes some of the simulator's error levels; its passes are scored with the "
+        "pre-flight levels (fixed), with levels learned on other passes of the same world (learned) "
+        "and with the world's own levels (oracle). NEES and check points' actual/predicted RMS: 1 is "
+        "honest. Intervals are 95 % intervals from the run-to-run scatter.",
+    ),
     "pp": (
         "Projection Parameters: honesty of their 1 sigma",
         "PP geolocation error against the truth over the predicted 1 sigma, per camera, over seeded passes.",
@@ -264,7 +271,43 @@ def _render_generic(r: dict[str, Any]) -> str:
     return _table(["quantity", "value"], rows)
 
 
+def _render_worlds(r: dict[str, Any]) -> str:
+    rows = []
+    for name, w in r["worlds"].items():
+        for way, v in w["ways"].items():
+            rows.append(
+                [
+                    name if way == "fixed" else "",
+                    way,
+                    _ci(v.get("landmarks")),
+                    _ci(v.get("knots")),
+                    _ci(v.get("camera")),
+                    _ci(v.get("checkpoint_ratio"), "rms"),
+                    _num(v["checkpoint_rms_m"]["mean"], ".1f") if "checkpoint_rms_m" in v else "-",
+                ]
+            )
+    table = _table(
+        ["world", "way", "landmark NEES", "knot NEES", "camera NEES", "check points actual/predicted", "check RMS (m)"],
+        rows,
+    )
+    acc = []
+    for name, w in r["worlds"].items():
+        failed = [k for k, ok in w["acceptance"].items() if not ok]
+        acc.append([name, "yes" if not failed else "no: " + ", ".join(failed)])
+    a = r["acceptance"]
+    return (
+        f"{r['passes']} scored and {r['fit_passes']} fitted passes per world ({r['size']} size), "
+        f"{r['seconds'] / 60:.0f} minutes in all.\n\n"
+        + table
+        + f"\n\nThe learned way meets the acceptance bounds in {a['worlds_passing']} of {a['worlds']} worlds "
+        "(landmark NEES and check points' ratio within 0.8-1.25, knot NEES within 0.7-1.4, check-point RMS "
+        "within 5 % of the oracle's):\n\n"
+        + _table(["world", "learned way within the bounds"], acc)
+    )
+
+
 RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
+    "worlds": _render_worlds,
     "demo": _render_demo,
     "nees": _render_nees,
     "solver": _render_solver,
