@@ -301,8 +301,7 @@ def _render_worlds(r: dict[str, Any]) -> str:
         + table
         + f"\n\nThe learned way meets the acceptance bounds in {a['worlds_passing']} of {a['worlds']} worlds "
         "(landmark NEES and check points' ratio within 0.8-1.25, knot NEES within 0.7-1.4, check-point RMS "
-        "within 5 % of the oracle's):\n\n"
-        + _table(["world", "learned way within the bounds"], acc)
+        "within 5 % of the oracle's):\n\n" + _table(["world", "learned way within the bounds"], acc)
     )
 
 

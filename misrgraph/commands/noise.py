@@ -98,7 +98,7 @@ def noise_fit(
         print_json(res)
         return
     table = Table(title=f"noise levels learned from {res['passes']} passes")
-    for col in ("level", "learned", "+-1 sigma", "adjusted with", "unit"):
+    for col in ("level", "learned", "+-1 sigma", "adjusted with", "unit", "in the model"):
         table.add_column(col, justify="right")
     for name, v in res["levels"].items():
         table.add_row(
@@ -107,6 +107,7 @@ def noise_fit(
             "-" if v["sigma"] is None else f"{v['sigma']:.2g}",
             "-" if v["previous"] is None else f"{v['previous']:.4g}",
             v["unit"],
+            "yes" if v.get("applied", True) else "no (not determined: the base's level)",
         )
     console.print(table)
     console.print("not fitted (kept from the base): " + ", ".join(res["not_fitted"]), highlight=False)

@@ -16,7 +16,9 @@ over the passes (type-II maximum likelihood, the empirical-Bayes estimate): per 
 process's sigma and natural frequency ``lam`` (the rate's sigma is ``lam sigma``; the damping
 ratio stays as used), and the ephemeris offset sigma (the three axes pooled) and the drift sigma
 per axis. Each level's 1 sigma is from the curvature of the summed (1) at its maximum, in the
-logarithm of the level (the Laplace approximation). The blocks are taken one at a time, each
+logarithm of the level (the Laplace approximation). A level enters the fitted model only when
+the passes determine it (:data:`MAX_LOG_SD`); otherwise the base model's stays, and the fit says
+so (``applied``). The blocks are taken one at a time, each
 with the others' priors as they were (a pass stores each angle's and each segment's joint
 covariance, not their cross-covariance).
 
@@ -55,7 +57,9 @@ __all__ = [
     "fit_noise_model",
     "knot_prior_precision",
     "log_marginal_likelihood",
+    "relative_log_marginal_likelihood",
     "pooled_scale",
+    "MAX_LOG_SD",
 ]
 
 
@@ -131,6 +135,22 @@ def log_marginal_likelihood(data_info: np.ndarray, data_vec: np.ndarray, prior_p
     return 0.5 * _logdet(prior_precision) - 0.5 * ld + 0.5 * float(data_vec @ np.linalg.solve(a, data_vec))
 
 
+def relative_log_marginal_likelihood(
+    data_info: np.ndarray, data_vec: np.ndarray, x0: np.ndarray, prior0: np.ndarray, prior_precision: np.ndarray
+) -> float:
+    """Eq. (1) less its value at the prior ``prior0`` the block was adjusted with (``x0`` its
+    estimate then), in a form that keeps its precision when the data's information is large:
+    ``d^T (D + L)^-1 d - d^T (D + L0)^-1 d = -x(L)^T (L - L0) x0`` with ``x(L) = (D + L)^-1 d``."""
+    a = data_info + prior_precision
+    ld = _logdet(a)
+    if not np.isfinite(ld):
+        return -np.inf
+    x = np.linalg.solve(a, data_vec)
+    quad = -float(x @ (prior_precision - prior0) @ x0)
+    at0 = 0.5 * _logdet(prior0) - 0.5 * _logdet(data_info + prior0)
+    return 0.5 * _logdet(prior_precision) - 0.5 * ld + 0.5 * quad - at0
+
+
 def _data_terms(x: np.ndarray, cov: np.ndarray, prior0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``D = P^-1 - L0`` and ``d = P^-1 x`` of a block (in units scaled to order 1)."""
     p_inv = np.linalg.inv(0.5 * (cov + cov.T))
@@ -182,10 +202,35 @@ def pooled_scale(factors: list[float], redundancies: list[float]) -> tuple[float
     return k, float(k / np.sqrt(2.0 * np.sum(r)))
 
 
+#: a prior level enters the fitted model only when the passes determine it: the standard deviation
+#: of its logarithm (from the likelihood's curvature) below this, i.e. known to better than a factor
+#: of ~1.65; otherwise the base model's level stays (a level at a bound, or one pass's single
+#: ephemeris segment, cannot say how wide a prior should be)
+MAX_LOG_SD = 0.5
+
+
+def _determined(cov: np.ndarray | None, i: int) -> bool:
+    return cov is not None and bool(np.sqrt(cov[i, i]) < MAX_LOG_SD)
+
+
 def _level(
-    levels: dict[str, dict[str, Any]], name: str, value: float, sigma: float | None, previous: Any, n: int, unit: str
+    levels: dict[str, dict[str, Any]],
+    name: str,
+    value: float,
+    sigma: float | None,
+    previous: Any,
+    n: int,
+    unit: str,
+    applied: bool = True,
 ) -> None:
-    levels[name] = {"value": float(value), "sigma": sigma, "previous": previous, "passes": n, "unit": unit}
+    levels[name] = {
+        "value": float(value),
+        "sigma": sigma,
+        "previous": previous,
+        "passes": n,
+        "unit": unit,
+        "applied": bool(applied),
+    }
 
 
 def _sd(cov: np.ndarray | None, i: int, value: float) -> float | None:
@@ -212,20 +257,24 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict) -> A
             cov = p.knot_cov[a] / ARCSEC**2
             prior0 = knot_prior_precision(p.knot_times[a], s0 / ARCSEC, lam0, zeta, kind)
             d_info, d_vec = _data_terms(x, cov, prior0)
-            blocks.append((p.knot_times[a], d_info, d_vec, zeta, kind))
+            blocks.append((p.knot_times[a], d_info, d_vec, zeta, kind, x, prior0))
         if not blocks:
             continue
 
         def objective(th: np.ndarray, blocks=blocks) -> float:
             sig, lam = np.exp(th)
             return sum(
-                log_marginal_likelihood(d, v, knot_prior_precision(t, sig, lam, z, k)) for t, d, v, z, k in blocks
+                relative_log_marginal_likelihood(d, v, x0, l0, knot_prior_precision(t, sig, lam, z, k))
+                for t, d, v, z, k, x0, l0 in blocks
             )
 
         start = np.log([value_sig[a], rate_sig[a] / value_sig[a]])
         th, cov = _maximise(objective, start, [(np.log(0.01), np.log(1e4)), (np.log(1e-5), np.log(1.0))])
         sig, lam = np.exp(th)
-        value_sig[a], rate_sig[a] = float(sig), float(sig * lam)
+        base_lam = rate_sig[a] / value_sig[a]
+        if _determined(cov, 0):
+            value_sig[a] = float(sig)
+        rate_sig[a] = float(value_sig[a] * (lam if _determined(cov, 1) else base_lam))
         _level(
             levels,
             f"attitude.value_sigma_arcsec.{ang}",
@@ -234,9 +283,19 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict) -> A
             float(passes[0].used.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]),
             len(blocks),
             "arcsec",
+            _determined(cov, 0),
         )
         rate_sd = None if cov is None else float(sig * lam * np.sqrt(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1]))
-        _level(levels, f"attitude.rate_sigma_arcsec_per_s.{ang}", sig * lam, rate_sd, None, len(blocks), "arcsec/s")
+        _level(
+            levels,
+            f"attitude.rate_sigma_arcsec_per_s.{ang}",
+            sig * lam,
+            rate_sd,
+            None,
+            len(blocks),
+            "arcsec/s",
+            _determined(cov, 0) and _determined(cov, 1),
+        )
     return base.attitude.replace(value_sigma_arcsec=tuple(value_sig), rate_sigma_arcsec_per_s=tuple(rate_sig))
 
 
@@ -253,13 +312,13 @@ def _fit_ephemeris(passes: list[PassLevels], base: NoiseModel, levels: dict) -> 
             seg = edges[s : s + 2] if amp > 0 else np.array([0.0, 1.0])
             prior0 = np.linalg.inv(ephemeris_prior_covariance(seg, a0, b0, amp))
             d_info, d_vec = _data_terms(p.ephemeris[s], p.ephemeris_cov[s], prior0)
-            blocks.append((seg, amp, d_info, d_vec))
+            blocks.append((seg, amp, d_info, d_vec, p.ephemeris[s], prior0))
 
     def objective(th: np.ndarray) -> float:
         b, a = np.exp(th[0]), np.exp(th[1:])
         return sum(
-            log_marginal_likelihood(d, v, np.linalg.inv(ephemeris_prior_covariance(seg, a, b, amp)))
-            for seg, amp, d, v in blocks
+            relative_log_marginal_likelihood(d, v, x0, l0, np.linalg.inv(ephemeris_prior_covariance(seg, a, b, amp)))
+            for seg, amp, d, v, x0, l0 in blocks
         )
 
     start = np.log([e.offset_sigma_m, *np.broadcast_to(np.asarray(e.drift_sigma_mps, float), (3,))])
@@ -267,10 +326,14 @@ def _fit_ephemeris(passes: list[PassLevels], base: NoiseModel, levels: dict) -> 
     b, a = float(np.exp(th[0])), np.exp(th[1:])
     n = len(passes)
     prev_b = float(passes[0].used.get("ephemeris_b_sigma_m", e.offset_sigma_m))
-    _level(levels, "ephemeris.offset_sigma_m", b, _sd(cov, 0, b), prev_b, n, "m")
+    _level(levels, "ephemeris.offset_sigma_m", b, _sd(cov, 0, b), prev_b, n, "m", _determined(cov, 0))
+    base_a = np.broadcast_to(np.asarray(e.drift_sigma_mps, float), (3,))
+    drift = []
     for i, axis in enumerate(("along", "cross", "radial")):
-        _level(levels, f"ephemeris.drift_sigma_mps.{axis}", a[i], _sd(cov, 1 + i, float(a[i])), None, n, "m/s")
-    return e.replace(offset_sigma_m=b, drift_sigma_mps=tuple(float(x) for x in a))
+        ok = _determined(cov, 1 + i)
+        _level(levels, f"ephemeris.drift_sigma_mps.{axis}", a[i], _sd(cov, 1 + i, float(a[i])), None, n, "m/s", ok)
+        drift.append(float(a[i]) if ok else float(base_a[i]))
+    return e.replace(offset_sigma_m=b if _determined(cov, 0) else e.offset_sigma_m, drift_sigma_mps=tuple(drift))
 
 
 def fit_noise_model(passes: list[PassLevels], base: NoiseModel | None = None) -> NoiseFit:

@@ -73,6 +73,13 @@ def test_marginal_likelihood_is_the_gaussian_density_of_the_data():
         return log_marginal_likelihood(d_info, d_vec, knot_prior_precision(t, sig, 0.01, 0.6))
 
     assert eq1(20.0) - eq1(5.0) == pytest.approx(direct(20.0) - direct(5.0), rel=1e-9)
+    # the relative form (what the fit maximises) is eq. (1) less its value at the prior used
+    from misrgraph.estimate.noisefit import relative_log_marginal_likelihood
+
+    prior0 = knot_prior_precision(t, 5.0, 0.01, 0.6)
+    x0 = np.linalg.solve(d_info + prior0, d_vec)
+    rel = relative_log_marginal_likelihood(d_info, d_vec, x0, prior0, knot_prior_precision(t, 20.0, 0.01, 0.6))
+    assert rel == pytest.approx(eq1(20.0) - eq1(5.0), rel=1e-9)
 
 
 def test_attitude_level_is_recovered_from_a_prior_half_as_wide():
@@ -180,3 +187,21 @@ def test_noise_fit_learns_a_world_it_was_not_adjusted_for(world_results, tmp_pat
     assert model.observations.tie_sigma_scale == pytest.approx(tie["value"])
     assert "jitter.sigma_arcsec" in res["not_fitted"]
     assert json.loads(out.read_text())["fit"]["levels"]["observations.tie_sigma_scale"]["value"] == tie["value"]
+
+
+def test_a_level_the_passes_do_not_determine_keeps_the_base():
+    """One pass holds one ephemeris segment: one drift per axis cannot say how wide the drift's
+    prior is (its log's sd from the curvature is above MAX_LOG_SD), so the model keeps the base's
+    drift and says so; the offset, pooled over three axes, is learned."""
+    from misrgraph.estimate.noisefit import MAX_LOG_SD
+
+    rng = np.random.default_rng(5)
+    fit = fit_noise_model([_synthetic_pass(rng, 10.0, ATTITUDE_RATE_FACTOR, 10.0)])
+    base = NoiseModel()
+    for axis in ("along", "cross", "radial"):
+        lv = fit.levels[f"ephemeris.drift_sigma_mps.{axis}"]
+        assert lv["applied"] is False, lv
+        assert lv["sigma"] is None or lv["sigma"] / lv["value"] > MAX_LOG_SD * 0.9
+    assert fit.model.ephemeris.drift_sigma_mps == base.ephemeris.drift_sigma_mps
+    off = fit.levels["ephemeris.offset_sigma_m"]
+    assert off["applied"] and fit.model.ephemeris.offset_sigma_m == pytest.approx(off["value"])
