@@ -284,10 +284,20 @@ def _render_worlds(r: dict[str, Any]) -> str:
                     _ci(v.get("camera")),
                     _ci(v.get("checkpoint_ratio"), "rms"),
                     _num(v["checkpoint_rms_m"]["mean"], ".1f") if "checkpoint_rms_m" in v else "-",
+                    str(len(v.get("failed", []))),
                 ]
             )
     table = _table(
-        ["world", "way", "landmark NEES", "knot NEES", "camera NEES", "check points actual/predicted", "check RMS (m)"],
+        [
+            "world",
+            "way",
+            "landmark NEES",
+            "knot NEES",
+            "camera NEES",
+            "check points actual/predicted",
+            "check RMS (m)",
+            "passes failed",
+        ],
         rows,
     )
     acc = []

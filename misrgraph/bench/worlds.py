@@ -29,7 +29,7 @@ from typing import Any, Callable
 import numpy as np
 
 from misrgraph.bench.studies import _checkpoint_rms_after, _interval, _rms_interval
-from misrgraph.errors import InputError
+from misrgraph.errors import InputError, MisrGraphError
 from misrgraph.model.noise import NoiseModel
 from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
@@ -136,7 +136,7 @@ def _summarise(runs: list[dict[str, float]]) -> dict[str, Any]:
 
 def _accept(ways: dict[str, dict[str, Any]]) -> dict[str, bool]:
     learned, oracle = ways["learned"], ways["oracle"]
-    ok: dict[str, bool] = {}
+    ok: dict[str, bool] = {"every_pass_adjusted": not learned["failed"]}
     if "landmarks" in learned:
         ok["landmarks_0.8_1.25"] = 0.8 <= learned["landmarks"]["mean"] <= 1.25
     if "checkpoint_ratio" in learned:
@@ -227,12 +227,17 @@ def run_bench_worlds(
             "oracle": AdjustConfig(variance_component_rounds=0).with_noise(oracle),
         }
         per_way: dict[str, list[dict[str, float]]] = {w: [] for w in WAYS}
+        failures: dict[str, list[str]] = {w: [] for w in WAYS}
         for i, d in enumerate(dirs[fit_passes:]):
             for way in WAYS:
                 if progress:
                     progress(f"{name}: scoring pass {i + 1}/{passes} ({way})")
-                per_way[way].append(_score(run_adjust(d, cfg=configs[way])))
-        ways = {w: _summarise(per_way[w]) for w in WAYS}
+                try:
+                    per_way[way].append(_score(run_adjust(d, cfg=configs[way])))
+                except MisrGraphError as exc:  # a way that cannot adjust a pass is a finding, not a crash
+                    log.warning("%s, %s, pass %d: %s", name, way, i + 1, exc)
+                    failures[way].append(f"pass {i + 1}: {str(exc).splitlines()[0][:200]}")
+        ways = {w: {**_summarise(per_way[w]), "passes": len(per_way[w]), "failed": failures[w]} for w in WAYS}
         out[name] = {
             "overrides": {k: (list(v) if isinstance(v, tuple) else v) for k, v in over.items()},
             "ways": ways,
