@@ -161,9 +161,12 @@ def _maximise(
     objective: Callable[[np.ndarray], float], start: np.ndarray, bounds: list[tuple[float, float]]
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Maximise ``objective`` over log-levels; the maximum and the covariance of the log-levels
-    from the curvature there (None where it is not negative definite: a level the data do not fix)."""
+    from the curvature there (None where it is not negative definite: a level the data do not fix;
+    an infinite variance for a level that ended at its bound, e.g. a sigma driven to zero)."""
     res = optimize.minimize(lambda th: -objective(th), start, method="L-BFGS-B", bounds=bounds)
     th = res.x
+    lo, hi = np.array(bounds).T
+    at_bound = (th - lo < 1e-3) | (hi - th < 1e-3)
     n, h = th.size, 1e-3
     hess = np.zeros((n, n))
     f0 = objective(th)
@@ -186,6 +189,9 @@ def _maximise(
             cov = None
     except np.linalg.LinAlgError:
         cov = None
+    if cov is not None and at_bound.any():  # a level at its bound is not determined by the data
+        cov = cov.copy()
+        cov[at_bound, at_bound] = np.inf
     return th, cov
 
 
@@ -210,7 +216,7 @@ MAX_LOG_SD = 0.5
 
 
 def _determined(cov: np.ndarray | None, i: int) -> bool:
-    return cov is not None and bool(np.sqrt(cov[i, i]) < MAX_LOG_SD)
+    return cov is not None and bool(np.isfinite(cov[i, i]) and np.sqrt(cov[i, i]) < MAX_LOG_SD)
 
 
 def _level(
@@ -234,8 +240,8 @@ def _level(
 
 
 def _sd(cov: np.ndarray | None, i: int, value: float) -> float | None:
-    """1 sigma of a level from its log's variance."""
-    return None if cov is None else float(value * np.sqrt(cov[i, i]))
+    """1 sigma of a level from its log's variance (None when not determined)."""
+    return None if cov is None or not np.isfinite(cov[i, i]) else float(value * np.sqrt(cov[i, i]))
 
 
 def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict) -> Any:
@@ -285,7 +291,11 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict) -> A
             "arcsec",
             _determined(cov, 0),
         )
-        rate_sd = None if cov is None else float(sig * lam * np.sqrt(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1]))
+        rate_sd = (
+            None
+            if cov is None or not np.all(np.isfinite(cov))
+            else float(sig * lam * np.sqrt(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1]))
+        )
         _level(
             levels,
             f"attitude.rate_sigma_arcsec_per_s.{ang}",

@@ -205,3 +205,16 @@ def test_a_level_the_passes_do_not_determine_keeps_the_base():
     assert fit.model.ephemeris.drift_sigma_mps == base.ephemeris.drift_sigma_mps
     off = fit.levels["ephemeris.offset_sigma_m"]
     assert off["applied"] and fit.model.ephemeris.offset_sigma_m == pytest.approx(off["value"])
+
+
+def test_a_level_driven_to_its_bound_is_not_applied():
+    """Knots that are all zero, exactly measured, drive the attitude sigma to the optimiser's lower
+    bound: that is no determination of the level (it would pin the knots), so the model keeps the
+    base's sigma."""
+    rng = np.random.default_rng(6)
+    p = _synthetic_pass(rng, 10.0, ATTITUDE_RATE_FACTOR, 10.0, meas_arcsec=0.01)
+    p.knots = [np.zeros_like(k) for k in p.knots]
+    fit = fit_noise_model([p])
+    lv = fit.levels["attitude.value_sigma_arcsec.roll"]
+    assert lv["value"] < 0.1 and lv["applied"] is False and lv["sigma"] is None, lv
+    assert fit.model.attitude.value_sigma_arcsec == NoiseModel().attitude.value_sigma_arcsec
