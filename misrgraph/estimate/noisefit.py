@@ -29,7 +29,8 @@ level is ``k_used * scale * sigma0`` pooled over the passes' classes with their 
 
     k^2 = sum r (k_used scale sigma0)^2 / sum r,                                            (2)
 
-with 1 sigma the standard error over passes (from several) or ``k / sqrt(2 sum r)`` (from one).
+with 1 sigma the standard error over passes, and never less than ``k / sqrt(2 sum r)`` (all a
+single pass gives; two passes' scatter can be small by chance).
 
 What adjusted passes do not carry is not fitted and keeps its level from the base model: the
 jitter, the attitude damping ratio, the camera prior, the GCP positions' scale and the
@@ -384,11 +385,10 @@ def fit_noise_model(passes: list[PassLevels], base: NoiseModel | None = None) ->
             f_all += f
         if not per_pass:
             continue
-        if len(per_pass) >= 2:
+        k, sk = pooled_scale(f_all, r_all)
+        if len(per_pass) >= 2:  # the passes' scatter, unless smaller than the redundancy allows (few passes)
             m2, se2 = _mean_and_se(per_pass)
-            k, sk = float(np.sqrt(m2)), float(se2 / (2 * np.sqrt(m2)))
-        else:
-            k, sk = pooled_scale(f_all, r_all)
+            k, sk = float(np.sqrt(m2)), max(float(se2 / (2 * np.sqrt(m2))), sk)
         scales[fname] = k
         sections.add(section)
         _level(
