@@ -80,6 +80,12 @@ def noise_fit(
     base: Optional[Path] = typer.Option(
         None, "--base", help="Noise-model file whose levels the passes do not carry are kept. Default: pre-flight."
     ),
+    learn_shape: bool = typer.Option(
+        False,
+        "--learn-attitude-shape",
+        help="Also apply the attitude process's fitted natural frequency (the rate's sigma over the value's); "
+        "by default it is reported and the base's shape kept.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the fitted levels as JSON."),
 ) -> None:
     """Learn the noise levels from adjusted passes: attitude, ephemeris, observation and DEM scales.
@@ -93,7 +99,7 @@ def noise_fit(
 
     if out is not None:
         check_output(out, "--out")
-    res = run_noise_fit(results, out, base)
+    res = run_noise_fit(results, out, base, learn_shape)
     if as_json:
         print_json(res)
         return

@@ -122,7 +122,8 @@ class AdjustConfig(Config):
     #: the same test, and its estimate from them is biased beyond its covariance (see
     #: docs/explanation/design.md, "Rejections and the landmarks' covariance"); GCPs keep their other rays
     drop_rejected_tie_points: bool = False
-    #: rounds of variance-component estimation after snooping (Foerstner): each observation class
+    #: rounds of variance-component estimation (Foerstner; before data snooping and after each of
+    #: its rounds, as snooping's critical value is in sigmas): each observation class
     #: (the tie points seen by each camera, the GCP measurements) whose sigma0 departs from 1 by
     #: more than ``variance_component_tol`` and by more than ``variance_component_z`` of its
     #: standard errors (``sigma0 / sqrt(2 r)``; 3: a class of a pass whose stated sigma is right

@@ -82,17 +82,19 @@ def run_noise_fit(
     results: list[str | os.PathLike[str]],
     out: str | os.PathLike[str] | None = None,
     base: str | os.PathLike[str] | None = None,
+    learn_attitude_shape: bool = False,
 ) -> dict[str, Any]:
     """Fit the noise model on adjusted passes (:func:`~misrgraph.estimate.noisefit.fit_noise_model`)
     and, with ``out``, write it as a noise-model file that ``--noise-model`` reads; the levels the
-    passes do not carry come from ``base`` (a noise-model file; default the pre-flight model).
+    passes do not carry come from ``base`` (a noise-model file; default the pre-flight model), and
+    so does the attitude process's shape unless ``learn_attitude_shape``.
 
     Returns ``{"passes", "levels": {"section.field[.axis]": {"value", "sigma", "previous",
     "passes", "unit"}}, "not_fitted": [...], "out"}``."""
     from misrgraph.io.noise import SECTIONS, read_noise_model, save_noise_model
 
     base_model, base_source = (NoiseModel(), {}) if base is None else read_noise_model(base)
-    fit: NoiseFit = fit_noise_model([read_pass_levels(r) for r in results], base_model)
+    fit: NoiseFit = fit_noise_model([read_pass_levels(r) for r in results], base_model, learn_attitude_shape)
     if out is not None:
         source = {s: ("learned" if s in fit.learned_sections else base_source.get(s, "pre-flight")) for s in SECTIONS}
         save_noise_model(fit.model, out, source, fit={"passes": fit.passes, "levels": fit.levels})

@@ -218,3 +218,22 @@ def test_a_level_driven_to_its_bound_is_not_applied():
     lv = fit.levels["attitude.value_sigma_arcsec.roll"]
     assert lv["value"] < 0.1 and lv["applied"] is False and lv["sigma"] is None, lv
     assert fit.model.attitude.value_sigma_arcsec == NoiseModel().attitude.value_sigma_arcsec
+
+
+def test_the_attitude_shape_stays_the_bases_unless_asked():
+    """By default the learned value sigma enters the model with the base's rate/value ratio (the
+    fitted ratio is reported, not applied); with ``learn_attitude_shape`` the fitted rate enters."""
+    rng = np.random.default_rng(7)
+    passes = [_synthetic_pass(rng, 20.0, 3 * ATTITUDE_RATE_FACTOR, 20.0, name=str(i)) for i in range(3)]
+    base = NoiseModel()
+    fit = fit_noise_model(passes)
+    v, r = fit.model.attitude.value_sigma_arcsec, fit.model.attitude.rate_sigma_arcsec_per_s
+    np.testing.assert_allclose(np.array(r) / np.array(v), ATTITUDE_RATE_FACTOR, rtol=1e-12)
+    lv = fit.levels["attitude.rate_sigma_arcsec_per_s.pitch"]
+    assert lv["applied"] is False and lv["value"] / fit.levels["attitude.value_sigma_arcsec.pitch"]["value"] > 2 * (
+        ATTITUDE_RATE_FACTOR
+    )
+    shaped = fit_noise_model(passes, base, learn_attitude_shape=True)
+    assert shaped.model.attitude.rate_sigma_arcsec_per_s[1] == pytest.approx(
+        shaped.levels["attitude.rate_sigma_arcsec_per_s.pitch"]["value"]
+    )
