@@ -90,10 +90,12 @@ def noise_fit(
 ) -> None:
     """Learn the noise levels from adjusted passes: attitude, ephemeris, observation and DEM scales.
 
-    Each level is one expectation-maximisation step of the passes' marginal likelihood from the
-    levels they were adjusted with, averaged over passes; its 1 sigma is the standard error over
-    the passes (from one pass, none for the attitude and ephemeris). Jitter, the attitude damping,
-    the camera prior and the GCP positions' scale are not fitted and keep the base's levels.
+    The attitude sigma per angle and the ephemeris offset and drift sigmas maximise the passes'
+    marginal likelihood of their prior, each with a 1 sigma from the likelihood's curvature; a
+    level the passes do not determine keeps the base's, and the attitude's shape (rate over value)
+    stays the base's unless --learn-attitude-shape. The tie-point, GCP and DEM sigma scales come
+    from the passes' variance components. Jitter, the attitude damping, the camera prior, the GCP
+    positions' scale and the once-per-revolution term are not fitted and keep the base's levels.
     """
     from misrgraph.runs.noise import run_noise_fit
 
