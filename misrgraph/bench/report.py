@@ -27,7 +27,7 @@ from typing import Any, Callable
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.h5 import atomic_file
 
-__all__ = ["ReportConfig", "render_report", "run_report", "render_page", "TITLES"]
+__all__ = ["ReportConfig", "render_report", "run_report", "render_page", "worlds_table", "TITLES", "WORLDS_COLUMNS"]
 
 #: the title and one-line description of each bench's page
 TITLES: dict[str, tuple[str, str]] = {
@@ -271,7 +271,22 @@ def _render_generic(r: dict[str, Any]) -> str:
     return _table(["quantity", "value"], rows)
 
 
-def _render_worlds(r: dict[str, Any]) -> str:
+#: the columns of the worlds table (:func:`worlds_table`)
+WORLDS_COLUMNS = [
+    "world",
+    "way",
+    "landmark NEES",
+    "knot NEES",
+    "camera NEES",
+    "check points actual/predicted",
+    "check RMS (m)",
+    "passes failed",
+]
+
+
+def worlds_table(r: dict[str, Any]) -> list[list[str]]:
+    """The rows of a ``bench worlds`` result's table (:data:`WORLDS_COLUMNS`), one per world and
+    way: each figure as ``mean [95 % interval]``; the results page and the command print it."""
     rows = []
     for name, w in r["worlds"].items():
         for way, v in w["ways"].items():
@@ -287,19 +302,11 @@ def _render_worlds(r: dict[str, Any]) -> str:
                     str(len(v.get("failed", []))),
                 ]
             )
-    table = _table(
-        [
-            "world",
-            "way",
-            "landmark NEES",
-            "knot NEES",
-            "camera NEES",
-            "check points actual/predicted",
-            "check RMS (m)",
-            "passes failed",
-        ],
-        rows,
-    )
+    return rows
+
+
+def _render_worlds(r: dict[str, Any]) -> str:
+    table = _table(WORLDS_COLUMNS, worlds_table(r))
     acc = []
     for name, w in r["worlds"].items():
         failed = [k for k, ok in w["acceptance"].items() if not ok]

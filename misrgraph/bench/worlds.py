@@ -168,6 +168,7 @@ def run_bench_worlds(
     "ways": {way: summary}, "learned_levels", "true_levels", "acceptance"}}, "acceptance":
     {"worlds_passing", "worlds"}}``."""
     from misrgraph.estimate.adjust import AdjustConfig
+    from misrgraph.io.noise import read_noise_model
     from misrgraph.runs.adjust import run_adjust
     from misrgraph.runs.noise import run_noise_fit
 
@@ -216,10 +217,9 @@ def run_bench_worlds(
             r = d / "fit_result.h5"
             run_adjust(d, out=r, cfg=AdjustConfig())
             results.append(r)
-        fit = run_noise_fit(results, out=wd / f"world{w_index:02d}_{size}_noise.json")
-        from misrgraph.io.noise import read_noise_model
-
-        learned_model, _ = read_noise_model(wd / f"world{w_index:02d}_{size}_noise.json")
+        noise_file = wd / f"world{w_index:02d}_{size}_noise.json"
+        fit = run_noise_fit(results, out=noise_file)
+        learned_model, _ = read_noise_model(noise_file)  # as a user's --noise-model would read it
         oracle = oracle_noise_model(cfgs[0])
         configs = {
             "fixed": AdjustConfig(variance_component_rounds=0),

@@ -916,27 +916,13 @@ def bench_worlds(
 
 
 def _print_worlds(res: dict) -> None:
+    from misrgraph.bench.report import WORLDS_COLUMNS, worlds_table
+
     table = Table(title=f"worlds: {res['passes']} scored passes each (mean, 95 % interval)")
-    for col in ("world", "way", "landmark NEES", "knot NEES", "camera NEES", "check pts act/pred", "check RMS (m)"):
+    for col in WORLDS_COLUMNS:
         table.add_column(col, justify="right")
-
-    def cell(v: dict | None, key: str = "mean") -> str:
-        if not v:
-            return "-"
-        lo, hi = v["ci95"]
-        return f"{v[key]:.2f} [{lo:.2f}, {hi:.2f}]"
-
-    for name, w in res["worlds"].items():
-        for way, s in w["ways"].items():
-            table.add_row(
-                name if way == "fixed" else "",
-                way,
-                cell(s.get("landmarks")),
-                cell(s.get("knots")),
-                cell(s.get("camera")),
-                cell(s.get("checkpoint_ratio"), "rms"),
-                f"{s['checkpoint_rms_m']['mean']:.1f}" if "checkpoint_rms_m" in s else "-",
-            )
+    for row in worlds_table(res):
+        table.add_row(*row)
     console.print(table)
     a = res["acceptance"]
     console.print(f"learned levels meet the acceptance bounds in {a['worlds_passing']} of {a['worlds']} worlds")

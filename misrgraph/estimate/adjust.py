@@ -405,7 +405,7 @@ def adjust_pass(
     rej = np.flatnonzero(blunder_mask)
     rel = reliability_summary(orbit_pass, pg, res.values, at)
     rel["observation_sigma"] = learned_sigma_summary(
-        _variance_components(at, obs_class), vc_scale, cfg, rounds, orbit_pass, stated, obs_class
+        _variance_components(at, obs_class), vc_scale, cfg, rounds, stated, obs_class
     )
     rel["sigma_scale_applied"] = {k: vc_scale.get(k, 1.0) for k in rel["observation_sigma"]["classes"]}
     rel["covariance"] = cov_used
@@ -634,7 +634,6 @@ def learned_sigma_summary(
     scale: dict[str, float],
     cfg: AdjustConfig,
     rounds: int,
-    orbit_pass: OrbitPass,
     stated: Array,
     obs_class: NDArray[np.str_],
 ) -> dict[str, Any]:

@@ -13,7 +13,7 @@ import numpy as np
 from misrgraph.errors import FileFormatError
 from misrgraph.estimate.noisefit import NoiseFit, PassLevels, fit_noise_model
 from misrgraph.model.constants import ANGLES
-from misrgraph.model.noise import NoiseModel
+from misrgraph.model.noise import LEVELS, NoiseModel
 
 __all__ = ["read_pass_levels", "run_noise_fit"]
 
@@ -98,9 +98,7 @@ def run_noise_fit(
     if out is not None:
         source = {s: ("learned" if s in fit.learned_sections else base_source.get(s, "pre-flight")) for s in SECTIONS}
         save_noise_model(fit.model, out, source, fit={"passes": fit.passes, "levels": fit.levels})
-    fitted = {k.split(".")[0] + "." + k.split(".")[1] for k in fit.levels}
-    from misrgraph.model.noise import LEVELS
-
+    fitted = {".".join(k.split(".")[:2]) for k in fit.levels}  # "section.field" of "section.field.axis"
     return {
         "passes": len(fit.passes),
         "levels": fit.levels,
