@@ -356,9 +356,8 @@ def fit_noise_model(
 
     The attitude process's shape (its natural frequency, i.e. the rate's sigma over the value's)
     is estimated and reported but, unless ``learn_attitude_shape``, stays the base's: the rate
-    follows the learned value sigma. Fitted from a few passes it made the knots over-confident
-    (``misrgraph bench worlds``: knot NEES 1.25 against 1.10 with the base's shape on the base
-    world, 2.61 against 1.00 with the navigation three times worse).
+    follows the learned value sigma: fitted from a few passes, the shape makes the knots
+    over-confident (``misrgraph bench worlds`` measures it).
 
     Raises
     ------
