@@ -1,4 +1,4 @@
-"""``misrgraph import``: real GCP lists and DEM rasters into misrgraph's files."""
+"""``misrgraph import``: real GCP lists, DEM rasters and MISR AGPs into misrgraph's files."""
 
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ from misrgraph.commands.common import (
     print_json,
 )
 
-__all__ = ["app", "import_gcps", "import_dem"]
+__all__ = ["app", "import_gcps", "import_dem", "import_agp"]
 
 app = typer.Typer(
-    help="Real inputs: GCP lists (CSV, GeoJSON) and DEM rasters (any GDAL raster) into misrgraph's files.",
+    help="Real inputs: GCP lists (CSV, GeoJSON), DEM rasters (any GDAL raster) and MISR AGPs into misrgraph's files.",
     no_args_is_help=True,
 )
 
@@ -70,4 +70,35 @@ def import_dem(
     console.print(
         f"{res['tiles']} tiles of {res['tile_postings']} postings -> {res['out']} "
         f"(heights {res['height_m']['min']:.0f}..{res['height_m']['max']:.0f} m, {res['height_reference']})"
+    )
+
+
+@app.command("agp")
+@handle_errors
+def import_agp(
+    source: Path = typer.Argument(
+        ..., help="MISR AGP file (HDF-EOS2, grid Standard), e.g. MISR_AM1_AGP_P037_F01_24.hdf."
+    ),
+    out: Path = typer.Option(..., "--out", help="DEM file to write (HDF5), e.g. SCENARIO_DIR/agp_dem.h5."),
+    blocks: Optional[str] = typer.Option(
+        None, "--blocks", help="Blocks A-B to import. Default: the file's Start_block..End block."
+    ),
+    posting_arcsec: float = typer.Option(
+        30.0, "--posting-arcsec", help="Posting of the geographic grid (arc seconds)."
+    ),
+    tile_postings: int = typer.Option(64, "--tile-postings", help="Postings per tile side (>= 32)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Import a MISR AGP's heights (AveSceneElev, m above the WGS84 ellipsoid) as a DEM, each
+    posting's 1-sigma from StdDevSceneElev."""
+    from misrgraph.runs.imports import run_import_agp
+
+    res = run_import_agp(source, out, blocks, posting_arcsec, tile_postings)
+    if as_json:
+        print_json(res)
+        return
+    console.print(
+        f"path {res['path']} blocks {res['blocks'][0]}-{res['blocks'][1]}: {res['tiles']} tiles of "
+        f"{res['tile_postings']} postings -> {res['out']} (heights {res['height_m']['min']:.0f}.."
+        f"{res['height_m']['max']:.0f} m, sigma {res['sigma_m']['min']:.3g}..{res['sigma_m']['max']:.3g} m)"
     )

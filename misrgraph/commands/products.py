@@ -69,6 +69,12 @@ def products(
     noise_model: Optional[Path] = typer.Option(
         None, "--noise-model", help=NOISE_HELP + " For a scenario directory, not a state."
     ),
+    file_format: str = typer.Option(
+        "h5",
+        "--format",
+        help="h5 (misrgraph's HDF5 files) or misr (those, and MISR's HDF-EOS2 files in OUT/misr/: one PP file per "
+        "camera and, with --roi, one L1B2-style ROI file per camera).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Projection Parameters of an adjusted pass on its path's 1.1 km SOM grid, with their 1 sigma.
@@ -106,6 +112,7 @@ def products(
             roi=roi,
             roi_options=opts,
             observations=observations,
+            file_format=file_format,
         )
     if as_json:
         print_json(res)
@@ -137,4 +144,8 @@ def products(
             res.get("roi_truth", {}),
             res.get("roi_predicted_px"),
         )
+    misr = res.get("misr_files")
+    if misr:
+        n = sum(len(v) for v in misr["pp"].values()) + len(misr["roi"])
+        console.print(f"{n} MISR HDF-EOS2 files -> {out / 'misr'}")
     console.print(f"{res['seconds']['total']:.0f} s")

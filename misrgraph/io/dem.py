@@ -4,8 +4,9 @@
 Layout: group ``/tiles`` with attributes ``posting_deg``, ``size``, ``height_reference`` and
 datasets ``lat0, lon0, lon_posting (T,)`` deg, ``heights (T, n, n)`` m above
 ``height_reference`` (float32; mean sea level for simulated DEMs, the WGS84 ellipsoid for a
-raster imported with a geoid), ``flags (T, n, n)`` (1 land, 2 water, 3 boundary) and ``quality (T,)`` (see
-:data:`misrgraph.model.dem.QUALITY_SIGMA_M`).
+raster imported with a geoid), ``flags (T, n, n)`` (1 land, 2 water, 3 boundary), ``quality (T,)`` (see
+:data:`misrgraph.model.dem.QUALITY_SIGMA_M`) and, where the source states one (an AGP), ``sigma_m
+(T, n, n)``: each posting's 1-sigma (m), which replaces the quality class's.
 """
 
 from __future__ import annotations
@@ -40,6 +41,10 @@ def save_dem(dem: DemTiles, path: str | os.PathLike[str], height_reference: str 
         create_dataset(g, "flags", dem.flags, compression="gzip")
         g["flags"].attrs["meaning"] = "1 land, 2 water, 3 boundary"
         write_dataset(g, "quality", dem.quality, units="1", meaning="1: DTED-1 30 m; 2: 60 m; 3: 120 m (1 sigma)")
+        if dem.sigma_m is not None:
+            create_dataset(g, "sigma_m", dem.sigma_m.astype(np.float32), compression="gzip", shuffle=True)
+            g["sigma_m"].attrs["units"] = "m"
+            g["sigma_m"].attrs["meaning"] = "each posting's stated 1 sigma; replaces the quality class's"
 
 
 def read_dem(path: str | os.PathLike[str]) -> DemTiles:
@@ -59,6 +64,7 @@ def read_dem(path: str | os.PathLike[str]) -> DemTiles:
             read_dataset(g, "quality", (t,), dtype=np.int64),
             float(read_attr(g, "posting_deg")),
             read_dataset(g, "lon_posting", (t,)),
+            read_dataset(g, "sigma_m", (t, n, n)) if "sigma_m" in g else None,
         )
 
 

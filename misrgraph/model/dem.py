@@ -273,7 +273,9 @@ class DemTiles:
     ``lat0, lon0 (T,)`` deg of posting ``[0, 0]`` (south-west corner; ``lon0`` in [-180, 180),
     columns continue east across the antimeridian); ``heights (T, n, n)`` m above MSL (row =
     latitude index northward, column = longitude eastward); ``flags (T, n, n)`` (1 land, 2 water,
-    3 boundary); ``quality (T,)`` identifiers (see :data:`QUALITY_SIGMA_M`).
+    3 boundary); ``quality (T,)`` identifiers (see :data:`QUALITY_SIGMA_M`); ``sigma_m (T, n, n)``
+    (optional) each posting's stated 1-sigma in metres, which replaces the quality class's
+    (e.g. an AGP's ``StdDevSceneElev``).
     """
 
     lat0: Array
@@ -283,6 +285,7 @@ class DemTiles:
     quality: NDArray[np.int64]
     posting_deg: float = POSTING_DEG
     lon_posting: Array | None = None
+    sigma_m: Array | None = None
 
     def __post_init__(self) -> None:
         self.lat0 = np.asarray(self.lat0, dtype=float)
@@ -321,6 +324,12 @@ class DemTiles:
         bad = set(np.unique(self.quality).tolist()) - set(QUALITY_SIGMA_M)
         if bad:
             raise InputError("dem.quality", sorted(bad)[0], tuple(str(q) for q in QUALITY_SIGMA_M))
+        if self.sigma_m is not None:
+            self.sigma_m = np.asarray(self.sigma_m, dtype=float)
+            if self.sigma_m.shape != self.heights.shape:
+                raise InputError("dem.sigma_m", self.sigma_m.shape, f"shape {self.heights.shape}")
+            if not (np.all(np.isfinite(self.sigma_m)) and np.all(self.sigma_m >= 0)):
+                raise InputError("dem.sigma_m", float(np.nanmin(self.sigma_m)), "finite sigmas >= 0 (m)")
 
     @property
     def size(self) -> int:
@@ -347,7 +356,9 @@ class DemTiles:
             from scipy.ndimage import gaussian_filter
 
             h = gaussian_filter(self.heights, sigma=(0.0, s, s), mode="nearest", truncate=2.0 / s)
-            cache[s] = DemTiles(self.lat0, self.lon0, h, self.flags, self.quality, self.posting_deg, self.lon_posting)
+            cache[s] = DemTiles(
+                self.lat0, self.lon0, h, self.flags, self.quality, self.posting_deg, self.lon_posting, self.sigma_m
+            )
         return cache[s]
 
     def tile_of(
@@ -440,6 +451,13 @@ def fit_local_surface(
     out.height[sel] = h
     out.dh_dlat[sel] = dr / dem.posting_deg
     out.dh_dlon[sel] = dc / dem.lon_posting[t]
-    out.sigma[sel] = np.sqrt(sig_q[dem.quality[t]] ** 2 + rms**2)
+    if dem.sigma_m is not None:
+        # the stated sigma of the posting nearest each point
+        ir = np.clip(np.rint(r).astype(np.int64), 0, dem.size - 1)
+        ic = np.clip(np.rint(c).astype(np.int64), 0, dem.size - 1)
+        stated = dem.sigma_m[t, ir, ic]
+    else:
+        stated = sig_q[dem.quality[t]]
+    out.sigma[sel] = np.sqrt(stated**2 + rms**2)
     out.valid[sel] = True
     return out

@@ -1,6 +1,7 @@
-"""Importing real inputs (``misrgraph import gcps|dem``): a GCP list (CSV, GeoJSON) or DEM rasters
-(any GDAL raster, through rasterio) into the HDF5 files ``adjust --gcps/--dem`` and the other
-commands read. See :mod:`misrgraph.io.external` for the accepted columns and the grid."""
+"""Importing real inputs (``misrgraph import gcps|dem|agp``): a GCP list (CSV, GeoJSON), DEM rasters
+(any GDAL raster, through rasterio) or a MISR AGP (HDF-EOS2) into the HDF5 files ``adjust
+--gcps/--dem`` and the other commands read. See :mod:`misrgraph.io.external` for the accepted
+columns and the grid, :mod:`misrgraph.io.misrfiles` for the AGP."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from misrgraph.io.external import read_gcp_table, read_geoid_grid, read_raster_d
 from misrgraph.io.gcp import save_gcp_database
 from misrgraph.model.dem import Geoid
 
-__all__ = ["run_import_gcps", "run_import_dem"]
+__all__ = ["run_import_gcps", "run_import_dem", "run_import_agp"]
 
 
 def _geoid(geoid: str | os.PathLike[str] | None) -> Geoid | None:
@@ -68,5 +69,40 @@ def run_import_dem(
         "height_m": {"min": float(dem.heights.min()), "max": float(dem.heights.max())},
         "lat": [float(dem.lat0.min()), float(dem.lat0.max() + span)],
         "lon": [float(dem.lon0.min()), float(dem.lon0.max() + span)],
+        "out": str(Path(out)),
+    }
+
+
+def run_import_agp(
+    source: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    blocks: str | None = None,
+    posting_arcsec: float = 30.0,
+    tile_postings: int = 64,
+) -> dict[str, Any]:
+    """Write the DEM file ``out`` (HDF5) from a MISR AGP's ``AveSceneElev`` with each posting's
+    1-sigma from ``StdDevSceneElev`` (:func:`misrgraph.io.misrfiles.agp_to_dem`); ``blocks``
+    ``"A-B"`` (default: the file's ``Start_block``..``End block``). Return a summary:
+    ``{"path", "blocks": [first, last], "tiles", "tile_postings", "posting_arcsec",
+    "height_m": {"min", "max"}, "sigma_m": {"min", "median", "max"}, "out"}``."""
+    from misrgraph.io.misrfiles import agp_to_dem, read_agp
+
+    chosen = None
+    if blocks is not None:
+        from misrgraph.runs.products import parse_blocks
+
+        chosen = parse_blocks(blocks, "--blocks")
+    agp = read_agp(source, chosen)
+    dem = agp_to_dem(agp, posting_arcsec, tile_postings)
+    save_dem(dem, out, height_reference="WGS84 ellipsoid (AGP " + Path(source).name + ")")
+    sig = np.asarray(dem.sigma_m)
+    return {
+        "path": agp.path,
+        "blocks": [int(agp.blocks.min()), int(agp.blocks.max())],
+        "tiles": int(dem.lat0.size),
+        "tile_postings": dem.size,
+        "posting_arcsec": dem.posting_deg * 3600.0,
+        "height_m": {"min": float(dem.heights.min()), "max": float(dem.heights.max())},
+        "sigma_m": {"min": float(sig.min()), "median": float(np.median(sig)), "max": float(sig.max())},
         "out": str(Path(out)),
     }

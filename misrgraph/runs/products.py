@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from misrgraph import __version__
-from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError
+from misrgraph.errors import DegenerateProblemError, FileFormatError, InputError, require_extra
 from misrgraph.estimate.adjust import AdjustConfig, AdjustResult
 from misrgraph.evaluate.products import score_pp
 from misrgraph.io.camera import load_camera_model
@@ -37,7 +37,7 @@ from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import atomic_file
 from misrgraph.io.imagery import OBSERVATION_SETS
 from misrgraph.io.passes import OrbitPass
-from misrgraph.io.products import ProjectionParameters, save_pp
+from misrgraph.io.products import ProjectionParameters, read_pp, save_pp
 from misrgraph.io.truth import PassTruth, load_pass_observations, pass_truth_in, read_pass_truth
 from misrgraph.misr.som import N_BLOCKS, SomGrid
 from misrgraph.model.constants import CAMERAS
@@ -53,6 +53,9 @@ ROI_NOTE = (
     "ROI not built: give --roi (it needs at least four passes with whole-swath strips, "
     "simulated with --imagery --roi-blocks A-B)"
 )
+
+#: What ``--format`` writes: misrgraph's HDF5 files, or those and MISR's HDF-EOS2 files beside them.
+FILE_FORMATS = ("h5", "misr")
 
 #: Blocks mapped when ``--blocks`` is not given: this many, centred on the pass's features.
 DEFAULT_BLOCKS = 10
@@ -101,6 +104,7 @@ def run_products(
     roi: bool = False,
     roi_options: "RoiOptions | None" = None,
     observations: str = "simulated",
+    file_format: str = "h5",
 ) -> dict[str, Any]:
     """Adjust one pass of ``scenario_dir`` (the only one, or ``pass_file``; for a multi-pass
     scenario the first pass when none is named), compute its PP over ``blocks`` (``"A-B"``;
@@ -128,7 +132,72 @@ def run_products(
     ``hidden``, ``missed``, ``false``) and ``"roi_truth_by_block"`` (the truth per block).
 
     ``observations``: the set a scenario's passes are adjusted with (``"simulated"``, their own;
-    ``"matched"``, what ``misrgraph match`` measured); a state adjusts its own set."""
+    ``"matched"``, what ``misrgraph match`` measured); a state adjusts its own set.
+
+    ``file_format``: ``"h5"`` (misrgraph's HDF5 files) or ``"misr"`` (those, and beside them in
+    ``OUT/misr/`` MISR's HDF-EOS2 files, one per camera: PP and, with ``roi``, ROI; see
+    :mod:`misrgraph.io.misrfiles`); the summary then lists them under ``"misr_files"``
+    (``{"pp": {pass_id: {camera: path}}, "roi": {camera: path}}``)."""
+    if file_format not in FILE_FORMATS:
+        raise InputError("--format", file_format, FILE_FORMATS)
+    if file_format == "misr":
+        require_extra("pyhdf", "misr", "--format misr")
+    summary = _run_products_h5(
+        scenario_dir,
+        out,
+        blocks,
+        pass_file,
+        camera_model,
+        band,
+        cfg,
+        progress,
+        default_blocks,
+        roi,
+        roi_options,
+        observations,
+    )
+    if file_format == "misr":
+        summary["misr_files"] = export_misr(summary, _out_dir(out) / "misr")
+        with atomic_file(_out_dir(out) / "products.json") as fh:
+            fh.write(json.dumps(summary, indent=2))
+    return summary
+
+
+def export_misr(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
+    """Write MISR HDF-EOS2 files of the PP and ROI files a products summary lists, into
+    ``out_dir``; return ``{"pp": {pass_id: {camera: path}}, "roi": {camera: path}}``."""
+    from misrgraph.io.misrfiles import write_pp_misr, write_roi_misr
+
+    rows = summary.get("passes") or [summary]
+    pp_files: dict[str, dict[str, str]] = {}
+    for row in rows:
+        f = (row.get("files") or {}).get("pp")
+        if f:
+            pp = read_pp(f)
+            pp_files[pp.pass_id] = {c: str(p) for c, p in write_pp_misr(pp, out_dir).items()}
+    roi_files: dict[str, str] = {}
+    if summary.get("roi"):
+        from misrgraph.io.roi import read_roi
+
+        roi_files = {c: str(p) for c, p in write_roi_misr(read_roi(summary["roi"]["file"]), out_dir).items()}
+    return {"pp": pp_files, "roi": roi_files}
+
+
+def _run_products_h5(
+    scenario_dir: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    blocks: str | tuple[int, int] | None = None,
+    pass_file: str | os.PathLike[str] | None = None,
+    camera_model: str | os.PathLike[str] | None = None,
+    band: str = "red",
+    cfg: AdjustConfig = AdjustConfig(),
+    progress: Callable[[str, int, int], None] | None = None,
+    default_blocks: int = DEFAULT_BLOCKS,
+    roi: bool = False,
+    roi_options: "RoiOptions | None" = None,
+    observations: str = "simulated",
+) -> dict[str, Any]:
+    """:func:`run_products` in misrgraph's HDF5 files only."""
     t_start = time.perf_counter()
     d = Path(scenario_dir)
     roi_options = (roi_options or RoiOptions()) if roi else None

@@ -200,14 +200,32 @@ def test_bad_input(adjusted, pp) -> None:
 
 def test_products_command(small_pass_dir, tmp_path) -> None:
     res = CliRunner().invoke(
-        app, ["products", str(small_pass_dir), "--out", str(tmp_path / "p"), "--blocks", "60", "--json"]
+        app,
+        ["products", str(small_pass_dir), "--out", str(tmp_path / "p"), "--blocks", "60", "--format", "misr", "--json"],
     )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["blocks"] == [60, 60] and set(out["pp_error_m"]) == set(CAMERAS)
     for v in out["pp_error_m"].values():
         assert {"rms", "predicted_rms"} <= set(v)
-    assert read_pp(out["files"]["pp"]).blocks.tolist() == [60]
-    assert json.loads((tmp_path / "p" / "products.json").read_text())["path"] == 37
+    pp = read_pp(out["files"]["pp"])
+    assert pp.blocks.tolist() == [60]
+    assert json.loads((tmp_path / "p" / "products.json").read_text())["misr_files"] == out["misr_files"]
+    # the MISR files hold the HDF5 product's values, field by field (read with plain HDF4 calls)
+    pytest.importorskip("pyhdf")
+    from pyhdf.SD import SD, SDC
+
+    misr = out["misr_files"]["pp"][pp.pass_id]
+    assert set(misr) == set(CAMERAS)
+    for c in ("Df", "An", "Da"):
+        sd = SD(misr[c], SDC.READ)
+        assert sd.attributes()["Path_number"] == 37
+        for name in ("line0", "sigma_m"):
+            want = np.asarray(getattr(pp, name)[CAMERAS.index(c), 0], np.float32)
+            got = sd.select(name)[59]
+            np.testing.assert_array_equal(got, np.where(np.isfinite(want), want, np.float32(-9999.0)))
+        sd.end()
     bad = CliRunner().invoke(app, ["products", str(small_pass_dir), "--out", str(tmp_path / "q"), "--blocks", "90-80"])
     assert bad.exit_code == 2 and "--blocks" in bad.output
+    bad = CliRunner().invoke(app, ["products", str(small_pass_dir), "--out", str(tmp_path / "r"), "--format", "hdf"])
+    assert bad.exit_code == 2 and "--format" in bad.output and not (tmp_path / "r").exists()

@@ -4,6 +4,8 @@ matching measures on it against that truth, and the GeoTIFF's georeferencing aga
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -22,8 +24,33 @@ DEM_PARALLAX_PX = 10.0 * np.tan(np.radians(70.5)) / 275.0
 @pytest.fixture(scope="module")
 def roi_run(roi_path_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("roi_out")
-    res = run_products(roi_path_dir, out, roi=True, roi_options=RoiOptions(geotiff=True, quicklooks=True))
+    res = run_products(
+        roi_path_dir,
+        out,
+        roi=True,
+        roi_options=RoiOptions(geotiff=True, quicklooks=True),
+        file_format="misr" if importlib.util.find_spec("pyhdf") else "h5",
+    )
     return res, out
+
+
+def test_the_roi_as_misr_files(roi_run):
+    """``--format misr``: one L1B2-style file per camera whose unpacked radiance is the ROI's counts."""
+    pytest.importorskip("pyhdf")
+    from misrgraph.io.misrfiles import read_l1b2
+
+    res, _ = roi_run
+    roi = read_roi(res["roi"]["file"])
+    files = res["misr_files"]["roi"]
+    assert set(files) == set(roi.cameras)
+    for c, cam in enumerate(roi.cameras):
+        band = read_l1b2(files[cam])
+        assert band.camera == cam and band.blocks.tolist() == roi.blocks.tolist()
+        imaged = roi.source[c] >= 0
+        np.testing.assert_array_equal(band.radiance[imaged], roi.pixels[c][imaged].astype(float))
+        np.testing.assert_array_equal(band.obscured, roi.obscured[c])
+        assert np.all(band.fill == (~imaged & ~roi.obscured[c]))
+    assert len(res["misr_files"]["pp"]) == len(res["passes"])
 
 
 def test_mosaic_bookkeeping(roi_run):
