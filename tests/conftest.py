@@ -1,6 +1,15 @@
-"""Shared, seeded fixtures: the nominal camera model and a reference pass geometry."""
+"""Shared, seeded fixtures: the nominal camera model, a reference pass geometry and the simulated
+scenarios many test files use. A scenario is simulated once per test run and shared by the
+pytest-xdist workers (:func:`_built_once`)."""
 
 from __future__ import annotations
+
+import fcntl
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 import pytest
@@ -13,6 +22,28 @@ from misrgraph.model.orbit import AttitudeSeries, terra_like_orbit
 
 settings.register_profile("ci", max_examples=40, deadline=None, derandomize=True)
 settings.load_profile("ci")
+
+
+def _built_once(tmp_path_factory, name: str, build: Callable[[Path], Any]) -> tuple[Path, Any]:
+    """``(directory, build's JSON-able result)``: ``build(directory)`` runs once per test run, in
+    whichever xdist worker asks first; the others wait on a lock and reuse the directory (the
+    pattern pytest-xdist documents for session fixtures). A build that failed is redone."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # shared by the workers of this run
+    base = root / "built-once"
+    base.mkdir(exist_ok=True)
+    out, done = base / name, base / f"{name}.json"
+    with open(base / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not done.exists():
+                if out.exists():
+                    shutil.rmtree(out)
+                done.write_text(json.dumps(build(out)))
+            return out, json.loads(done.read_text())
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 @pytest.fixture(scope="session")
@@ -42,7 +73,6 @@ def small_pass_dir(tmp_path_factory):
     """A reduced 'pass' scenario (seed 11): 150 tie points, 20 check points, 15-minute pass."""
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-    out = tmp_path_factory.mktemp("scen") / "pass"
     cfg = ScenarioConfig(
         truth="model",
         scenario="pass",
@@ -53,8 +83,7 @@ def small_pass_dir(tmp_path_factory):
         start_lat_deg=55.0,
         tie_blunder_rate=0.02,
     )
-    run_simulate(cfg, out)
-    return out
+    return _built_once(tmp_path_factory, "pass", lambda out: run_simulate(cfg, out))[0]
 
 
 @pytest.fixture(scope="session")
@@ -64,22 +93,22 @@ def imagery_pass_dir(tmp_path_factory):
     from misrgraph.runs.match import run_match
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-    out = tmp_path_factory.mktemp("scen") / "imagery"
-    run_simulate(
-        ScenarioConfig(
-            truth="model",
-            scenario="pass",
-            seed=3,
-            n_tie_points=60,
-            n_check_points=10,
-            duration_s=900.0,
-            start_lat_deg=45.0,
-            imagery=True,
-        ),
-        out,
+    cfg = ScenarioConfig(
+        truth="model",
+        scenario="pass",
+        seed=3,
+        n_tie_points=60,
+        n_check_points=10,
+        duration_s=900.0,
+        start_lat_deg=45.0,
+        imagery=True,
     )
-    run_match(out)
-    return out
+
+    def build(out: Path) -> None:
+        run_simulate(cfg, out)
+        run_match(out)
+
+    return _built_once(tmp_path_factory, "imagery", build)[0]
 
 
 @pytest.fixture(scope="session")
@@ -89,11 +118,11 @@ def matched_month_dir(tmp_path_factory):
     from misrgraph.runs.match import run_match
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-    out = tmp_path_factory.mktemp("scen") / "month"
-    s = run_simulate(
-        ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True), out
+    cfg = ScenarioConfig(truth="model", scenario="month", seed=1, n_gcps=30, month_days=5, imagery=True)
+    out, (s, matched) = _built_once(
+        tmp_path_factory, "matched_month", lambda out: (run_simulate(cfg, out), run_match(out))
     )
-    return out, s, run_match(out)
+    return out, s, matched
 
 
 @pytest.fixture(scope="session")
@@ -101,21 +130,17 @@ def path_dir(tmp_path_factory):
     """A repeat-path scenario (seed 41): ten 10-minute passes of one path, 40 tie points each."""
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-    out = tmp_path_factory.mktemp("scen") / "path"
-    run_simulate(
-        ScenarioConfig(
-            truth="model",
-            scenario="path",
-            seed=41,
-            n_passes=10,
-            n_tie_points=40,
-            n_check_points=5,
-            duration_s=600.0,
-            start_lat_deg=52.0,
-        ),
-        out,
+    cfg = ScenarioConfig(
+        truth="model",
+        scenario="path",
+        seed=41,
+        n_passes=10,
+        n_tie_points=40,
+        n_check_points=5,
+        duration_s=600.0,
+        start_lat_deg=52.0,
     )
-    return out
+    return _built_once(tmp_path_factory, "path", lambda out: run_simulate(cfg, out))[0]
 
 
 def _simulate_roi_path(out, camera_truth=None):
@@ -203,9 +228,8 @@ def small_month_dir(tmp_path_factory):
     """A reduced 'month' scenario: 30 GCPs over 16 days (about 40 GCP passes)."""
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-    out = tmp_path_factory.mktemp("scen") / "month"
-    run_simulate(ScenarioConfig(truth="model", scenario="month", seed=31, n_gcps=30, month_days=16), out)
-    return out
+    cfg = ScenarioConfig(truth="model", scenario="month", seed=31, n_gcps=30, month_days=16)
+    return _built_once(tmp_path_factory, "small_month", lambda out: run_simulate(cfg, out))[0]
 
 
 @pytest.fixture(scope="session")
@@ -260,4 +284,5 @@ def campaign_setup(tmp_path_factory):
     from misrgraph.campaign import CampaignConfig
 
     cfg = CampaignConfig(paths=(37, 38), months=2.0, size="reduced", pp_blocks=1)
-    return cfg, prepare_campaign_inputs(tmp_path_factory.mktemp("campaign"), cfg)
+    _, inputs = _built_once(tmp_path_factory, "campaign", lambda out: str(prepare_campaign_inputs(out, cfg)))
+    return cfg, Path(inputs)
