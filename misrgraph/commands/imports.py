@@ -1,4 +1,4 @@
-"""``misrgraph import``: real GCP lists, DEM rasters and MISR AGPs into misrgraph's files."""
+"""``misrgraph import``: real GCP lists, DEM rasters and MISR AGPs and L1B2 files into misrgraph's files."""
 
 from __future__ import annotations
 
@@ -8,15 +8,17 @@ from typing import Optional
 import typer
 
 from misrgraph.commands.common import (
+    check_output,
     console,
     handle_errors,
     print_json,
 )
 
-__all__ = ["app", "import_gcps", "import_dem", "import_agp"]
+__all__ = ["app", "import_gcps", "import_dem", "import_agp", "import_l1b2"]
 
 app = typer.Typer(
-    help="Real inputs: GCP lists (CSV, GeoJSON), DEM rasters (any GDAL raster) and MISR AGPs into misrgraph's files.",
+    help="Real inputs into misrgraph's files: GCP lists (CSV, GeoJSON), DEM rasters (any GDAL raster), "
+    "MISR AGPs and L1B2 files.",
     no_args_is_help=True,
 )
 
@@ -101,4 +103,30 @@ def import_agp(
         f"path {res['path']} blocks {res['blocks'][0]}-{res['blocks'][1]}: {res['tiles']} tiles of "
         f"{res['tile_postings']} postings -> {res['out']} (heights {res['height_m']['min']:.0f}.."
         f"{res['height_m']['max']:.0f} m, sigma {res['sigma_m']['min']:.3g}..{res['sigma_m']['max']:.3g} m)"
+    )
+
+
+@app.command("l1b2")
+@handle_errors
+def import_l1b2(
+    sources: list[Path] = typer.Argument(..., help="MISR L1B2 files (HDF-EOS2), one per camera, of one path."),
+    out: Path = typer.Option(
+        ..., "--out", help="Reference Orbit Imagery file to write (HDF5), e.g. runs/mine/l1b2_roi.h5."
+    ),
+    band: str = typer.Option("red", "--band", help="blue, green, red or nir (275 m in the files: red, or An's bands)."),
+    blocks: Optional[str] = typer.Option(None, "--blocks", help="Blocks A-B. Default: every block the files share."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+) -> None:
+    """Import MISR L1B2 radiances (Radiance/RDQI unpacked: fill, RDQI 2-3 and terrain-obscured
+    pixels empty) as a Reference Orbit Imagery file, to compare with misrgraph's own ROI."""
+    from misrgraph.runs.imports import run_import_l1b2
+
+    check_output(out, "--out")
+    res = run_import_l1b2(sources, out, band, blocks)
+    if as_json:
+        print_json(res)
+        return
+    console.print(
+        f"path {res['path']} {res['band']} blocks {res['blocks'][0]}-{res['blocks'][1]}, cameras "
+        f"{', '.join(res['cameras'])} -> {res['out']}"
     )

@@ -56,6 +56,7 @@ terrain-projected files, whose ``fill - 4`` flags terrain-obscured pixels), RDQI
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -90,6 +91,8 @@ __all__ = [
     "read_agp",
     "agp_to_dem",
     "read_l1b2",
+    "camera_of_file_name",
+    "orbit_of_file_name",
 ]
 
 Array = NDArray[np.float64]
@@ -157,6 +160,22 @@ def som_proj_params(path: int) -> tuple[float, ...]:
         float(N_BLOCKS),
         0.0,
     )
+
+
+_CAMERA_IN_NAME = re.compile(r"_(DF|CF|BF|AF|AN|AA|BA|CA|DA)_F\d\d_", re.IGNORECASE)
+_ORBIT_IN_NAME = re.compile(r"_O(\d{6})_")
+
+
+def camera_of_file_name(name: str) -> str | None:
+    """The camera a MISR file name names (``..._AN_F03_...`` -> ``"An"``), or None."""
+    m = _CAMERA_IN_NAME.search(name)
+    return None if m is None else m.group(1)[0].upper() + m.group(1)[1].lower()
+
+
+def orbit_of_file_name(name: str) -> int | None:
+    """The orbit a MISR file name names (``..._O012345_...`` -> 12345), or None."""
+    m = _ORBIT_IN_NAME.search(name)
+    return None if m is None else int(m.group(1))
 
 
 def misr_file_name(
@@ -582,7 +601,7 @@ def read_l1b2(path: str | os.PathLike[str], band: str = "red", blocks: Sequence[
     good = raw < threshold
     return L1b2Band(
         path=grid.path,
-        camera=str(e.attributes.get("Camera")) if "Camera" in e.attributes else None,
+        camera=str(e.attributes["Camera"]) if "Camera" in e.attributes else camera_of_file_name(p.name),
         band=band.lower(),
         resolution_m=grid.resolution_m,
         blocks=chosen,

@@ -1,4 +1,4 @@
-"""Importing real inputs (``misrgraph import gcps|dem|agp``): a GCP list (CSV, GeoJSON), DEM rasters
+"""Importing real inputs (``misrgraph import gcps|dem|agp|l1b2``): a GCP list (CSV, GeoJSON), DEM rasters
 (any GDAL raster, through rasterio) or a MISR AGP (HDF-EOS2) into the HDF5 files ``adjust
 --gcps/--dem`` and the other commands read. See :mod:`misrgraph.io.external` for the accepted
 columns and the grid, :mod:`misrgraph.io.misrfiles` for the AGP."""
@@ -6,17 +6,19 @@ columns and the grid, :mod:`misrgraph.io.misrfiles` for the AGP."""
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from misrgraph.errors import InputError
 from misrgraph.io.dem import save_dem
 from misrgraph.io.external import read_gcp_table, read_geoid_grid, read_raster_dem
 from misrgraph.io.gcp import save_gcp_database
 from misrgraph.model.dem import Geoid
 
-__all__ = ["run_import_gcps", "run_import_dem", "run_import_agp"]
+__all__ = ["run_import_gcps", "run_import_dem", "run_import_agp", "run_import_l1b2"]
 
 
 def _geoid(geoid: str | os.PathLike[str] | None) -> Geoid | None:
@@ -106,3 +108,99 @@ def run_import_agp(
         "sigma_m": {"min": float(sig.min()), "median": float(np.median(sig)), "max": float(sig.max())},
         "out": str(Path(out)),
     }
+
+
+def run_import_l1b2(
+    sources: Sequence[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    band: str = "red",
+    blocks: str | None = None,
+) -> dict[str, Any]:
+    """Write a Reference Orbit Imagery file ``out`` (HDF5, as ``products --roi`` writes) from MISR
+    L1B2 files, one per camera, at 275 m (the red band, or An's bands): each pixel's 14-bit count
+    (radiance / ``Scale factor``) where the file has a radiance with RDQI 0 or 1, empty (0,
+    source -1) where it has fill, an RDQI of 2 or 3, or terrain hides the point (then also
+    ``obscured``). ``blocks`` ``"A-B"`` (default: every block the files share). Return a summary:
+    ``{"path", "band", "cameras", "pass_ids", "blocks": [first, last], "empty_fraction": {camera},
+    "out"}``."""
+    from misrgraph.io.misrfiles import orbit_of_file_name, read_l1b2
+    from misrgraph.io.roi import roi_writer
+    from misrgraph.model.constants import CAMERAS
+
+    if not sources:
+        raise InputError("L1B2 files", [], "at least one file")
+    chosen = None
+    if blocks is not None:
+        from misrgraph.runs.products import parse_blocks
+
+        chosen = parse_blocks(blocks, "--blocks")
+    bands = [read_l1b2(s, band, chosen) for s in sources]
+    for b, s in zip(bands, sources):
+        if b.camera not in CAMERAS:
+            raise InputError(f"{Path(s).name}: camera", b.camera, "a file that names its camera (attribute or name)")
+        if b.resolution_m != 275:
+            raise InputError(f"{Path(s).name}: resolution", b.resolution_m, "275 m (the ROI's grid)")
+        if b.path != bands[0].path:
+            raise InputError(f"{Path(s).name}: path", b.path, f"path {bands[0].path}, as {Path(sources[0]).name}")
+    cams = [b.camera for b in bands]
+    dup = sorted({c for c in cams if cams.count(c) > 1})
+    if dup:
+        raise InputError("L1B2 files: camera", dup[0], "one file per camera")
+    order = sorted(range(len(bands)), key=lambda i: CAMERAS.index(str(bands[i].camera)))
+    bands = [bands[i] for i in order]
+    names = [Path(sources[i]).name for i in order]
+    common = set(bands[0].blocks.tolist())
+    for b in bands[1:]:
+        common &= set(b.blocks.tolist())
+    if not common:
+        raise InputError("L1B2 files: blocks", [b.blocks.tolist()[:1] for b in bands], "blocks the files share")
+    shared = np.array(sorted(common))
+    pass_of = [f"P{bands[0].path:03d}_O{orbit_of_file_name(n):06d}" if orbit_of_file_name(n) else n for n in names]
+    pass_ids = list(dict.fromkeys(pass_of))
+    cameras = tuple(str(b.camera) for b in bands)
+    empty = {c: 0.0 for c in cameras}
+    with roi_writer(out, bands[0].path, band, cameras, pass_ids, shared, 16383) as w:
+        for blk in shared:
+            pixels, source, obscured = [], [], []
+            for c, b in enumerate(bands):
+                k = int(np.flatnonzero(b.blocks == blk)[0])
+                ok = np.isfinite(b.radiance[k]) & (b.rdqi[k] < 2)
+                dn = np.rint(np.nan_to_num(b.radiance[k]) / b.scale_factor)
+                pixels.append(np.where(ok, dn, 0).astype(np.uint16))
+                source.append(np.where(ok, pass_ids.index(pass_of[c]), -1).astype(np.int8))
+                obscured.append(b.obscured[k])
+                empty[cameras[c]] += float(np.mean(~ok)) / shared.size
+            src = np.stack(source)
+            w.write(
+                _RoiBlock(
+                    block=int(blk),
+                    pixels=np.stack(pixels),
+                    source=src,
+                    cloudy=np.zeros(src.shape, bool),
+                    obscured=np.stack(obscured),
+                    clear_fraction=np.array([float(np.mean(src == p)) for p in range(len(pass_ids))]),
+                    chosen=0,
+                )
+            )
+    return {
+        "path": bands[0].path,
+        "band": band,
+        "cameras": list(cameras),
+        "pass_ids": pass_ids,
+        "blocks": [int(shared.min()), int(shared.max())],
+        "empty_fraction": empty,
+        "out": str(Path(out)),
+    }
+
+
+@dataclass
+class _RoiBlock:
+    """One block of an imported ROI, in the shape the ROI writer stores."""
+
+    block: int
+    pixels: np.ndarray
+    source: np.ndarray
+    cloudy: np.ndarray
+    obscured: np.ndarray
+    clear_fraction: np.ndarray
+    chosen: int

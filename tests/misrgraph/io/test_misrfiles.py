@@ -420,3 +420,123 @@ def test_read_l1b2_refuses_a_file_without_the_band(pp_files) -> None:
         read_l1b2(pp_file)
     with pytest.raises(FileFormatError, match="no grid 'Standard'"):
         read_agp(pp_file)
+
+
+# ------------------------------------------------------------------------------------ L1B2 in
+
+
+def write_l1b2_by_hand(path: Path, sky_path: int, camera_values: np.ndarray, blocks: list[int], scale: float) -> None:
+    """A terrain-projected L1B2 red band written with raw HDF4 calls from MISR's published layout
+    (grid RedBand, 275 m, ``Red Radiance/RDQI`` uint16 with fill 65515, ``Scale factor``), the
+    blocks ``blocks`` holding ``camera_values (B, 512, 2048)``; not through misrgraph's writer."""
+    from pyhdf.HDF import HC, HDF
+    from pyhdf.V import V  # noqa: F401
+    from pyhdf.VS import VS  # noqa: F401
+
+    params = som_proj_params(sky_path)
+    struct = (
+        "GROUP=SwathStructure\nEND_GROUP=SwathStructure\nGROUP=GridStructure\n\tGROUP=GRID_1\n"
+        '\t\tGridName="RedBand"\n\t\tXDim=512\n\t\tYDim=2048\n'
+        "\t\tUpperLeftPointMtrs=(7460750.000000,1090650.000000)\n\t\tLowerRightMtrs=(7601550.000000,527450.000000)\n"
+        "\t\tProjection=GCTP_SOM\n\t\tProjParams=(" + ",".join(repr(float(p)) for p in params) + ")\n"
+        "\t\tSphereCode=12\n\t\tGridOrigin=HDFE_GD_UL\n"
+        '\t\tGROUP=Dimension\n\t\t\tOBJECT=Dimension_1\n\t\t\t\tDimensionName="SOMBlockDim"\n\t\t\t\tSize=180\n'
+        "\t\t\tEND_OBJECT=Dimension_1\n\t\tEND_GROUP=Dimension\n\t\tGROUP=DataField\n"
+        '\t\t\tOBJECT=DataField_1\n\t\t\t\tDataFieldName="Red Radiance/RDQI"\n\t\t\t\tDataType=DFNT_UINT16\n'
+        '\t\t\t\tDimList=("SOMBlockDim","XDim","YDim")\n\t\t\tEND_OBJECT=DataField_1\n'
+        "\t\tEND_GROUP=DataField\n\tEND_GROUP=GRID_1\nEND_GROUP=GridStructure\nEND\n"
+    )
+    data = np.full((180, 512, 2048), 65515, np.uint16)
+    for k, b in enumerate(blocks):
+        data[b - 1] = camera_values[k]
+    sd = SD(str(path), SDC.WRITE | SDC.CREATE | SDC.TRUNC)
+    sd.attr("StructMetadata.0").set(SDC.CHAR8, struct)
+    sd.attr("Path_number").set(SDC.INT32, sky_path)
+    sd.attr("Start_block").set(SDC.INT32, min(blocks))
+    sd.attr("End block").set(SDC.INT32, max(blocks))
+    s = sd.create("Red Radiance/RDQI", SDC.UINT16, [180, 512, 2048])
+    for i, d in enumerate(("SOMBlockDim", "XDim", "YDim")):
+        s.dim(i).setname(f"{d}:RedBand")
+    s.setfillvalue(65515)
+    s.setcompress(SDC.COMP_DEFLATE, 1)
+    s[:] = data
+    ref = s.ref()
+    s.endaccess()
+    sd.end()
+    hdf = HDF(str(path), HC.WRITE)
+    v, vs = hdf.vgstart(), hdf.vstart()
+    grid = v.create("RedBand")
+    grid._class = "GRID"
+    fields = v.create("Data Fields")
+    fields._class = "GRID Vgroup"
+    attrs = v.create("Grid Attributes")
+    attrs._class = "GRID Vgroup"
+    grid.insert(fields)
+    grid.insert(attrs)
+    fields.add(HC.DFTAG_NDG, ref)
+    for name, typ, value in (
+        ("Scale factor", HC.FLOAT64, scale),
+        ("_FV_Red Radiance/RDQI", HC.UINT16, 65515),
+    ):
+        vd = vs.create(name, (("AttrValues", typ, 1),))
+        vd._class = "Attr0.0"
+        vd.write([[value]])
+        attrs.insert(vd)
+        vd.detach()
+    for vg in (attrs, fields, grid):
+        vg.detach()
+    vs.end()
+    v.end()
+    hdf.close()
+
+
+def _l1b2_values(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    dn = rng.integers(1, 16000, (1, 512, 2048))
+    rdqi = rng.integers(0, 3, dn.shape)
+    values = (dn << 2) | rdqi
+    obscured = np.zeros(dn.shape, bool)
+    obscured[:, 100:110, 300:400] = True
+    fill = np.zeros(dn.shape, bool)
+    fill[:, :, :50] = True
+    values = np.where(obscured, 65511, np.where(fill, 65515, values)).astype(np.uint16)
+    return values, dn, rdqi, obscured | fill
+
+
+def test_an_l1b2_written_by_hand_unpacks_and_imports_as_an_roi(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+    from misrgraph.io.roi import read_roi
+
+    files = []
+    truth = {}
+    for k, cam in enumerate(("DF", "AN")):
+        values, dn, rdqi, masked = _l1b2_values(k)
+        f = tmp_path / f"MISR_AM1_GRP_TERRAIN_GM_P037_O012345_{cam}_F03_0024.hdf"
+        write_l1b2_by_hand(f, 37, values, [60], 0.0471)
+        files.append(f)
+        truth[cam] = (values, dn, rdqi, masked)
+    band = read_l1b2(files[1], blocks=[60])
+    values, dn, rdqi, masked = truth["AN"]
+    assert band.camera == "An" and band.resolution_m == 275 and band.scale_factor == pytest.approx(0.0471)
+    np.testing.assert_array_equal(band.obscured, values == 65511)
+    np.testing.assert_array_equal(band.fill, values == 65515)
+    np.testing.assert_allclose(band.radiance[~masked], dn[~masked] * 0.0471)
+    assert np.all(np.isnan(band.radiance[masked]))
+    np.testing.assert_array_equal(band.rdqi[~masked], rdqi[~masked])
+    out = tmp_path / "l1b2_roi.h5"
+    r = CliRunner().invoke(app, ["import", "l1b2", *map(str, files), "--out", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.output)
+    assert summary["cameras"] == ["Df", "An"] and summary["blocks"] == [60, 60] and summary["path"] == 37
+    roi = read_roi(out)
+    assert roi.cameras == ("Df", "An") and roi.pass_ids == ("P037_O012345",)
+    for c, cam in enumerate(("DF", "AN")):
+        values, dn, rdqi, masked = truth[cam]
+        usable = ~masked & (rdqi < 2)
+        np.testing.assert_array_equal(roi.pixels[c][usable], dn[usable])
+        assert np.all(roi.pixels[c][~usable] == 0) and np.all(roi.source[c][~usable] == -1)
+        np.testing.assert_array_equal(roi.obscured[c], values == 65511)
+    r = CliRunner().invoke(app, ["import", "l1b2", str(files[0]), str(files[0]), "--out", str(tmp_path / "x.h5")])
+    assert r.exit_code == 2 and "Df" in r.output and not (tmp_path / "x.h5").exists()
