@@ -926,3 +926,60 @@ def _print_worlds(res: dict) -> None:
     console.print(table)
     a = res["acceptance"]
     console.print(f"learned levels meet the acceptance bounds in {a['worlds_passing']} of {a['worlds']} worlds")
+
+
+@app.command("monitor")
+@handle_errors
+def bench_monitor(
+    campaigns: int = typer.Option(20, "--campaigns", help="Campaigns of each kind (a step, a drift, no change)."),
+    years: float = typer.Option(5.0, "--years", help="Length of a campaign (years)."),
+    recalibrate_days: float = typer.Option(30.0, "--recalibrate-days", help="Days between recalibrations."),
+    calibration: Optional[Path] = typer.Option(
+        None,
+        "--calibration",
+        help="A calibration summary ('calibrate --json' output) whose per-camera sigma_px the recalibrations "
+        "have. Default: calibrate a standard simulated month first (about a minute).",
+    ),
+    step_px: float = typer.Option(0.1, "--step-px", help="Size of the step in one camera (px)."),
+    drift_px_per_year: float = typer.Option(0.05, "--drift-px-per-year", help="Rate of the drift in one camera."),
+    alpha: float = typer.Option(0.05, "--alpha", help="False-alarm probability of a campaign without change."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the campaigns."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
+    save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
+) -> None:
+    """How soon the drift monitor asks for a new camera model (a step, a drift) and how often it
+    asks with no change, over simulated multi-year series of recalibrations; fractions with Wilson
+    95 % intervals."""
+    from misrgraph.bench.monitor import run_bench_monitor
+
+    with err_console.status("monitor...") as st:
+        res = run_bench_monitor(
+            campaigns,
+            years,
+            recalibrate_days,
+            calibration,
+            step_px,
+            drift_px_per_year,
+            alpha,
+            seed=seed,
+            progress=lambda m: st.update(m),
+        )
+    res = finish(res, save)
+    if as_json:
+        print_json(res)
+        return
+    table = Table(title=f"monitor: {res['campaigns']} campaigns of {res['years']:g} years each kind")
+    for col in ("what", "value", "95 % interval"):
+        table.add_column(col, justify="right")
+
+    def row(name: str, v: float, iv: list[float], fmt: str = "{:.0%}") -> None:
+        table.add_row(name, fmt.format(v), "[" + ", ".join(fmt.format(x) for x in iv) + "]")
+
+    st, dr = res["step"], res["drift"]
+    row(f"step {st['step_px']:g} px detected within one window", st["detected"], st["interval"]["detected"])
+    row("  naming the right camera", st["right_camera"], st["interval"]["right_camera"])
+    row("  delay (windows)", st["delay_windows"], st["interval"]["delay_windows"], "{:.2f}")
+    row(f"drift {dr['drift_px_per_year']:g} px/yr flagged before 1/16 px", dr["flagged"], dr["interval"]["flagged"])
+    row("  drift when flagged (px)", dr["px_when_flagged"], dr["interval"]["px_when_flagged"], "{:.3f}")
+    row(f"false alarms (configured {res['alpha']:.0%})", res["false_alarm_rate"], res["interval"]["false_alarm_rate"])
+    console.print(table)

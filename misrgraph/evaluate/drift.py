@@ -1,0 +1,322 @@
+"""Watching a camera parameter over the years: a state-space model of its calibrations and a
+sequential change test on the model's innovations.
+
+One camera parameter (an angle correction, in pixels of the camera's footprint or arcseconds: any
+unit, the same for the estimates and their sigmas) is calibrated again and again: at times
+``t_k`` (days) the calibration gives ``y_k`` with 1-sigma ``s_k`` (from its covariance). The
+model of the series:
+
+    y_k = level(t_k) + a cos(2 pi t_k / P) + b sin(2 pi t_k / P) + e_k,      e_k ~ N(0, s_k^2)
+    level(t + dt) = level(t) + dt slope(t) + w_level,   w_level ~ N(0, q_level dt)
+    slope(t + dt) = slope(t) + w_slope,                 w_slope ~ N(0, q_slope dt)
+
+(a local linear trend with an annual term of period ``P`` = 365.25 d when ``seasonal``; the
+random-walk intensities ``q_level`` [unit^2/d] and ``q_slope`` [unit^2/d^3] are the levels of the
+process). The Kalman filter gives the innovations ``v_k`` and their variances ``S_k``; the level,
+slope and seasonal coefficients start diffuse, and the first ``n_diffuse`` innovations (as many
+as those states) are left out of the likelihood and the test.
+
+* :func:`fit_process_levels` learns ``q_level`` and ``q_slope`` from the series by maximising
+  the innovations' Gaussian likelihood (the levels are not the simulator's: they come from the
+  data, as the project's rule for every level the estimator uses).
+* :func:`cusum` runs a two-sided CUSUM on the standardised innovations ``z_k = v_k / sqrt(S_k)``
+  (reference ``k`` in sigmas): a change of the parameter that the model did not predict (a step,
+  or a drift faster than the learned process) makes ``z`` lean to one side and the sum cross the
+  threshold ``h``. ``k`` is half the shift (in innovation sigmas) the test is made to see
+  soonest, CUSUM's classical choice; the default 1.5 suits the steps a camera model must not
+  miss, a tenth of a pixel against calibrations of a few hundredths.
+* :func:`cusum_threshold` sets ``h`` for a false-alarm probability ``alpha`` over a series of
+  ``n`` tests (the probability that a series without any change raises an alarm), by simulating
+  sequences of independent N(0, 1) innovations: under the model without change that is what the
+  standardised innovations are.
+* :func:`monitor_series` puts the three together and says when, in which direction and with what
+  evidence (the CUSUM statistic against ``h``) the series asks for a new camera model;
+  :func:`monitor_cameras` does so for every camera and parameter at once, the false-alarm
+  probability shared among them.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import minimize
+
+from misrgraph.errors import InputError
+
+__all__ = [
+    "SEASON_DAYS",
+    "TrendLevels",
+    "FilterResult",
+    "ChangeAlarm",
+    "kalman_filter",
+    "fit_process_levels",
+    "cusum",
+    "cusum_threshold",
+    "monitor_series",
+    "monitor_cameras",
+]
+
+Array = NDArray[np.float64]
+
+#: The period of the seasonal term (days).
+SEASON_DAYS = 365.25
+_DIFFUSE = 1e8
+
+
+@dataclass(frozen=True)
+class TrendLevels:
+    """The process levels: ``q_level`` (unit^2/day) and ``q_slope`` (unit^2/day^3)."""
+
+    q_level: float
+    q_slope: float
+
+
+@dataclass(frozen=True)
+class FilterResult:
+    """Innovations ``v (n,)`` and their variances ``S (n,)``, the filtered level and its 1-sigma
+    ``(n,)``, the log-likelihood of the innovations after the diffuse start and ``n_diffuse``."""
+
+    v: Array
+    S: Array
+    level: Array
+    level_sigma: Array
+    slope: Array
+    log_likelihood: float
+    n_diffuse: int
+
+    @property
+    def z(self) -> Array:
+        """Standardised innovations (NaN for the diffuse start)."""
+        z = self.v / np.sqrt(self.S)
+        z[: self.n_diffuse] = np.nan
+        return z
+
+
+@dataclass(frozen=True)
+class ChangeAlarm:
+    """The first alarm of a series: its index and time, the direction (+1 up, -1 down), the
+    test's statistic at the alarm against its threshold, the filtered level before it, and which
+    test raised it (``"step"``: the CUSUM, ``"departure"``: the level's departure)."""
+
+    index: int
+    t: float
+    direction: int
+    statistic: float
+    threshold: float
+    level_before: float
+    level_sigma_before: float
+    kind: str = "step"
+
+
+def _check(t: ArrayLike, y: ArrayLike, s: ArrayLike) -> tuple[Array, Array, Array]:
+    tt, yy, ss = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (t, y, s))
+    if not (tt.shape == yy.shape == ss.shape) or tt.ndim != 1:
+        raise InputError("t, y, sigma", (tt.shape, yy.shape, ss.shape), "three 1-D arrays of one length")
+    if not (np.all(np.isfinite(tt)) and np.all(np.diff(tt) > 0)):
+        raise InputError("t", tt[:3].tolist(), "finite, strictly increasing times (days)")
+    if not np.all(np.isfinite(yy)):
+        raise InputError("y", yy[~np.isfinite(yy)][:1].tolist(), "finite estimates")
+    if not (np.all(np.isfinite(ss)) and np.all(ss > 0)):
+        raise InputError("sigma", ss[~(ss > 0)][:1].tolist(), "positive 1-sigmas")
+    return tt, yy, ss
+
+
+def kalman_filter(
+    t: ArrayLike,
+    y: ArrayLike,
+    sigma: ArrayLike,
+    levels: TrendLevels,
+    seasonal: bool = True,
+    prior_variance: float = _DIFFUSE,
+) -> FilterResult:
+    """Run the filter of the module docstring over the series (times in days); the states start at
+    zero with variance ``prior_variance`` (diffuse by default)."""
+    tt, yy, ss = _check(t, y, sigma)
+    n_state = 4 if seasonal else 2
+    x = np.zeros(n_state)
+    P = np.eye(n_state) * float(prior_variance)
+    n = tt.size
+    v, S = np.zeros(n), np.zeros(n)
+    level, level_sig, slope = np.zeros(n), np.zeros(n), np.zeros(n)
+    ql, qs = float(levels.q_level), float(levels.q_slope)
+    t_prev = tt[0]
+    for k in range(n):
+        dt = tt[k] - t_prev
+        if k:
+            F = np.eye(n_state)
+            F[0, 1] = dt
+            Q = np.zeros((n_state, n_state))
+            Q[0, 0] = ql * dt + qs * dt**3 / 3.0
+            Q[0, 1] = Q[1, 0] = qs * dt**2 / 2.0
+            Q[1, 1] = qs * dt
+            x = F @ x
+            P = F @ P @ F.T + Q
+        h = np.zeros(n_state)
+        h[0] = 1.0
+        if seasonal:
+            w = 2.0 * math.pi * tt[k] / SEASON_DAYS
+            h[2], h[3] = math.cos(w), math.sin(w)
+        v[k] = yy[k] - h @ x
+        S[k] = h @ P @ h + ss[k] ** 2
+        K = P @ h / S[k]
+        x = x + K * v[k]
+        P = P - np.outer(K, h @ P)
+        P = 0.5 * (P + P.T)
+        level[k], level_sig[k], slope[k] = x[0], math.sqrt(max(P[0, 0], 0.0)), x[1]
+        t_prev = tt[k]
+    m = n_state
+    ll = -0.5 * float(np.sum(np.log(2 * math.pi * S[m:]) + v[m:] ** 2 / S[m:])) if n > m else 0.0
+    return FilterResult(v, S, level, level_sig, slope, ll, m)
+
+
+def fit_process_levels(series: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike]], seasonal: bool = True) -> TrendLevels:
+    """``q_level`` and ``q_slope`` that maximise the innovations' likelihood (module docstring)
+    summed over ``series`` (``(t, y, sigma)`` each: e.g. the years before the ones watched, or the
+    series of other cameras that share the process); searched in log space between 1e-12 and 1e2
+    (unit^2 per day, per day^3)."""
+    checked = [_check(*one) for one in series]
+    if not checked:
+        raise InputError("series", [], "at least one (t, y, sigma) series")
+    need = (4 if seasonal else 2) + 3
+    if sum(c[0].size for c in checked) < need:
+        raise InputError("series length", sum(c[0].size for c in checked), f"at least {need} calibrations")
+    lo, hi = math.log(1e-12), math.log(1e2)
+
+    def nll(p: Array) -> float:
+        p = np.clip(p, lo, hi)
+        lv = TrendLevels(math.exp(p[0]), math.exp(p[1]))
+        return -sum(kalman_filter(t, y, s, lv, seasonal).log_likelihood for t, y, s in checked)
+
+    scale = float(np.median(np.concatenate([c[2] for c in checked]))) ** 2
+    starts = [np.log([scale / 100.0, scale / 1e6]), np.log([scale / 1e4, scale / 1e8])]
+    fits = [minimize(nll, s0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-4}) for s0 in starts]
+    p = np.clip(min(fits, key=lambda r: r.fun).x, lo, hi)
+    return TrendLevels(math.exp(p[0]), math.exp(p[1]))
+
+
+def cusum(z: ArrayLike, k: float = 1.5) -> tuple[Array, Array]:
+    """The upper and lower CUSUM of the standardised innovations ``z`` (NaN entries are skipped):
+    ``C+_i = max(0, C+_{i-1} + z_i - k)``, ``C-_i = max(0, C-_{i-1} - z_i - k)``."""
+    zz = np.asarray(z, dtype=float)
+    up, dn = np.zeros(zz.size), np.zeros(zz.size)
+    cu = cd = 0.0
+    for i, zi in enumerate(zz):
+        if np.isfinite(zi):
+            cu = max(0.0, cu + zi - k)
+            cd = max(0.0, cd - zi - k)
+        up[i], dn[i] = cu, cd
+    return up, dn
+
+
+@functools.lru_cache(maxsize=256)
+def cusum_threshold(n: int, alpha: float = 0.05, k: float = 1.5, draws: int | None = None, seed: int = 0) -> float:
+    """The threshold ``h`` at which a two-sided CUSUM over ``n`` independent N(0, 1) values alarms
+    with probability ``alpha`` (the (1 - alpha) quantile of its maximum, from ``draws`` simulated
+    sequences; default enough for 200 in the tail, at least 20 000)."""
+    if draws is None:
+        draws = int(max(20000, math.ceil(200.0 / max(float(alpha), 1e-9))))
+    if not (0.0 < alpha < 1.0):
+        raise InputError("alpha", alpha, "a false-alarm probability in (0, 1)")
+    if n < 1:
+        raise InputError("n", n, "at least one test")
+    rng = np.random.default_rng(seed)
+    z = rng.standard_normal((draws, n))
+    cu = np.zeros(draws)
+    cd = np.zeros(draws)
+    best = np.zeros(draws)
+    for i in range(n):
+        cu = np.maximum(0.0, cu + z[:, i] - k)
+        cd = np.maximum(0.0, cd - z[:, i] - k)
+        best = np.maximum(best, np.maximum(cu, cd))
+    return float(np.quantile(best, 1.0 - alpha))
+
+
+def monitor_series(
+    t: ArrayLike,
+    y: ArrayLike,
+    sigma: ArrayLike,
+    levels: TrendLevels,
+    alpha: float = 0.05,
+    k: float = 1.5,
+    seasonal: bool = True,
+    reference: int | None = None,
+) -> tuple[FilterResult, ChangeAlarm | None]:
+    """Filter the series with ``levels`` and test it, the false-alarm probability ``alpha`` split
+    between two tests (three quarters to the first, which must see a step at once), and return
+    the first alarm (or None):
+
+    * a **step**: either CUSUM of the standardised innovations crosses its threshold
+      (:func:`cusum_threshold`);
+    * a **departure**: the filtered level leaves the level at calibration ``reference`` (default:
+      the first after the diffuse start, the model the series started from) by more than
+      ``z sqrt(P_k + P_ref)``, ``z`` the two-sided normal quantile of ``alpha / 4`` shared by the
+      tests after ``reference`` (Bonferroni: conservative, the levels are correlated). This sees
+      a slow drift that the trend model follows and the innovations hardly show.
+
+    ``ChangeAlarm.statistic``/``threshold`` are the crossing test's (CUSUM in sigmas, or the
+    departure in sigmas)."""
+    from scipy.stats import norm
+
+    res = kalman_filter(t, y, sigma, levels, seasonal)
+    tt = np.atleast_1d(np.asarray(t, dtype=float))
+    n_test = tt.size - res.n_diffuse
+    if n_test < 1:
+        return res, None
+    ref = res.n_diffuse if reference is None else int(reference)
+    if not res.n_diffuse <= ref < tt.size:
+        raise InputError("reference", reference, f"a calibration index in {res.n_diffuse}..{tt.size - 1}")
+    h = cusum_threshold(n_test, 0.75 * alpha, k)
+    up, dn = cusum(res.z, k)
+    step = np.flatnonzero((up > h) | (dn > h))
+    looks = tt.size - ref - 1
+    zdep = float(norm.isf(alpha / 8 / max(looks, 1)))
+    dep = (res.level - res.level[ref]) / np.sqrt(res.level_sigma**2 + res.level_sigma[ref] ** 2)
+    dep[: ref + 1] = 0.0
+    drift = np.flatnonzero(np.abs(dep) > zdep)
+    i_step = int(step[0]) if step.size else tt.size
+    i_drift = int(drift[0]) if drift.size else tt.size
+    if min(i_step, i_drift) >= tt.size:
+        return res, None
+    i = min(i_step, i_drift)
+    before = max(i - 1, 0)
+    if i == i_step:
+        direction, stat, thr = (1 if up[i] > h else -1), float(max(up[i], dn[i])), h
+    else:
+        direction, stat, thr = int(np.sign(dep[i])), float(abs(dep[i])), zdep
+    return res, ChangeAlarm(
+        index=i,
+        t=float(tt[i]),
+        direction=direction,
+        statistic=stat,
+        threshold=thr,
+        level_before=float(res.level[before]),
+        level_sigma_before=float(res.level_sigma[before]),
+        kind="step" if i == i_step else "departure",
+    )
+
+
+def monitor_cameras(
+    series: dict[tuple[str, str], tuple[ArrayLike, ArrayLike, ArrayLike]],
+    levels: TrendLevels,
+    alpha: float = 0.05,
+    k: float = 1.5,
+    seasonal: bool = True,
+) -> list[dict[str, object]]:
+    """Test every ``(camera, parameter)`` series for a change, with the false-alarm probability
+    ``alpha`` shared by all of them (Bonferroni: ``alpha / len(series)`` each), and return the
+    alarms, earliest first: ``{"camera", "parameter", "index", "t", "direction", "statistic",
+    "threshold", "level_before", "level_sigma_before"}`` ("a new camera model is needed")."""
+    if not series:
+        raise InputError("series", {}, "at least one (camera, parameter) series")
+    each = float(alpha) / len(series)
+    out = []
+    for (cam, param), (t, y, s) in series.items():
+        _, alarm = monitor_series(t, y, s, levels, each, k, seasonal)
+        if alarm is not None:
+            out.append({"camera": cam, "parameter": param, **alarm.__dict__})
+    return sorted(out, key=lambda a: (a["t"], a["camera"], a["parameter"]))

@@ -1,0 +1,113 @@
+"""The drift monitor: the filter's likelihood against the Gaussian density of the whole series
+in closed form, the process levels learned back, a 0.1 px step found within one recalibration,
+and the false-alarm rate over series without change against the configured rate."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from misrgraph.errors import InputError
+from misrgraph.evaluate.drift import (
+    SEASON_DAYS,
+    TrendLevels,
+    cusum_threshold,
+    fit_process_levels,
+    kalman_filter,
+    monitor_series,
+)
+
+#: A calibration every 30 days for five years, each with a 1-sigma of 0.02 px.
+T = np.arange(60) * 30.0
+SIGMA = np.full(T.size, 0.02)
+#: The true process: a level wandering 0.005 px per sqrt(year), a slope wandering slowly.
+TRUE = TrendLevels(q_level=0.005**2 / 365.25, q_slope=1e-6**2)
+
+
+def _series(rng: np.random.Generator, levels: TrendLevels, step: float = 0.0, at: int = 40, season: float = 0.01):
+    level, slope = 0.0, 1e-5
+    out = np.zeros(T.size)
+    for k in range(T.size):
+        if k:
+            dt = T[k] - T[k - 1]
+            slope += rng.normal(0, math.sqrt(levels.q_slope * dt))
+            level += slope * dt + rng.normal(0, math.sqrt(levels.q_level * dt))
+        out[k] = level + (step if k >= at else 0.0) + season * math.cos(2 * math.pi * T[k] / SEASON_DAYS)
+    return out + rng.normal(0, SIGMA)
+
+
+def _integrated_cov(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    return lo**2 * hi / 2 - lo**3 / 6
+
+
+def test_filter_likelihood_is_the_gaussian_density_of_the_series(rng) -> None:
+    """With a proper prior (variance 10 on level and slope), the innovations' log-likelihood after
+    the first two equals log N(y) - log N(y[:2]) from the joint covariance in closed form."""
+    t = np.array([0.0, 20.0, 45.0, 50.0, 90.0, 130.0, 131.0])
+    s = rng.uniform(0.5, 1.5, t.size)
+    y = rng.normal(0, 2, t.size)
+    lv = TrendLevels(q_level=0.02, q_slope=1e-4)
+    p0 = 10.0
+    res = kalman_filter(t, y, s, lv, seasonal=False, prior_variance=p0)
+    dt = t - t[0]
+    a, b = np.meshgrid(dt, dt, indexing="ij")
+    cov = p0 * (1 + np.outer(dt, dt)) + lv.q_level * np.minimum(a, b) + lv.q_slope * _integrated_cov(a, b)
+    cov += np.diag(s**2)
+    want = multivariate_normal(np.zeros(t.size), cov).logpdf(y) - multivariate_normal(np.zeros(2), cov[:2, :2]).logpdf(
+        y[:2]
+    )
+    assert res.log_likelihood == pytest.approx(want, rel=1e-9, abs=1e-9)
+
+
+def test_process_levels_are_learned_from_a_series(rng) -> None:
+    """On a long series (20 years of monthly calibrations) the learned level intensity is within a
+    factor 3 of the truth's."""
+    t = np.arange(240) * 30.0
+    truth = TrendLevels(q_level=0.01**2 / 30.0, q_slope=1e-12)
+    level = np.cumsum(rng.normal(0, math.sqrt(truth.q_level * 30.0), t.size))
+    y = level + rng.normal(0, 0.02, t.size)
+    got = fit_process_levels([(t, y, np.full(t.size, 0.02))], seasonal=False)
+    assert truth.q_level / 3 < got.q_level < 3 * truth.q_level, got
+
+
+@pytest.fixture(scope="module")
+def learned() -> TrendLevels:
+    """The levels learned from training series of the world without change (five other draws: the
+    series of the cameras or years before the ones watched)."""
+    rng = np.random.default_rng(99)
+    return fit_process_levels([(T, _series(rng, TRUE), SIGMA) for _ in range(5)])
+
+
+def test_a_step_of_a_tenth_of_a_pixel_is_found_within_one_recalibration(learned) -> None:
+    rng = np.random.default_rng(7)
+    n, found, delays = 100, 0, []
+    for _ in range(n):
+        res, alarm = monitor_series(T, _series(rng, TRUE, step=0.1, at=40), SIGMA, learned, alpha=0.05)
+        if alarm is not None and 40 <= alarm.index <= 41 and alarm.direction == 1:
+            found += 1
+            delays.append(alarm.index - 40)
+    # at least 90 % with the 95 % binomial interval's lower end above 80 %
+    assert found / n >= 0.9, (found, delays)
+
+
+def test_false_alarms_stay_within_the_configured_rate(learned) -> None:
+    rng = np.random.default_rng(11)
+    n = 300
+    alarms = sum(monitor_series(T, _series(rng, TRUE), SIGMA, learned, alpha=0.05)[1] is not None for _ in range(n))
+    rate = alarms / n
+    # the configured 5 % within the run-to-run scatter (2 standard errors)
+    assert rate <= 0.05 + 2 * math.sqrt(0.05 * 0.95 / n), rate
+
+
+def test_threshold_and_inputs() -> None:
+    assert cusum_threshold(50, 0.01) > cusum_threshold(50, 0.1) > cusum_threshold(5, 0.1)
+    with pytest.raises(InputError, match="alpha"):
+        cusum_threshold(10, 1.5)
+    with pytest.raises(InputError, match="increasing"):
+        kalman_filter([0.0, 0.0, 1.0], [1, 2, 3], [1, 1, 1], TRUE)
+    with pytest.raises(InputError, match="sigma"):
+        kalman_filter([0.0, 1.0], [1, 2], [1, 0], TRUE)
