@@ -59,6 +59,13 @@ TITLES: dict[str, tuple[str, str]] = {
         "and with the world's own levels (oracle). NEES and check points' actual/predicted RMS: 1 is "
         "honest. Intervals are 95 % intervals from the run-to-run scatter.",
     ),
+    "monitor": (
+        "Watching the camera model over the years",
+        "The drift monitor on simulated series of recalibrations (9 cameras x 3 pointing parameters, "
+        "each recalibration drawn from its 1 sigma): a step in one camera, a drift in one camera, and "
+        "no change. Fractions with their Wilson 95 % intervals, means with 95 % intervals from the "
+        "run-to-run scatter.",
+    ),
     "pp": (
         "Projection Parameters: honesty of their 1 sigma",
         "PP geolocation error against the truth over the predicted 1 sigma, per camera, over seeded passes.",
@@ -322,7 +329,42 @@ def _render_worlds(r: dict[str, Any]) -> str:
     )
 
 
+def _frac(v: float, iv: list[float]) -> str:
+    return f"{v:.0%} [{iv[0]:.0%}, {iv[1]:.0%}]"
+
+
+def _render_monitor(r: dict[str, Any]) -> str:
+    st, dr = r["step"], r["drift"]
+    sig = ", ".join(f"{c} {v:.3f}" for c, v in r["sigma_px"].items())
+    rows = [
+        [
+            f"a {st['step_px']:g} px step found at the step or the next recalibration",
+            _frac(st["detected"], st["interval"]["detected"]),
+        ],
+        ["... naming the right camera", _frac(st["right_camera"], st["interval"]["right_camera"])],
+        ["... delay (recalibrations)", _ci({"mean": st["delay_windows"], "ci95": st["interval"]["delay_windows"]})],
+        [
+            f"a drift of {dr['drift_px_per_year']:g} px/yr flagged before 1/16 px",
+            _frac(dr["flagged"], dr["interval"]["flagged"]),
+        ],
+        [
+            "... drift when flagged (px)",
+            _ci({"mean": dr["px_when_flagged"], "ci95": dr["interval"]["px_when_flagged"]}, fmt=".3f"),
+        ],
+        [
+            f"false alarms without change (configured {r['alpha']:.0%})",
+            _frac(r["false_alarm_rate"], r["interval"]["false_alarm_rate"]),
+        ],
+    ]
+    return (
+        f"{r['campaigns']} campaigns of each kind, {r['years']:g} years, a recalibration every "
+        f"{r['recalibrate_days']:g} days ({r['recalibrations']} in all); recalibration 1 sigma (px) from "
+        f"{r['sigma_source']}: {sig}. {r['seconds']:.0f} s in all.\n\n" + _table(["", "measured"], rows)
+    )
+
+
 RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
+    "monitor": _render_monitor,
     "worlds": _render_worlds,
     "demo": _render_demo,
     "nees": _render_nees,
