@@ -115,6 +115,12 @@ def import_l1b2(
     ),
     band: str = typer.Option("red", "--band", help="blue, green, red or nir (275 m in the files: red, or An's bands)."),
     blocks: Optional[str] = typer.Option(None, "--blocks", help="Blocks A-B. Default: every block the files share."),
+    compare: Optional[Path] = typer.Option(
+        None,
+        "--compare",
+        help="misrgraph's ROI file of the path (products --roi): measure the imported imagery's misregistration "
+        "against it per camera and block (275 m pixels, by least-squares matching).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
 ) -> None:
     """Import MISR L1B2 radiances (Radiance/RDQI unpacked: fill, RDQI 2-3 and terrain-obscured
@@ -122,7 +128,7 @@ def import_l1b2(
     from misrgraph.runs.imports import run_import_l1b2
 
     check_output(out, "--out")
-    res = run_import_l1b2(sources, out, band, blocks)
+    res = run_import_l1b2(sources, out, band, blocks, compare)
     if as_json:
         print_json(res)
         return
@@ -130,3 +136,12 @@ def import_l1b2(
         f"path {res['path']} {res['band']} blocks {res['blocks'][0]}-{res['blocks'][1]}, cameras "
         f"{', '.join(res['cameras'])} -> {res['out']}"
     )
+    for cam, per in res.get("comparison", {}).items():
+        for b, v in per.items():
+            what = (
+                "fewer than 3 matches"
+                if v is None
+                else f"misregistration {v['excess_px']:.2f} px beyond matching noise, mean offset "
+                f"{v['mean_px']:.2f} px ({v['matches']} matches)"
+            )
+            console.print(f"  {cam} block {b}: {what}")

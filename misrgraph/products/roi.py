@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -81,6 +81,7 @@ __all__ = [
     "coregistration",
     "coregistration_matches",
     "coregistration_stats",
+    "compare_rois",
     "roi_predicted_coregistration",
     "CLOUD_REFLECTANCE",
     "CLOUD_MEAN_REFLECTANCE",
@@ -466,4 +467,41 @@ def roi_predicted_coregistration(
             row["vs_An"] = float(np.sqrt(parallax**2 + s_cam**2 + s_an**2))
         if row:
             out[cam] = row
+    return out
+
+
+def compare_rois(
+    reference: Any, other: Any, points: int = 64, min_std_counts: float = 150.0
+) -> dict[str, dict[int, dict[str, object]]]:
+    """The misregistration of ``other`` against ``reference`` (two :class:`~misrgraph.io.roi.RoiFile`
+    of one path, e.g. misrgraph's ROI and MISR's L1B2 imagery imported with ``import l1b2``), per
+    camera both hold and block both hold: :func:`_offset_stats` of the consistent LSM matches of
+    ``other`` against ``reference`` at up to ``points`` points clear of cloud and of empty pixels
+    (offsets in 275 m pixels: where ``reference`` shows what ``other`` shows plus the offset),
+    plus ``"failed"`` and ``"rejected"``; a pair with fewer than 3 kept matches gets ``None``."""
+    if reference.path != other.path or reference.resolution_m != other.resolution_m:
+        raise InputError("ROI files", (reference.path, other.path), "two ROIs of one path at one resolution")
+    out: dict[str, dict[int, dict[str, object]]] = {}
+    blocks = sorted(set(reference.blocks.tolist()) & set(other.blocks.tolist()))
+    if not blocks:
+        raise InputError("ROI blocks", (reference.blocks.tolist()[:3], other.blocks.tolist()[:3]), "blocks both hold")
+    for cam in reference.cameras:
+        if cam not in other.cameras:
+            continue
+        ca, cb = reference.cameras.index(cam), other.cameras.index(cam)
+        out[cam] = {}
+        for b in blocks:
+            ka = int(np.flatnonzero(reference.blocks == b)[0])
+            kb = int(np.flatnonzero(other.blocks == b)[0])
+            a = np.where(reference.source[ca, ka] >= 0, reference.pixels[ca, ka], np.nan).astype(np.float32)
+            o = np.where(other.source[cb, kb] >= 0, other.pixels[cb, kb], np.nan).astype(np.float32)
+            bad = reference.cloudy[ca, ka] | other.cloudy[cb, kb]
+            d, at, failed = _match_offsets(a, o, bad, points, min_std_counts)
+            kept = consistent_matches(at, d) if d.shape[0] else np.zeros(0, bool)
+            if int(kept.sum()) < 3:
+                out[cam][int(b)] = None  # type: ignore[assignment]
+                continue
+            out[cam][int(b)] = {**_offset_stats(d[kept]), "failed": failed, "rejected": int((~kept).sum())}
+    if not out:
+        raise InputError("ROI cameras", (reference.cameras, other.cameras), "a camera both hold")
     return out

@@ -115,6 +115,7 @@ def run_import_l1b2(
     out: str | os.PathLike[str],
     band: str = "red",
     blocks: str | None = None,
+    compare: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Write a Reference Orbit Imagery file ``out`` (HDF5, as ``products --roi`` writes) from MISR
     L1B2 files, one per camera, at 275 m (the red band, or An's bands): each pixel's 14-bit count
@@ -122,7 +123,9 @@ def run_import_l1b2(
     source -1) where it has fill, an RDQI of 2 or 3, or terrain hides the point (then also
     ``obscured``). ``blocks`` ``"A-B"`` (default: every block the files share). Return a summary:
     ``{"path", "band", "cameras", "pass_ids", "blocks": [first, last], "empty_fraction": {camera},
-    "out"}``."""
+    "out"}``; with ``compare`` (misrgraph's ROI file of the path), also ``"comparison"``: the
+    imported imagery's misregistration against it per camera and block
+    (:func:`misrgraph.products.roi.compare_rois`: ``excess_px``, ``mean_px``, ``matches``, ...)."""
     from misrgraph.io.misrfiles import orbit_of_file_name, read_l1b2
     from misrgraph.io.roi import roi_writer
     from misrgraph.model.constants import CAMERAS
@@ -182,7 +185,7 @@ def run_import_l1b2(
                     chosen=0,
                 )
             )
-    return {
+    summary: dict[str, Any] = {
         "path": bands[0].path,
         "band": band,
         "cameras": list(cameras),
@@ -191,6 +194,15 @@ def run_import_l1b2(
         "empty_fraction": empty,
         "out": str(Path(out)),
     }
+    if compare is not None:
+        from misrgraph.io.roi import read_roi
+        from misrgraph.products.roi import compare_rois
+
+        summary["comparison"] = {
+            cam: {str(b): v for b, v in per.items()}
+            for cam, per in compare_rois(read_roi(compare), read_roi(out)).items()
+        }
+    return summary
 
 
 @dataclass

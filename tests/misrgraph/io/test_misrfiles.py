@@ -540,3 +540,41 @@ def test_an_l1b2_written_by_hand_unpacks_and_imports_as_an_roi(tmp_path: Path) -
         np.testing.assert_array_equal(roi.obscured[c], values == 65511)
     r = CliRunner().invoke(app, ["import", "l1b2", str(files[0]), str(files[0]), "--out", str(tmp_path / "x.h5")])
     assert r.exit_code == 2 and "Df" in r.output and not (tmp_path / "x.h5").exists()
+
+
+def test_l1b2_imagery_compared_with_an_roi_finds_a_known_shift(tmp_path: Path) -> None:
+    """An ROI of a textured block and L1B2 files of the same block shifted by 0.4 px across the
+    track: ``import l1b2 --compare`` measures the shift."""
+    from scipy import ndimage
+    from typer.testing import CliRunner
+
+    from misrgraph.commands.cli import app
+    from misrgraph.io.roi import roi_writer
+    from misrgraph.runs.imports import _RoiBlock
+
+    rng = np.random.default_rng(4)
+    texture = ndimage.gaussian_filter(rng.normal(0, 1, (512, 2048)), 3.0)
+    counts = 6000 + 2000 * texture / texture.std()
+    shifted = ndimage.shift(counts, (0.0, 0.4), order=3, mode="nearest")
+    ref = tmp_path / "roi.h5"
+    with roi_writer(ref, 37, "red", ("An",), ["P037_O000001"], np.array([60]), 16383) as w:
+        w.write(
+            _RoiBlock(
+                block=60,
+                pixels=np.rint(counts)[None].astype(np.uint16),
+                source=np.zeros((1, 512, 2048), np.int8),
+                cloudy=np.zeros((1, 512, 2048), bool),
+                obscured=np.zeros((1, 512, 2048), bool),
+                clear_fraction=np.ones(1),
+                chosen=0,
+            )
+        )
+    f = tmp_path / "MISR_AM1_GRP_TERRAIN_GM_P037_O012345_AN_F03_0024.hdf"
+    write_l1b2_by_hand(f, 37, (np.rint(shifted).astype(np.int64) << 2)[None].astype(np.uint16), [60], 0.05)
+    r = CliRunner().invoke(
+        app, ["import", "l1b2", str(f), "--out", str(tmp_path / "l1b2.h5"), "--compare", str(ref), "--json"]
+    )
+    assert r.exit_code == 0, r.output
+    v = json.loads(r.output)["comparison"]["An"]["60"]
+    assert v["matches"] >= 20
+    assert v["mean_px"] == pytest.approx(0.4, abs=0.05) and v["rms_px"] == pytest.approx(0.4, abs=0.05)
