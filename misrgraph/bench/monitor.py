@@ -158,12 +158,11 @@ def run_bench_monitor(
         key = (CAMERAS[rng.integers(len(CAMERAS))], _PARAMETERS[rng.integers(3)])
         at = int(rng.integers(int(0.4 * n), int(0.8 * n)))
         truth[key][0] = truth[key][0] + np.where(np.arange(n) >= at, step_px * rng.choice([-1.0, 1.0]), 0.0)
-        alarms = [a for a in monitor_cameras(_observe(rng, t, truth), levels, alpha) if a["index"] >= at] or []
-        first = alarms
-        if first and first[0]["index"] <= at + 1:
+        after = [a for a in monitor_cameras(_observe(rng, t, truth), levels, alpha) if a["index"] >= at]
+        if after and after[0]["index"] <= at + 1:
             step_hits += 1
-            delays.append(float(first[0]["index"] - at))
-            right += first[0]["camera"] == key[0]
+            delays.append(float(after[0]["index"] - at))
+            right += after[0]["camera"] == key[0]
         # a drift
         truth = _campaign(rng, t, sig)
         key = (CAMERAS[rng.integers(len(CAMERAS))], _PARAMETERS[rng.integers(3)])

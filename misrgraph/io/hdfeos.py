@@ -331,9 +331,7 @@ def _set_sd_attr(obj: Any, name: str, value: Any, SDC: Any) -> None:
         arr = arr.astype(np.int32)
     if arr.dtype.kind == "f":
         arr = arr.astype(np.float64) if arr.dtype != np.float32 else arr
-    elif arr.dtype.kind in "iu" and arr.dtype not in _DFNT:
-        arr = arr.astype(np.int32)
-    elif arr.dtype == np.int64:
+    elif arr.dtype.kind in "iu" and arr.dtype not in _DFNT:  # int64 and kin: HDF4 attributes hold int32
         arr = arr.astype(np.int32)
     values = arr.tolist()
     a.set(_type_code(arr.dtype, SDC), values[0] if len(values) == 1 else values)
