@@ -66,7 +66,7 @@ from numpy.typing import NDArray
 
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.io.hdfeos import EosField, EosGrid, read_eos_field, read_eos_file, write_eos_file
-from misrgraph.io.products import PP_COEFFICIENTS, PP_SIGMAS, ProjectionParameters
+from misrgraph.io.products import PP_COEFFICIENTS, PP_SIGMAS, PP_UNITS, ProjectionParameters
 from misrgraph.io.roi import RoiFile
 from misrgraph.misr.som import (
     BLOCK1_CORNER_SOM,
@@ -326,7 +326,7 @@ def write_pp_misr(
                     np.where(np.isfinite(a), a, np.float32(PP_FILL)),
                     _DIMS,
                     PP_FILL,
-                    {"units": _PP_UNITS[name]},
+                    {"units": PP_UNITS[name]},
                     index=list(blocks - 1),
                 )
             )
@@ -336,20 +336,6 @@ def write_pp_misr(
         attrs.update({"Camera": cam, "Band": pp.band, "Pass_id": pp.pass_id})
         files[cam] = write_eos_file(out / fname, [eos], attrs, _block_metadata(grid, blocks))
     return files
-
-
-_PP_UNITS = {
-    "line0": "pixel",
-    "dline_dh": "pixel/m",
-    "d2line_dh2": "pixel/m^2",
-    "sample0": "pixel",
-    "dsample_dh": "pixel/m",
-    "d2sample_dh2": "pixel/m^2",
-    "sigma_line": "pixel",
-    "sigma_sample": "pixel",
-    "correlation": "1",
-    "sigma_m": "m",
-}
 
 
 def pack_radiance_rdqi(
@@ -477,7 +463,7 @@ def agp_to_dem(agp: AgpFile, posting_arcsec: float = 30.0, tile_postings: int = 
     block); postings off the blocks or on fill make their tile drop out."""
     from scipy.ndimage import map_coordinates
 
-    from misrgraph.io.external import TILE_OVERLAP
+    from misrgraph.io.external import _tile_starts
     from misrgraph.model.dem import DemTiles, wrap_deg
 
     if not (posting_arcsec > 0 and np.isfinite(posting_arcsec)):
@@ -522,8 +508,8 @@ def agp_to_dem(agp: AgpFile, posting_arcsec: float = 30.0, tile_postings: int = 
             f'AGP blocks on the {posting_arcsec:g}" grid', (n_rows, n_cols), f"at least {tile_postings} postings a side"
         )
     lat0s, lon0s, hs, ss = [], [], [], []
-    for starts_r in _starts(n_rows, tile_postings, TILE_OVERLAP):
-        for starts_c in _starts(n_cols, tile_postings, TILE_OVERLAP):
+    for starts_r in _tile_starts(n_rows, tile_postings):
+        for starts_c in _tile_starts(n_cols, tile_postings):
             t = height[starts_r : starts_r + tile_postings, starts_c : starts_c + tile_postings]
             if not np.all(np.isfinite(t)):
                 continue
@@ -543,13 +529,6 @@ def agp_to_dem(agp: AgpFile, posting_arcsec: float = 30.0, tile_postings: int = 
         post,
         sigma_m=np.stack(ss),
     )
-
-
-def _starts(n: int, size: int, overlap: int) -> list[int]:
-    starts = list(range(0, n - size + 1, size - overlap))
-    if starts[-1] != n - size:
-        starts.append(n - size)
-    return starts
 
 
 @dataclass(frozen=True)

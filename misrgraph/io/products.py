@@ -16,7 +16,7 @@ from misrgraph.io.h5 import atomic_h5, open_h5, read_attr, read_dataset, require
 from misrgraph.misr.som import N_BLOCKS, SomGrid
 from misrgraph.model.constants import N_PIXELS
 
-__all__ = ["ProjectionParameters", "PP_COEFFICIENTS", "PP_SIGMAS", "save_pp", "read_pp"]
+__all__ = ["ProjectionParameters", "PP_COEFFICIENTS", "PP_SIGMAS", "PP_UNITS", "save_pp", "read_pp"]
 
 Array = NDArray[np.float64]
 
@@ -26,7 +26,8 @@ PP_COEFFICIENTS = ("line0", "dline_dh", "d2line_dh2", "sample0", "dsample_dh", "
 #: The uncertainty grids: 1-sigma of line and sample (pixels), their correlation, and the
 #: horizontal geolocation 1-sigma (m, radial RMS).
 PP_SIGMAS = ("sigma_line", "sigma_sample", "correlation", "sigma_m")
-_UNITS = {
+#: Each grid's unit.
+PP_UNITS: dict[str, str] = {
     "line0": "pixel",
     "dline_dh": "pixel/m",
     "d2line_dh2": "pixel/m^2",
@@ -150,7 +151,7 @@ def save_pp(pp: ProjectionParameters, path: str | os.PathLike[str]) -> None:
                 shuffle=True,
                 fletcher32=True,
             )
-            ds.attrs["units"] = _UNITS[name]
+            ds.attrs["units"] = PP_UNITS[name]
 
 
 def read_pp(path: str | os.PathLike[str]) -> ProjectionParameters:

@@ -268,7 +268,6 @@ def write_agp_by_hand(
 ) -> None:
     """An AGP written with raw HDF4 calls from MISR's published layout (grid Standard, 1.1 km,
     AveSceneElev int16 with fill -9999, StdDevSceneElev float32), not through misrgraph's writer."""
-    from pyhdf.HDF import HC, HDF
     from pyhdf.V import V  # noqa: F401
     from pyhdf.VS import VS  # noqa: F401
 
@@ -306,9 +305,29 @@ def write_agp_by_hand(
         refs.append(s.ref())
         s.endaccess()
     sd.end()
+    _grid_vgroups_by_hand(
+        path,
+        "Standard",
+        refs,
+        (
+            ("Block_size.resolution_x", "INT32", 1100),
+            ("_FV_AveSceneElev", "INT16", -9999),
+            ("_FV_StdDevSceneElev", "FLOAT32", -9999.0),
+        ),
+    )
+
+
+def _grid_vgroups_by_hand(path: Path, grid_name: str, refs: list[int], attributes: tuple) -> None:
+    """The HDF-EOS2 grid Vgroups, with raw HDF4 calls: ``grid_name`` (class GRID) holding ``Data
+    Fields`` (the SDSs ``refs``) and ``Grid Attributes`` (one ``Attr0.0`` Vdata per ``(name, HC
+    type name, value)``)."""
+    from pyhdf.HDF import HC, HDF
+    from pyhdf.V import V  # noqa: F401
+    from pyhdf.VS import VS  # noqa: F401
+
     hdf = HDF(str(path), HC.WRITE)
     v, vs = hdf.vgstart(), hdf.vstart()
-    grid = v.create("Standard")
+    grid = v.create(grid_name)
     grid._class = "GRID"
     fields = v.create("Data Fields")
     fields._class = "GRID Vgroup"
@@ -318,12 +337,8 @@ def write_agp_by_hand(
     grid.insert(attrs)
     for r in refs:
         fields.add(HC.DFTAG_NDG, r)
-    for name, typ, order, value in (
-        ("Block_size.resolution_x", HC.INT32, 1, 1100),
-        ("_FV_AveSceneElev", HC.INT16, 1, -9999),
-        ("_FV_StdDevSceneElev", HC.FLOAT32, 1, -9999.0),
-    ):
-        vd = vs.create(name, ((("AttrValues", typ, order)),))
+    for name, typ, value in attributes:
+        vd = vs.create(name, (("AttrValues", getattr(HC, typ), 1),))
         vd._class = "Attr0.0"
         vd.write([[value]])
         attrs.insert(vd)
@@ -429,7 +444,6 @@ def write_l1b2_by_hand(path: Path, sky_path: int, camera_values: np.ndarray, blo
     """A terrain-projected L1B2 red band written with raw HDF4 calls from MISR's published layout
     (grid RedBand, 275 m, ``Red Radiance/RDQI`` uint16 with fill 65515, ``Scale factor``), the
     blocks ``blocks`` holding ``camera_values (B, 512, 2048)``; not through misrgraph's writer."""
-    from pyhdf.HDF import HC, HDF
     from pyhdf.V import V  # noqa: F401
     from pyhdf.VS import VS  # noqa: F401
 
@@ -463,31 +477,9 @@ def write_l1b2_by_hand(path: Path, sky_path: int, camera_values: np.ndarray, blo
     ref = s.ref()
     s.endaccess()
     sd.end()
-    hdf = HDF(str(path), HC.WRITE)
-    v, vs = hdf.vgstart(), hdf.vstart()
-    grid = v.create("RedBand")
-    grid._class = "GRID"
-    fields = v.create("Data Fields")
-    fields._class = "GRID Vgroup"
-    attrs = v.create("Grid Attributes")
-    attrs._class = "GRID Vgroup"
-    grid.insert(fields)
-    grid.insert(attrs)
-    fields.add(HC.DFTAG_NDG, ref)
-    for name, typ, value in (
-        ("Scale factor", HC.FLOAT64, scale),
-        ("_FV_Red Radiance/RDQI", HC.UINT16, 65515),
-    ):
-        vd = vs.create(name, (("AttrValues", typ, 1),))
-        vd._class = "Attr0.0"
-        vd.write([[value]])
-        attrs.insert(vd)
-        vd.detach()
-    for vg in (attrs, fields, grid):
-        vg.detach()
-    vs.end()
-    v.end()
-    hdf.close()
+    _grid_vgroups_by_hand(
+        path, "RedBand", [ref], (("Scale factor", "FLOAT64", scale), ("_FV_Red Radiance/RDQI", "UINT16", 65515))
+    )
 
 
 def _l1b2_values(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
