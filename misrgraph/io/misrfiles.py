@@ -93,6 +93,7 @@ __all__ = [
     "read_l1b2",
     "camera_of_file_name",
     "orbit_of_file_name",
+    "orbit_of_pass_id",
 ]
 
 Array = NDArray[np.float64]
@@ -297,7 +298,8 @@ def _block_metadata(grid: SomGrid, blocks: NDArray[np.int64]) -> dict[str, tuple
     }
 
 
-def _orbit_of(pass_id: str, orbit: int | None) -> int | None:
+def orbit_of_pass_id(pass_id: str, orbit: int | None = None) -> int | None:
+    """``orbit`` if given, else the ``O<orbit>`` part of a pass id (``P037_O1234`` -> 1234), or None."""
     if orbit is not None:
         return int(orbit)
     for part in pass_id.split("_"):
@@ -313,7 +315,7 @@ def write_pp_misr(
     ``orbit`` defaults to the ``O<orbit>`` part of the pass id (none: no orbit in the name)."""
     grid = SomGrid(pp.path, 1100)
     blocks = np.asarray(pp.blocks, dtype=np.int64)
-    orbit = _orbit_of(pp.pass_id, orbit)
+    orbit = orbit_of_pass_id(pp.pass_id, orbit)
     out = Path(out_dir)
     files = {}
     for c, cam in enumerate(pp.cameras):

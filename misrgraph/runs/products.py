@@ -166,14 +166,22 @@ def run_products(
 def export_misr(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     """Write MISR HDF-EOS2 files of the PP and ROI files a products summary lists, into
     ``out_dir``; return ``{"pp": {pass_id: {camera: path}}, "roi": {camera: path}}``."""
-    from misrgraph.io.misrfiles import write_pp_misr, write_roi_misr
+    from misrgraph.io.misrfiles import misr_file_name, orbit_of_pass_id, write_pp_misr, write_roi_misr
 
     rows = summary.get("passes") or [summary]
     pp_files: dict[str, dict[str, str]] = {}
+    names: dict[str, str] = {}
     for row in rows:
         f = (row.get("files") or {}).get("pp")
         if f:
             pp = read_pp(f)
+            # MISR names a PP file by path, orbit and camera: two passes of one orbit would collide
+            name = misr_file_name("PP", pp.path, orbit_of_pass_id(pp.pass_id), pp.cameras[0])
+            if name in names:
+                raise InputError(
+                    "pass ids", (names[name], pp.pass_id), "passes of different orbits (MISR's file names)"
+                )
+            names[name] = pp.pass_id
             pp_files[pp.pass_id] = {c: str(p) for c, p in write_pp_misr(pp, out_dir).items()}
     roi_files: dict[str, str] = {}
     if summary.get("roi"):

@@ -18,7 +18,7 @@ pytest.importorskip("pyhdf")
 
 from pyhdf.SD import SD, SDC  # noqa: E402
 
-from misrgraph.errors import FileFormatError  # noqa: E402
+from misrgraph.errors import FileFormatError, InputError  # noqa: E402
 from misrgraph.io.hdfeos import parse_odl, read_eos_file  # noqa: E402
 from misrgraph.io.misrfiles import (  # noqa: E402
     PP_FILL,
@@ -570,3 +570,23 @@ def test_l1b2_imagery_compared_with_an_roi_finds_a_known_shift(tmp_path: Path) -
     v = json.loads(r.output)["comparison"]["An"]["60"]
     assert v["matches"] >= 20
     assert v["mean_px"] == pytest.approx(0.4, abs=0.05) and v["rms_px"] == pytest.approx(0.4, abs=0.05)
+
+
+def test_export_refuses_two_passes_that_would_share_a_misr_file_name(tmp_path: Path) -> None:
+    from misrgraph.io.products import save_pp
+    from misrgraph.runs.products import export_misr
+
+    a, b = _pp(cameras=("An",)), _pp(cameras=("An",))
+    b.pass_id = "P037_O12345"  # the same orbit as a's P037_O012345
+    save_pp(a, tmp_path / "a.h5")
+    save_pp(b, tmp_path / "b.h5")
+    rows = [{"files": {"pp": str(tmp_path / "a.h5")}}, {"files": {"pp": str(tmp_path / "b.h5")}}]
+    with pytest.raises(InputError, match="different orbits"):
+        export_misr({"passes": rows, "roi": None}, tmp_path / "misr")
+    b.pass_id = "P037_O012346"
+    save_pp(b, tmp_path / "b.h5")
+    got = export_misr({"passes": rows, "roi": None}, tmp_path / "misr")
+    assert sorted(Path(f["An"]).name for f in got["pp"].values()) == [
+        "MISR_AM1_PP_P037_O012345_AN_F01_0001.hdf",
+        "MISR_AM1_PP_P037_O012346_AN_F01_0001.hdf",
+    ]
