@@ -169,20 +169,15 @@ def export_misr(summary: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     from misrgraph.io.misrfiles import misr_file_name, orbit_of_pass_id, write_pp_misr, write_roi_misr
 
     rows = summary.get("passes") or [summary]
-    pp_files: dict[str, dict[str, str]] = {}
+    pps = [read_pp(f) for f in ((row.get("files") or {}).get("pp") for row in rows) if f]
+    # MISR names a PP file by path, orbit and camera: two passes of one orbit would collide
     names: dict[str, str] = {}
-    for row in rows:
-        f = (row.get("files") or {}).get("pp")
-        if f:
-            pp = read_pp(f)
-            # MISR names a PP file by path, orbit and camera: two passes of one orbit would collide
-            name = misr_file_name("PP", pp.path, orbit_of_pass_id(pp.pass_id), pp.cameras[0])
-            if name in names:
-                raise InputError(
-                    "pass ids", (names[name], pp.pass_id), "passes of different orbits (MISR's file names)"
-                )
-            names[name] = pp.pass_id
-            pp_files[pp.pass_id] = {c: str(p) for c, p in write_pp_misr(pp, out_dir).items()}
+    for pp in pps:
+        name = misr_file_name("PP", pp.path, orbit_of_pass_id(pp.pass_id), pp.cameras[0])
+        if name in names:
+            raise InputError("pass ids", (names[name], pp.pass_id), "passes of different orbits (MISR's file names)")
+        names[name] = pp.pass_id
+    pp_files = {pp.pass_id: {c: str(p) for c, p in write_pp_misr(pp, out_dir).items()} for pp in pps}
     roi_files: dict[str, str] = {}
     if summary.get("roi"):
         from misrgraph.io.roi import read_roi

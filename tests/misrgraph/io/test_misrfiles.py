@@ -583,6 +583,7 @@ def test_export_refuses_two_passes_that_would_share_a_misr_file_name(tmp_path: P
     rows = [{"files": {"pp": str(tmp_path / "a.h5")}}, {"files": {"pp": str(tmp_path / "b.h5")}}]
     with pytest.raises(InputError, match="different orbits"):
         export_misr({"passes": rows, "roi": None}, tmp_path / "misr")
+    assert not (tmp_path / "misr").exists()  # refused before either pass was written
     b.pass_id = "P037_O012346"
     save_pp(b, tmp_path / "b.h5")
     got = export_misr({"passes": rows, "roi": None}, tmp_path / "misr")
