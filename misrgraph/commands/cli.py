@@ -18,6 +18,7 @@ from misrgraph.commands import (
     imports,
     info,
     match,
+    monitor,
     noise,
     products,
     sensitivity,
@@ -64,6 +65,7 @@ app.command()(view.view)
 app.command()(info.info)
 app.command(help=sensitivity.SENS_HELP)(sensitivity.sensitivity)
 app.command()(demo.demo)
+app.command()(monitor.monitor)
 app.add_typer(som.app, name="som")
 app.add_typer(imports.app, name="import")
 app.add_typer(noise.app, name="noise")

@@ -1,0 +1,72 @@
+"""misrgraph monitor on a table of calibration summaries: a step put into one camera's delta is
+found at the calibration it happened, naming that camera and parameter; the same table without
+the step raises nothing; bad tables are refused in one line."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from typer.testing import CliRunner
+
+from misrgraph.commands.cli import app
+from misrgraph.model.constants import CAMERAS
+
+ARCSEC = math.pi / 180 / 3600
+
+
+def _table(tmp: Path, step_arcsec: float, seed: int = 2) -> Path:
+    """24 monthly calibrations, 0.5" 1-sigma per angle; Da's delta steps by ``step_arcsec`` from
+    calibration 16 on."""
+    rng = np.random.default_rng(seed)
+    start = dt.datetime(2003, 1, 15, tzinfo=dt.timezone.utc)
+    rows = ["utc,calibration"]
+    for k in range(24):
+        cams = {}
+        for cam in CAMERAS:
+            params = {}
+            for p in ("delta", "beta", "epsilon", "alpha2"):
+                v = rng.normal(0, 0.5) + (step_arcsec if (cam, p, k >= 16) == ("Da", "delta", True) else 0.0)
+                params[p] = {"value": v * ARCSEC, "sigma": 0.5 * ARCSEC}
+            cams[cam] = {"params": params, "sigma_px": 0.03}
+        f = tmp / f"cal_{k:02d}.json"
+        f.write_text(json.dumps({"cameras": cams}))
+        t = start + dt.timedelta(days=30 * k)
+        rows.append(f"{t.strftime('%Y-%m-%dT%H:%M:%SZ')},{f.name}")
+    table = tmp / "series.csv"
+    table.write_text("\n".join(rows) + "\n")
+    return table
+
+
+def test_monitor_finds_the_step_and_nothing_without_it(tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    r = CliRunner().invoke(app, ["monitor", str(_table(tmp_path / "a", 4.0)), "--json"])
+    assert r.exit_code == 0, r.output
+    res = json.loads(r.output)
+    assert res["calibrations"] == 24 and res["trained_on"] == 12 and res["new_cgm_needed"]
+    first = res["alarms"][0]
+    assert (first["camera"], first["parameter"], first["direction"]) == ("Da", "delta", 1)
+    step_at = (dt.datetime(2003, 1, 15) + dt.timedelta(days=30 * 16)).strftime("%Y-%m-%d")
+    assert first["utc"].startswith(step_at), first
+    r = CliRunner().invoke(app, ["monitor", str(_table(tmp_path / "b", 0.0)), "--json"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["alarms"] == []
+
+
+def test_monitor_refuses_bad_tables(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.csv"
+    bad.write_text("when,file\n2003-01-01T00:00:00Z,x.json\n")
+    r = CliRunner().invoke(app, ["monitor", str(bad)])
+    assert r.exit_code == 2 and "utc, calibration" in r.output
+    short = tmp_path / "short.csv"
+    short.write_text("utc,calibration\n2003-01-01T00:00:00Z,x.json\n")
+    r = CliRunner().invoke(app, ["monitor", str(short)])
+    assert r.exit_code == 2 and "at least 8" in r.output
+    table = _table(tmp_path, 0.0)
+    (tmp_path / "cal_03.json").write_text("{}")
+    r = CliRunner().invoke(app, ["monitor", str(table)])
+    assert r.exit_code == 2 and "cal_03.json" in r.output and "Traceback" not in r.output
