@@ -44,6 +44,7 @@ __all__ = [
     "os_reason",
     "is_write_failure",
     "atomic_h5",
+    "atomic_path",
     "open_h5",
     "read_dataset",
     "read_attr",
@@ -323,8 +324,12 @@ def atomic_file(path: str | os.PathLike[str], binary: bool = False) -> Iterator[
 
 
 @contextlib.contextmanager
-def atomic_h5(path: str | os.PathLike[str], kind: str) -> Iterator[h5py.File]:
-    """Open a new HDF5 file for writing that appears at ``path`` only if the block succeeds."""
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[str]:
+    """A temporary path for a library that writes a file by name (h5py, HDF4): hidden, in
+    ``path``'s directory (created if needed), no file there yet. When the block succeeds the file
+    is fsynced, given the umask's mode and renamed to ``path``, and the directory fsynced; when it
+    fails the file is removed, and a full disk or an unwritable place is an
+    :class:`~misrgraph.errors.OutputError` naming ``path``."""
     target = Path(path)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -332,14 +337,12 @@ def atomic_h5(path: str | os.PathLike[str], kind: str) -> Iterator[h5py.File]:
     except OSError as exc:
         raise OutputError(target, os_reason(exc)) from None
     os.close(fd)
+    os.unlink(tmp)  # the library creates it
     try:
-        with h5py.File(tmp, "w", userblock_size=USERBLOCK_SIZE) as f:
-            f.attrs["misrgraph_kind"] = kind
-            f.attrs["format_version"] = FORMAT_VERSIONS[kind]
-            yield f
-            stamp_content_digest(f)
+        yield tmp
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
         os.chmod(tmp, file_mode())
-        _write_userblock(tmp)  # whole-file SHA-256, fsynced
         os.replace(tmp, target)
         fsync_directory(target.parent)
     except BaseException as exc:
@@ -348,6 +351,18 @@ def atomic_h5(path: str | os.PathLike[str], kind: str) -> Iterator[h5py.File]:
         if is_write_failure(exc):
             raise OutputError(target, os_reason(exc)) from exc
         raise
+
+
+@contextlib.contextmanager
+def atomic_h5(path: str | os.PathLike[str], kind: str) -> Iterator[h5py.File]:
+    """Open a new HDF5 file for writing that appears at ``path`` only if the block succeeds."""
+    with atomic_path(path) as tmp:
+        with h5py.File(tmp, "w", userblock_size=USERBLOCK_SIZE) as f:
+            f.attrs["misrgraph_kind"] = kind
+            f.attrs["format_version"] = FORMAT_VERSIONS[kind]
+            yield f
+            stamp_content_digest(f)
+        _write_userblock(tmp)  # whole-file SHA-256
 
 
 def _validate(f: h5py.File, p: Path, kind: str | None) -> None:

@@ -45,16 +45,15 @@ import ctypes
 import functools
 import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from misrgraph.errors import FileFormatError, InputError, OutputError, require_extra
-from misrgraph.io.h5 import file_mode, fsync_directory, is_write_failure, os_reason
+from misrgraph.io.h5 import atomic_path
 
 __all__ = [
     "EosField",
@@ -376,27 +375,15 @@ def _attr_columns(value: Any) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
-def _temporary(target: Path) -> Any:
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    except OSError as exc:
-        raise OutputError(target, os_reason(exc)) from None
-    os.close(fd)
-    os.unlink(tmp)  # HDF4 creates the file itself
-    try:
-        yield tmp
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, target)
-    except BaseException as exc:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        if is_write_failure(exc):
-            raise OutputError(target, os_reason(exc)) from exc
-        if type(exc).__module__.startswith("pyhdf"):
-            raise OutputError(target, f"HDF4 write failed ({exc})") from exc
-        raise
-    fsync_directory(target.parent)
+def _temporary(target: Path) -> Iterator[str]:
+    """:func:`~misrgraph.io.h5.atomic_path`, with pyhdf's errors as one-line output errors."""
+    with atomic_path(target) as tmp:
+        try:
+            yield tmp
+        except Exception as exc:
+            if type(exc).__module__.startswith("pyhdf"):
+                raise OutputError(target, f"HDF4 write failed ({exc})") from exc
+            raise
 
 
 def write_eos_file(
