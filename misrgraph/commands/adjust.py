@@ -32,7 +32,8 @@ def adjust(
     camera_model: Optional[Path] = typer.Option(
         None,
         "--camera-model",
-        help="Camera model: an HDF5 file (e.g. written by calibrate), 'preflight' (Table 1) or 'nominal'. "
+        help="Camera model: an HDF5 file (e.g. written by calibrate), 'preflight' (Table 1), 'nominal', or a "
+        "CGM store (misrgraph cgm), whose version valid for the pass's orbit is used. "
         "Default: SCENARIO_DIR/camera_model.h5.",
     ),
     pass_file: Optional[Path] = typer.Option(

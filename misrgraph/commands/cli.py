@@ -14,6 +14,7 @@ from misrgraph.commands import (
     bench,
     calibrate,
     campaign,
+    cgm,
     demo,
     imports,
     info,
@@ -69,6 +70,7 @@ app.command()(monitor.monitor)
 app.add_typer(som.app, name="som")
 app.add_typer(imports.app, name="import")
 app.add_typer(noise.app, name="noise")
+app.add_typer(cgm.app, name="cgm")
 app.add_typer(bench.app, name="bench")
 
 

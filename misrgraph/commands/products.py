@@ -37,7 +37,10 @@ def products(
     ),
     pass_file: Optional[Path] = typer.Option(None, "--pass", help="The pass. Default: the scenario's first."),
     camera_model: Optional[Path] = typer.Option(
-        None, "--camera-model", help="Camera model. Default: the scenario's camera_model.h5."
+        None,
+        "--camera-model",
+        help="Camera model: a file, a built-in name, or a CGM store (misrgraph cgm), whose version valid for "
+        "each pass's orbit is used. Default: the scenario's camera_model.h5.",
     ),
     band: str = typer.Option("red", "--band", help="blue, green, red or nir."),
     roi: bool = typer.Option(

@@ -26,7 +26,10 @@ def update(
     state: Path = typer.Argument(..., help="State directory (created on first use)."),
     passes: Optional[list[Path]] = typer.Argument(None, help="New pass files (HDF5) to add, in order."),
     camera_model: Optional[Path] = typer.Option(
-        None, "--camera-model", help="Camera model HDF5, 'preflight' or 'nominal' (needed when creating the state)."
+        None,
+        "--camera-model",
+        help="Camera model HDF5, 'preflight', 'nominal', or a CGM store (misrgraph cgm): the version valid for the "
+        "first pass's orbit, and every pass of the state must be in its range (needed when creating the state).",
     ),
     gcp_file: Optional[Path] = typer.Option(None, "--gcps", help="GCP database (needed when creating the state)."),
     dem_file: Optional[Path] = typer.Option(None, "--dem", help="DEM tiles (recommended when creating the state)."),

@@ -33,6 +33,7 @@ from misrgraph.model.constants import ANGLES, CAMERAS
 from misrgraph.model.dem import DemTiles
 from misrgraph.model.gcp import GcpDatabase
 from misrgraph.model.noise import NoiseModel
+from misrgraph.runs.cgm import resolve_camera_model
 
 __all__ = [
     "run_adjust",
@@ -207,7 +208,7 @@ def run_adjust(
     d = Path(scenario_dir)
     if not d.is_dir():
         raise InputError("SCENARIO_DIR", str(d), "a directory written by 'misrgraph simulate'")
-    cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
+    cam_spec = Path(camera_model) if camera_model else d / "camera_model.h5"
     if pass_file is None:
         passes = sorted((d / "passes").glob("*.h5"))
         if not passes:
@@ -219,6 +220,7 @@ def run_adjust(
             )
         pass_file = passes[0]
     orbit_pass, truth = load_pass_observations(pass_file, observations)
+    cam_path, cgm_version = resolve_camera_model(cam_spec, orbit_pass.orbit)
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
     gcps = read_gcp_database(gcp_file or d / "gcp.h5")
     dem = read_dem(dem_file or d / "dem.h5")
@@ -229,6 +231,8 @@ def run_adjust(
     summary: dict[str, Any] = {
         "pass_id": orbit_pass.pass_id,
         "observation_set": observations,
+        "camera_model": str(cam_path),
+        "camera_model_version": cgm_version,
         "camera_prior": "the camera model's calibration covariance"
         if prior is not None
         else "camera_prior_px per camera",
@@ -315,6 +319,7 @@ def run_adjust(
                 "scenario": str(d),
                 "pass_file": str(pass_file),
                 "camera_model": str(cam_path),
+                **({"cgm_version": cgm_version["id"]} if cgm_version else {}),
                 "config": json.dumps(dataclasses.asdict(cfg)),
                 "software": f"misrgraph {__version__}",
             },

@@ -45,6 +45,7 @@ from misrgraph.model.frames import ecef_to_geodetic
 from misrgraph.products.pp import compute_pp
 from misrgraph.products.roi import MIN_ROI_PASSES
 from misrgraph.runs.adjust import adjust_observation_set, camera_prior_of
+from misrgraph.runs.cgm import resolve_camera_model, resolve_for_passes
 
 __all__ = ["run_products", "parse_blocks", "DEFAULT_BLOCKS", "RoiOptions"]
 
@@ -223,7 +224,9 @@ def _run_products_h5(
         pass_file = passes[0]
     orbit_pass = load_pass_observations(pass_file, observations)[0]
     grid = SomGrid(int(orbit_pass.path), 1100)
-    cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
+    cam_path, cgm_version = resolve_camera_model(
+        Path(camera_model) if camera_model else d / "camera_model.h5", orbit_pass.orbit
+    )
     camera = load_camera_model(cam_path).at_temperature(orbit_pass.temperature_c)
     out_dir = _out_dir(out)
     if progress:
@@ -245,6 +248,7 @@ def _run_products_h5(
         "scenario": str(d),
         "pass_file": str(pass_file),
         "camera_model": str(cam_path),
+        **({"cgm_version": cgm_version["id"]} if cgm_version else {}),
         "software": f"misrgraph {__version__}",
         "solver_status": res.status,
         "observation_set": observations,
@@ -441,16 +445,18 @@ def _run_products_roi(
             f"{len(files)} passes with whole-swath strips in {d / 'passes'}",
             f"at least {MIN_ROI_PASSES} (simulate a path scenario with --imagery --roi-blocks A-B)",
         )
-    cam_path = Path(camera_model) if camera_model else d / "camera_model.h5"
+    passes = [load_pass_observations(f, observations)[0] for f in files]
+    cam_path, _ = resolve_for_passes(
+        Path(camera_model) if camera_model else d / "camera_model.h5", [int(p.orbit) for p in passes]
+    )
     camera_all = load_camera_model(cam_path)
     prior = camera_prior_of(cam_path, cfg)
     dem, gcps = read_dem(d / "dem.h5"), read_gcp_database(d / "gcp.h5")
     adjusted = []
     t0 = time.perf_counter()
-    for n, f in enumerate(files):
+    for n, (f, orbit_pass) in enumerate(zip(files, passes)):
         if progress:
             progress(f"adjusting pass {n + 1}/{len(files)}", n, len(files))
-        orbit_pass = load_pass_observations(f, observations)[0]
         res = adjust_observation_set(
             orbit_pass, f, camera_all.at_temperature(orbit_pass.temperature_c), dem, gcps, cfg, observations, prior
         )

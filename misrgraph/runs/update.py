@@ -54,6 +54,7 @@ from misrgraph.io.h5 import (
     atomic_h5,
     fsync_directory,
     open_h5,
+    read_attr,
     read_dataset,
     stored_file_sha256,
     write_dataset,
@@ -64,6 +65,7 @@ from misrgraph.io.truth import load_pass_observations
 from misrgraph.model.camera import CameraModel
 from misrgraph.model.constants import ANGLES, ARCSEC
 from misrgraph.runs.adjust import camera_prior_of, matched_tie_offset
+from misrgraph.runs.cgm import resolve_for_passes
 
 __all__ = ["run_update", "load_state", "restore_state", "State"]
 
@@ -327,6 +329,12 @@ def _restore(
     return solver, camera, files
 
 
+def _pass_orbit(f: str | os.PathLike[str]) -> int:
+    """The orbit number of a pass file (its root attribute)."""
+    with open_h5(f, "orbit_pass") as h:
+        return int(read_attr(h, "orbit"))
+
+
 def _observation_set(meta: dict[str, Any]) -> str:
     """The observation set a state adjusts (states from before the field existed: "simulated")."""
     return str(meta.get("observations", "simulated"))
@@ -440,9 +448,10 @@ def _run_update_locked(
     if state is None:
         if camera_model is None or gcp_file is None:
             raise InputError("--camera-model/--gcps", None, "both, when creating a new state")
+        cam_spec, cgm = resolve_for_passes(camera_model, [_pass_orbit(f) for f in new_passes])
         (d / "passes").mkdir(parents=True, exist_ok=True)
         specs = {
-            "camera_model": _model_spec(camera_model),
+            "camera_model": _model_spec(cam_spec),
             "gcps": str(Path(gcp_file).resolve()),
             "dem": str(Path(dem_file).resolve()) if dem_file else None,
         }
@@ -460,6 +469,11 @@ def _run_update_locked(
             "estimate": None,
             "passes": [],
         }
+        if cgm is not None:  # the state's passes must stay in this version's range
+            meta["cgm"] = {
+                "store": str(Path(camera_model).resolve()),
+                **{k: cgm[k] for k in ("id", "first_orbit", "last_orbit")},
+            }
         state = State(d, meta)
     meta = state.meta
     if cfg is not None and json.dumps(dataclasses.asdict(cfg), sort_keys=True) != json.dumps(
@@ -477,6 +491,18 @@ def _run_update_locked(
             observations,
             f"{obs_set!r}, the observation set this state adjusts (a state keeps one; start a new state for the other)",
         )
+    if meta.get("cgm"):
+        v = meta["cgm"]
+        for f in new_passes:
+            o = _pass_orbit(f)
+            if o < v["first_orbit"] or (v["last_orbit"] is not None and o > v["last_orbit"]):
+                last = "" if v["last_orbit"] is None else v["last_orbit"]
+                raise InputError(
+                    "PASS",
+                    f"{f} (orbit {o})",
+                    f"a pass of orbits {v['first_orbit']}-{last}, the range of camera-model version {v['id']} "
+                    f"this state adjusts with (start a new state for the other version of {v['store']})",
+                )
     solver, camera, files = _restore(d, meta, linearization_tol, progress)
     summaries = []
     added = []
