@@ -4,10 +4,11 @@ asks for a new camera model, and how often it asks for nothing.
 Each campaign is a series of recalibrations of every camera (9 cameras x 3 pointing parameters,
 in pixels), one every ``recalibrate_days`` over ``years``. A recalibration's estimate is the
 true parameter plus an error of the calibration's own 1-sigma per camera: taken from a
-calibration summary (``calibrate --json``) the user gives, or measured by calibrating a standard
-simulated month (120 GCPs over 30 days) in the bench itself. The true parameters wander as a
-random walk with an annual term (the world, which the monitor does not know) and, per campaign
-kind:
+calibration summary (``calibrate --json``) the user gives, or measured in the bench itself by
+calibrating a standard simulated window of GCP passes as long as the time between
+recalibrations (120 GCPs over ``recalibrate_days`` days: a longer window, a smaller sigma). The
+true parameters wander as a random walk with an annual term (the world, which the monitor does
+not know) and, per campaign kind:
 
 * **step**: one camera's parameter (chosen at random) jumps by ``step_px`` (random sign) at a
   random recalibration in the middle of the campaign; *detected* when the first alarm comes at
@@ -63,7 +64,7 @@ def wilson_interval(k: int, n: int, z: float = 1.96) -> list[float]:
 
 
 def _sigmas_from(
-    calibration: str | Path | None, progress: Callable[[str], None] | None
+    calibration: str | Path | None, window_days: int, progress: Callable[[str], None] | None
 ) -> tuple[dict[str, float], str]:
     if calibration is not None:
         p = Path(calibration)
@@ -78,11 +79,12 @@ def _sigmas_from(
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     if progress:
-        progress("calibrating a standard simulated month for the recalibrations' sigma")
+        progress(f"calibrating a simulated {window_days}-day window for the recalibrations' sigma")
     with tempfile.TemporaryDirectory(prefix="misrgraph-monitor-") as d:
-        run_simulate(ScenarioConfig(truth="model", scenario="month", seed=3), Path(d) / "m")
+        run_simulate(ScenarioConfig(truth="model", scenario="month", seed=3, month_days=window_days), Path(d) / "m")
         summary = run_calibrate(Path(d) / "m")
-    return {c: float(summary["cameras"][c]["sigma_px"]) for c in CAMERAS}, "a standard simulated month (seed 3)"
+    source = f"a standard simulated window of {window_days} days (120 GCPs, seed 3)"
+    return {c: float(summary["cameras"][c]["sigma_px"]) for c in CAMERAS}, source
 
 
 def _campaign(
@@ -132,7 +134,7 @@ def run_bench_monitor(
                 name, v, "a positive value (campaigns, training: whole numbers; years > 0.5; alpha in (0, 1))"
             )
     t0 = time.perf_counter()
-    sig, source = _sigmas_from(calibration, progress)
+    sig, source = _sigmas_from(calibration, max(1, int(round(recalibrate_days))), progress)
     t = np.arange(0.0, years * 365.25, recalibrate_days)
     if t.size < 12:
         raise InputError("years / recalibrate_days", t.size, "at least 12 recalibrations")

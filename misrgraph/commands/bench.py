@@ -938,7 +938,8 @@ def bench_monitor(
         None,
         "--calibration",
         help="A calibration summary ('calibrate --json' output) whose per-camera sigma_px the recalibrations "
-        "have. Default: calibrate a standard simulated month first (about a minute).",
+        "have. Default: calibrate a standard simulated window of --recalibrate-days days first (about a "
+        "minute per 30 days).",
     ),
     step_px: float = typer.Option(0.1, "--step-px", help="Size of the step in one camera (px)."),
     drift_px_per_year: float = typer.Option(0.05, "--drift-px-per-year", help="Rate of the drift in one camera."),

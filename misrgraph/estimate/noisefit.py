@@ -162,8 +162,9 @@ def _maximise(
     objective: Callable[[np.ndarray], float], start: np.ndarray, bounds: list[tuple[float, float]]
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Maximise ``objective`` over log-levels; the maximum and the covariance of the log-levels
-    from the curvature there (None where it is not negative definite: a level the data do not fix;
-    an infinite variance for a level that ended at its bound, e.g. a sigma driven to zero)."""
+    from the curvature there: an infinite variance for a level that ended at its bound (e.g. a
+    sigma driven to zero) or whose curvature alone leaves it undetermined, the inverse curvature
+    of the others; None when that is not negative definite."""
     res = optimize.minimize(lambda th: -objective(th), start, method="L-BFGS-B", bounds=bounds)
     th = res.x
     lo, hi = np.array(bounds).T
@@ -184,15 +185,22 @@ def _maximise(
                     + objective(th - ei - ej)
                 ) / (4 * h * h)
             hess[i, j] = hess[j, i] = v
-    try:
-        cov = np.linalg.inv(-hess)
-        if not np.all(np.linalg.eigvalsh(cov) > 0):
-            cov = None
-    except np.linalg.LinAlgError:
-        cov = None
-    if cov is not None and at_bound.any():  # a level at its bound is not determined by the data
-        cov = cov.copy()
-        cov[at_bound, at_bound] = np.inf
+    # a level at its bound, or one whose own curvature is too flat to determine it (its log's
+    # sd above MAX_LOG_SD even with the others held), is left out: infinite variance. The others'
+    # covariance is the inverse of their block of the curvature (the Laplace approximation with
+    # the left-out levels held at the maximum).
+    flat = at_bound | ~(-np.diag(hess) > 1.0 / MAX_LOG_SD**2)
+    keep = np.flatnonzero(~flat)
+    cov = np.full((n, n), 0.0)
+    cov[flat, flat] = np.inf
+    if keep.size:
+        try:
+            sub = np.linalg.inv(-hess[np.ix_(keep, keep)])
+        except np.linalg.LinAlgError:
+            return th, None
+        if not np.all(np.linalg.eigvalsh(0.5 * (sub + sub.T)) > 0):
+            return th, None
+        cov[np.ix_(keep, keep)] = sub
     return th, cov
 
 

@@ -237,3 +237,23 @@ def test_the_attitude_shape_stays_the_bases_unless_asked():
     assert shaped.model.attitude.rate_sigma_arcsec_per_s[1] == pytest.approx(
         shaped.levels["attitude.rate_sigma_arcsec_per_s.pitch"]["value"]
     )
+
+
+def test_a_flat_level_does_not_hide_the_determined_ones():
+    """The curvature covariance of a Gaussian log-likelihood in two levels (known covariance C)
+    beside a third level it does not depend on: the two get C back, the flat one an infinite
+    variance (before, the singular curvature left all three undetermined)."""
+    from misrgraph.estimate.noisefit import _maximise
+
+    c = np.array([[0.04, 0.01], [0.01, 0.09]])
+    info = np.linalg.inv(c)
+    mu = np.array([1.0, -0.5])
+
+    def objective(th):
+        r = th[:2] - mu
+        return -0.5 * r @ info @ r + 0.0 * th[2]
+
+    th, cov = _maximise(objective, np.zeros(3), [(-5.0, 5.0)] * 3)
+    np.testing.assert_allclose(th[:2], mu, atol=1e-4)
+    np.testing.assert_allclose(cov[:2, :2], c, rtol=1e-3)
+    assert np.isinf(cov[2, 2])
