@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DOCS_STAMP := $(VENV)/.installed-docs
 
-.PHONY: demo test notebooks install docs lint format report clean min-versions
+.PHONY: demo test test-slow notebooks install docs lint format report clean min-versions
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -26,14 +26,20 @@ demo: $(STAMP)
 
 # the suite on TEST_WORKERS processes (pytest-xdist; whole files per process, so that a file's
 # fixtures are built once; the scenarios many files share are built once per run, tests/conftest.py)
-# without the tutorials' notebooks (make notebooks); TEST_WORKERS=0 runs it in this process. Each process runs one BLAS
+# without the tutorials' notebooks (make notebooks) and the tests marked slow (make test-slow: kill
+# trials, whole months and campaigns, the demo); TEST_WORKERS=0 runs it in this process. Each process runs one BLAS
 # thread (TEST_BLAS_THREADS): two processes of multi-threaded OpenBLAS on two cores contend and
 # slow the heavy tests. The slowest tests are listed at the end.
 TEST_WORKERS ?= 2
 TEST_BLAS_THREADS ?= 1
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=$(TEST_BLAS_THREADS) OMP_NUM_THREADS=$(TEST_BLAS_THREADS) MKL_NUM_THREADS=$(TEST_BLAS_THREADS) \
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15 -m "not notebooks"
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15 -m "not notebooks and not slow"
+
+# the tests marked slow: end-to-end runs and statistical checks at the sizes users run
+test-slow: $(STAMP)
+	OPENBLAS_NUM_THREADS=$(TEST_BLAS_THREADS) OMP_NUM_THREADS=$(TEST_BLAS_THREADS) MKL_NUM_THREADS=$(TEST_BLAS_THREADS) \
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15 -m "slow and not notebooks"
 
 # the tutorials (docs/tutorials are the notebooks/ they run) executed top to bottom at reduced size
 notebooks: $(STAMP)

@@ -3,12 +3,14 @@ from __future__ import annotations
 import json
 
 import h5py
+import pytest
 from typer.testing import CliRunner
 
 from misrgraph.commands.cli import app
 from misrgraph.runs.demo import STAGES
 
 
+@pytest.mark.slow
 def test_small_demo_runs_every_stage(tmp_path):
     res = CliRunner().invoke(app, ["demo", "--small", "--out", str(tmp_path / "d")])
     assert res.exit_code == 0, res.output

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from misrgraph.bench.campaign import run_bench_campaign, run_campaign_kill_trials
 
 
@@ -18,6 +20,7 @@ def test_bench_campaign_times_the_same_passes_on_one_and_two_workers(tmp_path) -
     assert r["full_plan"]["passes"] == 233 * 4
 
 
+@pytest.mark.slow
 def test_killed_campaigns_resume_to_identical_results(tmp_path) -> None:
     r = run_campaign_kill_trials(trials=1, kinds=("client", "worker"), seed=3, workdir=tmp_path, paths=1, months=1.0)
     assert len(r["trials"]) == 2

@@ -9,6 +9,7 @@ from misrgraph.bench.faults import KILL_COMMANDS, run_kill_trials
 from misrgraph.errors import InputError
 
 
+@pytest.mark.slow
 def test_kill_trials_leave_old_or_complete_new_files(tmp_path):
     res = run_kill_trials(KILL_COMMANDS, trials=3, seed=1, workdir=tmp_path)
     assert set(res["commands"]) == set(KILL_COMMANDS)

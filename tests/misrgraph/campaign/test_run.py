@@ -97,6 +97,7 @@ def test_a_rerun_on_a_users_scheduler_finds_everything_done(runs) -> None:
     assert campaign_fingerprint(base / "cluster") == before
 
 
+@pytest.mark.slow
 def test_a_path_with_strips_gets_its_reference_orbit_imagery(runs, campaign_roi_path_dir, tmp_path) -> None:
     """``campaign --roi``: a path whose passes carry whole-swath strips (the ROI scenario, the
     month's instrument) gets its incremental state, PP and ROI from that state (iSAM2's joint
@@ -200,6 +201,7 @@ def test_bad_input_is_one_clear_error(campaign_setup, tmp_path) -> None:
     assert r.exit_code == 2 and "paths" in r.output and "1..233" in r.output
 
 
+@pytest.mark.slow
 def test_a_campaign_from_matched_observations(matched_month_dir, campaign_setup, tmp_path) -> None:
     """``campaign --observations matched`` on brought inputs that ``misrgraph match`` measured (a
     5-day month's GCP chips; two passes of path 37 flown by the month's instrument, tie points and

@@ -4,12 +4,14 @@ between two passes' matching) is completed on the rerun, to the same measurement
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from misrgraph.campaign import tasks
 from misrgraph.io.imagery import has_matched, read_matched
 from misrgraph.runs.match import run_match
 
 
+@pytest.mark.slow
 def test_a_scenario_matched_part_way_is_completed_on_the_rerun(tmp_path) -> None:
     scfg = {
         "scenario": "path",

@@ -26,6 +26,7 @@ def month(small_month_dir):
     return sc, [sc.load_pass(i) for i in range(len(sc.pass_files))]
 
 
+@pytest.mark.slow
 def test_standard_month_meets_the_eighth_pixel_requirement(tmp_path):
     """The standard month (120 GCPs, 30 days, 5 % GCP blunders): every camera within 1/8 pixel."""
     out = tmp_path / "month"
@@ -51,6 +52,7 @@ def test_recovers_the_misalignments_within_their_sigma(small_month_dir, tmp_path
     assert corr.shape == (n, n) and np.allclose(np.diag(corr), 1.0)
 
 
+@pytest.mark.slow
 def test_nees_inside_chi2_band_over_seeds(tmp_path):
     """Five reduced months: the aggregated NEES of the 45 camera corrections lies in the 95 % band
     (the model truth's alpha_2, alpha_3 drawn from the calibration's own prior)."""

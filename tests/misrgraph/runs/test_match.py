@@ -208,6 +208,7 @@ def dense_imagery_dir(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_sigma_from_redundancy_makes_the_d_cameras_honest(dense_imagery_dir):
     """The LSM sigma alone is optimistic where the view angle changes the pattern most (the D
     cameras); scaled by each camera's precision from the pass's redundancy it is honest there:
@@ -229,6 +230,7 @@ def test_sigma_from_redundancy_makes_the_d_cameras_honest(dense_imagery_dir):
     assert scaled["normalised_error_rms"] >= scaled["normalised_error_rms_correct"]
 
 
+@pytest.mark.slow
 def test_a_month_calibrates_from_gcps_matched_in_its_imagery(matched_month_dir):
     """A reduced month with imagery (GCP windows and chips in every GCP pass): the GCPs matched
     in it to 1/8 px with no wrong match, and ``calibrate --observations matched`` recovers every
@@ -259,6 +261,7 @@ def test_a_month_calibrates_from_gcps_matched_in_its_imagery(matched_month_dir):
     )
 
 
+@pytest.mark.slow
 def test_gcps_matched_in_two_bands_calibrate_each_band(tmp_path):
     """A short month observed in red and NIR, whose true bands are misaligned by 10" (1 sigma per
     angle, ~0.1-0.2 px): GCP windows and chips are rendered in both bands, matched in each to
