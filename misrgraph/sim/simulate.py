@@ -24,6 +24,7 @@ randomness comes from one ``numpy`` generator seeded by ``seed``.
 from __future__ import annotations
 
 import dataclasses
+import datetime as _dt
 import json
 import logging
 import os
@@ -96,6 +97,8 @@ __all__ = [
     "INDEPENDENT_SOURCES",
     "PAIRED_SOURCES",
     "draw_thermal_truth",
+    "camera_change_arcsec",
+    "camera_truth_on",
     "run_simulate",
     "scenario_terrain",
     "draw_ephemeris_error",
@@ -286,6 +289,16 @@ class ScenarioConfig(Config):
     gcp_pixel_sigma_true_over_stated: float = 1.0
     gcp_sigma_true_over_stated: float = 1.0
     dem_sigma_true_over_stated: float = 1.0
+    #: the true camera over the years (every term off by default; both truths): per camera and
+    #: pointing angle a drift ``((camera, angle, arcsec_per_year), ...)`` and an annual term
+    #: ``((camera, angle, amplitude_arcsec), ...)`` (a sine of the days since
+    #: ``camera_epoch_date`` over 365.25), both zero at ``camera_epoch_date`` (default:
+    #: ``epoch_date``); steps ``((date, camera, angle, arcsec), ...)`` that hold from that date
+    #: on. ``angle`` is delta, beta or epsilon; :func:`camera_change_arcsec` gives the sum
+    camera_drifts: tuple = ()
+    camera_annual: tuple = ()
+    camera_steps: tuple = ()
+    camera_epoch_date: str = ""
     #: the lattice spacing (3-arcsec postings) of the DEM error's long-correlated share
     #: (``dem_correlated_fraction``); 300 postings is ~28 km, points two spacings apart are
     #: independent; it must divide the 432000 postings of 360 degrees
@@ -315,6 +328,7 @@ class ScenarioConfig(Config):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.1 <= v <= 10):
                 raise InputError(name, v, "a factor from 0.1 to 10 (the true sigma over the stated one)")
+        _check_camera_terms(self)
         if self.scenario not in ("pass", "month", "path"):
             raise InputError("scenario", self.scenario, ("pass", "month", "path"))
         if self.truth not in TRUTHS:
@@ -527,6 +541,71 @@ def sample_process_knots(rng: np.random.Generator, times: Array, sigma: float) -
 #: (Table 1's pre-flight models are at 5 C); the table spans THERMAL_RANGE_C.
 THERMAL_REFERENCE_C = 5.0
 THERMAL_RANGE_C = (-10.0, 20.0)
+
+
+_POINTING = ("delta", "beta", "epsilon")
+
+
+def _iso_date(field: str, value: Any) -> _dt.date:
+    try:
+        return _dt.date.fromisoformat(str(value)[:10])
+    except ValueError:
+        raise InputError(field, value, "a date YYYY-MM-DD") from None
+
+
+def _check_camera_terms(cfg: "ScenarioConfig") -> None:
+    """Refuse a malformed drift, annual term or step of the true camera (one line, the field)."""
+    for name in ("camera_drifts", "camera_annual"):
+        for term in getattr(cfg, name):
+            ok = (
+                len(term) == 3
+                and term[0] in CAMERAS
+                and term[1] in _POINTING
+                and isinstance(term[2], (int, float))
+                and np.isfinite(float(term[2]))
+            )
+            if not ok:
+                raise InputError(
+                    name, list(term), "(camera, delta|beta|epsilon, arcsec) with a camera of " + ", ".join(CAMERAS)
+                )
+    for term in cfg.camera_steps:
+        ok = len(term) == 4 and term[1] in CAMERAS and term[2] in _POINTING and isinstance(term[3], (int, float))
+        if not ok or not np.isfinite(float(term[3])):
+            raise InputError("camera_steps", list(term), "(YYYY-MM-DD, camera, delta|beta|epsilon, arcsec)")
+        _iso_date("camera_steps", term[0])
+    if cfg.camera_epoch_date:
+        _iso_date("camera_epoch_date", cfg.camera_epoch_date)
+
+
+def camera_change_arcsec(cfg: "ScenarioConfig", date: str | _dt.date) -> dict[tuple[str, str], float]:
+    """The true camera's change (arcsec) on ``date`` from the one in ``camera_truth.h5``, per
+    ``(camera, angle)`` with a term: drift x years + annual amplitude x sin(2 pi days / 365.25)
+    (days since ``camera_epoch_date``, default ``epoch_date``) + the steps dated on or before it."""
+    day = _iso_date("date", date)
+    epoch = _iso_date("camera_epoch_date", cfg.camera_epoch_date or cfg.epoch_date)
+    days = float((day - epoch).days)
+    out: dict[tuple[str, str], float] = {}
+    for cam, ang, rate in cfg.camera_drifts:
+        out[(cam, ang)] = out.get((cam, ang), 0.0) + float(rate) * days / 365.25
+    for cam, ang, amp in cfg.camera_annual:
+        out[(cam, ang)] = out.get((cam, ang), 0.0) + float(amp) * float(np.sin(2 * np.pi * days / 365.25))
+    for when, cam, ang, size in cfg.camera_steps:
+        if _iso_date("camera_steps", when) <= day:
+            out[(cam, ang)] = out.get((cam, ang), 0.0) + float(size)
+    return out
+
+
+def camera_truth_on(cfg: "ScenarioConfig", model: CameraModel, date: str | _dt.date) -> CameraModel:
+    """``model`` (the true camera of ``camera_truth.h5`` at a pass's temperature) as it is on
+    ``date``: :func:`camera_change_arcsec` added to its angles (``model`` itself when nothing
+    changes)."""
+    change = camera_change_arcsec(cfg, date)
+    if not change:
+        return model
+    m = model.copy()
+    for (cam, ang), arcsec in change.items():
+        m.add_correction(ang, CAMERAS.index(cam), None, arcsec * ARCSEC)
+    return m
 
 
 def draw_thermal_truth(
@@ -808,8 +887,6 @@ def simulate_pass(
 # ---------------------------------------------------------------------------- scenarios
 def _month_passes(cfg: ScenarioConfig, gcps: GcpDatabase) -> list[tuple[int, int, str, float, float]]:
     """(orbit, path, date, start_lat, duration) of the daylight passes whose swath covers a GCP."""
-    import datetime as dt
-
     ref_path = cfg.path
     ref = terra_like_orbit(
         epoch_date=cfg.epoch_date, path=ref_path, start_lat_deg=80.0, duration_s=2950.0, step_s=8.192
@@ -843,9 +920,9 @@ def _month_passes(cfg: ScenarioConfig, gcps: GcpDatabase) -> list[tuple[int, int
             lat_seen = gcps.lat[seen]
             out[j] = [path, float(lat_seen.max()), float(lat_seen.min())]
     passes = []
-    d0 = dt.date.fromisoformat(cfg.epoch_date)
+    d0 = _dt.date.fromisoformat(cfg.epoch_date)
     for j, (path, lat_max, lat_min) in out.items():
-        day = d0 + dt.timedelta(days=int(j / orbits_per_day))
+        day = d0 + _dt.timedelta(days=int(j / orbits_per_day))
         start = min(lat_max + 16.0, 81.0)
         # ~112 km of latitude per ~16.5 s at ~6.8 km/s ground speed; include Da's delay (~230 s)
         duration = (start - lat_min) * 111e3 / 6.75e3 + 520.0
@@ -1002,8 +1079,6 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
             supplied = _offset_table(truth_model, truth_cam, supplied)
         n_tie, n_check = cfg.n_tie_points, cfg.n_check_points
         if cfg.scenario == "path":
-            import datetime as _dt
-
             d0 = _dt.date.fromisoformat(cfg.epoch_date)
             cycles = sorted(cfg.repeat_indices) if cfg.repeat_indices else range(cfg.n_passes)
             plan = [
@@ -1029,7 +1104,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                 rng,
                 cfg,
                 eph,
-                truth_model.at_temperature(float(temp)),
+                camera_truth_on(cfg, truth_model.at_temperature(float(temp)), date),
                 terrain,
                 geoid,
                 gcps,

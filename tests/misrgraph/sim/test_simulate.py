@@ -585,3 +585,46 @@ def test_the_attitude_spectrum_is_a_knob_of_the_world(tmp_path):
         ScenarioConfig(attitude_periods_s=(300.0, 30.0))
     with pytest.raises(InputError, match="jitter_lines"):
         ScenarioConfig(jitter_lines=((10.0,),))
+
+
+def test_a_camera_that_changes_over_the_years(tmp_path):
+    """A drift, an annual term and a dated step of the true camera: each pass's true camera
+    (in its truth file) differs from camera_truth.h5 by exactly their sum on its date, field by
+    field; nothing else moves."""
+    import datetime
+
+    from misrgraph.io.camera import read_camera_file
+    from misrgraph.io.truth import read_pass_truth
+
+    cfg = ScenarioConfig(
+        truth="model",
+        scenario="path",
+        seed=5,
+        n_passes=3,
+        n_tie_points=10,
+        n_check_points=2,
+        duration_s=300.0,
+        start_lat_deg=50.0,
+        camera_drifts=(("Cf", "beta", 36.525),),
+        camera_annual=(("An", "epsilon", 2.0),),
+        camera_steps=(("2001-06-20", "Da", "delta", 3.0),),
+    )
+    run_simulate(cfg, tmp_path / "s")
+    base = read_camera_file(tmp_path / "s" / "camera_truth.h5")
+    files = sorted((tmp_path / "s" / "passes").glob("*.h5"))
+    assert len(files) == 3
+    for k, f in enumerate(files):
+        days = 16 * k  # a repeat pass every 16 days from epoch_date, 2001-06-15
+        assert cfg.epoch_date == "2001-06-15"
+        want = np.zeros((3, len(CAMERAS)))  # delta, beta, epsilon (arcsec)
+        want[1, CAMERAS.index("Cf")] = 36.525 * days / 365.25
+        want[2, CAMERAS.index("An")] = 2.0 * np.sin(2 * np.pi * days / 365.25)
+        step_on = datetime.date(2001, 6, 15) + datetime.timedelta(days=days) >= datetime.date(2001, 6, 20)
+        want[0, CAMERAS.index("Da")] = 3.0 if step_on else 0.0
+        got = read_pass_truth(f).camera_model
+        for i, ang in enumerate(("delta", "beta", "epsilon")):
+            np.testing.assert_allclose((getattr(got, ang) - getattr(base, ang)) / ARCSEC, want[i], atol=1e-9)
+    with pytest.raises(InputError, match="camera_steps"):
+        ScenarioConfig(camera_steps=(("2001-13-01", "Da", "delta", 1.0),))
+    with pytest.raises(InputError, match="camera_drifts"):
+        ScenarioConfig(camera_drifts=(("Dx", "delta", 1.0),))
