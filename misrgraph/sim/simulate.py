@@ -578,9 +578,11 @@ def _check_camera_terms(cfg: "ScenarioConfig") -> None:
 
 
 def camera_change_arcsec(cfg: "ScenarioConfig", date: str | _dt.date) -> dict[tuple[str, str], float]:
-    """The true camera's change (arcsec) on ``date`` from the one in ``camera_truth.h5``, per
+    """The true camera's change (arcsec) on ``date`` from the instrument before any change, per
     ``(camera, angle)`` with a term: drift x years + annual amplitude x sin(2 pi days / 365.25)
-    (days since ``camera_epoch_date``, default ``epoch_date``) + the steps dated on or before it."""
+    (days since ``camera_epoch_date``, default ``epoch_date``) + the steps dated on or before it.
+    ``camera_truth.h5`` holds the camera on ``camera_epoch_date``: the difference of a pass's
+    true camera from it is this on the pass's date less this on that date."""
     day = _iso_date("date", date)
     epoch = _iso_date("camera_epoch_date", cfg.camera_epoch_date or cfg.epoch_date)
     days = float((day - epoch).days)
@@ -606,6 +608,17 @@ def camera_truth_on(cfg: "ScenarioConfig", model: CameraModel, date: str | _dt.d
     for (cam, ang), arcsec in change.items():
         m.add_correction(ang, CAMERAS.index(cam), None, arcsec * ARCSEC)
     return m
+
+
+def _truth_on_epoch(
+    cfg: "ScenarioConfig", model: CameraModel | TabulatedCameraModel
+) -> CameraModel | TabulatedCameraModel:
+    """The true camera on ``camera_epoch_date`` (``camera_truth.h5``): with the steps dated on or
+    before it (the drift and annual term are zero there)."""
+    day = cfg.camera_epoch_date or cfg.epoch_date
+    if isinstance(model, TabulatedCameraModel):
+        return TabulatedCameraModel([camera_truth_on(cfg, m, day) for m in model.models], model.valid_range_c)
+    return camera_truth_on(cfg, model, day)
 
 
 def draw_thermal_truth(
@@ -1182,7 +1195,7 @@ def run_simulate(cfg: ScenarioConfig, out: str | os.PathLike[str], progress: Pro
                 tmp / "dem_som.h5",
             )
         save_camera_model(supplied, tmp / "camera_model.h5")
-        save_camera_model(truth_model, tmp / "camera_truth.h5")
+        save_camera_model(_truth_on_epoch(cfg, truth_model), tmp / "camera_truth.h5")
         save_gcp_database(gcps, tmp / "gcp.h5", truth_ecef=gcp_truth)
         summary = {
             "software": f"misrgraph {__version__}",

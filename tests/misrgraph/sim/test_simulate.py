@@ -624,6 +624,14 @@ def test_a_camera_that_changes_over_the_years(tmp_path):
         got = read_pass_truth(f).camera_model
         for i, ang in enumerate(("delta", "beta", "epsilon")):
             np.testing.assert_allclose((getattr(got, ang) - getattr(base, ang)) / ARCSEC, want[i], atol=1e-9)
+    # a step before the scenario's epoch: in camera_truth.h5 and in every pass alike
+    run_simulate(
+        dataclasses.replace(cfg, n_passes=1, camera_steps=(("2001-06-01", "Df", "beta", 5.0),)), tmp_path / "e"
+    )
+    early = read_camera_file(tmp_path / "e" / "camera_truth.h5")
+    np.testing.assert_allclose((early.beta - base.beta)[CAMERAS.index("Df")] / ARCSEC, 5.0, atol=1e-9)
+    got = read_pass_truth(next((tmp_path / "e" / "passes").glob("*.h5"))).camera_model
+    np.testing.assert_allclose(got.beta, early.beta, atol=1e-15)
     with pytest.raises(InputError, match="camera_steps"):
         ScenarioConfig(camera_steps=(("2001-13-01", "Da", "delta", 1.0),))
     with pytest.raises(InputError, match="camera_drifts"):
