@@ -66,6 +66,13 @@ TITLES: dict[str, tuple[str, str]] = {
         "no change. Fractions with their Wilson 95 % intervals, means with 95 % intervals from the "
         "run-to-run scatter.",
     ),
+    "cgm": (
+        "A new camera-model version after a step",
+        "One instrument whose camera steps between two calibration windows: the passes after the step "
+        "adjusted with the version a camera-model store picks by orbit (the new one) and with the stale "
+        "one, paired pass by pass, and the passes before the step beside them. Means with 95 % intervals "
+        "from the pass-to-pass scatter.",
+    ),
     "pp": (
         "Projection Parameters: honesty of their 1 sigma",
         "PP geolocation error against the truth over the predicted 1 sigma, per camera, over seeded passes.",
@@ -363,7 +370,32 @@ def _render_monitor(r: dict[str, Any]) -> str:
     )
 
 
+def _render_cgm(r: dict[str, Any]) -> str:
+    s = r["step"]
+    cols = ("checkpoint_rms_m", "coregistration_px", "camera_nees")
+    fmts = (".1f", ".3f", ".2f")
+    rows = [
+        [name, *(_ci(r[key][k], fmt=f) for k, f in zip(cols, fmts))]
+        for key, name in (
+            ("before", "before the step (version 1)"),
+            ("after_new", "after the step, the new version"),
+            ("after_stale", "after the step, the stale version"),
+            ("stale_minus_new", "stale minus new, paired"),
+        )
+    ]
+    sig = r["calibration_sigma_px"]
+    return (
+        f"{s['camera']}'s delta steps by {s['arcsec']:.2f} arcsec ({s['px']:g} px) on {s['date']}. "
+        f"{r['passes']} passes before and {r['passes']} after it; calibration windows of {r['window_days']} "
+        f"days with {r['gcps']} GCPs ({s['camera']}'s pointing 1 sigma {sig['version1']:.3f} px in version 1, "
+        f"{sig['version2']:.3f} px in version 2). Versions in the store: {', '.join(r['versions'])}. "
+        f"{r['seconds']:.0f} s in all.\n\n"
+        + _table(["", "check points (m)", f"{s['camera']} co-registration with An (px)", "camera NEES"], rows)
+    )
+
+
 RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
+    "cgm": _render_cgm,
     "monitor": _render_monitor,
     "worlds": _render_worlds,
     "demo": _render_demo,

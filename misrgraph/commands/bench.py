@@ -984,3 +984,51 @@ def bench_monitor(
     row("  drift when flagged (px)", dr["px_when_flagged"], dr["interval"]["px_when_flagged"], "{:.3f}")
     row(f"false alarms (configured {res['alpha']:.0%})", res["false_alarm_rate"], res["interval"]["false_alarm_rate"])
     console.print(table)
+
+
+@app.command("cgm")
+@handle_errors
+def bench_cgm(
+    passes: int = typer.Option(6, "--passes", help="Repeat passes before and after the step."),
+    window_days: int = typer.Option(30, "--window-days", help="Days of GCP passes in each calibration window."),
+    gcps: int = typer.Option(120, "--gcps", help="GCPs in the simulated world."),
+    step_camera: str = typer.Option("Da", "--step-camera", help="The camera whose delta steps."),
+    step_px: float = typer.Option(0.1, "--step-px", help="Size of the step (px, pointing RMS over the swath)."),
+    seed: int = typer.Option(0, "--seed", help="First seed."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the scenarios here (a rerun reuses them)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
+    save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
+) -> None:
+    """Passes after a camera step adjusted with the new camera-model version (picked by orbit
+    from a store) and with the stale one, paired pass by pass: check points (m), the stepped
+    camera's co-registration (px) and the camera NEES, with 95 % intervals; passes before the
+    step beside them."""
+    from misrgraph.bench.cgm import run_bench_cgm
+
+    with err_console.status("cgm...") as st:
+        res = run_bench_cgm(
+            passes, window_days, gcps, step_camera, step_px, seed=seed, workdir=workdir, progress=lambda m: st.update(m)
+        )
+    res = finish(res, save)
+    if as_json:
+        print_json(res)
+        return
+    s = res["step"]
+    table = Table(title=f"{s['camera']} steps by {s['px']:g} px on {s['date']}: {res['passes']} passes each")
+    for col in ("", "check points (m)", f"{s['camera']} co-registration (px)", "camera NEES"):
+        table.add_column(col, justify="right")
+    for key, name in (
+        ("before", "before the step"),
+        ("after_new", "after, new version"),
+        ("after_stale", "after, stale version"),
+        ("stale_minus_new", "stale - new (paired)"),
+    ):
+        v = res[key]
+        table.add_row(
+            name,
+            *(
+                f"{v[k]['mean']:.3f} [{v[k]['ci95'][0]:.3f}, {v[k]['ci95'][1]:.3f}]"
+                for k in ("checkpoint_rms_m", "coregistration_px", "camera_nees")
+            ),
+        )
+    console.print(table)
