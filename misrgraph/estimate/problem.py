@@ -636,6 +636,65 @@ def reduced_cholesky(s: sp.spmatrix) -> Array:
 SPD_SPLU_OPTIONS: dict = {"permc_spec": "COLAMD", "diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
 
 
+#: the largest separator (landmarks seen by several passes, 3 each, plus the joint variables)
+#: :func:`_joint_by_separator` inverts densely
+MAX_SEPARATOR = 3000
+
+
+def _joint_by_separator(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, idx: NDArray[np.int64]) -> Array | None:
+    """The joint covariance of the non-landmark variables ``idx`` by nested elimination, or None
+    where it does not apply. The other non-landmark variables fall into independent groups (a
+    month's passes: their knots and ephemeris); a landmark seen by one group is eliminated first
+    (its fill stays inside the group), each group's variables next (a block-diagonal sparse
+    factorisation), which leaves the dense system of the separator: ``idx`` and the landmarks
+    seen by several groups (the GCPs seen by several passes). Its inverse's ``idx`` block is the
+    joint covariance: the same as the sparse LU of the whole reduced system, without that
+    system's fill (a 90-day window's is too large for SuperLU)."""
+    from scipy.sparse import csgraph
+
+    n_l, n_c = h_ll.shape[0], h_cc.shape[0]
+    joint = np.zeros(n_c, bool)
+    joint[idx] = True
+    inner = np.flatnonzero(~joint)
+    if n_l == 0 or inner.size == 0:
+        return None
+    h_cc = sp.csr_matrix(h_cc)
+    h_lc = sp.csr_matrix(h_lc)
+    n_groups, group = csgraph.connected_components(h_cc[inner][:, inner], directed=False)
+    if n_groups < 2:
+        return None
+    col_group = np.full(n_c, -1)
+    col_group[inner] = group
+    coo = h_lc.tocoo()
+    keep = col_group[coo.col] >= 0
+    pairs = np.unique(np.stack([coo.row[keep] // 3, col_group[coo.col[keep]]], 1), axis=0)
+    seen_by = np.bincount(pairs[:, 0], minlength=n_l) if pairs.size else np.zeros(n_l, int)
+    multi = np.flatnonzero(seen_by > 1)
+    single = np.flatnonzero(seen_by <= 1)
+    if 3 * multi.size + idx.size > MAX_SEPARATOR:
+        return None
+    rows = lambda lm: (3 * lm[:, None] + np.arange(3)).ravel()  # noqa: E731
+    _, _, s_c = schur_reduce(h_ll[single], h_lc[rows(single)], h_cc)
+    h_mc = h_lc[rows(multi)]
+    h_mm = sp.block_diag(list(h_ll[multi])) if multi.size else sp.csr_matrix((0, 0))
+    full = sp.bmat([[s_c, h_mc.T], [h_mc, h_mm]], format="csr")
+    sep = np.concatenate([idx, n_c + np.arange(3 * multi.size)])
+    rest = np.setdiff1d(np.arange(full.shape[0]), sep)
+    a_rest = full[rest]
+    try:
+        lu = spla.splu(a_rest[:, rest].tocsc(), **SPD_SPLU_OPTIONS)
+        a_is = a_rest[:, sep].toarray()
+        s_sep = full[sep][:, sep].toarray() - a_is.T @ lu.solve(a_is)
+        chol = np.linalg.cholesky(0.5 * (s_sep + s_sep.T))
+    except (RuntimeError, np.linalg.LinAlgError) as exc:
+        raise DegenerateProblemError(
+            "the navigation/camera variables are not determined (reduced system not positive definite)"
+        ) from exc
+    inv = np.linalg.inv(chol)
+    cov = inv.T @ inv
+    return cov[: idx.size, : idx.size]
+
+
 def schur_marginals(
     h_ll: Array,
     h_lc: sp.spmatrix,
@@ -657,21 +716,27 @@ def schur_marginals(
     """
     n_l = len(landmark_keys)
     off, n_c = _offsets(other_keys, dims)
-    h_ll_inv, g, s = schur_reduce(h_ll, h_lc, h_cc)
     if joint_keys is not None:
         bad = [int(k) for k in joint_keys if int(k) not in off]
         if bad:
             raise InputError("joint_keys", bad[:3], "non-landmark keys of the problem")
         idx = np.concatenate([np.arange(off[int(k)], off[int(k)] + dims[int(k)]) for k in joint_keys])
-        try:
-            lu = spla.splu(s, **SPD_SPLU_OPTIONS)
-            rhs = np.zeros((n_c, idx.size))
-            rhs[idx, np.arange(idx.size)] = 1.0
-            joint = lu.solve(rhs)[idx]
-        except RuntimeError as exc:
-            raise DegenerateProblemError(
-                "the navigation/camera variables are not determined (reduced system singular)"
-            ) from exc
+        joint = _joint_by_separator(h_ll, h_lc, h_cc, idx)
+        if joint is None:
+            s = schur_reduce(h_ll, h_lc, h_cc)[2]
+            try:
+                lu = spla.splu(s, **SPD_SPLU_OPTIONS)
+                rhs = np.zeros((n_c, idx.size))
+                rhs[idx, np.arange(idx.size)] = 1.0
+                joint = lu.solve(rhs)[idx]
+            except RuntimeError as exc:
+                raise DegenerateProblemError(
+                    "the navigation/camera variables are not determined (reduced system singular)"
+                ) from exc
+            except MemoryError:
+                raise DegenerateProblemError(
+                    f"the reduced system ({n_c} variables) is too large to factorise in memory; use a shorter window"
+                ) from None
         joint = 0.5 * (joint + joint.T)
         if not np.all(np.isfinite(joint)) or not np.all(np.diag(joint) > 0):
             raise DegenerateProblemError(
@@ -684,6 +749,7 @@ def schur_marginals(
             cov[int(k)] = joint[o : o + dims[int(k)], o : o + dims[int(k)]].copy()
             o += dims[int(k)]
         return Marginals(cov, joint, [int(k) for k in joint_keys], j_off)
+    h_ll_inv, g, s = schur_reduce(h_ll, h_lc, h_cc)
     inv_l = np.linalg.inv(reduced_cholesky(s))
     sigma_cc = inv_l.T @ inv_l
     cov = {

@@ -103,10 +103,13 @@ def test_landmark_cross_covariance_agrees_with_gtsam(solved):
         marginal_covariances(prob, res.values).landmark_response_of([int(pg.ephemeris_keys()[0])])
 
 
-def test_a_month_s_camera_marginals_agree_with_gtsam(small_month_dir):
+def test_a_month_s_camera_marginals_agree_with_gtsam(small_month_dir, monkeypatch):
     """A calibration problem (GCP landmarks shared by several passes, the cameras by all), solved
-    on GTSAM's elimination with the core's COLAMD ordering: the cameras' joint covariance by the
-    sparse path (the symmetric factorisation of the reduced system) equals ``gtsam.Marginals``."""
+    on GTSAM's elimination with the core's COLAMD ordering: the cameras' joint covariance equals
+    ``gtsam.Marginals`` both ways, by nested elimination (the passes apart, the GCPs seen by
+    several passes and the cameras as the separator) and, with that route switched off, by the
+    sparse factorisation of the whole reduced system."""
+    import misrgraph.estimate.problem as problem_mod
     from misrgraph.estimate.calibrate import CalibrateConfig, _build
     from misrgraph.estimate.solver import SolverParams
     from misrgraph.sim.simulate import load_scenario
@@ -120,9 +123,16 @@ def test_a_month_s_camera_marginals_agree_with_gtsam(small_month_dir):
     assert res.converged and res.backend == "gtsam"
     keys = [int(k) for k in prob.eliminate_last]
     assert len(keys) == 9
-    sparse_path = marginal_covariances(prob, res.values, joint_keys=keys)
+    routes = []
+    nested = problem_mod._joint_by_separator
+    monkeypatch.setattr(problem_mod, "_joint_by_separator", lambda *a: routes.append(nested(*a)) or routes[-1])
+    by_separator = marginal_covariances(prob, res.values, joint_keys=keys)
+    monkeypatch.setattr(problem_mod, "MAX_SEPARATOR", 0)
+    whole = marginal_covariances(prob, res.values, joint_keys=keys)
+    assert routes[0] is not None and routes[1] is None  # the nested route, then the whole system
     ref = _gtsam_marginals(prob, res.values).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
-    np.testing.assert_allclose(sparse_path.joint, ref, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref)))
+    for sparse_path in (by_separator, whole):
+        np.testing.assert_allclose(sparse_path.joint, ref, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref)))
 
 
 def test_variance_factor_closed_form():
