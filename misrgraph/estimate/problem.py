@@ -711,8 +711,10 @@ def schur_marginals(
     returned: ``Sigma_cc = S^-1`` densely (by Cholesky) and each landmark's
     ``Sigma_ll = H_ll^-1 + G Sigma_cc G^T`` with ``G = H_ll^-1 H_lc``; ``joint`` is then all of
     ``Sigma_cc``. With ``joint_keys`` (non-landmark keys) only their joint covariance is computed,
-    by a sparse LU solve of ``S X = E`` for their columns -- for problems whose ``S`` is too large
-    to invert (a month of calibration passes). Equal to ``gtsam.Marginals`` (tested).
+    for problems whose ``S`` is too large to invert (a month of calibration passes): by nested
+    elimination where the other variables fall into independent groups
+    (:func:`_joint_by_separator`), else by a sparse LU solve of ``S X = E`` for their columns.
+    Equal to ``gtsam.Marginals`` (tested).
     """
     n_l = len(landmark_keys)
     off, n_c = _offsets(other_keys, dims)
