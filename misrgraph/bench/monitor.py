@@ -25,7 +25,8 @@ without changes (fit on some, score on others). Fractions carry Wilson 95 % inte
 Student t interval from the run-to-run scatter.
 
 What this does not do: it draws each recalibration from its 1-sigma rather than calibrating each
-window's passes, and no CGM versions are kept; the campaign over years is the next step.
+window's passes, and keeps no camera-model versions (``bench cgm`` calibrates two windows around
+one step and adjusts passes with each version).
 """
 
 from __future__ import annotations

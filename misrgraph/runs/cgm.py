@@ -56,20 +56,13 @@ def _entry(v: CgmVersion) -> dict[str, Any]:
     }
 
 
-def resolve_camera_model(
-    spec: str | os.PathLike[str], orbit: int, version: str | None = None
-) -> tuple[Path | str, dict[str, Any] | None]:
+def resolve_camera_model(spec: str | os.PathLike[str], orbit: int) -> tuple[Path | str, dict[str, Any] | None]:
     """``(camera-model file or built-in name, version entry or None)``: a store's version valid
-    for ``orbit`` (or the one named ``version``), else ``spec`` itself (a file or a built-in
-    model's name), with no version."""
+    for ``orbit``, else ``spec`` itself (a file or a built-in model's name), with no version. To
+    use another version, give its file (``STORE/versions/<id>.h5``)."""
     if not is_cgm_store(spec):
-        if version is not None:
-            raise InputError("--cgm-version", version, "only with a --camera-model that is a CGM store")
         return spec if isinstance(spec, str) else Path(spec), None
     store = open_store(spec)
-    if version is not None:
-        v = store.get(version)
-        return store.path_of(v), {**_entry(v), "chosen": "named"}
     v, path = version_for_orbit(store, int(orbit))
     return path, {**_entry(v), "chosen": f"valid for orbit {int(orbit)}"}
 

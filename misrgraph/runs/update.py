@@ -47,6 +47,7 @@ from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, find_blunders,
 from misrgraph.estimate.incremental import DEFAULT_LINEARIZATION_TOL, IncrementalSolver, batch_solution
 from misrgraph.evaluate.score import score_pass
 from misrgraph.io.camera import is_builtin_model, load_camera_model
+from misrgraph.io.cgm import is_cgm_store, open_store
 from misrgraph.io.dem import read_dem
 from misrgraph.io.gcp import read_gcp_database
 from misrgraph.io.h5 import (
@@ -448,7 +449,11 @@ def _run_update_locked(
     if state is None:
         if camera_model is None or gcp_file is None:
             raise InputError("--camera-model/--gcps", None, "both, when creating a new state")
-        cam_spec, cgm = resolve_for_passes(camera_model, [_pass_orbit(f) for f in new_passes])
+        cam_spec, cgm = (
+            resolve_for_passes(camera_model, [_pass_orbit(f) for f in new_passes])
+            if is_cgm_store(camera_model)
+            else (camera_model, None)
+        )
         (d / "passes").mkdir(parents=True, exist_ok=True)
         specs = {
             "camera_model": _model_spec(cam_spec),
@@ -473,7 +478,7 @@ def _run_update_locked(
             meta["cgm"] = {
                 "store": str(Path(camera_model).resolve()),
                 **{k: cgm[k] for k in ("id", "first_orbit", "last_orbit")},
-            }
+            }  # the range as added; the store's current range wins while the store is there
         state = State(d, meta)
     meta = state.meta
     if cfg is not None and json.dumps(dataclasses.asdict(cfg), sort_keys=True) != json.dumps(
@@ -492,7 +497,10 @@ def _run_update_locked(
             f"{obs_set!r}, the observation set this state adjusts (a state keeps one; start a new state for the other)",
         )
     if meta.get("cgm"):
-        v = meta["cgm"]
+        v = dict(meta["cgm"])
+        if is_cgm_store(v["store"]):  # a later version may have closed this one's range
+            now = open_store(v["store"]).get(v["id"])
+            v.update(first_orbit=now.first_orbit, last_orbit=now.last_orbit)
         for f in new_passes:
             o = _pass_orbit(f)
             if o < v["first_orbit"] or (v["last_orbit"] is not None and o > v["last_orbit"]):

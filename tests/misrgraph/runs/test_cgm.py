@@ -157,8 +157,12 @@ def test_an_update_state_keeps_to_its_version(path_dir, tmp_path):
     assert o1 > o0
     store = tmp_path / "cgm"
     run_cgm_add(store, path_dir / "camera_model.h5", o0, reason="first")
-    run_cgm_add(store, path_dir / "camera_model.h5", o1, reason="second")
     state = tmp_path / "state"
+    kw0 = {"gcp_file": path_dir / "gcp.h5", "dem_file": path_dir / "dem.h5"}
+    run_update(tmp_path / "early", files[:1], camera_model=store, **kw0)  # v001 open-ended then
+    run_cgm_add(store, path_dir / "camera_model.h5", o1, reason="second")  # closes v001 at o1 - 1
+    with pytest.raises(InputError, match="version v001"):  # the store's current range, not the one recorded
+        run_update(tmp_path / "early", files[1:])
     kw = {"gcp_file": path_dir / "gcp.h5", "dem_file": path_dir / "dem.h5"}
     with pytest.raises(InputError, match="span v001, v002"):
         run_update(state, files, camera_model=store, **kw)
