@@ -242,7 +242,7 @@ def test_the_attitude_shape_stays_the_bases_unless_asked():
 def test_a_flat_level_does_not_hide_the_determined_ones():
     """The curvature covariance of a Gaussian log-likelihood in two levels (known covariance C)
     beside a third level it does not depend on: the two get C back, the flat one an infinite
-    variance (before, the singular curvature left all three undetermined)."""
+    variance (a singular curvature must not leave all three undetermined)."""
     from misrgraph.estimate.noisefit import _maximise
 
     c = np.array([[0.04, 0.01], [0.01, 0.09]])
