@@ -16,22 +16,24 @@ with the version whose range holds ``n`` (:func:`version_for_orbit`).
 
 Every write of the index is atomic; a stored model is written before the index names it, so a
 killed ``cgm add`` leaves the store as it was (and perhaps an unnamed file, which the next add
-of that id replaces).
+of that id replaces). ``STORE/.lock`` keeps a second ``cgm add`` out while one runs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import fcntl
 import hashlib
 import json
 import os
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
-from misrgraph.errors import FileFormatError, InputError
-from misrgraph.io.h5 import atomic_file, atomic_path
+from misrgraph.errors import FileFormatError, InputError, OutputError
+from misrgraph.io.h5 import atomic_file, atomic_path, os_reason
 
 __all__ = [
     "CgmVersion",
@@ -174,6 +176,29 @@ def add_version(
     read_camera_file(src)  # a camera-model file, whole and readable (names the path otherwise)
     if root.exists() and not root.is_dir():
         raise InputError("STORE", str(root), "a directory (a CGM store, or a place for a new one)")
+    with _store_lock(root):
+        return _add_locked(root, src, first_orbit, last_orbit, reason, now)
+
+
+@contextlib.contextmanager
+def _store_lock(root: Path) -> Iterator[None]:
+    """Hold ``STORE/.lock`` exclusively: one ``cgm add`` at a time (a second one is refused)."""
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        fh = open(root / ".lock", "a+")
+    except OSError as exc:
+        raise OutputError(root, os_reason(exc)) from None
+    with fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise InputError("STORE", str(root), "a store no other 'cgm add' is changing (it holds the lock)") from None
+        yield
+
+
+def _add_locked(
+    root: Path, src: Path, first_orbit: int, last_orbit: int | None, reason: str, now: _dt.datetime | None
+) -> CgmVersion:
     store = open_store(root) if is_cgm_store(root) else CgmStore(root=root, versions=())
     versions = list(store.versions)
     for i, v in enumerate(versions):

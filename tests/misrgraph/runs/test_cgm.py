@@ -70,6 +70,14 @@ def test_versions_by_orbit_range(tmp_path):
     with pytest.raises(FileFormatError, match="bad.h5"):
         run_cgm_add(store, bad, 100000)
     assert len(open_store(store).versions) == 3
+    # one add at a time: a store whose lock is held refuses another, and is left as it was
+    import fcntl
+
+    with open(store / ".lock", "a+") as held:
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX)
+        with pytest.raises(InputError, match="holds the lock"):
+            run_cgm_add(store, a, 200000)
+    assert len(open_store(store).versions) == 3
     # a stored file that changed is refused when picked
     (store / v2["file"]).write_bytes(a.read_bytes())
     with pytest.raises(FileFormatError, match="v002"):
