@@ -673,11 +673,16 @@ def _joint_by_separator(h_ll: Array, h_lc: sp.spmatrix, h_cc: sp.spmatrix, idx: 
     single = np.flatnonzero(seen_by <= 1)
     if 3 * multi.size + idx.size > MAX_SEPARATOR:
         return None
-    rows = lambda lm: (3 * lm[:, None] + np.arange(3)).ravel()  # noqa: E731
+
+    def rows(lm: NDArray[np.int64]) -> NDArray[np.int64]:  # the 3 rows of each landmark in h_lc
+        return (3 * lm[:, None] + np.arange(3)).ravel()
+
     _, _, s_c = schur_reduce(h_ll[single], h_lc[rows(single)], h_cc)
-    h_mc = h_lc[rows(multi)]
-    h_mm = sp.block_diag(list(h_ll[multi])) if multi.size else sp.csr_matrix((0, 0))
-    full = sp.bmat([[s_c, h_mc.T], [h_mc, h_mm]], format="csr")
+    if multi.size:
+        h_mc = h_lc[rows(multi)]
+        full = sp.bmat([[s_c, h_mc.T], [h_mc, sp.block_diag(list(h_ll[multi]))]], format="csr")
+    else:
+        full = sp.csr_matrix(s_c)
     sep = np.concatenate([idx, n_c + np.arange(3 * multi.size)])
     rest = np.setdiff1d(np.arange(full.shape[0]), sep)
     a_rest = full[rest]

@@ -294,7 +294,9 @@ class ScenarioConfig(Config):
     #: ``((camera, angle, amplitude_arcsec), ...)`` (a sine of the days since
     #: ``camera_epoch_date`` over 365.25), both zero at ``camera_epoch_date`` (default:
     #: ``epoch_date``); steps ``((date, camera, angle, arcsec), ...)`` that hold from that date
-    #: on. ``angle`` is delta, beta or epsilon; :func:`camera_change_arcsec` gives the sum
+    #: on. ``angle`` is delta, beta or epsilon; :func:`camera_change_arcsec` gives the sum. They
+    #: change the instrument the scenario draws (or ``camera_truth`` gives); the supplied model
+    #: (``camera_model.h5``) is drawn around that instrument before any change
     camera_drifts: tuple = ()
     camera_annual: tuple = ()
     camera_steps: tuple = ()
@@ -598,7 +600,7 @@ def camera_change_arcsec(cfg: "ScenarioConfig", date: str | _dt.date) -> dict[tu
 
 
 def camera_truth_on(cfg: "ScenarioConfig", model: CameraModel, date: str | _dt.date) -> CameraModel:
-    """``model`` (the true camera of ``camera_truth.h5`` at a pass's temperature) as it is on
+    """``model`` (the instrument before any change, at a pass's temperature) as it is on
     ``date``: :func:`camera_change_arcsec` added to its angles (``model`` itself when nothing
     changes)."""
     change = camera_change_arcsec(cfg, date)

@@ -459,3 +459,33 @@ def test_knot_prior_damping_sets_the_process_prior(small_pass):
     for bad in (0.0, -0.5, float("inf")):
         with pytest.raises(InputError, match="knot_prior_damping"):
             GraphConfig(knot_prior_damping=bad)
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_nested_elimination_equals_the_dense_inverse(shared):
+    """Two groups of variables, joint variables coupling them, and three landmarks (the third seen
+    by both groups when ``shared``): the nested elimination's joint covariance is the joint block
+    of the dense inverse of the whole information matrix."""
+    import scipy.sparse as sp
+
+    from misrgraph.estimate.problem import _joint_by_separator
+
+    rng = np.random.default_rng(0)
+    n_c, idx = 10, np.array([8, 9])
+    a = rng.standard_normal((60, n_c + 9))
+    h = a.T @ a
+    group = {**{i: 1 for i in range(4)}, **{i: 2 for i in range(4, 8)}, 10: 1, 11: 1, 12: 1, 13: 2, 14: 2, 15: 2}
+    for i in range(16, 19):
+        group[i] = 0 if shared else 1  # 0: coupled to both groups
+    landmark = {i: (i - n_c) // 3 for i in range(n_c, n_c + 9)}
+    for i in range(n_c + 9):
+        for j in range(n_c + 9):
+            gi, gj = group.get(i), group.get(j)
+            apart = gi is not None and gj is not None and gi and gj and gi != gj
+            two_landmarks = i in landmark and j in landmark and landmark[i] != landmark[j]
+            if apart or two_landmarks:
+                h[i, j] = 0.0
+    h += 20 * np.eye(n_c + 9)
+    h_ll = np.stack([h[n_c + 3 * k : n_c + 3 * k + 3, n_c + 3 * k : n_c + 3 * k + 3] for k in range(3)])
+    joint = _joint_by_separator(h_ll, sp.csr_matrix(h[n_c:, :n_c]), sp.csr_matrix(h[:n_c, :n_c]), idx)
+    np.testing.assert_allclose(joint, np.linalg.inv(h)[np.ix_(idx, idx)], rtol=1e-10)
