@@ -7,7 +7,9 @@ A store is a directory::
                                it: the model, and the calibration's covariance when it has one)
 
 The index lists the versions in the order they were added; each entry holds ``id`` (``v001``,
-``v002``, ...), ``file`` (relative to the store), ``sha256`` (of the stored file),
+``v002``, ...), ``file`` (relative to the store), ``sha256`` (the stored file's whole-file
+checksum as its checksum block records it, :func:`misrgraph.io.h5.stored_file_sha256`; reading
+the file checks its bytes against it),
 ``first_orbit`` and ``last_orbit`` (inclusive; ``null``: open-ended), ``created_utc``,
 ``reason`` (what triggered it: free text, e.g. a monitor alarm) and ``source`` (the file it was
 added from). The validity ranges never overlap: an open-ended version added while an earlier one
@@ -24,7 +26,6 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import fcntl
-import hashlib
 import json
 import os
 import shutil
@@ -33,7 +34,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from misrgraph.errors import FileFormatError, InputError, OutputError
-from misrgraph.io.h5 import atomic_file, atomic_path, os_reason
+from misrgraph.io.h5 import atomic_file, atomic_path, os_reason, stored_file_sha256
 
 __all__ = [
     "CgmVersion",
@@ -143,14 +144,6 @@ def _write_index(store: CgmStore) -> None:
         fh.write("\n")
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def add_version(
     store_dir: str | os.PathLike[str],
     camera_model: str | os.PathLike[str],
@@ -219,7 +212,7 @@ def _add_locked(
     new = CgmVersion(
         id=vid,
         file=rel,
-        sha256=_sha256(root / rel),
+        sha256=stored_file_sha256(root / rel),
         first_orbit=int(first_orbit),
         last_orbit=None if last_orbit is None else int(last_orbit),
         created_utc=stamp,
@@ -238,7 +231,7 @@ def version_for_orbit(store: CgmStore, orbit: int) -> tuple[CgmVersion, Path]:
             path = store.path_of(v)
             if not path.is_file():
                 raise FileFormatError(path, f"version {v.id}'s camera model is missing from the store")
-            if _sha256(path) != v.sha256:
+            if stored_file_sha256(path) != v.sha256:
                 raise FileFormatError(path, f"version {v.id}'s camera model differs from the one stored (sha256)")
             return v, path
     ranges = ", ".join(f"{v.id} {v.orbits_text()}" for v in store.versions) or "none (the store is empty)"

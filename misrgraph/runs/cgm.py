@@ -115,13 +115,19 @@ def _pick(s: CgmStore, version: str | None, orbit: int | None) -> tuple[CgmVersi
     return version_for_orbit(s, int(orbit))  # type: ignore[arg-type]
 
 
-def _model_and_cov(path: Path) -> tuple[CameraModel, list[str] | None, np.ndarray | None]:
+def _levels(path: Path) -> tuple[CameraModel, dict[str, float], dict[str, float], bool]:
+    """A stored version's model (a table: at its first temperature), the 1-sigma (SI) of each
+    label of its calibration covariance, each camera's pointing 1-sigma (px), and whether the
+    file carries a covariance (both dicts empty when not)."""
     from misrgraph.io.camera import load_camera_model, read_calibration_prior
 
     model = load_camera_model(path)
-    model = model.at_temperature(model.temperature_c)  # a table: its first temperature
+    model = model.at_temperature(model.temperature_c)
     prior = read_calibration_prior(path)
-    return (model, None, None) if prior is None else (model, prior[0], prior[1])
+    if prior is None:
+        return model, {}, {}, False
+    labels, cov = prior
+    return model, dict(zip(labels, np.sqrt(np.diag(cov)))), _pointing_sigma_px(model, labels, cov), True
 
 
 def _pointing_sigma_px(model: CameraModel, labels: list[str], cov: np.ndarray) -> dict[str, float]:
@@ -151,9 +157,7 @@ def _pointing_sigma_px(model: CameraModel, labels: list[str], cov: np.ndarray) -
 def version_summary(path: Path) -> dict[str, Any]:
     """Per camera the pointing angles (arcsec) with their 1-sigma where the file has a
     calibration covariance, and the pointing 1-sigma in pixels."""
-    model, labels, cov = _model_and_cov(path)
-    sig = {} if cov is None else dict(zip(labels or [], np.sqrt(np.diag(cov))))
-    spx = {} if cov is None or labels is None else _pointing_sigma_px(model, labels, cov)
+    model, sig, spx, has_cov = _levels(path)
     cams: dict[str, Any] = {}
     for c, name in enumerate(CAMERAS):
         cams[name] = {
@@ -164,7 +168,7 @@ def version_summary(path: Path) -> dict[str, Any]:
             for p in _ANGLES
         }
         cams[name]["sigma_px"] = spx.get(name)
-    return {"covariance": cov is not None, "temperature_c": float(model.temperature_c), "cameras": cams}
+    return {"covariance": has_cov, "temperature_c": float(model.temperature_c), "cameras": cams}
 
 
 def run_cgm_show(store: str | os.PathLike[str], version: str | None = None, orbit: int | None = None) -> dict[str, Any]:
@@ -183,12 +187,8 @@ def run_cgm_diff(store: str | os.PathLike[str], a: str, b: str) -> dict[str, Any
 
     s = open_store(store)
     va, vb = s.get(a), s.get(b)
-    ma, la, ca = _model_and_cov(s.path_of(va))
-    mb, lb, cb = _model_and_cov(s.path_of(vb))
-    sa = {} if ca is None else dict(zip(la or [], np.sqrt(np.diag(ca))))
-    sb = {} if cb is None else dict(zip(lb or [], np.sqrt(np.diag(cb))))
-    pa = {} if ca is None or la is None else _pointing_sigma_px(ma, la, ca)
-    pb = {} if cb is None or lb is None else _pointing_sigma_px(mb, lb, cb)
+    ma, sa, pa, _ = _levels(s.path_of(va))
+    mb, sb, pb, _ = _levels(s.path_of(vb))
     cams: dict[str, Any] = {}
     for c, name in enumerate(CAMERAS):
         entry: dict[str, Any] = {}
