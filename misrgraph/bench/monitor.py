@@ -190,7 +190,12 @@ def run_bench_monitor(
         "sigma_px": sig,
         "sigma_source": source,
         "world": WORLD,
-        "levels": {"q_level_px2_per_day": levels.q_level, "q_slope_px2_per_day3": levels.q_slope},
+        "levels": {
+            "q_level_px2_per_day": levels.q_level,
+            "q_slope_px2_per_day3": levels.q_slope,
+            "slope_var_px2_per_day2": levels.slope_var,
+            "season_var_px2": levels.season_var,
+        },
         "step": {
             "step_px": step_px,
             "detected": step_hits / campaigns,

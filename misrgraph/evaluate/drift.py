@@ -12,13 +12,20 @@ model of the series:
 
 (a local linear trend with an annual term of period ``P`` = 365.25 d when ``seasonal``; the
 random-walk intensities ``q_level`` [unit^2/d] and ``q_slope`` [unit^2/d^3] are the levels of the
-process). The Kalman filter gives the innovations ``v_k`` and their variances ``S_k``; the level,
-slope and seasonal coefficients start diffuse, and the first ``n_diffuse`` innovations (as many
-as those states) are left out of the likelihood and the test.
+process). The Kalman filter gives the innovations ``v_k`` and their variances ``S_k``. The level
+starts diffuse (the camera's first correction is whatever it is); the slope starts at zero with
+variance ``slope_var`` [unit^2/d^2] and each seasonal coefficient with variance ``season_var``
+[unit^2], or diffuse when those are infinite. The first ``n_diffuse`` innovations (as many as the
+diffuse states) are left out of the likelihood and the test.
 
-* :func:`fit_process_levels` learns ``q_level`` and ``q_slope`` from the series by maximising
-  the innovations' Gaussian likelihood (the levels are not the simulator's: they come from the
-  data, as the project's rule for every level the estimator uses).
+* :func:`fit_process_levels` learns ``q_level``, ``q_slope``, ``slope_var`` and ``season_var``
+  from the series by maximising the innovations' Gaussian likelihood, pooled over the series
+  given (the levels are not the simulator's: they come from the data, as the project's rule for
+  every level the estimator uses). Learning the slope's and the seasonal term's spread across the
+  series, rather than starting each series with them unknown, is what lets a series predict its
+  next calibration to about its own 1-sigma after a few calibrations: with a diffuse slope and
+  seasonal term, four of the first calibrations go to fixing them and the prediction of the next
+  stays uncertain by a multiple of the calibration's sigma, which hides a step.
 * :func:`cusum` runs a two-sided CUSUM on the standardised innovations ``z_k = v_k / sqrt(S_k)``
   (reference ``k`` in sigmas): a change of the parameter that the model did not predict (a step,
   or a drift faster than the learned process) makes ``z`` lean to one side and the sum cross the
@@ -70,10 +77,14 @@ _DIFFUSE = 1e8
 
 @dataclass(frozen=True)
 class TrendLevels:
-    """The process levels: ``q_level`` (unit^2/day) and ``q_slope`` (unit^2/day^3)."""
+    """The process levels: ``q_level`` (unit^2/day) and ``q_slope`` (unit^2/day^3), and the spread
+    of a series' starting slope ``slope_var`` (unit^2/day^2) and of each seasonal coefficient
+    ``season_var`` (unit^2); ``inf``: unknown (diffuse)."""
 
     q_level: float
     q_slope: float
+    slope_var: float = math.inf
+    season_var: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -135,11 +146,16 @@ def kalman_filter(
     prior_variance: float = _DIFFUSE,
 ) -> FilterResult:
     """Run the filter of the module docstring over the series (times in days); the states start at
-    zero with variance ``prior_variance`` (diffuse by default)."""
+    zero, the level with variance ``prior_variance`` (diffuse by default), the slope and the
+    seasonal coefficients with ``levels.slope_var`` and ``levels.season_var`` (``prior_variance``
+    where those are infinite)."""
     tt, yy, ss = _check(t, y, sigma)
     n_state = 4 if seasonal else 2
     x = np.zeros(n_state)
-    P = np.eye(n_state) * float(prior_variance)
+    p0 = float(prior_variance)
+    start = [p0, levels.slope_var, levels.season_var, levels.season_var][:n_state]
+    P = np.diag([p0 if not math.isfinite(v) else float(v) for v in start])
+    m = sum(1 for i, v in enumerate(start) if i == 0 or not math.isfinite(v))
     n = tt.size
     v, S = np.zeros(n), np.zeros(n)
     level, level_sig, slope = np.zeros(n), np.zeros(n), np.zeros(n)
@@ -169,34 +185,47 @@ def kalman_filter(
         P = 0.5 * (P + P.T)
         level[k], level_sig[k], slope[k] = x[0], math.sqrt(max(P[0, 0], 0.0)), x[1]
         t_prev = tt[k]
-    m = n_state
     ll = -0.5 * float(np.sum(np.log(2 * math.pi * S[m:]) + v[m:] ** 2 / S[m:])) if n > m else 0.0
     return FilterResult(v, S, level, level_sig, slope, ll, m)
 
 
-def fit_process_levels(series: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike]], seasonal: bool = True) -> TrendLevels:
-    """``q_level`` and ``q_slope`` that maximise the innovations' likelihood (module docstring)
-    summed over ``series`` (``(t, y, sigma)`` each: e.g. the years before the ones watched, or the
-    series of other cameras that share the process); searched in log space between 1e-12 and 1e2
-    (unit^2 per day, per day^3)."""
+def fit_process_levels(
+    series: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike]], seasonal: bool = True, learn_start: bool = True
+) -> TrendLevels:
+    """The levels that maximise the innovations' likelihood (module docstring) summed over
+    ``series`` (``(t, y, sigma)`` each: e.g. the years before the ones watched, or the series of
+    other cameras that share the process). Each is searched in log space, in units of the median
+    calibration variance ``s2``: ``q_level`` between 1e-10 and 1e2 ``s2`` per day, ``q_slope``
+    between 1e-18 and 1e2 ``s2`` per day^3; with ``learn_start``, ``slope_var`` between 1e-14 and
+    1e-2 ``s2`` per day^2 and ``season_var`` between 1e-8 and 1e4 ``s2`` (otherwise those two stay
+    diffuse)."""
     checked = [_check(*one) for one in series]
     if not checked:
         raise InputError("series", [], "at least one (t, y, sigma) series")
     need = (4 if seasonal else 2) + 3
     if sum(c[0].size for c in checked) < need:
         raise InputError("series length", sum(c[0].size for c in checked), f"at least {need} calibrations")
-    lo, hi = math.log(1e-12), math.log(1e2)
+    scale = float(np.median(np.concatenate([c[2] for c in checked]))) ** 2
+    lo = np.log([scale * 1e-10, scale * 1e-18, scale * 1e-14, scale * 1e-8])
+    hi = np.log([scale * 1e2, scale * 1e2, scale * 1e-2, scale * 1e4])
+    n_par = 2 + (1 + int(seasonal)) * int(learn_start)
+
+    def levels_of(p: Array) -> TrendLevels:
+        e = np.exp(np.clip(p, lo[:n_par], hi[:n_par]))
+        extra = list(e[2:]) + [math.inf] * (4 - n_par)
+        return TrendLevels(float(e[0]), float(e[1]), float(extra[0]), float(extra[1]))
 
     def nll(p: Array) -> float:
-        p = np.clip(p, lo, hi)
-        lv = TrendLevels(math.exp(p[0]), math.exp(p[1]))
+        lv = levels_of(p)
         return -sum(kalman_filter(t, y, s, lv, seasonal).log_likelihood for t, y, s in checked)
 
-    scale = float(np.median(np.concatenate([c[2] for c in checked]))) ** 2
-    starts = [np.log([scale / 100.0, scale / 1e6]), np.log([scale / 1e4, scale / 1e8])]
-    fits = [minimize(nll, s0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-4}) for s0 in starts]
-    p = np.clip(min(fits, key=lambda r: r.fun).x, lo, hi)
-    return TrendLevels(math.exp(p[0]), math.exp(p[1]))
+    starts = [
+        np.log([scale / 100.0, scale / 1e6, scale * 1e-6, scale * 0.1])[:n_par],
+        np.log([scale / 1e4, scale / 1e8, scale * 1e-9, scale * 0.01])[:n_par],
+    ]
+    opts = {"xatol": 1e-3, "fatol": 1e-4, "maxfev": 400 * n_par}
+    fits = [minimize(nll, s0, method="Nelder-Mead", options=opts) for s0 in starts]
+    return levels_of(min(fits, key=lambda r: r.fun).x)
 
 
 def cusum(z: ArrayLike, k: float = 1.5) -> tuple[Array, Array]:
@@ -254,9 +283,11 @@ def monitor_series(
       (:func:`cusum_threshold`);
     * a **departure**: the filtered level leaves the level at calibration ``reference`` (default:
       the first after the diffuse start, the model the series started from) by more than
-      ``z sqrt(P_k + P_ref)``, ``z`` the two-sided normal quantile of ``alpha / 4`` shared by the
-      tests after ``reference`` (Bonferroni: conservative, the levels are correlated). This sees
-      a slow drift that the trend model follows and the innovations hardly show.
+      ``z sqrt(P_k + P_ref + q_level dt + q_slope dt^3 / 3)`` (the two estimates' variances and
+      the wander the learned process allows in the ``dt`` days between them), ``z`` the
+      two-sided normal quantile of ``alpha / 4`` shared by the tests after ``reference``
+      (Bonferroni: conservative, the levels are correlated). This sees a slow drift that the
+      trend model follows and the innovations hardly show.
 
     ``ChangeAlarm.statistic``/``threshold`` are the crossing test's (CUSUM in sigmas, or the
     departure in sigmas)."""
@@ -275,7 +306,9 @@ def monitor_series(
     step = np.flatnonzero((up > h) | (dn > h))
     looks = tt.size - ref - 1
     zdep = float(norm.isf(alpha / 8 / max(looks, 1)))
-    dep = (res.level - res.level[ref]) / np.sqrt(res.level_sigma**2 + res.level_sigma[ref] ** 2)
+    dt = np.abs(tt - tt[ref])
+    wander = levels.q_level * dt + levels.q_slope * dt**3 / 3.0
+    dep = (res.level - res.level[ref]) / np.sqrt(res.level_sigma**2 + res.level_sigma[ref] ** 2 + wander)
     dep[: ref + 1] = 0.0
     drift = np.flatnonzero(np.abs(dep) > zdep)
     i_step = int(step[0]) if step.size else tt.size

@@ -73,7 +73,8 @@ def run_monitor(
 ) -> dict[str, Any]:
     """Test a table of calibrations for a change (module docstring). Return
     ``{"calibrations", "from", "to", "trained_on", "levels": {"q_level_arcsec2_per_day",
-    "q_slope_arcsec2_per_day3"}, "alpha", "alarms": [{"camera", "parameter", "utc", "kind",
+    "q_slope_arcsec2_per_day3", "slope_var_arcsec2_per_day2", "season_var_arcsec2"},
+    "alpha", "alarms": [{"camera", "parameter", "utc", "kind",
     "direction", "statistic", "threshold", "level_before_arcsec", "level_sigma_before_arcsec"}],
     "new_cgm_needed"}``."""
     p = Path(table)
@@ -103,7 +104,12 @@ def run_monitor(
         "from": format_utc(rows[0][0]),
         "to": format_utc(rows[-1][0]),
         "trained_on": cut,
-        "levels": {"q_level_arcsec2_per_day": levels.q_level, "q_slope_arcsec2_per_day3": levels.q_slope},
+        "levels": {
+            "q_level_arcsec2_per_day": levels.q_level,
+            "q_slope_arcsec2_per_day3": levels.q_slope,
+            "slope_var_arcsec2_per_day2": levels.slope_var,
+            "season_var_arcsec2": levels.season_var,
+        },
         "alpha": alpha,
         "alarms": [
             {
