@@ -101,6 +101,18 @@ class CampaignConfig(Config):
     #: the levels the calibration and the adjustments assume (:class:`~misrgraph.model.noise.NoiseModel`,
     #: ``campaign --noise-model``); None: the pre-flight levels
     noise: NoiseModel | None = None
+    #: the campaign over years (:mod:`misrgraph.campaign.years`): a calibration window every
+    #: ``recalibrate_months`` months (0: one calibration for the whole campaign), the calibrations
+    #: watched with false-alarm probability ``monitor_alpha``, each repeat pass adjusted with the
+    #: camera-model version valid for its orbit
+    recalibrate_months: float = 0.0
+    monitor_alpha: float = 0.05
+    #: the simulated true camera's changes over the years, as ``simulate --config`` takes them
+    #: (:class:`~misrgraph.sim.simulate.ScenarioConfig`: drifts, annual terms, steps; zero at
+    #: ``epoch_date``; steps dated after it)
+    camera_drifts: tuple = ()
+    camera_annual: tuple = ()
+    camera_steps: tuple = ()
 
     def __post_init__(self) -> None:
         if not self.months > 0:
@@ -124,6 +136,35 @@ class CampaignConfig(Config):
             raise InputError("roi_blocks", self.roi_blocks, "an integer number of blocks in 1..20")
         if self.observations not in OBSERVATION_SETS:
             raise InputError("observations", self.observations, OBSERVATION_SETS)
+        if not (isinstance(self.recalibrate_months, (int, float)) and self.recalibrate_months >= 0):
+            raise InputError(
+                "recalibrate_months", self.recalibrate_months, "a number of months >= 0 (0: one calibration)"
+            )
+        if self.recalibrate_months and self.months / self.recalibrate_months < 4 - 1e-9:
+            raise InputError(
+                "recalibrate_months",
+                self.recalibrate_months,
+                f"at most months / 4 = {self.months / 4:g} (the monitor needs at least 4 calibrations)",
+            )
+        if not 0 < self.monitor_alpha < 1:
+            raise InputError("monitor_alpha", self.monitor_alpha, "a false-alarm probability in (0, 1)")
+        if self.camera_change:
+            from misrgraph.sim.simulate import ScenarioConfig
+
+            ScenarioConfig.from_dict({**self.camera_change, "epoch_date": self.epoch_date})
+            early = [s for s in self.camera_steps if str(s[0]) <= self.epoch_date]
+            if early:
+                raise InputError("camera_steps", list(early[0]), f"a date after epoch_date {self.epoch_date}")
+
+    @property
+    def camera_change(self) -> dict[str, Any]:
+        """The true camera's changes as simulate's fields (empty when there are none)."""
+        terms = {
+            "camera_drifts": self.camera_drifts,
+            "camera_annual": self.camera_annual,
+            "camera_steps": self.camera_steps,
+        }
+        return {k: [list(x) for x in v] for k, v in terms.items() if v}
 
     @property
     def blocks(self) -> int:
@@ -153,14 +194,25 @@ class CampaignPlan:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            # a campaign without a noise model plans as one did before the field existed
-            "config": {k: v for k, v in self.config.to_dict().items() if not (k == "noise" and v is None)},
+            # fields at their defaults that came after the first campaigns are left out, so that a
+            # campaign without them plans as one did before they existed
+            "config": {k: v for k, v in self.config.to_dict().items() if not (k in _LATER and v == _LATER[k])},
             "paths": {
                 str(p.path): {"available": p.available, "cycles": list(p.cycles), "pass_ids": list(p.pass_ids)}
                 for p in self.paths
             },
             "passes_planned": self.n_passes,
         }
+
+
+_LATER: dict[str, Any] = {
+    "noise": None,
+    "recalibrate_months": 0.0,
+    "monitor_alpha": 0.05,
+    "camera_drifts": (),
+    "camera_annual": (),
+    "camera_steps": (),
+}
 
 
 def parse_paths(text: str) -> tuple[int, ...]:

@@ -56,6 +56,14 @@ def write_report(
         figures = plot_campaign(summary, pts, report_dir, _land_background())
     except MisrGraphError as exc:  # matplotlib is an optional extra: the tables still say everything
         log.warning("campaign report without figures: %s", exc)
+    years = summary.get("years") or {}
+    if years.get("status") == "done":
+        try:
+            from misrgraph.viz.plots import plot_camera_years
+
+            figures += plot_camera_years(years, report_dir)
+        except MisrGraphError as exc:
+            log.warning("campaign report without the figure over years: %s", exc)
     cfg = plan["config"]
     L = [
         "# misrgraph campaign",
@@ -109,6 +117,7 @@ def write_report(
             f"{_f(v['supplied_mean_m'])} |"
             for c, v in summary["cameras"].items()
         ] + [""]
+    L += _years_section(summary.get("years"))
     L += [
         "## Per path",
         "",
@@ -152,3 +161,45 @@ def write_report(
     with atomic_file(md) as fh:
         fh.write("\n".join(L))
     return md
+
+
+def _years_section(years: dict[str, Any] | None) -> list[str]:
+    """The campaign over years: versions, alarms and the stale passes (Markdown lines)."""
+    if not years:
+        return []
+    if years.get("status") != "done":
+        return ["## Over the years", "", f"The camera-model versions failed: {years.get('reason')}", ""]
+    L = [
+        "## Over the years",
+        "",
+        f"{len(years['windows'])} calibration windows; the monitor's alarms made "
+        f"{len(years['versions'])} camera-model version(s), in `{years['store']}` (`misrgraph cgm list`).",
+        "",
+        "| version | from window | first orbit | why |",
+        "|---|---:|---:|---|",
+    ]
+    L += [f"| {v['id']} | {v['window'] + 1} | {v['first_orbit']} | {v['reason']} |" for v in years["versions"]]
+    L += [""]
+    if years["alarms"]:
+        L += [
+            "| alarm at window | camera | parameter | test | statistic / threshold | onset window |",
+            "|---:|---|---|---|---:|---:|",
+        ]
+        L += [
+            f"| {a['window'] + 1} | {a['camera']} | {a['parameter']} | {a['kind']} | "
+            f"{a['statistic']:.2f} / {a['threshold']:.2f} | {a['onset_window'] + 1} |"
+            for a in years["alarms"]
+        ]
+        L += [""]
+    else:
+        L += ["No alarm: one camera model held for the whole campaign.", ""]
+    stale = years["stale_passes"]
+    L += ["Passes adjusted with a model the monitoring later found stale:", ""]
+    if stale:
+        L += ["| pass | date | adjusted with | superseded by | change |", "|---|---|---|---|---|"]
+        L += [
+            f"| {r['pass_id']} | {r['date']} | {r['version']} | {r['superseded_by']} | {r['change']} |" for r in stale
+        ]
+    else:
+        L += ["none."]
+    return L + [""]

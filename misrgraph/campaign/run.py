@@ -3,7 +3,9 @@
 Stages, as a task graph on Dask (:mod:`dask.distributed`)::
 
     inputs      the GCP month and each path's chosen repeat passes (simulated, or the user's)
-    calibration the cameras, on the GCP month (one task)
+    calibration the cameras, on the GCP month (one task; over years, one per window)
+    versions    over years: the calibrations watched, camera-model versions by orbit range
+                (:mod:`misrgraph.campaign.years`)
     adjust      every chosen pass with the calibrated model (one task a pass; the graph is built
                 and solved on the worker)
     path        per path, the incremental state over its passes and its Projection Parameters
@@ -245,6 +247,10 @@ def run_campaign(
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("--out", str(out_dir), "a directory (created if missing)")
     out_dir.mkdir(parents=True, exist_ok=True)
+    if inputs is not None and cfg.recalibrate_months:
+        raise InputError(
+            "--inputs", str(inputs), "none with --recalibrate (a campaign over years simulates its windows)"
+        )
     if inputs is not None:
         plan, month_dir, path_dirs = plan_from_inputs(cfg, Path(inputs).resolve())
     else:
@@ -310,7 +316,23 @@ def _execute(
     else:
         month = submit("inputs", "month", tasks.simulate_month, out, cfg, priority=10)
     noise = None if cfg.noise is None else cfg.noise.to_dict()
-    cal = submit("calibration", "month", tasks.calibrate, out, month, cfg.observations, noise, priority=9)
+    if cfg.recalibrate_months:  # over years: a calibration per window, versions from the monitor
+        from misrgraph.campaign.years import window_starts
+
+        cals = [
+            submit(
+                "calibration", "window 1", tasks.calibrate, out, month, cfg.observations, noise, "window 1", priority=9
+            )
+        ]
+        for w in range(1, len(window_starts(cfg))):
+            mw = submit("inputs", f"month {w + 1}", tasks.simulate_month, out, cfg, w, month, priority=10)
+            name = f"window {w + 1}"
+            cals.append(
+                submit("calibration", name, tasks.calibrate, out, mw, cfg.observations, noise, name, priority=9)
+            )
+        cal = submit("versions", "camera model", tasks.camera_versions, out, cfg, *cals, priority=8)
+    else:
+        cal = submit("calibration", "month", tasks.calibrate, out, month, cfg.observations, noise, priority=9)
     for pp in plan.paths:
         if pp.path in path_dirs:
             pin = submit(
@@ -403,7 +425,7 @@ def _summarise(
         for r in records
         if r["status"] != "done"
     ]
-    cal = by.get(("calibration", "month"), {})
+    cal = by.get(("calibration", "month")) or by.get(("calibration", "window 1"), {})
     cameras: dict[str, dict[str, Any]] = {}
     for pid in done:
         for c, v in (adj[pid]["summary"].get("checkpoint_m") or {}).items():
@@ -467,10 +489,38 @@ def _summarise(
         ),
         "cameras": cameras,
         "paths": paths,
+        **({"years": _years(plan, by, adj)} if plan.config.recalibrate_months else {}),
         "failed": failed,
         "stages": stages,
         "cluster": cluster,
         "seconds": seconds,
+    }
+
+
+def _years(plan: CampaignPlan, by: dict[tuple[str, str], Any], adj: dict[str, Any]) -> dict[str, Any]:
+    """The campaign over years: the windows, the monitor's alarms, the versions, which version
+    each pass was adjusted with, and the stale passes (:mod:`misrgraph.campaign.years`)."""
+    from misrgraph.campaign.years import stale_passes, window_starts
+
+    rec = by.get(("versions", "camera model"))
+    if rec is None or rec["status"] != "done":
+        return {"status": "failed", "reason": None if rec is None else rec.get("reason")}
+    m = rec["summary"]
+    used = {
+        pid: (r["summary"].get("camera_model_version") or {}).get("id")
+        for pid, r in adj.items()
+        if r and r["status"] == "done"
+    }
+    return {
+        "status": "done",
+        "store": rec["output"],
+        "windows": m["windows"],
+        "series": m["series"],
+        "levels": m["levels"],
+        "alarms": m["alarms"],
+        "versions": m["versions"],
+        "pass_versions": used,
+        "stale_passes": stale_passes(plan.config, used, m["alarms"], window_starts(plan.config)),
     }
 
 

@@ -36,7 +36,16 @@ from misrgraph.campaign.plan import SIZES, CampaignConfig, digest
 from misrgraph.errors import FileFormatError, MisrGraphError
 from misrgraph.io.h5 import make_temp_dir
 
-__all__ = ["simulate_month", "simulate_path", "existing_inputs", "calibrate", "adjust", "path_products", "SUMMARY_FILE"]
+__all__ = [
+    "simulate_month",
+    "simulate_path",
+    "existing_inputs",
+    "calibrate",
+    "camera_versions",
+    "adjust",
+    "path_products",
+    "SUMMARY_FILE",
+]
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +127,15 @@ def _building(final: Path) -> Any:
 
 # ---------------------------------------------------------------------------- inputs
 def _scenario_cfg(cfg: CampaignConfig, kind: str, **extra: Any) -> dict[str, Any]:
-    return {"scenario": kind, "truth": cfg.truth, "epoch_date": cfg.epoch_date, **SIZES[cfg.size][kind], **extra}
+    change = {**cfg.camera_change, "camera_epoch_date": cfg.epoch_date} if cfg.camera_change else {}
+    return {
+        "scenario": kind,
+        "truth": cfg.truth,
+        "epoch_date": cfg.epoch_date,
+        **SIZES[cfg.size][kind],
+        **change,
+        **extra,
+    }
 
 
 def _simulate(out_dir: Path, scfg: dict[str, Any], match: bool = False) -> tuple[Path, bool, dict[str, Any]]:
@@ -159,13 +176,35 @@ def _match_missing(d: Path, summary: dict[str, Any]) -> bool:
     return done
 
 
-def simulate_month(out: str, cfg: CampaignConfig) -> dict[str, Any]:
+def simulate_month(
+    out: str, cfg: CampaignConfig, window: int = 0, first: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """Simulate the GCP month into ``OUT/inputs/month-<digest>`` (with ``cfg.observations ==
-    "matched"``, with its GCP chips and windows, and matched)."""
+    "matched"``, with its GCP chips and windows, and matched). ``window`` > 0: the GCP scenario of
+    that calibration window of a campaign over years (:mod:`misrgraph.campaign.years`), starting
+    on the window's first day, with GCPs of its own, flying the instrument of the first window's
+    scenario ``first`` (its ``camera_truth.h5``) as it is on each pass's date."""
     matched = cfg.observations == "matched"
-    scfg = _scenario_cfg(cfg, "month", seed=cfg.seed, **({"imagery": True} if matched else {}))
-    d = Path(out) / "inputs" / f"month-{digest(scfg)[:12]}"
-    return _task("inputs", "month", (), lambda: _simulate(d, scfg, matched))
+    name = "month" if window == 0 else f"month {window + 1}"
+
+    def body() -> tuple[Path, bool, dict[str, Any]]:
+        extra: dict[str, Any] = {"seed": cfg.seed}
+        if window:
+            from misrgraph.campaign.years import date_of_day, window_starts
+
+            assert first is not None
+            truth = Path(first["output"]) / "camera_truth.h5"
+            seed = int.from_bytes(bytes.fromhex(digest("window seed", cfg.seed, window)[:8]), "big")
+            extra = {
+                "seed": seed,
+                "epoch_date": date_of_day(cfg, window_starts(cfg)[window]),
+                "camera_truth": str(truth),
+            }
+        scfg = _scenario_cfg(cfg, "month", **extra, **({"imagery": True} if matched else {}))
+        d = Path(out) / "inputs" / f"month-{digest(scfg)[:12]}"
+        return _simulate(d, scfg, matched)
+
+    return _task("inputs", name, () if first is None else (first,), body)
 
 
 def mid_pass_block(scfg: dict[str, Any]) -> int:
@@ -252,11 +291,15 @@ def _adjust_config(noise: dict[str, Any] | None) -> Any:
 
 
 def calibrate(
-    out: str, month: dict[str, Any], observations: str = "simulated", noise: dict[str, Any] | None = None
+    out: str,
+    month: dict[str, Any],
+    observations: str = "simulated",
+    noise: dict[str, Any] | None = None,
+    name: str = "month",
 ) -> dict[str, Any]:
     """Calibrate the cameras on the GCP month into ``OUT/calibration/camera_model-<digest>.h5``,
     from the ``observations`` set, with the navigation levels of the ``noise`` model (None: the
-    pre-flight levels)."""
+    pre-flight levels); ``name``: the record's (a window's, in a campaign over years)."""
     from misrgraph.estimate.calibrate import CalibrateConfig
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
@@ -272,7 +315,7 @@ def calibrate(
                 return f, True, _calibration_summary(json.loads(h["calibration"].attrs["summary_json"]))
         return f, False, _calibration_summary(run_calibrate(d, out=f, cfg=cfg, observations=observations))
 
-    return _task("calibration", "month", (month,), body)
+    return _task("calibration", name, (month,), body)
 
 
 def _calibration_summary(s: dict[str, Any]) -> dict[str, Any]:
@@ -282,6 +325,56 @@ def _calibration_summary(s: dict[str, Any]) -> dict[str, Any]:
         out["pointing_error_px"] = {c: v.get("pointing_error_px") for c, v in s["cameras"].items()}
         out["sigma_px"] = {c: v.get("sigma_px") for c, v in s["cameras"].items()}
     return out
+
+
+def camera_versions(out: str, cfg: CampaignConfig, *calibrations: dict[str, Any]) -> dict[str, Any]:
+    """The camera-model versions of a campaign over years (:mod:`misrgraph.campaign.years`): the
+    windows' calibrations (in window order) watched by the monitor, the versions it calls for in a
+    store ``OUT/cgm/versions-<digest>/store`` (:mod:`misrgraph.io.cgm`), and what the monitor saw
+    in ``monitor.json`` beside it (the record's summary)."""
+
+    def body() -> tuple[Path, bool, dict[str, Any]]:
+        from misrgraph.campaign.years import date_of_day, first_orbit_of_day, plan_versions, window_starts
+        from misrgraph.io.cgm import add_version
+        from misrgraph.io.h5 import open_h5
+
+        files = [Path(c["output"]) for c in calibrations]
+        starts = window_starts(cfg)
+        key = digest("versions", [_sha(f) for f in files], starts, cfg.monitor_alpha)
+        final = Path(out) / "cgm" / f"versions-{key[:12]}"
+        if (final / "monitor.json").exists():
+            return final / "store", True, json.loads((final / "monitor.json").read_text())
+        summaries = []
+        for f in files:
+            with open_h5(f, "camera_model") as h:
+                summaries.append(json.loads(h["calibration"].attrs["summary_json"]))
+        half = 0.5 * float(SIZES[cfg.size]["month"].get("month_days", 30))
+        plan = plan_versions([s + half for s in starts], summaries, cfg.monitor_alpha)
+        versions = []
+        with _building(final) as tmp:
+            for k, w in enumerate(plan["version_windows"]):
+                if k == 0:
+                    reason = f"calibration window 1 (GCP scenario from {date_of_day(cfg, starts[0])})"
+                else:
+                    a = plan["alarms"][k - 1]
+                    reason = (
+                        f"monitor: {a['camera']} {a['parameter']} {a['kind']} at window {w + 1} "
+                        f"({date_of_day(cfg, starts[w])}), onset window {a['onset_window'] + 1}"
+                    )
+                v = add_version(tmp / "store", files[w], first_orbit_of_day(starts[w]) if k else 0, None, reason)
+                versions.append({"id": v.id, "window": w, "first_orbit": v.first_orbit, "reason": reason})
+            summary = {
+                **plan,
+                "windows": [
+                    {"window": w + 1, "start": date_of_day(cfg, d), "calibration": str(f)}
+                    for w, (d, f) in enumerate(zip(starts, files))
+                ],
+                "versions": versions,
+            }
+            (tmp / "monitor.json").write_text(json.dumps(summary, indent=2))
+        return final / "store", False, summary
+
+    return _task("versions", "camera model", tuple(calibrations), body)
 
 
 # ---------------------------------------------------------------------------- per pass
@@ -306,7 +399,7 @@ def adjust(
         pass_file = d / "passes" / f"{pass_id}.h5"
         if not pass_file.exists():
             raise FileFormatError(pass_file, "the planned pass is not in the scenario")
-        cam = Path(calibration["output"])
+        cam = _model_for(Path(calibration["output"]), pass_file)
         cfg = _adjust_config(noise)
         key = digest(
             "adjust",
@@ -323,11 +416,48 @@ def adjust(
                 return f, True, _pass_summary(json.loads(h.attrs["summary_json"]))
         f.parent.mkdir(parents=True, exist_ok=True)
         s = run_adjust(
-            d, camera_model=cam, pass_file=pass_file, out=f, cfg=cfg, score_points=True, observations=observations
+            d,
+            camera_model=calibration["output"],
+            pass_file=pass_file,
+            out=f,
+            cfg=cfg,
+            score_points=True,
+            observations=observations,
         )
         return f, False, _pass_summary(s)
 
     return _task("adjust", pass_id, (inputs, calibration), body)
+
+
+def _model_for(cam: Path, pass_file: Path) -> Path:
+    """The camera-model file a pass is adjusted with: ``cam`` itself, or the version of the store
+    ``cam`` valid for the pass's orbit."""
+    from misrgraph.io.cgm import is_cgm_store
+
+    if not is_cgm_store(cam):
+        return cam
+    from misrgraph.runs.cgm import resolve_camera_model
+    from misrgraph.runs.update import _pass_orbit
+
+    return Path(resolve_camera_model(cam, _pass_orbit(pass_file))[0])
+
+
+def _current_version_passes(cam: Path, files: list[Path]) -> list[Path]:
+    """``files`` themselves, or with a store ``cam`` the passes of its last version (a path's
+    state and products use one camera model: the current one)."""
+    from misrgraph.io.cgm import is_cgm_store, open_store
+
+    if not is_cgm_store(cam):
+        return files
+    last = open_store(cam).versions[-1]
+    from misrgraph.runs.update import _pass_orbit
+
+    keep = [f for f in files if last.covers(_pass_orbit(f))]
+    if not keep:
+        raise MisrGraphError(
+            f"no planned pass of this path falls in the current camera model {last.id} ({last.orbits_text()})"
+        )
+    return keep
 
 
 def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
@@ -335,6 +465,7 @@ def _pass_summary(s: dict[str, Any]) -> dict[str, Any]:
         k: s[k]
         for k in (
             "pass_id",
+            "camera_model_version",
             "observation_set",
             "solver_status",
             "iterations",
@@ -390,7 +521,8 @@ def path_products(
         missing = [str(f) for f in files if not f.exists()]
         if missing:
             raise FileFormatError(d / "passes", f"planned passes missing: {', '.join(missing)}")
-        cam = Path(calibration["output"])
+        files = _current_version_passes(Path(calibration["output"]), files)
+        cam = _model_for(Path(calibration["output"]), files[0])
         cfg = _adjust_config(noise)
         key = digest(
             "path",

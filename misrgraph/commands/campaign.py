@@ -85,6 +85,16 @@ def campaign(
         "are then rendered and matched, brought ones must have been) for the calibration, the adjustments and "
         "the path states.",
     ),
+    recalibrate: float = typer.Option(
+        0.0,
+        "--recalibrate",
+        help="Months between calibration windows (0: one calibration). Each window is calibrated, the "
+        "calibrations are watched for a change, and each pass is adjusted with the camera-model version "
+        "valid for its orbit (OUT/cgm/).",
+    ),
+    monitor_alpha: float = typer.Option(
+        0.05, "--monitor-alpha", help="False-alarm probability of the monitor over a campaign (with --recalibrate)."
+    ),
     config: Optional[Path] = typer.Option(None, "--config", help=CONFIG_HELP.format(cls="CampaignConfig")),
     noise_model: Optional[Path] = typer.Option(None, "--noise-model", help=NOISE_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
@@ -107,6 +117,8 @@ def campaign(
         roi=roi,
         roi_blocks=roi_blocks,
         observations=observations,
+        recalibrate_months=recalibrate,
+        monitor_alpha=monitor_alpha,
     )
     merge_config(fields, config)
     noise = load_noise(noise_model)

@@ -111,8 +111,10 @@ class FilterResult:
 @dataclass(frozen=True)
 class ChangeAlarm:
     """The first alarm of a series: its index and time, the direction (+1 up, -1 down), the
-    test's statistic at the alarm against its threshold, the filtered level before it, and which
-    test raised it (``"step"``: the CUSUM, ``"departure"``: the level's departure)."""
+    test's statistic at the alarm against its threshold, the filtered level before it, which
+    test raised it (``"step"``: the CUSUM, ``"departure"``: the level's departure), and the
+    estimated onset: for a step, the first calibration of the CUSUM's run that crossed (the one
+    after its last zero); for a departure, the alarm's own index."""
 
     index: int
     t: float
@@ -122,6 +124,7 @@ class ChangeAlarm:
     level_before: float
     level_sigma_before: float
     kind: str = "step"
+    onset: int = -1
 
 
 def _check(t: ArrayLike, y: ArrayLike, s: ArrayLike) -> tuple[Array, Array, Array]:
@@ -319,8 +322,12 @@ def monitor_series(
     before = max(i - 1, 0)
     if i == i_step:
         direction, stat, thr = (1 if up[i] > h else -1), float(max(up[i], dn[i])), h
+        run = up if direction > 0 else dn
+        zeros = np.flatnonzero(run[:i] == 0.0)
+        onset = int(zeros[-1]) + 1 if zeros.size else res.n_diffuse
     else:
         direction, stat, thr = int(np.sign(dep[i])), float(abs(dep[i])), zdep
+        onset = i
     return res, ChangeAlarm(
         index=i,
         t=float(tt[i]),
@@ -330,6 +337,7 @@ def monitor_series(
         level_before=float(res.level[before]),
         level_sigma_before=float(res.level_sigma[before]),
         kind="step" if i == i_step else "departure",
+        onset=onset,
     )
 
 
@@ -343,7 +351,7 @@ def monitor_cameras(
     """Test every ``(camera, parameter)`` series for a change, with the false-alarm probability
     ``alpha`` shared by all of them (Bonferroni: ``alpha / len(series)`` each), and return the
     alarms, earliest first: ``{"camera", "parameter", "index", "t", "direction", "statistic",
-    "threshold", "level_before", "level_sigma_before"}`` ("a new camera model is needed")."""
+    "threshold", "level_before", "level_sigma_before", "kind", "onset"}`` ("a new camera model is needed")."""
     if not series:
         raise InputError("series", {}, "at least one (camera, parameter) series")
     each = float(alpha) / len(series)

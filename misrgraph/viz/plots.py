@@ -16,7 +16,7 @@ from misrgraph.errors import require_extra
 from misrgraph.io.truth import read_pass_truth
 from misrgraph.model.constants import ANGLES, ARCSEC, CAMERAS
 
-__all__ = ["plot_adjustment", "plot_calibration", "plot_campaign", "plot_match"]
+__all__ = ["plot_adjustment", "plot_calibration", "plot_campaign", "plot_camera_years", "plot_match"]
 
 
 def _save(fig: Any, path: Path) -> Path:
@@ -279,3 +279,43 @@ def plot_match(pass_file: str | os.PathLike[str], out_dir: str | os.PathLike[str
     out = [_save(fig, Path(out_dir) / f"match_{camera}.png")]
     plt.close(fig)
     return out
+
+
+def plot_camera_years(years: dict[str, Any], out_dir: str | os.PathLike[str]) -> list[Path]:
+    """The campaign over years' figure (``camera_years.png``): per camera, its calibrated
+    ``delta``, ``beta`` and ``epsilon`` (arcsec, less their first window's value) at each window's
+    start date with 1-sigma bands, the camera-model versions' first windows as vertical lines and
+    each alarm as a cross on the parameter that raised it. ``years``: the campaign summary's
+    ``years`` entry. Returns the file written."""
+    matplotlib = require_extra("matplotlib", "viz", "the figures")
+    matplotlib.use("Agg")
+    import datetime as _dt
+
+    import matplotlib.pyplot as plt
+
+    dates = [_dt.date.fromisoformat(w["start"]) for w in years["windows"]]
+    fig, axes = plt.subplots(3, 3, figsize=(11, 7.5), sharex=True)
+    colours = {"delta": "C0", "beta": "C1", "epsilon": "C2"}
+    for ax, cam in zip(axes.ravel(), CAMERAS):
+        for par, c in colours.items():
+            e = years["series"][cam][par]
+            y = np.asarray(e["value_arcsec"]) - e["value_arcsec"][0]
+            sd = np.asarray(e["sigma_arcsec"])
+            ax.plot(dates, y, "o-", ms=3, color=c, label=par)
+            ax.fill_between(dates, y - sd, y + sd, color=c, alpha=0.2)
+        for v in years["versions"][1:]:
+            ax.axvline(dates[v["window"]], color="k", ls="--", lw=0.8)
+        for a in years["alarms"]:
+            if a["camera"] == cam:
+                e = years["series"][cam][a["parameter"]]
+                ax.plot(dates[a["window"]], e["value_arcsec"][a["window"]] - e["value_arcsec"][0], "kx", ms=9)
+        ax.set_title(cam, fontsize=9)
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("change (arcsec)", fontsize=8)
+    fig.autofmt_xdate()
+    fig.suptitle("calibrations per window (1σ bands); dashed: a new camera-model version; x: the alarm")
+    path = _save(fig, Path(out_dir) / "camera_years.png")
+    plt.close(fig)
+    return [path]

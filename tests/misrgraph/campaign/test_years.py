@@ -1,0 +1,128 @@
+"""The campaign over years: windows and orbits in closed form, the versions the monitor calls for on
+series made by hand, the stale passes, and (slow) a campaign whose true Da camera steps, run,
+killed and resumed."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from misrgraph.campaign.plan import CampaignConfig
+from misrgraph.campaign.years import (
+    first_orbit_of_day,
+    pass_day,
+    plan_versions,
+    stale_passes,
+    window_of_day,
+    window_starts,
+)
+from misrgraph.errors import InputError
+from misrgraph.model.constants import CAMERAS
+
+ARCSEC = math.pi / 180 / 3600
+
+
+def test_windows_and_orbits() -> None:
+    cfg = CampaignConfig(months=12, recalibrate_months=3)
+    starts = window_starts(cfg)
+    assert starts == pytest.approx([0.0, 91.3125, 182.625, 273.9375])
+    assert window_of_day(cfg, 91.0) == 0 and window_of_day(cfg, 91.5) == 1 and window_of_day(cfg, 400) == 3
+    assert first_orbit_of_day(16.0) == 233 and first_orbit_of_day(91.3125) == math.ceil(91.3125 * 233 / 16)
+    assert pass_day("P037_O0466") == 32.0
+    with pytest.raises(InputError, match="recalibrate_months"):
+        CampaignConfig(months=6, recalibrate_months=3)
+    with pytest.raises(InputError, match="camera_steps"):
+        CampaignConfig(camera_steps=(("2001-06-01", "Da", "delta", 3.0),))
+
+
+def _summaries(rng: np.random.Generator, n: int, step_at: int | None, sigma_arcsec: float = 1.0) -> list[dict]:
+    out = []
+    for k in range(n):
+        cams = {}
+        for cam in CAMERAS:
+            params = {}
+            for par in ("delta", "beta", "epsilon"):
+                v = rng.normal(0, sigma_arcsec)
+                if step_at is not None and k >= step_at and (cam, par) == ("Da", "delta"):
+                    v += 10 * sigma_arcsec
+                params[par] = {"value": v * ARCSEC, "sigma": sigma_arcsec * ARCSEC}
+            cams[cam] = {"params": params}
+        out.append({"cameras": cams})
+    return out
+
+
+def test_a_step_makes_a_version_at_its_window_and_nothing_else_does(rng) -> None:
+    """Twelve windows of 1-arcsec calibrations: a 10-sigma step of Da delta at window 7 (index 6)
+    gives version 2 at window 7 or 8 naming Da delta, with the onset at or before the alarm; the
+    same series without the step gives one version."""
+    t = [30.0 * k for k in range(12)]
+    got = plan_versions(t, _summaries(rng, 12, 6))
+    assert got["version_windows"][0] == 0 and got["version_windows"][1] in (6, 7), got["alarms"]
+    a = got["alarms"][0]
+    assert (a["camera"], a["parameter"], a["direction"]) == ("Da", "delta", 1)
+    assert a["onset_window"] <= a["window"] and a["onset_window"] >= 5
+    assert got["series"]["Da"]["delta"]["sigma_arcsec"] == pytest.approx([1.0] * 12)
+    calm = plan_versions(t, _summaries(np.random.default_rng(5), 12, None))
+    assert calm["version_windows"] == [0] and calm["alarms"] == []
+
+
+def test_stale_passes_are_those_from_the_onset_to_the_new_version() -> None:
+    cfg = CampaignConfig(months=12, recalibrate_months=3)
+    starts = window_starts(cfg)  # 0, 91.3, 182.6, 273.9 days
+    alarm = {"camera": "Da", "parameter": "delta", "kind": "step", "window": 2, "onset_window": 1}
+    passes = {f"P037_O{233 * k:04d}": ("v001" if 16 * k < starts[2] else "v002") for k in range(23)}
+    stale = stale_passes(cfg, passes, [alarm], starts)
+    want = sorted(p for p in passes if starts[1] <= pass_day(p) < starts[2])
+    assert [r["pass_id"] for r in stale] == want and len(want) == 6
+    assert {r["version"] for r in stale} == {"v001"} and {r["superseded_by"] for r in stale} == {"v002"}
+    assert stale[0]["date"] == "2001-09-19"  # cycle 6, 96 days after 2001-06-15
+
+
+@pytest.mark.slow
+def test_a_campaign_over_months_finds_the_step_and_resumes(tmp_path) -> None:
+    """Four windows of half a month; Da's true delta steps by 60 arcsec on 2001-07-10. The monitor
+    asks for a version at the window after the step; each pass is adjusted with the version the
+    store gives its orbit; the new version's Da delta differs from the first's by the step (within
+    4 sigma of the two calibrations), and no other camera angle moved by more than 4 sigma; a
+    rerun finds every task done and the outputs unchanged."""
+    from misrgraph.campaign.run import campaign_fingerprint, run_campaign
+    from misrgraph.io.cgm import open_store, version_for_orbit
+    from misrgraph.runs.cgm import run_cgm_diff
+    from misrgraph.runs.update import _pass_orbit
+
+    cfg = CampaignConfig.from_dict(
+        {
+            "months": 2,
+            "recalibrate_months": 0.5,
+            "size": "reduced",
+            "paths": [37],
+            "products": False,
+            "camera_steps": [["2001-07-10", "Da", "delta", 60.0]],
+        }
+    )
+    out = tmp_path / "c"
+    s = run_campaign(out, cfg, workers=0)
+    y = s["years"]
+    assert y["status"] == "done" and s["passes"]["failed"] == 0
+    assert [v["window"] for v in y["versions"]] == [0, 2]  # the step is in window 2; the alarm at 3
+    assert (y["alarms"][0]["camera"], y["alarms"][0]["parameter"]) == ("Da", "delta")
+    store = open_store(y["store"])
+    for pid, vid in y["pass_versions"].items():
+        f = next((out / "inputs").glob(f"path_037-*/passes/{pid}.h5"))
+        assert version_for_orbit(store, _pass_orbit(f))[0].id == vid
+    diff = run_cgm_diff(y["store"], "v001", "v002")
+    da = diff["cameras"]["Da"]["delta"]
+    assert abs(da["arcsec"] - 60.0) < 4 * da["sigma_arcsec"], da
+    others = [v for e in diff["cameras"].values() for p, v in e.items() if p in ("delta", "beta", "epsilon")]
+    assert sum(abs(v["z"]) > 4 for v in others) == 1, others
+    assert {r["pass_id"] for r in y["stale_passes"]} <= set(y["pass_versions"])
+    report = (out / "report" / "campaign.md").read_text()
+    assert "Over the years" in report and (out / "report" / "camera_years.png").exists()
+    before = campaign_fingerprint(out)
+    again = run_campaign(out, cfg, workers=0)
+    assert all(st["found_done"] == st["tasks"] for st in again["stages"].values()), again["stages"]
+    assert campaign_fingerprint(out) == before
+    assert json.loads((out / "summary.json").read_text())["years"]["versions"] == y["versions"]
