@@ -17,7 +17,9 @@ __all__ = ["view"]
 
 @handle_errors
 def view(
-    result: Path = typer.Argument(..., help="RESULT.h5 from adjust, or a camera model written by calibrate."),
+    result: Path = typer.Argument(
+        ..., help="RESULT.h5 from adjust, a camera model written by calibrate, or a campaign directory over years."
+    ),
     save: Optional[Path] = typer.Option(None, "--save", help="Write a .rrd recording."),
     spawn: bool = typer.Option(False, "--spawn", help="Open the rerun viewer."),
     exaggeration: float = typer.Option(200.0, "--exaggeration", help="Scale of the 3-sigma landmark ellipsoids."),

@@ -18,6 +18,11 @@ Entity paths (units in brackets; timeline ``pass_time`` = seconds from the pass 
 ``calibration/<camera>/corrections``   corrections [arcsec] (calibration results)
 ``calibration/<camera>/sigma``         their 1 sigma [arcsec]
 ``calibration/correlation``            correlation matrix across parameters and cameras
+``years/<camera>/<angle>/{value,upper,lower}``  a campaign over years: each window's calibrated
+                                       angle and its +-1 sigma band [arcsec], on the ``date``
+                                       timeline (the window's first day)
+``years/versions``, ``years/alarms``   the camera-model versions and the monitor's alarms (text,
+                                       at their windows' dates)
 =====================================  =======================================================
 """
 
@@ -210,6 +215,81 @@ def _view_adjustment(
         counts[f"residuals/{name}/histogram"] = 1
 
 
+def _view_campaign(
+    rr: Any, rrb: Any, out: Path, save: str | os.PathLike[str] | None, spawn: bool, notebook: bool
+) -> dict[str, Any]:
+    """A campaign directory over years (its ``summary.json``'s ``years``): the entities
+    ``years/...`` of the module docstring."""
+    import json
+
+    f = out / "summary.json"
+    try:
+        summary = json.loads(f.read_text())
+    except OSError:
+        raise FileFormatError(f, "cannot read: not a campaign directory (misrgraph campaign --out)") from None
+    except ValueError as exc:
+        raise FileFormatError(f, f"not JSON ({exc})") from None
+    years = summary.get("years") if isinstance(summary, dict) else None
+    if not years or years.get("status") != "done":
+        raise FileFormatError(f, "no campaign over years in it (misrgraph campaign --recalibrate MONTHS)")
+    rec = rr.RecordingStream("misrgraph")
+    tmp = None
+    if save is not None:
+        save = Path(save)
+        save.parent.mkdir(parents=True, exist_ok=True)
+        tmp = save.with_name(f".{save.name}.tmp")
+        rec.save(str(tmp))
+    if spawn:
+        rec.spawn(connect=save is None)
+    dates = np.array([np.datetime64(w["start"], "ns") for w in years["windows"]])
+    counts: dict[str, int] = {}
+    for cam in CAMERAS:
+        for angle, e in years["series"][cam].items():
+            v = np.asarray(e["value_arcsec"], float)
+            sd = np.asarray(e["sigma_arcsec"], float)
+            for name, y in (("value", v), ("upper", v + sd), ("lower", v - sd)):
+                path = f"years/{cam}/{angle}/{name}"
+                rec.send_columns(
+                    path,
+                    indexes=[rr.TimeColumn("date", timestamp=dates)],
+                    columns=rr.Scalars.columns(scalars=y),
+                )
+                counts[path] = int(dates.size)
+    for v in years["versions"]:
+        rec.set_time("date", timestamp=dates[v["window"]])
+        rec.log("years/versions", rr.TextLog(f"{v['id']} from orbit {v['first_orbit']}: {v['reason']}"))
+    counts["years/versions"] = len(years["versions"])
+    for a in years["alarms"]:
+        rec.set_time("date", timestamp=dates[a["window"]])
+        rec.log(
+            "years/alarms",
+            rr.TextLog(
+                f"{a['camera']} {a['parameter']} {a['kind']}: {a['statistic']:.2f} > {a['threshold']:.2f}",
+                level="WARN",
+            ),
+        )
+    counts["years/alarms"] = len(years["alarms"])
+    bp = rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Grid(*[rrb.TimeSeriesView(origin=f"years/{c}", name=f"{c} (arcsec)") for c in CAMERAS]),
+            rrb.Horizontal(
+                rrb.TextLogView(origin="years/versions", name="versions"),
+                rrb.TextLogView(origin="years/alarms", name="alarms"),
+            ),
+            row_shares=[4, 1],
+        )
+    )
+    rec.send_blueprint(bp)
+    rec.flush()
+    if notebook:
+        rr.notebook_show(recording=rec, blueprint=bp, width=1000, height=600)
+    else:
+        rec.disconnect()
+    if tmp is not None:
+        os.replace(tmp, save)
+    return {"kind": "campaign", "entities": counts, "instances": {}, "rrd": str(save) if save else None}
+
+
 def _grid_spacing(kept_times: np.ndarray, removed: np.ndarray) -> float:
     """Spacing of the uniform knot grid, recovered from kept knot times and removed indices."""
     n = kept_times.size + removed.size
@@ -348,6 +428,8 @@ def run_view(
         raise InputError("--save/--spawn", None, "a .rrd file to write, or --spawn to open the viewer")
     if exaggeration <= 0:
         raise InputError("--exaggeration", exaggeration, "a positive factor")
+    if Path(result).is_dir():
+        return _view_campaign(rr, rrb, Path(result), save, spawn, notebook)
     with open_h5(result) as f:
         kind = str(read_attr(f, "misrgraph_kind"))
         if kind not in (

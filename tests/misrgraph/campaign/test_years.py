@@ -126,3 +126,41 @@ def test_a_campaign_over_months_finds_the_step_and_resumes(tmp_path) -> None:
     assert all(st["found_done"] == st["tasks"] for st in again["stages"].values()), again["stages"]
     assert campaign_fingerprint(out) == before
     assert json.loads((out / "summary.json").read_text())["years"]["versions"] == y["versions"]
+
+
+def test_the_years_in_rerun_hold_the_series_and_versions(tmp_path, rng) -> None:
+    """A campaign summary over years viewed in rerun: each camera angle's values and its 1-sigma
+    band on the date timeline, value by value, and one text row per version and alarm."""
+    pytest.importorskip("rerun")
+    import rerun.chunk as rc
+
+    from misrgraph.viz.viewer import run_view
+
+    t = [30.0 * k for k in range(12)]
+    plan = plan_versions(t, _summaries(rng, 12, 6))
+    years = {
+        "status": "done",
+        "windows": [{"window": k + 1, "start": f"2002-{k + 1:02d}-01"} for k in range(12)],
+        "series": plan["series"],
+        "alarms": plan["alarms"],
+        "versions": [
+            {"id": f"v{i + 1:03d}", "window": w, "first_orbit": 0, "reason": "r"}
+            for i, w in enumerate(plan["version_windows"])
+        ],
+    }
+    (tmp_path / "summary.json").write_text(json.dumps({"years": years}))
+    out = run_view(tmp_path, save=tmp_path / "y.rrd")
+    assert out["kind"] == "campaign"
+    cols: dict[str, list] = {}
+    for ch in rc.RrdReader(str(tmp_path / "y.rrd")).store().stream():
+        rb = ch.to_record_batch()
+        name = [c for c in rb.schema.names if "scalars" in c.lower() or "text" in c.lower()]
+        if name:
+            cols.setdefault(str(ch.entity_path), []).extend(rb.column(name[0]).to_pylist())
+    e = plan["series"]["Da"]["delta"]
+    got = np.ravel(cols["/years/Da/delta/value"]).astype(float)
+    np.testing.assert_allclose(got, e["value_arcsec"])
+    upper = np.ravel(cols["/years/Da/delta/upper"]).astype(float)
+    np.testing.assert_allclose(upper - got, e["sigma_arcsec"])
+    assert len(cols["/years/versions"]) == len(years["versions"]) == 2
+    assert len(cols["/years/alarms"]) == len(plan["alarms"])
