@@ -381,7 +381,10 @@ def _render_cgm(r: dict[str, Any]) -> str:
             ("after_new", "after the step, the new version"),
             ("after_stale", "after the step, the stale version"),
             ("stale_minus_new", "stale minus new, paired"),
+            ("new_minus_before", "new version minus the same pass before the step"),
+            ("stale_minus_before", "stale version minus the same pass before the step"),
         )
+        if key in r
     ]
     sig = r["calibration_sigma_px"]
     return (

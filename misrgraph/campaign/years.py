@@ -43,7 +43,6 @@ __all__ = [
     "MONITORED",
     "window_days",
     "window_starts",
-    "window_of_day",
     "first_orbit_of_day",
     "pass_day",
     "plan_versions",
@@ -65,11 +64,6 @@ def window_starts(cfg: CampaignConfig) -> list[float]:
     r = window_days(cfg)
     n = max(1, math.ceil(cfg.months * DAYS_PER_MONTH / r - 1e-9))
     return [w * r for w in range(n)]
-
-
-def window_of_day(cfg: CampaignConfig, day: float) -> int:
-    """The window (0-based) that holds ``day`` (days after ``epoch_date``)."""
-    return min(int(math.floor(day / window_days(cfg) + 1e-9)), len(window_starts(cfg)) - 1)
 
 
 def first_orbit_of_day(day: float) -> int:
