@@ -164,6 +164,7 @@ def run_bench_cgm(
             used.append(("after", s_new["camera_model_version"]["id"]))
             rows["after_new"].append(_pass_scores(s_new, step_camera))
             rows["after_stale"].append(_pass_scores(run_adjust(after, camera_model=v1, pass_file=f), step_camera))
+
         def minus(a: str, b: str) -> list[dict[str, float]]:
             return [{k: x[k] - y[k] for k in x} for x, y in zip(rows[a], rows[b])]
 
