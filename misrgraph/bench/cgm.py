@@ -8,9 +8,10 @@ One instrument (its true camera drawn once) is flown through four stretches of t
 2. ``passes`` repeat passes of one path (one every 16 days) before the step;
 3. the step: ``step_camera``'s ``delta`` moves by ``step_px`` (its pointing, RMS over the swath,
    red band), then a second window calibrated starting from version 1: version 2;
-4. ``passes`` repeat passes after the step, drawn with the same seed as those before it: the
-   same path, ground, landmarks and error draws, pass by pass, on later dates (the instrument
-   after the step, and the Earth's orientation of the new dates).
+4. ``passes`` repeat passes after the step, drawn with the same seed as those before it: pass by
+   pass the same path and the same attitude and navigation error draws, on later dates (the
+   instrument after the step; the landmarks within a few km of the earlier ones, where the later
+   date's ground track puts them).
 
 Both versions go into a camera-model store (:mod:`misrgraph.io.cgm`) with their orbit ranges,
 each pass is adjusted with the version the store picks for it and, after the step, also with

@@ -34,6 +34,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors import keys as K
 from misrgraph.config import Config
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph, check_jitter
@@ -741,6 +742,16 @@ def snoop(
     return np.sort(obs_of_row[bad[order[first]]]).astype(np.int64)
 
 
+def _gcp_position_rows(pg: PassGraph) -> NDArray[np.bool_]:
+    """Which rows of the flat problem's prior family are the GCP positions' priors (a GCP's own,
+    its scene's offset, or the two together): the class whose variance component says how the
+    GCP catalogue's stated sigma holds (``gcp_sigma_scale``)."""
+    flat = pg.problem.flat()
+    gcp_chr = {ord(K.GCP), ord(K.GCP_SCENE)}
+    mask = [np.full(p.b.size, any(gtsam.Symbol(k).chr() in gcp_chr for k in p.keys), bool) for p in flat.priors]
+    return np.concatenate(mask) if mask else np.zeros(0, bool)
+
+
 def reliability_summary(
     orbit_pass: OrbitPass, pg: PassGraph, values: gtsam.Values, at: _ReliabilityAt | None = None
 ) -> dict[str, Any]:
@@ -753,6 +764,11 @@ def reliability_summary(
         return {}
     rel, obs_of_row, kind = at
     out = rel.summary(kind, {KIND_TIE: "tie-point", KIND_GCP: "GCP"})
+    gcp_rows = _gcp_position_rows(pg)
+    if gcp_rows.any():
+        prior_rows = np.zeros(rel.e.size, bool)
+        prior_rows[rel.families["priors"]] = gcp_rows
+        out["variance_components"]["GCP positions"] = rel.variance_component(prior_rows)
     crit = out["data_snooping"]["critical_T"]
     bad = np.flatnonzero(rel.T > crit)
     bad = bad[np.argsort(-rel.T[bad])]

@@ -22,8 +22,9 @@ so (``applied``). The blocks are taken one at a time, each
 with the others' priors as they were (a pass stores each angle's and each segment's joint
 covariance, not their cross-covariance).
 
-**Observation classes** (tie points, GCP measurements, DEM heights): a pass's variance
-components give each class's sigma0 after any rescaling (:mod:`misrgraph.estimate.adjust`); the
+**Observation classes** (tie points, GCP measurements, GCP positions, DEM heights): a pass's
+variance components give each class's sigma0 after any rescaling (:mod:`misrgraph.estimate.adjust`;
+the GCP positions' is their priors' rows, a GCP's own and its scene's); the
 level is ``k_used * scale * sigma0`` pooled over the passes' classes with their redundancies
 ``r`` as weights,
 
@@ -33,9 +34,8 @@ with 1 sigma the standard error over passes, and never less than ``k / sqrt(2 su
 single pass gives; two passes' scatter can be small by chance).
 
 What adjusted passes do not carry is not fitted and keeps its level from the base model: the
-jitter, the attitude damping ratio, the camera prior, the GCP positions' scale and the
-once-per-revolution term. :class:`NoiseFit` says which levels were learned and from how many
-passes.
+jitter, the attitude damping ratio, the camera prior and the once-per-revolution term.
+:class:`NoiseFit` says which levels were learned and from how many passes.
 """
 
 from __future__ import annotations
@@ -72,7 +72,8 @@ class PassLevels:
     value (rad) and rate (rad/s), ``knot_cov[a]`` ``(2n, 2n)`` their joint covariance
     (knot-major). ``ephemeris_boundaries`` ``(S+1,)`` s, ``ephemeris`` ``(S, 6)`` drift (m/s, x y
     z) and offset (m, x y z) per segment, ``ephemeris_cov`` ``(S, 6, 6)``. ``classes``: per
-    observation class ``{"kind": "tie"|"gcp"|"dem", "factor": scale * sigma0, "redundancy": r}``.
+    observation class ``{"kind": "tie"|"gcp"|"gcp_position"|"dem", "factor": scale * sigma0,
+    "redundancy": r}``.
     ``used``: the levels the pass was adjusted with (:meth:`NoiseModel.graph_fields` names, and
     ``knot_prior``)."""
 
@@ -385,6 +386,7 @@ def fit_noise_model(
     for kind, section, fname, used_key in (
         ("tie", "observations", "tie_sigma_scale", "tie_sigma_scale"),
         ("gcp", "observations", "gcp_pixel_sigma_scale", "gcp_pixel_sigma_scale"),
+        ("gcp_position", "observations", "gcp_sigma_scale", "gcp_sigma_scale"),
         ("dem", "dem", "sigma_scale", "dem_sigma_scale"),
     ):
         per_pass, r_all, f_all = [], [], []
@@ -417,7 +419,7 @@ def fit_noise_model(
             "1",
         )
     observations = base.observations.replace(
-        **{k: v for k, v in scales.items() if k in ("tie_sigma_scale", "gcp_pixel_sigma_scale")}
+        **{k: v for k, v in scales.items() if k in ("tie_sigma_scale", "gcp_pixel_sigma_scale", "gcp_sigma_scale")}
     )
     dem = base.dem.replace(sigma_scale=scales["sigma_scale"]) if "sigma_scale" in scales else base.dem
     model = base.replace(attitude=attitude, ephemeris=ephemeris, observations=observations, dem=dem)

@@ -222,10 +222,19 @@ LEVELS: dict[tuple[str, str], tuple[str, str]] = {
         "pre-flight: the calibration requirement, 1/16 px; a calibrated model's own covariance replaces it",
     ),
     ("camera", "focal_prior_px"): ("px", "pre-flight: the focal plane's ground calibration, 0.05 px at the swath edge"),
-    ("dem", "sigma_scale"): ("1", "input: 1 takes the DEM's stated accuracy as it is"),
-    ("observations", "tie_sigma_scale"): ("1", "input: 1 takes the tie points' stated sigma as it is"),
-    ("observations", "gcp_pixel_sigma_scale"): ("1", "input: 1 takes the GCP measurements' stated sigma as it is"),
-    ("observations", "gcp_sigma_scale"): ("1", "input: 1 takes the GCP catalogue's stated sigma as it is"),
+    ("dem", "sigma_scale"): ("1", "input: 1 takes the DEM's stated accuracy as it is; noise fit learns it"),
+    ("observations", "tie_sigma_scale"): (
+        "1",
+        "input: 1 takes the tie points' stated sigma as it is; noise fit learns it",
+    ),
+    ("observations", "gcp_pixel_sigma_scale"): (
+        "1",
+        "input: 1 takes the GCP measurements' stated sigma as it is; noise fit learns it",
+    ),
+    ("observations", "gcp_sigma_scale"): (
+        "1",
+        "input: 1 takes the GCP catalogue's stated sigma as it is; noise fit learns it",
+    ),
 }
 
 

@@ -58,9 +58,15 @@ def read_pass_levels(path: str | os.PathLike[str]) -> PassLevels:
                     "factor": float(v["sigma0"]),
                     "redundancy": float(v["redundancy"]),
                 }
-    dem = (rel.get("variance_components") or {}).get("dem")
-    if dem and dem.get("redundancy", 0) > 0:
-        classes["DEM"] = {"kind": "dem", "factor": float(dem["sigma0"]), "redundancy": float(dem["redundancy"])}
+    vcs = rel.get("variance_components") or {}
+    for name, kind in (("dem", "dem"), ("GCP positions", "gcp_position")):
+        v = vcs.get(name)
+        if v and v.get("redundancy", 0) > 0:
+            classes[name if name != "dem" else "DEM"] = {
+                "kind": kind,
+                "factor": float(v["sigma0"]),
+                "redundancy": float(v["redundancy"]),
+            }
     used = summary.get("noise_levels")
     if used is None:
         log.warning("%s does not say which noise levels it was adjusted with; taking the pre-flight ones", p)

@@ -46,6 +46,13 @@ def test_bench_cgm_new_version_against_the_stale_one(tmp_path):
     from misrgraph.io.truth import read_pass_truth
     from misrgraph.model.constants import ARCSEC, CAMERAS
 
+    # the passes after the step are paired with those before it: the same attitude error draws
+    before = sorted((tmp_path / "before" / "passes").glob("*.h5"))
+    after = sorted((tmp_path / "after" / "passes").glob("*.h5"))
+    for fb, fa in zip(before, after):
+        kb, ka = (np.asarray(read_pass_truth(f).attitude_error.knots) for f in (fb, fa))
+        assert np.array_equal(kb, ka) and np.abs(kb).max() > 0
+    assert set(res["new_minus_before"]) == {"checkpoint_rms_m", "coregistration_px", "camera_nees"}
     base = read_camera_file(tmp_path / "window1" / "camera_truth.h5")
     c = CAMERAS.index("Da")
     for stretch, moved in (("before", 0.0), ("after", res["step"]["arcsec"])):

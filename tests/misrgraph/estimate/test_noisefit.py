@@ -113,6 +113,29 @@ def test_observation_scale_multiplies_the_level_used():
     assert "observations" in fit.learned_sections and "jitter" not in fit.learned_sections
 
 
+def test_gcp_positions_scale_pools_the_passes_prior_components():
+    """Two passes' GCP-position variance components (sigma0 2.2 over redundancy 10, 1.8 over 30,
+    adjusted with the catalogue's sigma as stated) give the scale of eq. (2): the square root of
+    the passes' mean sigma0^2, with the standard error of their scatter or of the redundancy,
+    whichever is larger; the fitted model carries it, the other scales untouched."""
+    rng = np.random.default_rng(4)
+    passes = []
+    for s0, r in ((2.2, 10.0), (1.8, 30.0)):
+        p = _synthetic_pass(rng, 10.0, ATTITUDE_RATE_FACTOR, 10.0)
+        p.classes = {"GCP positions": {"kind": "gcp_position", "factor": s0, "redundancy": r}}
+        p.used = {**p.used, "gcp_sigma_scale": 1.0}
+        passes.append(p)
+    fit = fit_noise_model(passes)
+    lv = fit.levels["observations.gcp_sigma_scale"]
+    k = np.sqrt((2.2**2 + 1.8**2) / 2)
+    se = np.sqrt(np.var([2.2**2, 1.8**2], ddof=1) / 2) / (2 * k)
+    assert lv["value"] == pytest.approx(k) and lv["sigma"] == pytest.approx(
+        max(se, np.sqrt((2.2**2 * 10 + 1.8**2 * 30) / 40) / np.sqrt(80))
+    )
+    assert fit.model.observations.gcp_sigma_scale == pytest.approx(k)
+    assert fit.model.observations.tie_sigma_scale == 1.0
+
+
 def test_helpers_and_errors():
     k, s = pooled_scale([1.0, 2.0], [100.0, 300.0])
     assert k == pytest.approx(np.sqrt((100 + 1200) / 400)) and s == pytest.approx(k / np.sqrt(800))

@@ -188,3 +188,41 @@ def test_observation_scales_correct_files_that_misstate_their_accuracy(tmp_path)
     assert 0.85 < vc["scaled"][tie] < 1.15, vc
     g = base.graph.replace(**NoiseModel.from_dict({"observations": {"gcp_sigma_scale": 3.0}}).graph_fields())
     assert g.gcp_sigma_scale == 3.0 and g.tie_sigma_scale == 1.0
+
+
+def test_gcp_positions_variance_component_reads_a_misstated_catalogue(tmp_path):
+    """A pass whose GCP catalogue understates its positions' sigma by half (drawn at twice the
+    stated sigma; the GCP measurements as stated): the GCP positions' variance component (their
+    priors' rows) reads near 2, and near 1 with the noise model's GCP scale at 2."""
+    from misrgraph.estimate.adjust import adjust_pass
+    from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
+
+    run_simulate(
+        ScenarioConfig(
+            truth="model",
+            scenario="pass",
+            seed=32,
+            n_tie_points=100,
+            n_check_points=5,
+            n_gcps=400,
+            duration_s=900.0,
+            start_lat_deg=55.0,
+            gcp_blunder_rate=0.0,
+            gcp_sigma_true_over_stated=2.0,
+        ),
+        tmp_path / "s",
+    )
+    sc = load_scenario(tmp_path / "s")
+    p = sc.load_pass(0)
+    base = AdjustConfig.from_dict(attitude_jitter_arcsec=0.0, snooping_rounds=0, variance_component_rounds=0)
+    got = {}
+    for name, k in (("stated", 1.0), ("scaled", 2.0)):
+        m = NoiseModel.from_dict({"observations": {"gcp_sigma_scale": k}})
+        cfg = base.replace(graph=base.graph.replace(**{**m.graph_fields(), "attitude_jitter_arcsec": 0.0}))
+        got[name] = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, cfg).reliability["variance_components"][
+            "GCP positions"
+        ]
+    s, r = got["stated"]["sigma0"], got["stated"]["redundancy"]
+    assert r > 20, got  # enough GCP rows to read the scale
+    assert abs(s - 2.0) < 3 * 2.0 / np.sqrt(2 * r), got
+    assert 0.7 < got["scaled"]["sigma0"] < 1.3 and 1.6 < s / got["scaled"]["sigma0"] < 2.4, got
