@@ -74,7 +74,7 @@ def run_monitor(
     """Test a table of calibrations for a change (module docstring). Return
     ``{"calibrations", "from", "to", "trained_on", "levels": {"q_level_arcsec2_per_day",
     "q_slope_arcsec2_per_day3", "slope_var_arcsec2_per_day2", "season_var_arcsec2"},
-    "alpha", "alarms": [{"camera", "parameter", "utc", "kind",
+    "alpha", "alarms": [{"camera", "parameter", "utc", "onset_utc", "kind",
     "direction", "statistic", "threshold", "level_before_arcsec", "level_sigma_before_arcsec"}],
     "new_cgm_needed"}``."""
     p = Path(table)
@@ -116,6 +116,7 @@ def run_monitor(
                 "camera": a["camera"],
                 "parameter": a["parameter"],
                 "utc": format_utc(rows[int(a["index"])][0]),
+                "onset_utc": format_utc(rows[max(int(a["onset"]), 0)][0]),
                 "kind": a["kind"],
                 "direction": a["direction"],
                 "statistic": a["statistic"],

@@ -111,14 +111,17 @@ def learned() -> TrendLevels:
 
 def test_a_step_of_a_tenth_of_a_pixel_is_found_within_one_recalibration(learned) -> None:
     rng = np.random.default_rng(7)
-    n, found, delays = 100, 0, []
+    n, found, delays, onsets = 100, 0, [], []
     for _ in range(n):
         res, alarm = monitor_series(T, _series(rng, TRUE, step=0.1, at=40), SIGMA, learned, alpha=0.05)
         if alarm is not None and 40 <= alarm.index <= 41 and alarm.direction == 1:
             found += 1
             delays.append(alarm.index - 40)
+            onsets.append((alarm.onset, alarm.index))
     # at least 90 % with the 95 % binomial interval's lower end above 80 %
     assert found / n >= 0.9, (found, delays)
+    # the onset: the step's own calibration in most, never after the alarm
+    assert np.mean([o == 40 for o, _ in onsets]) >= 0.8 and all(o <= i for o, i in onsets), onsets
 
 
 def test_false_alarms_stay_within_the_configured_rate(learned) -> None:

@@ -52,6 +52,7 @@ def test_monitor_finds_the_step_and_nothing_without_it(tmp_path: Path) -> None:
     assert (first["camera"], first["parameter"], first["direction"]) == ("Da", "delta", 1)
     step_at = (dt.datetime(2003, 1, 15) + dt.timedelta(days=30 * 16)).strftime("%Y-%m-%d")
     assert first["utc"].startswith(step_at), first
+    assert first["onset_utc"].startswith(step_at), first  # an 8-sigma step: the alarm at its onset
     r = CliRunner().invoke(app, ["monitor", str(_table(tmp_path / "b", 0.0)), "--json"])
     assert r.exit_code == 0, r.output
     assert json.loads(r.output)["alarms"] == []
