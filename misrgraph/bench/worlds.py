@@ -33,7 +33,7 @@ from misrgraph.errors import InputError, MisrGraphError
 from misrgraph.model.noise import NoiseModel
 from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-__all__ = ["WORLDS", "WORLD_SIZES", "oracle_noise_model", "run_bench_worlds"]
+__all__ = ["WORLDS", "WORLD_SIZES", "oracle_noise_model", "run_bench_worlds", "levels_recovered", "RECOVERED_LEVELS"]
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,59 @@ def oracle_noise_model(cfg: ScenarioConfig) -> NoiseModel:
             gcp_sigma_scale=float(cfg.gcp_sigma_true_over_stated),
         ),
     )
+
+
+#: The learned levels compared with the world's own (``noise fit`` name -> (section, field, axis or
+#: None, the acceptance's relative bound)): the stated-sigma scales within 10 %, the attitude
+#: sigmas within 20 %.
+RECOVERED_LEVELS: dict[str, tuple[str, str, int | None, float]] = {
+    "observations.tie_sigma_scale": ("observations", "tie_sigma_scale", None, 0.10),
+    "observations.gcp_pixel_sigma_scale": ("observations", "gcp_pixel_sigma_scale", None, 0.10),
+    "observations.gcp_sigma_scale": ("observations", "gcp_sigma_scale", None, 0.10),
+    "dem.sigma_scale": ("dem", "sigma_scale", None, 0.10),
+    "attitude.value_sigma_arcsec.roll": ("attitude", "value_sigma_arcsec", 0, 0.20),
+    "attitude.value_sigma_arcsec.pitch": ("attitude", "value_sigma_arcsec", 1, 0.20),
+    "attitude.value_sigma_arcsec.yaw": ("attitude", "value_sigma_arcsec", 2, 0.20),
+}
+
+
+def levels_recovered(result: dict[str, Any]) -> dict[str, Any]:
+    """Each world's learned levels (:data:`RECOVERED_LEVELS`) against its own: ``{"rows": [{"world",
+    "level", "learned", "sigma", "true", "ratio", "z", "within"}], "within": k, "rows_counted": n,
+    "covered": c, "with_sigma": m}`` -- ``within``: rows inside the acceptance's bound; ``covered``:
+    rows with a 1 sigma whose 95 % interval (+-1.96 sigma) holds the truth, of ``with_sigma``. The
+    attitude rows of the band worlds are left out: their truth is a band, not the process's
+    sigma."""
+    rows = []
+    for world, w in result["worlds"].items():
+        learned, true = w.get("learned_levels") or {}, w.get("true_levels") or {}
+        for name, (section, field, axis, bound) in RECOVERED_LEVELS.items():
+            if name not in learned or section not in true or ("band" in world and section == "attitude"):
+                continue
+            t = true[section][field]
+            t = float(t[axis] if axis is not None else t)
+            v, sd = float(learned[name]["value"]), learned[name].get("sigma")
+            z = (v - t) / float(sd) if sd else float("nan")
+            rows.append(
+                {
+                    "world": world,
+                    "level": name,
+                    "learned": v,
+                    "sigma": None if sd is None else float(sd),
+                    "true": t,
+                    "ratio": v / t,
+                    "z": z,
+                    "within": abs(v / t - 1.0) <= bound,
+                }
+            )
+    finite = [r for r in rows if r["sigma"] is not None and r["sigma"] > 0]
+    return {
+        "rows": rows,
+        "within": sum(r["within"] for r in rows),
+        "rows_counted": len(rows),
+        "covered": sum(abs(r["z"]) <= 1.96 for r in finite),
+        "with_sigma": len(finite),
+    }
 
 
 def _score(summary: dict[str, Any]) -> dict[str, float]:

@@ -63,3 +63,41 @@ def test_bench_worlds_cli_scores_three_ways(tmp_path):
     assert "provenance" in res
     bad = CliRunner().invoke(app, ["bench", "worlds", "--worlds", "mars", "--size", "tiny"])
     assert bad.exit_code == 2 and "worlds" in bad.output
+
+
+def test_levels_recovered_compares_each_learned_level_with_the_worlds_own():
+    """Two worlds made by hand: the rows, ratios, z, bounds and the coverage count, value by value;
+    a band world's attitude rows are left out."""
+    from misrgraph.bench.worlds import levels_recovered
+
+    true = {
+        "observations": {"tie_sigma_scale": 2.0, "gcp_pixel_sigma_scale": 1.0, "gcp_sigma_scale": 1.0},
+        "dem": {"sigma_scale": 1.0},
+        "attitude": {"value_sigma_arcsec": [10.0, 20.0, 30.0]},
+    }
+    learned = {
+        "observations.tie_sigma_scale": {"value": 1.9, "sigma": 0.02},  # -5 %: within, z -5
+        "attitude.value_sigma_arcsec.pitch": {"value": 26.0, "sigma": 4.0},  # +30 %: outside, z +1.5
+        "dem.sigma_scale": {"value": 1.0, "sigma": None},  # no sigma: not in the coverage count
+    }
+    r = levels_recovered(
+        {
+            "worlds": {
+                "tie x0.5": {"learned_levels": learned, "true_levels": true},
+                "attitude band 30-300 s": {"learned_levels": learned, "true_levels": true},
+            }
+        }
+    )
+    rows = {(x["world"], x["level"]): x for x in r["rows"]}
+    assert set(rows) == {
+        ("tie x0.5", "observations.tie_sigma_scale"),
+        ("tie x0.5", "attitude.value_sigma_arcsec.pitch"),
+        ("tie x0.5", "dem.sigma_scale"),
+        ("attitude band 30-300 s", "observations.tie_sigma_scale"),
+        ("attitude band 30-300 s", "dem.sigma_scale"),
+    }
+    tie = rows[("tie x0.5", "observations.tie_sigma_scale")]
+    assert tie["ratio"] == pytest.approx(0.95) and tie["z"] == pytest.approx(-5.0) and tie["within"]
+    pitch = rows[("tie x0.5", "attitude.value_sigma_arcsec.pitch")]
+    assert pitch["ratio"] == pytest.approx(1.3) and pitch["z"] == pytest.approx(1.5) and not pitch["within"]
+    assert (r["rows_counted"], r["within"], r["with_sigma"], r["covered"]) == (5, 4, 3, 1)
