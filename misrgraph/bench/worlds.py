@@ -33,7 +33,15 @@ from misrgraph.errors import InputError, MisrGraphError
 from misrgraph.model.noise import NoiseModel
 from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
-__all__ = ["WORLDS", "WORLD_SIZES", "oracle_noise_model", "run_bench_worlds", "levels_recovered", "RECOVERED_LEVELS"]
+__all__ = [
+    "WORLDS",
+    "WORLD_SIZES",
+    "oracle_noise_model",
+    "run_bench_worlds",
+    "levels_recovered",
+    "kept_sigma_fraction",
+    "RECOVERED_LEVELS",
+]
 
 log = logging.getLogger(__name__)
 
@@ -125,14 +133,35 @@ RECOVERED_LEVELS: dict[str, tuple[str, str, int | None, float]] = {
 }
 
 
+def kept_sigma_fraction(dof: float, critical: float, draws: int = 400_000, seed: int = 0) -> float:
+    """The 1 sigma of the matching errors data snooping keeps, over the sigma they are drawn with:
+    each observation's two errors unit-variance Student-t with ``dof`` degrees of freedom (0:
+    Gaussian; :func:`misrgraph.sim.simulate.matching_noise`), kept when their squared norm is
+    below ``critical`` (the snooping's statistic, chi-square with 2 dof under the stated sigma).
+    Heavy tails hold variance that the snooping removes, so a class's variance component reads
+    below the drawn scale by this factor (Monte Carlo, ``draws`` observations)."""
+    from misrgraph.sim.simulate import matching_noise
+
+    rng = np.random.default_rng(seed)
+    x = np.stack([matching_noise(rng, draws, dof), matching_noise(rng, draws, dof)], axis=1)
+    keep = np.sum(x**2, axis=1) < critical
+    return float(np.sqrt(np.mean(x[keep] ** 2)))
+
+
 def levels_recovered(result: dict[str, Any]) -> dict[str, Any]:
     """Each world's learned levels (:data:`RECOVERED_LEVELS`) against its own: ``{"rows": [{"world",
-    "level", "learned", "sigma", "true", "ratio", "z", "within"}], "within": k, "rows_counted": n,
+    "level", "learned", "sigma", "true", "true_kept", "ratio", "z", "within"}], "within": k,
+    "rows_counted": n,
     "covered": c, "with_sigma": m}`` -- ``within``: rows inside the acceptance's bound; ``covered``:
     rows with a 1 sigma whose 95 % interval (+-1.96 sigma) holds the truth, of ``with_sigma``. The
     attitude rows of the band worlds are left out: their truth is a band, not the process's
-    sigma."""
+    sigma. The image-observation scales (tie points, GCP measurements) are compared with the drawn
+    scale times :func:`kept_sigma_fraction` for the world's matching noise and the snooping's
+    critical value: the sigma of the observations an adjustment keeps (``true_kept``)."""
+    from misrgraph.estimate.reliability import critical_T
+
     rows = []
+    fractions: dict[float, float] = {}
     for world, w in result["worlds"].items():
         learned, true = w.get("learned_levels") or {}, w.get("true_levels") or {}
         for name, (section, field, axis, bound) in RECOVERED_LEVELS.items():
@@ -140,6 +169,12 @@ def levels_recovered(result: dict[str, Any]) -> dict[str, Any]:
                 continue
             t = true[section][field]
             t = float(t[axis] if axis is not None else t)
+            drawn = t
+            if field in ("tie_sigma_scale", "gcp_pixel_sigma_scale"):
+                dof = float((w.get("overrides") or {}).get("noise_tail_dof", ScenarioConfig().noise_tail_dof))
+                if dof not in fractions:
+                    fractions[dof] = kept_sigma_fraction(dof, critical_T())
+                t = drawn * fractions[dof]
             v, sd = float(learned[name]["value"]), learned[name].get("sigma")
             z = (v - t) / float(sd) if sd else float("nan")
             rows.append(
@@ -148,7 +183,8 @@ def levels_recovered(result: dict[str, Any]) -> dict[str, Any]:
                     "level": name,
                     "learned": v,
                     "sigma": None if sd is None else float(sd),
-                    "true": t,
+                    "true": drawn,
+                    "true_kept": t,
                     "ratio": v / t,
                     "z": z,
                     "within": abs(v / t - 1.0) <= bound,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -65,20 +66,33 @@ def test_bench_worlds_cli_scores_three_ways(tmp_path):
     assert bad.exit_code == 2 and "worlds" in bad.output
 
 
+def test_kept_sigma_fraction_against_the_truncated_gaussian_in_closed_form():
+    """Gaussian errors kept below a chi-square(2) value c: E[|x|^2 | kept] = 2 - c e^(-c/2) / (1 -
+    e^(-c/2)), so the kept sigma is its half's square root; Student-t tails lose more."""
+    from misrgraph.bench.worlds import kept_sigma_fraction
+
+    for c in (9.0, 13.8155):
+        want = np.sqrt((2 - c * np.exp(-c / 2) / (1 - np.exp(-c / 2))) / 2)
+        assert kept_sigma_fraction(0.0, c) == pytest.approx(want, rel=3e-3)
+    assert kept_sigma_fraction(5.0, 13.8155) < kept_sigma_fraction(0.0, 13.8155) - 0.03
+
+
 def test_levels_recovered_compares_each_learned_level_with_the_worlds_own():
     """Two worlds made by hand: the rows, ratios, z, bounds and the coverage count, value by value;
-    a band world's attitude rows are left out."""
-    from misrgraph.bench.worlds import levels_recovered
+    a band world's attitude rows are left out; the tie scale's truth is the kept observations'."""
+    from misrgraph.bench.worlds import kept_sigma_fraction, levels_recovered
+    from misrgraph.estimate.reliability import critical_T
 
     true = {
-        "observations": {"tie_sigma_scale": 2.0, "gcp_pixel_sigma_scale": 1.0, "gcp_sigma_scale": 1.0},
+        "observations": {"tie_sigma_scale": 2.0, "gcp_pixel_sigma_scale": 1.0, "gcp_sigma_scale": 2.0},
         "dem": {"sigma_scale": 1.0},
         "attitude": {"value_sigma_arcsec": [10.0, 20.0, 30.0]},
     }
     learned = {
-        "observations.tie_sigma_scale": {"value": 1.9, "sigma": 0.02},  # -5 %: within, z -5
+        "observations.gcp_sigma_scale": {"value": 1.9, "sigma": 0.02},  # -5 %: within, z -5
         "attitude.value_sigma_arcsec.pitch": {"value": 26.0, "sigma": 4.0},  # +30 %: outside, z +1.5
         "dem.sigma_scale": {"value": 1.0, "sigma": None},  # no sigma: not in the coverage count
+        "observations.tie_sigma_scale": {"value": 1.0, "sigma": 0.01},  # far from either truth
     }
     r = levels_recovered(
         {
@@ -89,15 +103,12 @@ def test_levels_recovered_compares_each_learned_level_with_the_worlds_own():
         }
     )
     rows = {(x["world"], x["level"]): x for x in r["rows"]}
-    assert set(rows) == {
-        ("tie x0.5", "observations.tie_sigma_scale"),
-        ("tie x0.5", "attitude.value_sigma_arcsec.pitch"),
-        ("tie x0.5", "dem.sigma_scale"),
-        ("attitude band 30-300 s", "observations.tie_sigma_scale"),
-        ("attitude band 30-300 s", "dem.sigma_scale"),
-    }
-    tie = rows[("tie x0.5", "observations.tie_sigma_scale")]
-    assert tie["ratio"] == pytest.approx(0.95) and tie["z"] == pytest.approx(-5.0) and tie["within"]
+    assert len(rows) == 7 and ("attitude band 30-300 s", "attitude.value_sigma_arcsec.pitch") not in rows
+    g = rows[("tie x0.5", "observations.gcp_sigma_scale")]
+    assert g["ratio"] == pytest.approx(0.95) and g["z"] == pytest.approx(-5.0) and g["within"]
+    assert g["true_kept"] == g["true"] == 2.0
     pitch = rows[("tie x0.5", "attitude.value_sigma_arcsec.pitch")]
     assert pitch["ratio"] == pytest.approx(1.3) and pitch["z"] == pytest.approx(1.5) and not pitch["within"]
-    assert (r["rows_counted"], r["within"], r["with_sigma"], r["covered"]) == (5, 4, 3, 1)
+    tie = rows[("tie x0.5", "observations.tie_sigma_scale")]
+    assert tie["true"] == 2.0 and tie["true_kept"] == pytest.approx(2.0 * kept_sigma_fraction(5.0, critical_T()))
+    assert (r["rows_counted"], r["within"], r["with_sigma"], r["covered"]) == (7, 4, 5, 1)
