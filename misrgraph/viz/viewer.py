@@ -215,6 +215,35 @@ def _view_adjustment(
         counts[f"residuals/{name}/histogram"] = 1
 
 
+def _open_recording(rr: Any, save: str | os.PathLike[str] | None, spawn: bool) -> tuple[Any, Path | None]:
+    """A recording stream, saving to a hidden temporary sibling of ``save`` (renamed when the
+    recording closes) and/or spawning the viewer."""
+    rec = rr.RecordingStream("misrgraph")
+    tmp = None
+    if save is not None:
+        save = Path(save)
+        save.parent.mkdir(parents=True, exist_ok=True)
+        tmp = save.with_name(f".{save.name}.tmp")
+        rec.save(str(tmp))
+    if spawn:
+        rec.spawn(connect=save is None)
+    return rec, tmp
+
+
+def _close_recording(
+    rr: Any, rec: Any, bp: Any, notebook: bool, tmp: Path | None, save: str | os.PathLike[str] | None
+) -> None:
+    """Send the blueprint, flush, show inline or disconnect, and put the ``.rrd`` in place."""
+    rec.send_blueprint(bp)
+    rec.flush()
+    if notebook:
+        rr.notebook_show(recording=rec, blueprint=bp, width=1000, height=600)
+    else:
+        rec.disconnect()
+    if tmp is not None:
+        os.replace(tmp, Path(str(save)))
+
+
 def _view_campaign(
     rr: Any, rrb: Any, out: Path, save: str | os.PathLike[str] | None, spawn: bool, notebook: bool
 ) -> dict[str, Any]:
@@ -232,15 +261,7 @@ def _view_campaign(
     years = summary.get("years") if isinstance(summary, dict) else None
     if not years or years.get("status") != "done":
         raise FileFormatError(f, "no campaign over years in it (misrgraph campaign --recalibrate MONTHS)")
-    rec = rr.RecordingStream("misrgraph")
-    tmp = None
-    if save is not None:
-        save = Path(save)
-        save.parent.mkdir(parents=True, exist_ok=True)
-        tmp = save.with_name(f".{save.name}.tmp")
-        rec.save(str(tmp))
-    if spawn:
-        rec.spawn(connect=save is None)
+    rec, tmp = _open_recording(rr, save, spawn)
     dates = np.array([np.datetime64(w["start"], "ns") for w in years["windows"]])
     counts: dict[str, int] = {}
     for cam in CAMERAS:
@@ -279,14 +300,7 @@ def _view_campaign(
             row_shares=[4, 1],
         )
     )
-    rec.send_blueprint(bp)
-    rec.flush()
-    if notebook:
-        rr.notebook_show(recording=rec, blueprint=bp, width=1000, height=600)
-    else:
-        rec.disconnect()
-    if tmp is not None:
-        os.replace(tmp, save)
+    _close_recording(rr, rec, bp, notebook, tmp, save)
     return {"kind": "campaign", "entities": counts, "instances": {}, "rrd": str(save) if save else None}
 
 
@@ -451,15 +465,7 @@ def run_view(
             raise FileFormatError(
                 result, "a camera model without /calibration (write one with 'misrgraph calibrate --out')"
             )
-        rec = rr.RecordingStream("misrgraph")
-        tmp = None
-        if save is not None:
-            save = Path(save)
-            save.parent.mkdir(parents=True, exist_ok=True)
-            tmp = save.with_name(f".{save.name}.tmp")
-            rec.save(str(tmp))
-        if spawn:
-            rec.spawn(connect=save is None)
+        rec, tmp = _open_recording(rr, save, spawn)
         counts: dict[str, int] = {}
         instances: dict[str, int] = {}
         if kind == "adjustment_result":
@@ -503,14 +509,7 @@ def run_view(
                     ),
                 )
             )
-        rec.send_blueprint(bp)
-        rec.flush()
-        if notebook:
-            rr.notebook_show(recording=rec, blueprint=bp, width=1000, height=600)
-        else:
-            rec.disconnect()
-        if tmp is not None:
-            os.replace(tmp, save)
+        _close_recording(rr, rec, bp, notebook, tmp, save)
     return {
         "kind": kind,
         "entities": counts,

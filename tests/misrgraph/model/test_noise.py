@@ -149,43 +149,40 @@ def test_the_campaign_carries_a_noise_model_and_plans_as_before_without_one():
     assert plan_campaign(withm).to_dict()["config"]["noise"]["ephemeris"]["offset_sigma_m"] == 120.0
 
 
-def test_observation_scales_correct_files_that_misstate_their_accuracy(tmp_path):
-    """A pass whose tie-point file understates its sigma by half (the simulator draws them at
-    twice the stated sigma) reads a tie-point variance factor near 2; with the noise model's tie
-    scale at 2 it reads near 1, the other classes unmoved. The GCP scales reach the GCP rows."""
+def _misstated_pass_components(tmp_path, seed: int, field: str, scale_field: str, **sizes) -> dict[str, dict]:
+    """A model-truth pass drawn with ``field`` = 2 (a file that understates its sigma by half),
+    adjusted with its noise-model scale ``scale_field`` at 1 ("stated") and at 2 ("scaled"):
+    each adjustment's variance components. The model truth has no jitter, and the per-pass
+    variance components and data snooping are off, so that sigma0 shows the stated scale."""
     from misrgraph.estimate.adjust import adjust_pass
     from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
 
-    run_simulate(
-        ScenarioConfig(
-            truth="model",
-            scenario="pass",
-            seed=31,
-            n_tie_points=150,
-            n_check_points=10,
-            n_gcps=20,
-            duration_s=900.0,
-            start_lat_deg=55.0,
-            gcp_blunder_rate=0.0,
-            tie_sigma_true_over_stated=2.0,
-        ),
-        tmp_path / "s",
-    )
+    cfg = dict(truth="model", scenario="pass", seed=seed, duration_s=900.0, start_lat_deg=55.0, gcp_blunder_rate=0.0)
+    run_simulate(ScenarioConfig(**cfg, **sizes, **{field: 2.0}), tmp_path / "s")
     sc = load_scenario(tmp_path / "s")
     p = sc.load_pass(0)
-    # the model truth has no jitter; the variance components off, so that sigma0 shows the stated scale
     base = AdjustConfig.from_dict(attitude_jitter_arcsec=0.0, snooping_rounds=0, variance_component_rounds=0)
-    vc = {}
-    for name, m in (
-        ("stated", NoiseModel()),
-        ("scaled", NoiseModel.from_dict({"observations": {"tie_sigma_scale": 2.0}})),
-    ):
-        cfg = base.replace(graph=base.graph.replace(**{**m.graph_fields(), "attitude_jitter_arcsec": 0.0}))
-        res = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, cfg)
-        vc[name] = {k: v["sigma0"] for k, v in res.reliability["variance_components"].items()}
+    out = {}
+    for name, k in (("stated", 1.0), ("scaled", 2.0)):
+        m = NoiseModel.from_dict({"observations": {scale_field: k}})
+        g = base.graph.replace(**{**m.graph_fields(), "attitude_jitter_arcsec": 0.0})
+        out[name] = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, base.replace(graph=g)).reliability[
+            "variance_components"
+        ]
+    return out
+
+
+def test_observation_scales_correct_files_that_misstate_their_accuracy(tmp_path):
+    """A pass whose tie-point file understates its sigma by half (the simulator draws them at
+    twice the stated sigma) reads a tie-point variance factor near 2; with the noise model's tie
+    scale at 2 it reads near 1. The GCP scales reach the GCP rows."""
+    vc = _misstated_pass_components(
+        tmp_path, 31, "tie_sigma_true_over_stated", "tie_sigma_scale", n_tie_points=150, n_check_points=10, n_gcps=20
+    )
     tie = "tie-point observations"
-    assert 1.7 < vc["stated"][tie] < 2.3, vc
-    assert 0.85 < vc["scaled"][tie] < 1.15, vc
+    assert 1.7 < vc["stated"][tie]["sigma0"] < 2.3, vc
+    assert 0.85 < vc["scaled"][tie]["sigma0"] < 1.15, vc
+    base = AdjustConfig()
     g = base.graph.replace(**NoiseModel.from_dict({"observations": {"gcp_sigma_scale": 3.0}}).graph_fields())
     assert g.gcp_sigma_scale == 3.0 and g.tie_sigma_scale == 1.0
 
@@ -194,34 +191,10 @@ def test_gcp_positions_variance_component_reads_a_misstated_catalogue(tmp_path):
     """A pass whose GCP catalogue understates its positions' sigma by half (drawn at twice the
     stated sigma; the GCP measurements as stated): the GCP positions' variance component (their
     priors' rows) reads near 2, and near 1 with the noise model's GCP scale at 2."""
-    from misrgraph.estimate.adjust import adjust_pass
-    from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
-
-    run_simulate(
-        ScenarioConfig(
-            truth="model",
-            scenario="pass",
-            seed=32,
-            n_tie_points=100,
-            n_check_points=5,
-            n_gcps=400,
-            duration_s=900.0,
-            start_lat_deg=55.0,
-            gcp_blunder_rate=0.0,
-            gcp_sigma_true_over_stated=2.0,
-        ),
-        tmp_path / "s",
+    vc = _misstated_pass_components(
+        tmp_path, 32, "gcp_sigma_true_over_stated", "gcp_sigma_scale", n_tie_points=100, n_check_points=5, n_gcps=400
     )
-    sc = load_scenario(tmp_path / "s")
-    p = sc.load_pass(0)
-    base = AdjustConfig.from_dict(attitude_jitter_arcsec=0.0, snooping_rounds=0, variance_component_rounds=0)
-    got = {}
-    for name, k in (("stated", 1.0), ("scaled", 2.0)):
-        m = NoiseModel.from_dict({"observations": {"gcp_sigma_scale": k}})
-        cfg = base.replace(graph=base.graph.replace(**{**m.graph_fields(), "attitude_jitter_arcsec": 0.0}))
-        got[name] = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, cfg).reliability["variance_components"][
-            "GCP positions"
-        ]
+    got = {k: v["GCP positions"] for k, v in vc.items()}
     s, r = got["stated"]["sigma0"], got["stated"]["redundancy"]
     assert r > 20, got  # enough GCP rows to read the scale
     assert abs(s - 2.0) < 3 * 2.0 / np.sqrt(2 * r), got
