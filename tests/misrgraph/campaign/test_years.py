@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
 
 import numpy as np
 import pytest
@@ -124,6 +125,20 @@ def test_a_campaign_over_months_finds_the_step_and_resumes(tmp_path) -> None:
     assert all(st["found_done"] == st["tasks"] for st in again["stages"].values()), again["stages"]
     assert campaign_fingerprint(out) == before
     assert json.loads((out / "summary.json").read_text())["years"]["versions"] == y["versions"]
+    # the same campaign from the CLI, SIGKILLed while it calibrates the windows, then resumed
+    from misrgraph.bench.faults import _cli, _run_and_kill
+
+    conf = tmp_path / "c.json"
+    conf.write_text(json.dumps({"camera_steps": [["2001-07-10", "Da", "delta", 60.0]]}))
+    args = ["campaign", "--months", "2", "--recalibrate", "0.5", "--size", "reduced", "--paths", "37"]
+    args += ["--no-products", "--workers", "0", "--config", str(conf), "--out", str(tmp_path / "k")]
+    assert _run_and_kill(_cli(*args), 20.0, group=True)
+    assert not (tmp_path / "k" / "summary.json").exists()
+    r = subprocess.run(_cli(*args), capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-800:]
+    assert campaign_fingerprint(tmp_path / "k") == before
+    resumed = json.loads((tmp_path / "k" / "summary.json").read_text())["years"]
+    assert resumed["versions"] == y["versions"] and resumed["pass_versions"] == y["pass_versions"]
 
 
 def test_the_years_in_rerun_hold_the_series_and_versions(tmp_path, rng) -> None:
