@@ -500,7 +500,7 @@ def _summarise(
 def _years(plan: CampaignPlan, by: dict[tuple[str, str], Any], adj: dict[str, Any]) -> dict[str, Any]:
     """The campaign over years: the windows, the monitor's alarms, the versions, which version
     each pass was adjusted with, and the stale passes (:mod:`misrgraph.campaign.years`)."""
-    from misrgraph.campaign.years import stale_passes, window_starts
+    from misrgraph.campaign.years import stale_passes
 
     rec = by.get(("versions", "camera model"))
     if rec is None or rec["status"] != "done":
@@ -520,7 +520,7 @@ def _years(plan: CampaignPlan, by: dict[tuple[str, str], Any], adj: dict[str, An
         "alarms": m["alarms"],
         "versions": m["versions"],
         "pass_versions": used,
-        "stale_passes": stale_passes(plan.config, used, m["alarms"], window_starts(plan.config)),
+        "stale_passes": stale_passes(plan.config, used, m["alarms"]),
     }
 
 

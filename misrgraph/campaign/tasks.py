@@ -334,7 +334,13 @@ def camera_versions(out: str, cfg: CampaignConfig, *calibrations: dict[str, Any]
     in ``monitor.json`` beside it (the record's summary)."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
-        from misrgraph.campaign.years import date_of_day, first_orbit_of_day, plan_versions, window_starts
+        from misrgraph.campaign.years import (
+            calibration_days,
+            date_of_day,
+            first_orbit_of_day,
+            plan_versions,
+            window_starts,
+        )
         from misrgraph.io.cgm import add_version
         from misrgraph.io.h5 import open_h5
 
@@ -348,8 +354,7 @@ def camera_versions(out: str, cfg: CampaignConfig, *calibrations: dict[str, Any]
         for f in files:
             with open_h5(f, "camera_model") as h:
                 summaries.append(json.loads(h["calibration"].attrs["summary_json"]))
-        half = 0.5 * float(SIZES[cfg.size]["month"].get("month_days", 30))
-        plan = plan_versions([s + half for s in starts], summaries, cfg.monitor_alpha)
+        plan = plan_versions(calibration_days(cfg), summaries, cfg.monitor_alpha)
         versions = []
         with _building(final) as tmp:
             for k, w in enumerate(plan["version_windows"]):

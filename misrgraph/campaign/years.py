@@ -18,8 +18,10 @@ into a store (:mod:`misrgraph.io.cgm`) that every repeat pass is adjusted with: 
 version valid for its orbit.
 
 A pass is **stale** when it was adjusted with a version the monitoring later found out of date:
-its date falls on or after the estimated onset of the change (the first window of the CUSUM run
-that raised the alarm) and before the new version's first window.
+its date falls after the last calibration that did not see the change (the one before the
+estimated onset: the first window of the CUSUM run that raised the alarm) and before the new
+version's first window. The calibrations date the change no closer than that, so some of these
+passes may predate it.
 
 Orbits count from ``epoch_date``: Terra flies 233 orbits in 16 days, so day ``d`` begins at orbit
 ``ceil(233 d / 16)`` (the simulator numbers repeat cycle ``k`` of a path as orbit ``233 k``).
@@ -34,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from misrgraph.campaign.plan import DAYS_PER_MONTH, REPEAT_DAYS, CampaignConfig
+from misrgraph.campaign.plan import DAYS_PER_MONTH, REPEAT_DAYS, SIZES, CampaignConfig
 from misrgraph.evaluate.drift import fit_process_levels, monitor_cameras
 from misrgraph.model.constants import CAMERAS
 from misrgraph.model.orbit import REPEAT_PATHS
@@ -43,6 +45,7 @@ __all__ = [
     "MONITORED",
     "window_days",
     "window_starts",
+    "calibration_days",
     "first_orbit_of_day",
     "pass_day",
     "plan_versions",
@@ -64,6 +67,13 @@ def window_starts(cfg: CampaignConfig) -> list[float]:
     r = window_days(cfg)
     n = max(1, math.ceil(cfg.months * DAYS_PER_MONTH / r - 1e-9))
     return [w * r for w in range(n)]
+
+
+def calibration_days(cfg: CampaignConfig) -> list[float]:
+    """The time of every window's calibration (days after ``epoch_date``): the middle of its GCP
+    scenario (the size's ``month_days`` from the window's first day)."""
+    half = 0.5 * float(SIZES[cfg.size]["month"].get("month_days", 30))
+    return [s + half for s in window_starts(cfg)]
 
 
 def first_orbit_of_day(day: float) -> int:
@@ -147,19 +157,18 @@ def plan_versions(t_days: list[float], summaries: list[dict[str, Any]], alpha: f
     }
 
 
-def stale_passes(
-    cfg: CampaignConfig, passes: dict[str, str], alarms: list[dict[str, Any]], starts: list[float]
-) -> list[dict[str, Any]]:
+def stale_passes(cfg: CampaignConfig, passes: dict[str, str], alarms: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The passes adjusted with a version the monitoring later found out of date (module
-    docstring): ``passes`` maps each adjusted pass id to the version id it was adjusted with;
-    ``starts`` are the windows' first days. Returns ``[{"pass_id", "date", "version",
-    "superseded_by", "change"}]`` in date order."""
+    docstring): ``passes`` maps each adjusted pass id to the version id it was adjusted with.
+    Returns ``[{"pass_id", "date", "version", "superseded_by", "change"}]`` in date order."""
+    starts, cal = window_starts(cfg), calibration_days(cfg)
     out = []
     for k, a in enumerate(alarms):
-        lo, hi = starts[a["onset_window"]], starts[a["window"]]
+        o = a["onset_window"]
+        lo, hi = (cal[o - 1] if o >= 1 else starts[0]), starts[a["window"]]
         for pid, version in passes.items():
             day = pass_day(pid)
-            if lo <= day < hi:
+            if lo < day < hi:
                 out.append(
                     {
                         "pass_id": pid,

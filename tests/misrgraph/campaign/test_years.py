@@ -13,6 +13,7 @@ import pytest
 
 from misrgraph.campaign.plan import CampaignConfig
 from misrgraph.campaign.years import (
+    calibration_days,
     first_orbit_of_day,
     pass_day,
     plan_versions,
@@ -68,16 +69,21 @@ def test_a_step_makes_a_version_at_its_window_and_nothing_else_does(rng) -> None
     assert calm["version_windows"] == [0] and calm["alarms"] == []
 
 
-def test_stale_passes_are_those_from_the_onset_to_the_new_version() -> None:
+def test_stale_passes_are_those_from_the_last_blind_calibration_to_the_new_version() -> None:
+    """An alarm at window 3 whose CUSUM run starts at window 2: the passes after window 1's
+    calibration (the middle of its 30-day GCP scenario, day 91.3 + 15) and before window 3's
+    first day (182.6) are stale; none before or after."""
     cfg = CampaignConfig(months=12, recalibrate_months=3)
-    starts = window_starts(cfg)  # 0, 91.3, 182.6, 273.9 days
+    assert calibration_days(cfg) == pytest.approx([15.0, 106.3125, 197.625, 288.9375])
     alarm = {"camera": "Da", "parameter": "delta", "kind": "step", "window": 2, "onset_window": 1}
-    passes = {f"P037_O{233 * k:04d}": ("v001" if 16 * k < starts[2] else "v002") for k in range(23)}
-    stale = stale_passes(cfg, passes, [alarm], starts)
-    want = sorted(p for p in passes if starts[1] <= pass_day(p) < starts[2])
-    assert [r["pass_id"] for r in stale] == want and len(want) == 6
+    passes = {f"P037_O{233 * k:04d}": ("v001" if 16 * k < 182.625 else "v002") for k in range(23)}
+    stale = stale_passes(cfg, passes, [alarm])
+    want = sorted(p for p in passes if 15.0 < pass_day(p) < 182.625)
+    assert [r["pass_id"] for r in stale] == want and len(want) == 11  # cycles 1-11 (days 16-176)
     assert {r["version"] for r in stale} == {"v001"} and {r["superseded_by"] for r in stale} == {"v002"}
-    assert stale[0]["date"] == "2001-09-19"  # cycle 6, 96 days after 2001-06-15
+    assert stale[0]["date"] == "2001-07-01"  # cycle 1, 16 days after 2001-06-15
+    alarm["onset_window"] = 2  # the run starts at the alarm: from window 2's calibration (day 106.3)
+    assert [r["pass_id"] for r in stale_passes(cfg, passes, [alarm])] == [p for p in want if pass_day(p) > 106.3125]
 
 
 @pytest.mark.slow
