@@ -138,16 +138,20 @@ class CampaignConfig(Config):
             raise InputError("observations", self.observations, OBSERVATION_SETS)
         if not (isinstance(self.recalibrate_months, (int, float)) and self.recalibrate_months >= 0):
             raise InputError(
-                "recalibrate_months", self.recalibrate_months, "a number of months >= 0 (0: one calibration)"
+                "recalibrate_months (--recalibrate)",
+                self.recalibrate_months,
+                "a number of months >= 0 (0: one calibration)",
             )
         if self.recalibrate_months and self.months / self.recalibrate_months < 4 - 1e-9:
             raise InputError(
-                "recalibrate_months",
+                "recalibrate_months (--recalibrate)",
                 self.recalibrate_months,
                 f"at most months / 4 = {self.months / 4:g} (the monitor needs at least 4 calibrations)",
             )
         if not 0 < self.monitor_alpha < 1:
-            raise InputError("monitor_alpha", self.monitor_alpha, "a false-alarm probability in (0, 1)")
+            raise InputError(
+                "monitor_alpha (--monitor-alpha)", self.monitor_alpha, "a false-alarm probability in (0, 1)"
+            )
         if self.camera_change:
             from misrgraph.sim.simulate import ScenarioConfig
 

@@ -125,6 +125,8 @@ def campaign(
     if noise is not None:
         fields["noise"] = noise
     cfg = CampaignConfig.from_dict(fields)
+    if inputs is not None and cfg.recalibrate_months:
+        fail("--inputs: a campaign over years (--recalibrate) simulates its windows; give one or the other")
     check_output(out / "summary.json", "--out")
     with progress_bar("campaign: starting", disable=as_json, counts=True) as update:
 
