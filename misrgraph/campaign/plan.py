@@ -107,6 +107,11 @@ class CampaignConfig(Config):
     #: camera-model version valid for its orbit
     recalibrate_months: float = 0.0
     monitor_alpha: float = 0.05
+    #: learn the noise levels on the campaign's own first passes (``misrgraph noise fit``): the
+    #: first ``noise_fit_passes`` planned passes (one path after another, each path's earliest
+    #: first) are adjusted with ``noise`` (or the pre-flight levels), the model fitted on them,
+    #: and every other pass and path adjusted with it; 0: no fit
+    noise_fit_passes: int = 0
     #: the simulated true camera's changes over the years, as ``simulate --config`` takes them
     #: (:class:`~misrgraph.sim.simulate.ScenarioConfig`: drifts, annual terms, steps; zero at
     #: ``epoch_date``; steps dated after it)
@@ -147,6 +152,14 @@ class CampaignConfig(Config):
                 "recalibrate_months (--recalibrate)",
                 self.recalibrate_months,
                 f"at most months / 4 = {self.months / 4:g} (the monitor needs at least 4 calibrations)",
+            )
+        if (
+            isinstance(self.noise_fit_passes, bool)
+            or not isinstance(self.noise_fit_passes, int)
+            or self.noise_fit_passes < 0
+        ):
+            raise InputError(
+                "noise_fit_passes (--noise-fit-passes)", self.noise_fit_passes, "a whole number >= 0 (0: no fit)"
             )
         if not 0 < self.monitor_alpha < 1:
             raise InputError(
@@ -196,6 +209,13 @@ class CampaignPlan:
     def n_passes(self) -> int:
         return sum(len(p.cycles) for p in self.paths)
 
+    def fit_pass_ids(self) -> list[str]:
+        """The passes the noise levels are learned on (``config.noise_fit_passes`` of them): each
+        path's earliest pass in turn, then each path's second, and so on."""
+        longest = max((len(p.pass_ids) for p in self.paths), default=0)
+        order = [p.pass_ids[i] for i in range(longest) for p in self.paths if i < len(p.pass_ids)]
+        return order[: self.config.noise_fit_passes]
+
     def to_dict(self) -> dict[str, Any]:
         return {
             # fields at their defaults that came after the first campaigns are left out, so that a
@@ -213,6 +233,7 @@ _LATER: dict[str, Any] = {
     "noise": None,
     "recalibrate_months": 0.0,
     "monitor_alpha": 0.05,
+    "noise_fit_passes": 0,
     "camera_drifts": (),
     "camera_annual": (),
     "camera_steps": (),

@@ -117,6 +117,7 @@ def write_report(
             f"{_f(v['supplied_mean_m'])} |"
             for c, v in summary["cameras"].items()
         ] + [""]
+    L += _noise_section(summary.get("noise_fit"))
     L += _years_section(summary.get("years"))
     L += [
         "## Per path",
@@ -202,4 +203,27 @@ def _years_section(years: dict[str, Any] | None) -> list[str]:
         ]
     else:
         L += ["none."]
+    return L + [""]
+
+
+def _noise_section(fit: dict[str, Any] | None) -> list[str]:
+    """The noise levels learned on the campaign's first passes (Markdown lines)."""
+    if not fit:
+        return []
+    if fit.get("status") != "done":
+        return ["## Noise levels learned", "", f"The noise fit failed: {fit.get('reason')}", ""]
+    L = [
+        "## Noise levels learned",
+        "",
+        f"Learned on {len(fit['passes'])} pass(es) ({', '.join(fit['passes'])}) and used for every other pass "
+        f"and path: `{fit['file']}`.",
+        "",
+        "| level | learned | 1σ | adjusted with before | applied |",
+        "|---|---:|---:|---:|---|",
+    ]
+    for name, v in fit["levels"].items():
+        prev = v.get("previous")
+        prev_txt = _f(prev, ".4g") if isinstance(prev, (int, float)) or prev is None else str(prev)
+        applied = "yes" if v.get("applied", True) else "no"
+        L.append(f"| {name} | {v['value']:.4g} | {_f(v.get('sigma'), '.2g')} | {prev_txt} | {applied} |")
     return L + [""]

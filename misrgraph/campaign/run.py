@@ -6,6 +6,8 @@ Stages, as a task graph on Dask (:mod:`dask.distributed`)::
     calibration the cameras, on the GCP month (one task; over years, one per window)
     versions    over years: the calibrations watched, camera-model versions by orbit range
                 (:mod:`misrgraph.campaign.years`)
+    noise       with ``noise_fit_passes``: the noise levels learned on the first passes adjusted
+                (``misrgraph noise fit``), then used for every other pass and path
     adjust      every chosen pass with the calibrated model (one task a pass; the graph is built
                 and solved on the worker)
     path        per path, the incremental state over its passes and its Projection Parameters
@@ -255,6 +257,12 @@ def run_campaign(
         plan, month_dir, path_dirs = plan_from_inputs(cfg, Path(inputs).resolve())
     else:
         plan, month_dir, path_dirs = plan_campaign(cfg), None, {}
+    if cfg.noise_fit_passes >= plan.n_passes:
+        raise InputError(
+            "noise_fit_passes (--noise-fit-passes)",
+            cfg.noise_fit_passes,
+            f"fewer than the {plan.n_passes} planned passes (the others are adjusted with what they teach)",
+        )
     plan_doc = plan.to_dict() | {"inputs": str(Path(inputs).resolve()) if inputs is not None else "simulated"}
     plan_doc["digest"] = digest(plan_doc["config"], plan_doc["inputs"], plan_doc["paths"])
     with _locked(out_dir):
@@ -333,9 +341,10 @@ def _execute(
         cal = submit("versions", "camera model", tasks.camera_versions, out, cfg, *cals, priority=8)
     else:
         cal = submit("calibration", "month", tasks.calibrate, out, month, cfg.observations, noise, priority=9)
+    pins = {}
     for pp in plan.paths:
         if pp.path in path_dirs:
-            pin = submit(
+            pins[pp.path] = submit(
                 "inputs",
                 f"path {pp.path}",
                 tasks.existing_inputs,
@@ -344,9 +353,21 @@ def _execute(
                 cfg.observations,
             )
         else:
-            pin = submit(
+            pins[pp.path] = submit(
                 "inputs", f"path {pp.path}", tasks.simulate_path, out, cfg, pp.path, pp.cycles, month, priority=5
             )
+    path_of = {pid: pp.path for pp in plan.paths for pid in pp.pass_ids}
+    fit_ids = plan.fit_pass_ids()
+    learned = noise
+    if fit_ids:  # the noise levels learned on the first passes, used for all the others
+        fits = [
+            submit(
+                "adjust", pid, tasks.adjust, out, path_of[pid], pid, pins[path_of[pid]], cal, cfg.observations, noise
+            )
+            for pid in fit_ids
+        ]
+        learned = submit("noise", "fit", tasks.fit_noise, out, noise, *fits, priority=7)
+    for pp in plan.paths:
         if cfg.products:  # the longest tasks first, so that they do not end the campaign alone
             submit(
                 "path",
@@ -355,16 +376,17 @@ def _execute(
                 out,
                 pp.path,
                 pp.pass_ids,
-                pin,
+                pins[pp.path],
                 cal,
                 cfg.blocks,
                 cfg.roi,
                 cfg.observations,
-                noise,
+                learned,
                 priority=2,
             )
         for pid in pp.pass_ids:
-            submit("adjust", pid, tasks.adjust, out, pp.path, pid, pin, cal, cfg.observations, noise)
+            if pid not in fit_ids:
+                submit("adjust", pid, tasks.adjust, out, pp.path, pid, pins[pp.path], cal, cfg.observations, learned)
     cluster = ex.describe()
     if progress and cluster.get("dashboard"):
         progress(0, len(futs), f"Dask dashboard: {cluster['dashboard']}")
@@ -490,11 +512,20 @@ def _summarise(
         "cameras": cameras,
         "paths": paths,
         **({"years": _years(plan, by, adj)} if plan.config.recalibrate_months else {}),
+        **({"noise_fit": _noise_fit(plan, by)} if plan.config.noise_fit_passes else {}),
         "failed": failed,
         "stages": stages,
         "cluster": cluster,
         "seconds": seconds,
     }
+
+
+def _noise_fit(plan: CampaignPlan, by: dict[tuple[str, str], Any]) -> dict[str, Any]:
+    """The noise levels learned on the campaign's first passes: the file, the passes, each level."""
+    rec = by.get(("noise", "fit"))
+    if rec is None or rec["status"] != "done":
+        return {"status": "failed", "reason": None if rec is None else rec.get("reason")}
+    return {"status": "done", "file": rec["output"], "passes": plan.fit_pass_ids(), "levels": rec["summary"]["levels"]}
 
 
 def _years(plan: CampaignPlan, by: dict[tuple[str, str], Any], adj: dict[str, Any]) -> dict[str, Any]:

@@ -42,6 +42,7 @@ __all__ = [
     "existing_inputs",
     "calibrate",
     "camera_versions",
+    "fit_noise",
     "adjust",
     "path_products",
     "SUMMARY_FILE",
@@ -277,10 +278,26 @@ def existing_inputs(name: str, directory: str, observations: str = "simulated") 
 
 # ---------------------------------------------------------------------------- calibration
 def _noise(noise: dict[str, Any] | None) -> Any:
-    """The campaign's noise model (a NoiseModel's fields, as tasks carry it), or None."""
+    """The campaign's noise model, or None: a NoiseModel's fields as tasks carry it, or the record
+    of :func:`fit_noise` (the model it learned, read from its file)."""
     from misrgraph.model.noise import NoiseModel
 
-    return None if noise is None else NoiseModel.from_dict(noise)
+    if noise is None:
+        return None
+    if _is_record(noise):
+        from misrgraph.io.noise import read_noise_model
+
+        return read_noise_model(noise["output"])[0]
+    return NoiseModel.from_dict(noise)
+
+
+def _is_record(x: Any) -> bool:
+    return isinstance(x, dict) and "stage" in x and "status" in x
+
+
+def _needs_noise(noise: dict[str, Any] | None) -> tuple[dict[str, Any], ...]:
+    """The noise-fit record a task waits for (none when the levels are given)."""
+    return (noise,) if _is_record(noise) else ()
 
 
 def _adjust_config(noise: dict[str, Any] | None) -> Any:
@@ -382,6 +399,33 @@ def camera_versions(out: str, cfg: CampaignConfig, *calibrations: dict[str, Any]
     return _task("versions", "camera model", tuple(calibrations), body)
 
 
+def fit_noise(out: str, base: dict[str, Any] | None, *results: dict[str, Any]) -> dict[str, Any]:
+    """The noise levels learned on the campaign's first adjusted passes (``results``, their records)
+    into ``OUT/noise/noise-<digest>.json`` (:func:`misrgraph.estimate.noisefit.fit_noise_model`; the
+    levels the passes do not carry from ``base``, or the pre-flight ones), a file
+    ``--noise-model`` reads."""
+
+    def body() -> tuple[Path, bool, dict[str, Any]]:
+        from misrgraph.estimate.noisefit import fit_noise_model
+        from misrgraph.io.noise import SECTIONS, save_noise_model
+        from misrgraph.model.noise import NoiseModel
+        from misrgraph.runs.noise import read_pass_levels
+
+        files = [Path(r["output"]) for r in results]
+        key = digest("noise fit", [_sha(f) for f in files], base)
+        f = Path(out) / "noise" / f"noise-{key[:12]}.json"
+        if f.exists():
+            return f, True, json.loads(f.read_text())["fit"]
+        fit = fit_noise_model([read_pass_levels(x) for x in files], _noise(base) or NoiseModel())
+        source = {s: ("learned" if s in fit.learned_sections else "input" if base else "pre-flight") for s in SECTIONS}
+        summary = {"passes": [r["name"] for r in results], "levels": fit.levels}
+        f.parent.mkdir(parents=True, exist_ok=True)
+        save_noise_model(fit.model, f, source, fit=summary)
+        return f, False, summary
+
+    return _task("noise", "fit", tuple(results), body)
+
+
 # ---------------------------------------------------------------------------- per pass
 def adjust(
     out: str,
@@ -431,7 +475,7 @@ def adjust(
         )
         return f, False, _pass_summary(s)
 
-    return _task("adjust", pass_id, (inputs, calibration), body)
+    return _task("adjust", pass_id, (inputs, calibration, *_needs_noise(noise)), body)
 
 
 def _model_for(cam: Path, pass_file: Path) -> Path:
@@ -614,4 +658,4 @@ def path_products(
             (tmp / SUMMARY_FILE).write_text(json.dumps(summary, indent=2))
         return final, False, summary
 
-    return _task("path", f"path {path}", (inputs, calibration), body)
+    return _task("path", f"path {path}", (inputs, calibration, *_needs_noise(noise)), body)

@@ -92,6 +92,12 @@ def campaign(
         "calibrations are watched for a change, and each pass is adjusted with the camera-model version "
         "valid for its orbit (OUT/cgm/).",
     ),
+    noise_fit_passes: int = typer.Option(
+        0,
+        "--noise-fit-passes",
+        help="Learn the noise levels on this many of the first passes (noise fit) and adjust every other "
+        "pass and path with them (0: the --noise-model or pre-flight levels throughout).",
+    ),
     monitor_alpha: float = typer.Option(
         0.05, "--monitor-alpha", help="False-alarm probability of the monitor over a campaign (with --recalibrate)."
     ),
@@ -118,6 +124,7 @@ def campaign(
         roi_blocks=roi_blocks,
         observations=observations,
         recalibrate_months=recalibrate,
+        noise_fit_passes=noise_fit_passes,
         monitor_alpha=monitor_alpha,
     )
     merge_config(fields, config)
