@@ -153,43 +153,60 @@ def kalman_filter(
     seasonal coefficients with ``levels.slope_var`` and ``levels.season_var`` (``prior_variance``
     where those are infinite)."""
     tt, yy, ss = _check(t, y, sigma)
+    v, S, level, level_sig, slope, m = _filter(tt, yy[None, :], ss[None, :], levels, seasonal, prior_variance)
+    return FilterResult(v[0], S[0], level[0], level_sig[0], slope[0], _log_likelihood(v, S, m), m)
+
+
+def _log_likelihood(v: Array, S: Array, m: int) -> float:
+    """The innovations' Gaussian log-likelihood after the ``m`` diffuse ones, summed over rows."""
+    if v.shape[1] <= m:
+        return 0.0
+    return -0.5 * float(np.sum(np.log(2 * math.pi * S[:, m:]) + v[:, m:] ** 2 / S[:, m:]))
+
+
+def _filter(
+    tt: Array, Y: Array, Ss: Array, levels: TrendLevels, seasonal: bool, prior_variance: float
+) -> tuple[Array, Array, Array, Array, Array, int]:
+    """The filter of :func:`kalman_filter` over ``B`` series sharing the times ``tt (n,)``: values
+    and 1-sigmas ``(B, n)``; innovations, their variances, level, its 1-sigma and slope ``(B, n)``
+    and the number of diffuse states."""
     n_state = 4 if seasonal else 2
-    x = np.zeros(n_state)
+    B, n = Y.shape
+    x = np.zeros((B, n_state))
     p0 = float(prior_variance)
     start = [p0, levels.slope_var, levels.season_var, levels.season_var][:n_state]
-    P = np.diag([p0 if not math.isfinite(v) else float(v) for v in start])
+    P = np.broadcast_to(
+        np.diag([p0 if not math.isfinite(v) else float(v) for v in start]), (B, n_state, n_state)
+    ).copy()
     m = sum(1 for i, v in enumerate(start) if i == 0 or not math.isfinite(v))
-    n = tt.size
-    v, S = np.zeros(n), np.zeros(n)
-    level, level_sig, slope = np.zeros(n), np.zeros(n), np.zeros(n)
+    v, S = np.zeros((B, n)), np.zeros((B, n))
+    level, level_sig, slope = np.zeros((B, n)), np.zeros((B, n)), np.zeros((B, n))
     ql, qs = float(levels.q_level), float(levels.q_slope)
-    t_prev = tt[0]
     for k in range(n):
-        dt = tt[k] - t_prev
         if k:
+            dt = tt[k] - tt[k - 1]
             F = np.eye(n_state)
             F[0, 1] = dt
             Q = np.zeros((n_state, n_state))
             Q[0, 0] = ql * dt + qs * dt**3 / 3.0
             Q[0, 1] = Q[1, 0] = qs * dt**2 / 2.0
             Q[1, 1] = qs * dt
-            x = F @ x
+            x = x @ F.T
             P = F @ P @ F.T + Q
         h = np.zeros(n_state)
         h[0] = 1.0
         if seasonal:
             w = 2.0 * math.pi * tt[k] / SEASON_DAYS
             h[2], h[3] = math.cos(w), math.sin(w)
-        v[k] = yy[k] - h @ x
-        S[k] = h @ P @ h + ss[k] ** 2
-        K = P @ h / S[k]
-        x = x + K * v[k]
-        P = P - np.outer(K, h @ P)
-        P = 0.5 * (P + P.T)
-        level[k], level_sig[k], slope[k] = x[0], math.sqrt(max(P[0, 0], 0.0)), x[1]
-        t_prev = tt[k]
-    ll = -0.5 * float(np.sum(np.log(2 * math.pi * S[m:]) + v[m:] ** 2 / S[m:])) if n > m else 0.0
-    return FilterResult(v, S, level, level_sig, slope, ll, m)
+        Ph = P @ h  # (B, n_state)
+        v[:, k] = Y[:, k] - x @ h
+        S[:, k] = Ph @ h + Ss[:, k] ** 2
+        K = Ph / S[:, k, None]
+        x = x + K * v[:, k, None]
+        P = P - K[:, :, None] * Ph[:, None, :]
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        level[:, k], level_sig[:, k], slope[:, k] = x[:, 0], np.sqrt(np.maximum(P[:, 0, 0], 0.0)), x[:, 1]
+    return v, S, level, level_sig, slope, m
 
 
 def fit_process_levels(
@@ -218,9 +235,18 @@ def fit_process_levels(
         extra = list(e[2:]) + [math.inf] * (4 - n_par)
         return TrendLevels(float(e[0]), float(e[1]), float(extra[0]), float(extra[1]))
 
+    groups: dict[bytes, list[tuple[Array, Array, Array]]] = {}
+    for c in checked:  # series that share their times are filtered together
+        groups.setdefault(c[0].tobytes(), []).append(c)
+    batches = [(g[0][0], np.stack([c[1] for c in g]), np.stack([c[2] for c in g])) for g in groups.values()]
+
     def nll(p: Array) -> float:
         lv = levels_of(p)
-        return -sum(kalman_filter(t, y, s, lv, seasonal).log_likelihood for t, y, s in checked)
+        total = 0.0
+        for tt, Y, Ss in batches:
+            v, S, _, _, _, m = _filter(tt, Y, Ss, lv, seasonal, _DIFFUSE)
+            total += _log_likelihood(v, S, m)
+        return -total
 
     starts = [
         np.log([scale / 100.0, scale / 1e6, scale * 1e-6, scale * 0.1])[:n_par],
