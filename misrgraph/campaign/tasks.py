@@ -193,7 +193,8 @@ def simulate_month(
         if window:
             from misrgraph.campaign.years import date_of_day, window_starts
 
-            assert first is not None
+            if first is None:
+                raise MisrGraphError(f"window {window + 1}'s GCP scenario needs the first window's (its instrument)")
             truth = Path(first["output"]) / "camera_truth.h5"
             seed = int.from_bytes(bytes.fromhex(digest("window seed", cfg.seed, window)[:8]), "big")
             extra = {

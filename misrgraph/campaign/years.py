@@ -48,6 +48,7 @@ __all__ = [
     "calibration_days",
     "first_orbit_of_day",
     "pass_day",
+    "date_of_day",
     "plan_versions",
     "stale_passes",
 ]
