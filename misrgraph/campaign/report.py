@@ -218,7 +218,7 @@ def _noise_section(fit: dict[str, Any] | None) -> list[str]:
         f"Learned on {len(fit['passes'])} pass(es) ({', '.join(fit['passes'])}) and used for every other pass "
         f"and path: `{fit['file']}`.",
         "",
-        "| level | learned | 1σ | adjusted with before | applied |",
+        "| level | learned | 1σ | the fit passes used | applied |",
         "|---|---:|---:|---:|---|",
     ]
     for name, v in fit["levels"].items():
