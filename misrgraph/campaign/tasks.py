@@ -321,7 +321,6 @@ def calibrate(
     from misrgraph.estimate.calibrate import CalibrateConfig
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
-        from misrgraph.io.h5 import open_h5
         from misrgraph.runs.calibrate import run_calibrate
 
         d = Path(month["output"])
@@ -329,11 +328,18 @@ def calibrate(
         key = digest("calibrate", _scenario_sha(d), cfg.to_dict(), {"observations": observations})
         f = Path(out) / "calibration" / f"camera_model-{key[:12]}.h5"
         if f.exists():
-            with open_h5(f, "camera_model") as h:
-                return f, True, _calibration_summary(json.loads(h["calibration"].attrs["summary_json"]))
+            return f, True, _calibration_summary(_stored_calibration_summary(f))
         return f, False, _calibration_summary(run_calibrate(d, out=f, cfg=cfg, observations=observations))
 
     return _task("calibration", name, (month,), body)
+
+
+def _stored_calibration_summary(f: Path) -> dict[str, Any]:
+    """The summary (``calibrate --json``) a calibrated camera-model file holds."""
+    from misrgraph.io.h5 import open_h5
+
+    with open_h5(f, "camera_model") as h:
+        return json.loads(h["calibration"].attrs["summary_json"])
 
 
 def _calibration_summary(s: dict[str, Any]) -> dict[str, Any]:
@@ -360,7 +366,6 @@ def camera_versions(out: str, cfg: CampaignConfig, *calibrations: dict[str, Any]
             window_starts,
         )
         from misrgraph.io.cgm import add_version
-        from misrgraph.io.h5 import open_h5
 
         files = [Path(c["output"]) for c in calibrations]
         starts = window_starts(cfg)
@@ -368,10 +373,7 @@ def camera_versions(out: str, cfg: CampaignConfig, *calibrations: dict[str, Any]
         final = Path(out) / "cgm" / f"versions-{key[:12]}"
         if (final / "monitor.json").exists():
             return final / "store", True, json.loads((final / "monitor.json").read_text())
-        summaries = []
-        for f in files:
-            with open_h5(f, "camera_model") as h:
-                summaries.append(json.loads(h["calibration"].attrs["summary_json"]))
+        summaries = [_stored_calibration_summary(f) for f in files]
         plan = plan_versions(calibration_days(cfg), summaries, cfg.monitor_alpha)
         versions = []
         with _building(final) as tmp:
