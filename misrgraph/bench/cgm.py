@@ -39,7 +39,17 @@ from misrgraph.bench.work import bench_workdir
 from misrgraph.errors import InputError
 from misrgraph.model.constants import CAMERAS
 
-__all__ = ["run_bench_cgm", "step_arcsec"]
+__all__ = ["run_bench_cgm", "step_arcsec", "ROWS"]
+
+#: The study's rows (result key, label) in the order the CLI and the results page show them.
+ROWS = (
+    ("before", "before the step (version 1)"),
+    ("after_new", "after the step, the new version"),
+    ("after_stale", "after the step, the stale version"),
+    ("stale_minus_new", "stale minus new, paired"),
+    ("new_minus_before", "new version minus the same pass before the step"),
+    ("stale_minus_before", "stale version minus the same pass before the step"),
+)
 
 _EPOCH = _dt.date(2003, 1, 1)
 _REPEAT_DAYS = 16

@@ -403,21 +403,12 @@ def _render_monitor(r: dict[str, Any]) -> str:
 
 
 def _render_cgm(r: dict[str, Any]) -> str:
+    from misrgraph.bench.cgm import ROWS as CGM_ROWS
+
     s = r["step"]
     cols = ("checkpoint_rms_m", "coregistration_px", "camera_nees")
     fmts = (".1f", ".3f", ".2f")
-    rows = [
-        [name, *(_ci(r[key][k], fmt=f) for k, f in zip(cols, fmts))]
-        for key, name in (
-            ("before", "before the step (version 1)"),
-            ("after_new", "after the step, the new version"),
-            ("after_stale", "after the step, the stale version"),
-            ("stale_minus_new", "stale minus new, paired"),
-            ("new_minus_before", "new version minus the same pass before the step"),
-            ("stale_minus_before", "stale version minus the same pass before the step"),
-        )
-        if key in r
-    ]
+    rows = [[name, *(_ci(r[key][k], fmt=f) for k, f in zip(cols, fmts))] for key, name in CGM_ROWS if key in r]
     sig = r["calibration_sigma_px"]
     return (
         f"{s['camera']}'s delta steps by {s['arcsec']:.2f} arcsec ({s['px']:g} px) on {s['date']}. "

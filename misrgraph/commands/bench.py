@@ -1017,12 +1017,9 @@ def bench_cgm(
     table = Table(title=f"{s['camera']} steps by {s['px']:g} px on {s['date']}: {res['passes']} passes each")
     for col in ("", "check points (m)", f"{s['camera']} co-registration (px)", "camera NEES"):
         table.add_column(col, justify="right")
-    for key, name in (
-        ("before", "before the step"),
-        ("after_new", "after, new version"),
-        ("after_stale", "after, stale version"),
-        ("stale_minus_new", "stale - new (paired)"),
-    ):
+    from misrgraph.bench.cgm import ROWS
+
+    for key, name in ROWS:
         v = res[key]
         table.add_row(
             name,
