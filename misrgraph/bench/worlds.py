@@ -92,13 +92,15 @@ def oracle_noise_model(cfg: ScenarioConfig) -> NoiseModel:
     as the observation and DEM scales, the truth's attitude sigma (its rate from the band's RMS
     frequency, its damping fitted to the band's correlation), jitter, navigation sigmas and
     once-per-revolution amplitude. The camera prior stays pre-flight (the truth's camera residual
-    is the pre-flight one)."""
-    from misrgraph.model.errormodels import fit_damping
+    is the pre-flight one). A process faster than the pre-flight one gets the knots the noise fit
+    would give it (:func:`~misrgraph.estimate.noisefit.knot_spacing_for`)."""
+    from misrgraph.estimate.noisefit import knot_spacing_for, spacing_tolerance
+    from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, fit_damping
 
     base = NoiseModel()
     factor = _band_rate_factor(tuple(cfg.attitude_periods_s))
     att = tuple(float(s) for s in cfg.attitude_sigma_arcsec)
-    return base.replace(
+    model = base.replace(
         attitude=base.attitude.replace(
             value_sigma_arcsec=att,
             rate_sigma_arcsec_per_s=tuple(s * factor for s in att),
@@ -117,6 +119,13 @@ def oracle_noise_model(cfg: ScenarioConfig) -> NoiseModel:
             gcp_sigma_scale=float(cfg.gcp_sigma_true_over_stated),
         ),
     )
+    if factor <= ATTITUDE_RATE_FACTOR:
+        return model
+    a, tol = model.attitude, spacing_tolerance(base.replace(jitter=model.jitter))
+    spacing = tuple(
+        min(h, knot_spacing_for(v, factor, a.damping, h, tol)) for h, v in zip(a.knot_spacing_s, a.value_sigma_arcsec)
+    )
+    return model.replace(attitude=a.replace(knot_spacing_s=spacing))
 
 
 #: The learned levels compared with the world's own (``noise fit`` name -> (section, field, axis or

@@ -45,8 +45,16 @@ def adjust(
         None, "--out", help="Write RESULT.h5 (error models, landmarks, covariances, residuals)."
     ),
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write PNG plots into this directory (needs --out)."),
-    pitch_spacing: float = typer.Option(60.0, "--pitch-knots-s", help="Pitch knot spacing (s)."),
-    rollyaw_spacing: float = typer.Option(60.0, "--roll-yaw-knots-s", help="Roll and yaw knot spacing (s)."),
+    pitch_spacing: float = typer.Option(
+        60.0,
+        "--pitch-knots-s",
+        help="Pitch knot spacing (s); a --noise-model file's attitude.knot_spacing_s replaces it.",
+    ),
+    rollyaw_spacing: float = typer.Option(
+        60.0,
+        "--roll-yaw-knots-s",
+        help="Roll and yaw knot spacing (s); a --noise-model file's attitude.knot_spacing_s replaces it.",
+    ),
     threshold1: int = typer.Option(
         1, "--threshold1", help="Eq. 28: minimum observations per knot support (--knot-prior independent)."
     ),

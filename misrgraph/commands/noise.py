@@ -80,11 +80,13 @@ def noise_fit(
     base: Optional[Path] = typer.Option(
         None, "--base", help="Noise-model file whose levels the passes do not carry are kept. Default: pre-flight."
     ),
-    learn_shape: bool = typer.Option(
-        False,
-        "--learn-attitude-shape",
-        help="Also apply the attitude process's fitted natural frequency (the rate's sigma over the value's); "
-        "by default it is reported and the base's shape kept.",
+    learn_shape: Optional[bool] = typer.Option(
+        None,
+        "--learn-attitude-shape/--keep-attitude-shape",
+        help="Apply the attitude process's fitted natural frequency (the rate's sigma over the value's) always, or "
+        "never. Default: per angle, when the passes reject the base's for a faster process (z > 3.29), which "
+        "then also gets denser knots.",
+        show_default=False,
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the fitted levels as JSON."),
 ) -> None:
@@ -93,9 +95,10 @@ def noise_fit(
     The attitude sigma per angle and the ephemeris offset and drift sigmas maximise the passes'
     marginal likelihood of their prior, each with a 1 sigma from the likelihood's curvature; a
     level the passes do not determine keeps the base's, and the attitude's shape (rate over value)
-    stays the base's unless --learn-attitude-shape. The tie-point, GCP and DEM sigma scales come
-    from the passes' variance components. Jitter, the attitude damping, the camera prior, the GCP
-    positions' scale and the once-per-revolution term are not fitted and keep the base's levels.
+    stays the base's unless the passes reject it; a faster process gets knots that miss no more
+    of it than of the jitter. The tie-point, GCP and DEM sigma scales come from the passes'
+    variance components. Jitter, the attitude damping, the camera prior and the
+    once-per-revolution term are not fitted and keep the base's levels.
     """
     from misrgraph.runs.noise import run_noise_fit
 

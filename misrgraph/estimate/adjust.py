@@ -428,9 +428,7 @@ def adjust_pass(
         status=res.status,
         variance_factor=variance_factor(pg.problem, res.final_error),
         reliability=rel,
-        unresolved_attitude_rad=unresolved_attitude(
-            pg.attitude_model.knot_times, cfg.graph.attitude_jitter_arcsec, cfg.graph.attitude_jitter_periods_s
-        ),
+        unresolved_attitude_rad=cfg.graph.unresolved_attitude_rad(pg.attitude_model.knot_times),
         snooped=np.flatnonzero(snooped),
         tie_height=tie_height,
         landmark_extra_cov=extra,

@@ -143,12 +143,12 @@ class GraphConfig(Config):
     #: follow the term's curvature over a long pass); 0: independent offset and drift priors
     ephemeris_once_per_rev_m: float = _PRE_FLIGHT.ephemeris.once_per_rev_m
     #: 1 sigma (arcsec, per angle) of attitude jitter with periods log-uniform in
-    #: ``attitude_jitter_periods_s`` (s). The part the knots cannot follow
-    #: (:func:`~misrgraph.model.errormodels.unresolved_attitude`, on this pass's knots) is noise in
-    #: every image observation: its pointing sensitivity (``d(line, sample) / d(roll, pitch,
-    #: yaw)`` at the start values) carries it into the observation's line and sample sigma,
+    #: ``attitude_jitter_periods_s`` (s). The part the knots cannot follow, with the part of the
+    #: slow process between the knots (:meth:`unresolved_attitude_rad`, on this pass's knots), is
+    #: noise in every image observation: its pointing sensitivity (``d(line, sample) / d(roll,
+    #: pitch, yaw)`` at the start values) carries it into the observation's line and sample sigma,
     #: ``sigma_line^2 = sigma_px^2 + sigma_u^2 |d line / d angles|^2`` (likewise the sample).
-    #: 0: the matcher's sigma alone
+    #: 0: the matcher's sigma alone (the knots are taken to follow the whole attitude error)
     attitude_jitter_arcsec: float = 0.0
     attitude_jitter_periods_s: tuple = _PRE_FLIGHT.jitter.periods_s
     estimate_camera: bool = True
@@ -253,6 +253,29 @@ class GraphConfig(Config):
                 self.calibration_focal_prior_px,
                 "0 (the wide pre-flight prior) or a positive 1 sigma in pixels",
             )
+
+    def attitude_process(self) -> tuple[tuple, tuple, float]:
+        """The slow attitude process per angle: ``(value sigma arcsec (3,), rate sigma arcsec/s
+        (3,), damping)``, the rate's sigma the value's times
+        :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR` unless stated."""
+        value = tuple(float(x) for x in self.attitude_sigma_arcsec)
+        rate = tuple(float(x) for x in self.attitude_rate_sigma_arcsec_per_s) or tuple(
+            v * ATTITUDE_RATE_FACTOR for v in value
+        )
+        return value, rate, float(self.knot_prior_damping)
+
+    def unresolved_attitude_rad(self, knot_times: list[Array]) -> float:
+        """1 sigma (rad) of the attitude error the knots on ``knot_times`` (per angle, s) cannot
+        follow (:func:`~misrgraph.model.errormodels.unresolved_attitude`): the jitter's share and,
+        under the ``"process"`` knot prior, the slow process's between the knots (0.027 of its sigma
+        for the pre-flight process on knots every 60 s). 0 without jitter
+        (``attitude_jitter_arcsec`` 0: the knots are taken to follow the whole attitude error)."""
+        if self.attitude_jitter_arcsec == 0:
+            return 0.0
+        process = self.attitude_process() if self.knot_prior == "process" else None
+        return unresolved_attitude(
+            knot_times, self.attitude_jitter_arcsec, tuple(self.attitude_jitter_periods_s), process
+        )
 
 
 @dataclass
@@ -480,7 +503,7 @@ def build_pass_graph(
         lm_init,
         cam_params,
         camera.omega,
-        unresolved_attitude(att_kept.knot_times, cfg.attitude_jitter_arcsec, tuple(cfg.attitude_jitter_periods_s)),
+        cfg.unresolved_attitude_rad(att_kept.knot_times),
     )
     coll = CollinearityBatch(const, cam_params, camera.omega, sigma, group, keys, select, robust)
     graph = gtsam.NonlinearFactorGraph()

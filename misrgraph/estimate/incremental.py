@@ -71,7 +71,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from factors import keys as K
 from misrgraph.errors import InputError
-from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, estimated_models, unresolved_attitude
+from misrgraph.estimate.adjust import AdjustConfig, AdjustResult, estimated_models
 from misrgraph.estimate.graph import PassGraph, build_pass_graph, merge_flat, merge_problems
 from misrgraph.estimate.problem import FlatProblem, Marginals, NotFlat
 from misrgraph.estimate.solver import SolverParams, solve
@@ -647,11 +647,7 @@ class IncrementalSolver:
             final_cost=float(self.isam.getFactorsUnsafe().error(v)),
             history=[],
             seconds=seconds,
-            unresolved_attitude_rad=unresolved_attitude(
-                pg.attitude_model.knot_times,
-                self.cfg.graph.attitude_jitter_arcsec,
-                self.cfg.graph.attitude_jitter_periods_s,
-            ),
+            unresolved_attitude_rad=self.cfg.graph.unresolved_attitude_rad(pg.attitude_model.knot_times),
         )
 
 

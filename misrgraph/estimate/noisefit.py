@@ -15,8 +15,11 @@ exact for a linear-Gaussian model whatever prior the pass used. The levels maxim
 over the passes (type-II maximum likelihood, the empirical-Bayes estimate): per angle the
 process's sigma and natural frequency ``lam`` (the rate's sigma is ``lam sigma``; the damping
 ratio stays as used), and the ephemeris offset sigma (the three axes pooled) and the drift sigma
-per axis. Each level's 1 sigma is from the curvature of the summed (1) at its maximum, in the
-logarithm of the level (the Laplace approximation). A level enters the fitted model only when
+per axis. The fitted ``lam`` replaces the base's only where the passes reject the base's for a
+faster process (:data:`SHAPE_Z`), which then gets knots dense enough that the spline misses no
+more of it than of the jitter (:func:`knot_spacing_for`). Each level's 1 sigma is from the
+curvature of the summed (1) at its maximum, in the logarithm of the level (the Laplace
+approximation). A level enters the fitted model only when
 the passes determine it (:data:`MAX_LOG_SD`); otherwise the base model's stays, and the fit says
 so (``applied``). The blocks are taken one at a time, each
 with the others' priors as they were (a pass stores each angle's and each segment's joint
@@ -49,7 +52,7 @@ from scipy import optimize
 from factors.priors import process_transition
 from misrgraph.errors import InputError
 from misrgraph.model.constants import ANGLES, ARCSEC
-from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, ephemeris_prior_covariance
+from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, ephemeris_prior_covariance, unresolved_process_sigma
 from misrgraph.model.noise import NoiseModel
 
 __all__ = [
@@ -61,6 +64,10 @@ __all__ = [
     "relative_log_marginal_likelihood",
     "pooled_scale",
     "MAX_LOG_SD",
+    "SHAPE_Z",
+    "SPACING_FRACTIONS",
+    "knot_spacing_for",
+    "spacing_tolerance",
 ]
 
 
@@ -254,9 +261,56 @@ def _sd(cov: np.ndarray | None, i: int, value: float) -> float | None:
     return None if cov is None or not np.isfinite(cov[i, i]) else float(value * np.sqrt(cov[i, i]))
 
 
-def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, learn_shape: bool = False) -> Any:
+#: the attitude process's fitted shape replaces the base's (``learn_attitude_shape`` None) when
+#: the passes reject the base's natural frequency for a higher one: the fitted log more than this
+#: many standard deviations above the base's (0.05 % one-sided). A few passes' fitted shape within
+#: that makes the knots over-confident (``misrgraph bench worlds``); a slower process than the
+#: base's is not applied: its prior would hold the knots' rates tighter than the jitter's share in
+#: them (:func:`~misrgraph.model.errormodels.projected_band_covariance`)
+SHAPE_Z = 3.29
+
+#: the knot spacings (as fractions of the base's) tried, longest first, for a process faster than
+#: the base's (:func:`knot_spacing_for`)
+SPACING_FRACTIONS = (1.0, 0.75, 0.5, 1.0 / 3.0, 0.25, 1.0 / 6.0)
+
+
+def knot_spacing_for(
+    sigma_arcsec: float, lam: float, zeta: float, base_spacing_s: float, tolerance_arcsec: float
+) -> float:
+    """The longest of :data:`SPACING_FRACTIONS` of ``base_spacing_s`` (s) on which the spline misses
+    no more than ``tolerance_arcsec`` of an attitude process (1 sigma ``sigma_arcsec``, natural
+    frequency ``lam`` 1/s, damping ``zeta``; :func:`~misrgraph.model.errormodels.unresolved_process_sigma`
+    over twenty base spacings), else the shortest."""
+    span = 20.0 * base_spacing_s
+    for f in SPACING_FRACTIONS:
+        h = base_spacing_s * f
+        kt = np.arange(0.0, span + 0.5 * h, h)
+        if unresolved_process_sigma(kt, sigma_arcsec, lam, zeta) <= tolerance_arcsec:
+            return float(h)
+    return float(base_spacing_s * SPACING_FRACTIONS[-1])
+
+
+def spacing_tolerance(model: NoiseModel) -> float:
+    """What knots for a faster process may miss of it (arcsec, :func:`knot_spacing_for`): the
+    larger of the model's jitter sigma and what the model's own knots miss of its own process (the
+    worst angle)."""
+    a = model.attitude
+    value = [float(v) for v in a.value_sigma_arcsec]
+    rate = [float(r) for r in a.rate_sigma_arcsec_per_s] or [v * ATTITUDE_RATE_FACTOR for v in value]
+    own = max(
+        unresolved_process_sigma(np.arange(0.0, 20.5 * h, h), v, r / v, float(a.damping))
+        for h, v, r in zip(a.knot_spacing_s, value, rate)
+    )
+    return max(float(model.jitter.sigma_arcsec), own)
+
+
+def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, learn_shape: bool | None = None) -> Any:
     value_sig = list(base.attitude.value_sigma_arcsec)
     rate_sig = list(base.attitude.rate_sigma_arcsec_per_s) or [v * ATTITUDE_RATE_FACTOR for v in value_sig]
+    spacing = [float(x) for x in base.attitude.knot_spacing_s]
+    base_spacing = list(spacing)
+    zeta_base = float(base.attitude.damping)
+    tolerance = spacing_tolerance(base)
     for a, ang in enumerate(ANGLES):
         blocks = []
         for p in passes:
@@ -290,8 +344,21 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
         base_lam = rate_sig[a] / value_sig[a]
         if _determined(cov, 0):
             value_sig[a] = float(sig)
-        shape = learn_shape and _determined(cov, 1)
+        # the fitted natural frequency against the base's, in standard deviations of its log
+        shape_z = (
+            float((th[1] - np.log(base_lam)) / np.sqrt(cov[1, 1]))
+            if cov is not None and np.isfinite(cov[1, 1]) and cov[1, 1] > 0
+            else None
+        )
+        if learn_shape is None:  # only a faster process (module docstring)
+            shape = shape_z is not None and shape_z > SHAPE_Z
+        else:
+            shape = bool(learn_shape) and _determined(cov, 1)
         rate_sig[a] = float(value_sig[a] * (lam if shape else base_lam))
+        if shape and lam > base_lam:
+            spacing[a] = min(
+                base_spacing[a], knot_spacing_for(value_sig[a], float(lam), zeta_base, base_spacing[a], tolerance)
+            )
         _level(
             levels,
             f"attitude.value_sigma_arcsec.{ang}",
@@ -317,7 +384,12 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
             "arcsec/s",
             _determined(cov, 0) and shape,
         )
-    return base.attitude.replace(value_sigma_arcsec=tuple(value_sig), rate_sigma_arcsec_per_s=tuple(rate_sig))
+        levels[f"attitude.rate_sigma_arcsec_per_s.{ang}"]["shape_z"] = shape_z
+        if spacing[a] != base_spacing[a]:
+            _level(levels, f"attitude.knot_spacing_s.{ang}", spacing[a], None, base_spacing[a], len(blocks), "s")
+    return base.attitude.replace(
+        value_sigma_arcsec=tuple(value_sig), rate_sigma_arcsec_per_s=tuple(rate_sig), knot_spacing_s=tuple(spacing)
+    )
 
 
 def _fit_ephemeris(passes: list[PassLevels], base: NoiseModel, levels: dict) -> Any:
@@ -358,15 +430,18 @@ def _fit_ephemeris(passes: list[PassLevels], base: NoiseModel, levels: dict) -> 
 
 
 def fit_noise_model(
-    passes: list[PassLevels], base: NoiseModel | None = None, learn_attitude_shape: bool = False
+    passes: list[PassLevels], base: NoiseModel | None = None, learn_attitude_shape: bool | None = None
 ) -> NoiseFit:
     """The noise model learned from adjusted passes (module docstring); levels the passes do not
     carry keep ``base``'s (default: the pre-flight model).
 
     The attitude process's shape (its natural frequency, i.e. the rate's sigma over the value's)
-    is estimated and reported but, unless ``learn_attitude_shape``, stays the base's: the rate
-    follows the learned value sigma: fitted from a few passes, the shape makes the knots
-    over-confident (``misrgraph bench worlds`` measures it).
+    is estimated and reported; per angle it replaces the base's only when the passes reject the
+    base's for a faster one (``learn_attitude_shape`` None, the default: :data:`SHAPE_Z`), always
+    (True) or never (False). Otherwise the rate follows the learned value sigma with the base's shape: a few
+    passes' fitted shape, close to the base's, makes the knots over-confident (``misrgraph bench
+    worlds`` measures it). A learned process faster than the base's also gets denser knots
+    (:func:`knot_spacing_for`: the spline misses no more of it than of the jitter).
 
     Raises
     ------

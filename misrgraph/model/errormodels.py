@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -33,6 +34,7 @@ __all__ = [
     "spline_design",
     "projected_band_covariance",
     "unresolved_band_sigma",
+    "unresolved_process_sigma",
     "unresolved_attitude",
     "ephemeris_prior_covariance",
     "process_correlation",
@@ -261,6 +263,22 @@ def spline_design(knot_times: ArrayLike, t: ArrayLike) -> Array:
     return design
 
 
+def _projection(knot_times: Array, step_s: float) -> tuple[Array, Array, Array]:
+    """Samples every ``step_s`` over the knots' span, the spline's design ``B`` at them and the
+    least-squares projection ``M = (B^T B)^-1 B^T``."""
+    t = np.arange(knot_times[0], knot_times[-1] + 0.5 * step_s, step_s)
+    design = spline_design(knot_times, t)
+    return t, design, np.linalg.solve(design.T @ design, design.T)
+
+
+def _projected_covariance(m: Array, r: Array) -> Array:
+    """``M R M^T`` for the Toeplitz correlation ``R`` of the samples (first column ``r``)."""
+    from scipy.linalg import matmul_toeplitz
+
+    cov = m @ matmul_toeplitz(r, m.T)
+    return 0.5 * (cov + cov.T)
+
+
 def projected_band_covariance(
     knot_times: ArrayLike, sigma: float, periods_s: tuple[float, float] = JITTER_PERIODS_S, step_s: float = 1.0
 ) -> Array:
@@ -278,8 +296,6 @@ def projected_band_covariance(
     interior knot takes up 0.44 sigma of value and 0.074 sigma/s of rate, an end knot 1.2 sigma
     and 0.16 sigma/s. Cost: one Toeplitz product by FFT, ~0.05 s for a 45-minute pass.
     """
-    from scipy.linalg import matmul_toeplitz
-
     kt = _increasing_times(knot_times)
     if not (sigma >= 0 and step_s > 0 and 0 < periods_s[0] < periods_s[1]):
         raise InputError(
@@ -287,12 +303,8 @@ def projected_band_covariance(
             (sigma, periods_s, step_s),
             "sigma >= 0, 0 < period_min < period_max, step > 0",
         )
-    t = np.arange(kt[0], kt[-1] + 0.5 * step_s, step_s)
-    design = spline_design(kt, t)
-    m = np.linalg.solve(design.T @ design, design.T)
-    r = band_correlation(t - t[0], periods_s)
-    cov = m @ matmul_toeplitz(r, m.T)
-    return sigma**2 * 0.5 * (cov + cov.T)
+    t, _, m = _projection(kt, step_s)
+    return sigma**2 * _projected_covariance(m, band_correlation(t - t[0], periods_s))
 
 
 def unresolved_band_sigma(
@@ -311,35 +323,65 @@ def unresolved_band_sigma(
     knots every 120 s."""
     if not sigma >= 0:
         raise InputError("sigma", sigma, "a 1 sigma >= 0 (rad)")
-    kt = _increasing_times(knot_times)
-    # the share depends on the knots' spacings only (the samples start at the first knot); to the
-    # microsecond they repeat from pass to pass, so it is computed once per grid
-    spacings = tuple(float(x) for x in np.round(np.diff(kt), 6))
-    share = _projected_share(spacings, tuple(float(x) for x in periods_s), float(step_s))
-    return float(sigma * np.sqrt(max(1.0 - share, 0.0)))
+    share = _unresolved_share(_spacings(knot_times), ("band", *(float(x) for x in periods_s)), float(step_s))
+    return float(sigma * np.sqrt(share))
+
+
+def unresolved_process_sigma(
+    knot_times: ArrayLike, sigma: float, lam: float, zeta: float, step_s: float = 1.0
+) -> float:
+    """As :func:`unresolved_band_sigma` for the slow attitude process itself (1 sigma ``sigma``
+    rad, natural frequency ``lam`` 1/s, damping ratio ``zeta``; correlation
+    :func:`process_correlation`): what of it the spline on ``knot_times`` cannot take up. For the
+    pre-flight process (``lam`` = :data:`ATTITUDE_RATE_FACTOR`, ``zeta`` = 0.58) on knots every
+    60 s it is 0.027 ``sigma``; for ``lam`` = 0.1/s (errors with periods of tens of seconds) it is
+    0.46 ``sigma`` on the same knots and 0.06 ``sigma`` on knots every 15 s."""
+    if not (sigma >= 0 and lam > 0 and zeta > 0):
+        raise InputError("(sigma, lam, zeta)", (sigma, lam, zeta), "sigma >= 0 (rad), lam > 0 (1/s), zeta > 0")
+    share = _unresolved_share(_spacings(knot_times), ("process", float(lam), float(zeta)), float(step_s))
+    return float(sigma * np.sqrt(share))
 
 
 def unresolved_attitude(
-    knot_times: list[Array], jitter_arcsec: float, periods_s: tuple[float, float] = JITTER_PERIODS_S
+    knot_times: list[Array],
+    jitter_arcsec: float,
+    periods_s: tuple[float, float] = JITTER_PERIODS_S,
+    process: tuple[Any, Any, float] | None = None,
 ) -> float:
-    """1 sigma (rad) of the attitude jitter the knots cannot follow: per angle
+    """1 sigma (rad) of the attitude error the knots cannot follow: per angle
     :func:`~misrgraph.model.errormodels.unresolved_band_sigma` of a jitter of ``jitter_arcsec``
-    (1 sigma, arcsec) with periods log-uniform in ``periods_s`` (s) on that angle's knots, then the
-    RMS over the three angles (one figure: equal knot grids, the default, give equal values)."""
-    if jitter_arcsec == 0:
-        return 0.0
-    var = [unresolved_band_sigma(kt, jitter_arcsec * ARCSEC, tuple(periods_s)) ** 2 for kt in knot_times]
-    return float(np.sqrt(np.mean(var)))
+    (1 sigma, arcsec) with periods log-uniform in ``periods_s`` (s) on that angle's knots and, with
+    ``process = (value_sigma_arcsec (3,), rate_sigma_arcsec_per_s (3,), damping)``, in quadrature
+    :func:`unresolved_process_sigma` of the slow process (natural frequency rate over value); then
+    the RMS over the three angles (one figure: equal knot grids, the default, give equal values)."""
+    var = np.zeros(len(knot_times))
+    if jitter_arcsec > 0:
+        var += [unresolved_band_sigma(kt, jitter_arcsec * ARCSEC, tuple(periods_s)) ** 2 for kt in knot_times]
+    if process is not None:
+        value, rate, zeta = process
+        var += [
+            unresolved_process_sigma(kt, float(v) * ARCSEC, float(r) / float(v), float(zeta)) ** 2
+            for kt, v, r in zip(knot_times, value, rate)
+        ]
+    return float(np.sqrt(np.mean(var))) if var.size else 0.0
 
 
-@lru_cache(maxsize=64)
-def _projected_share(spacings: tuple[float, ...], periods_s: tuple[float, float], step_s: float) -> float:
-    """``tr(B Cov(k) B^T) / N`` of :func:`unresolved_band_sigma` for unit sigma, knots at
-    ``cumsum((0,) + spacings)``."""
+def _spacings(knot_times: ArrayLike) -> tuple[float, ...]:
+    # the unresolved share depends on the knots' spacings only (the samples start at the first
+    # knot); to the microsecond they repeat from pass to pass, so it is computed once per grid
+    return tuple(float(x) for x in np.round(np.diff(_increasing_times(knot_times)), 6))
+
+
+@lru_cache(maxsize=128)
+def _unresolved_share(spacings: tuple[float, ...], correlation: tuple, step_s: float) -> float:
+    """``1 - tr(B Cov(k) B^T) / N`` for unit sigma (:func:`unresolved_band_sigma`), knots at
+    ``cumsum((0,) + spacings)``; ``correlation``: ``("band", P0, P1)`` or ``("process", lam, zeta)``."""
     kt = np.concatenate([[0.0], np.cumsum(spacings)])
-    cov = projected_band_covariance(kt, 1.0, periods_s, step_s)
-    design = spline_design(kt, np.arange(kt[0], kt[-1] + 0.5 * step_s, step_s))
-    return float(np.einsum("ni,ij,nj->", design, cov, design)) / design.shape[0]
+    t, design, m = _projection(kt, step_s)
+    kind, *par = correlation
+    r = band_correlation(t - t[0], tuple(par)) if kind == "band" else process_correlation(t - t[0], *par)
+    share = float(np.einsum("ni,ij,nj->", design, _projected_covariance(m, r), design)) / design.shape[0]
+    return max(1.0 - share, 0.0)
 
 
 def ephemeris_prior_covariance(

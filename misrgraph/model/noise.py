@@ -63,18 +63,22 @@ class AttitudeNoise(Config):
     ``value_sigma_arcsec``: its 1 sigma per angle. ``rate_sigma_arcsec_per_s``: its rate's 1 sigma
     (with the value, it sets the process's natural frequency); empty: the value's sigma times
     :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR` (0.0146/s). ``damping``: the
-    process's damping ratio (1: Matern-3/2).
+    process's damping ratio (1: Matern-3/2). ``knot_spacing_s``: the attitude knots' spacing per
+    angle (s); what of the process the spline on them cannot follow weights the observations with
+    the jitter (:meth:`~misrgraph.estimate.graph.GraphConfig.unresolved_attitude_rad`).
     """
 
     value_sigma_arcsec: tuple = _ATTITUDE_SIGMA
     rate_sigma_arcsec_per_s: tuple = ()
     damping: float = ATTITUDE_DAMPING
+    knot_spacing_s: tuple = (60.0, 60.0, 60.0)
 
     def __post_init__(self) -> None:
         _positive("attitude.value_sigma_arcsec", self.value_sigma_arcsec, 3)
         if len(self.rate_sigma_arcsec_per_s):
             _positive("attitude.rate_sigma_arcsec_per_s", self.rate_sigma_arcsec_per_s, 3)
         _positive("attitude.damping", self.damping)
+        _positive("attitude.knot_spacing_s", self.knot_spacing_s, 3)
 
 
 @dataclass(frozen=True)
@@ -182,6 +186,7 @@ class NoiseModel(Config):
             "attitude_sigma_arcsec": tuple(float(x) for x in a.value_sigma_arcsec),
             "attitude_rate_sigma_arcsec_per_s": tuple(float(x) for x in a.rate_sigma_arcsec_per_s),
             "knot_prior_damping": float(a.damping),
+            "knot_spacing_s": tuple(float(x) for x in a.knot_spacing_s),
             "ephemeris_b_sigma_m": float(e.offset_sigma_m),
             "ephemeris_a_sigma_mps": tuple(float(x) for x in e.drift_sigma_mps),
             "ephemeris_once_per_rev_m": float(e.once_per_rev_m),
@@ -212,6 +217,11 @@ LEVELS: dict[tuple[str, str], tuple[str, str]] = {
         "(errors with periods of 200-2000 s)",
     ),
     ("attitude", "damping"): ("1", "pre-flight assumption: the process fitted to errors with periods of 200-2000 s"),
+    ("attitude", "knot_spacing_s"): (
+        "s",
+        "pre-flight design: every 60 s for errors with periods of 200-2000 s; noise fit shortens it "
+        "when it learns a faster process",
+    ),
     ("jitter", "sigma_arcsec"): ("arcsec", "pre-flight assumption: the GN&C's error faster than the knots"),
     ("jitter", "periods_s"): ("s", "pre-flight assumption: 10 s Kalman updates and gyro noise, 8-120 s"),
     ("ephemeris", "offset_sigma_m"): ("m", "pre-flight: the navigation's stated position accuracy"),

@@ -88,12 +88,13 @@ def run_noise_fit(
     results: list[str | os.PathLike[str]],
     out: str | os.PathLike[str] | None = None,
     base: str | os.PathLike[str] | None = None,
-    learn_attitude_shape: bool = False,
+    learn_attitude_shape: bool | None = None,
 ) -> dict[str, Any]:
     """Fit the noise model on adjusted passes (:func:`~misrgraph.estimate.noisefit.fit_noise_model`)
     and, with ``out``, write it as a noise-model file that ``--noise-model`` reads; the levels the
     passes do not carry come from ``base`` (a noise-model file; default the pre-flight model), and
-    so does the attitude process's shape unless ``learn_attitude_shape``.
+    so does the attitude process's shape unless the passes reject it (``learn_attitude_shape``
+    None) or ``learn_attitude_shape`` is True.
 
     Returns ``{"passes", "levels": {"section.field[.axis]": {"value", "sigma", "previous",
     "passes", "unit"}}, "not_fitted": [...], "out"}``."""

@@ -451,9 +451,16 @@ def test_camera_corrections_enter_the_model_in_si(small_pass):
 def test_unresolved_attitude_is_the_jitter_the_knots_cannot_follow(small_pass):
     """The result's unresolved attitude is the stated jitter's share the pass's knots cannot take
     up (independently: the residual of the least-squares spline fit of the simulator's own jitter
-    draws, over the same knots), not the whole jitter; none without jitter."""
+    draws, over the same knots), not the whole jitter, in quadrature with what they miss of the
+    slow process (:func:`unresolved_process_sigma`, checked against the process's own draws in
+    ``test_errormodels.py``); none without jitter."""
     from misrgraph.model.constants import ARCSEC
-    from misrgraph.model.errormodels import JITTER_PERIODS_S, spline_design
+    from misrgraph.model.errormodels import (
+        ATTITUDE_RATE_FACTOR,
+        JITTER_PERIODS_S,
+        spline_design,
+        unresolved_process_sigma,
+    )
     from misrgraph.sim.simulate import smooth_process
 
     sc, p = small_pass
@@ -471,7 +478,15 @@ def test_unresolved_attitude_is_the_jitter_the_knots_cannot_follow(small_pass):
         resid.append(np.mean((e - hat @ e) ** 2))
     resid = np.array(resid)
     se = resid.std(ddof=1) / np.sqrt(resid.size)
-    assert abs(res.unresolved_attitude_rad**2 - resid.mean()) < 4 * se, (
+    g = AdjustConfig().graph
+    process = np.mean(
+        [
+            unresolved_process_sigma(kt, s * ARCSEC, ATTITUDE_RATE_FACTOR, g.knot_prior_damping) ** 2
+            for s in g.attitude_sigma_arcsec
+        ]
+    )
+    assert 0 < process < 0.2 * resid.mean()
+    assert abs(res.unresolved_attitude_rad**2 - process - resid.mean()) < 4 * se, (
         res.unresolved_attitude_rad / ARCSEC,
         np.sqrt(resid.mean()) / ARCSEC,
     )

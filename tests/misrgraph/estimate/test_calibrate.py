@@ -358,10 +358,12 @@ def test_jitter_in_the_calibrations_weights(month):
     """``attitude_jitter_arcsec``: each GCP observation's line and sample sigma carries the jitter
     the knots cannot follow, through its pointing sensitivity, exactly as the pass adjustment's
     (``graph.observation_sigma``, tested against independent derivatives in ``test_graph.py``):
-    the added variance is ``unresolved^2 |d(line, sample) / d angles|^2`` (so it quadruples when
-    the jitter doubles; the D cameras' lines feel it most), and 0 leaves the matcher's sigma. A
-    negative value is refused by name."""
+    the added variance is ``unresolved^2 |d(line, sample) / d angles|^2``, the unresolved part
+    the jitter's share (linear in the jitter) in quadrature with the slow process's, so doubling
+    the jitter adds three times the jitter's share; the D cameras' lines feel it most. 0 leaves
+    the matcher's sigma. A negative value is refused by name."""
     from misrgraph.estimate.graph import build_pass_graph
+    from misrgraph.model.errormodels import unresolved_attitude
 
     sc, passes = month
     p = passes[0]
@@ -377,7 +379,13 @@ def test_jitter_in_the_calibrations_weights(month):
     double = build_pass_graph(
         p, sc.camera_model, None, sc.gcps, CalibrateConfig(attitude_jitter_arcsec=2.0).graph_config()
     )
-    np.testing.assert_allclose(double.collinearity.sigma_px**2 - stated[:, None] ** 2, 4.0 * extra, rtol=1e-9)
+    kt = with_j.attitude_model.knot_times
+    u1 = CalibrateConfig(attitude_jitter_arcsec=1.0).graph_config().unresolved_attitude_rad(kt)
+    u2 = CalibrateConfig(attitude_jitter_arcsec=2.0).graph_config().unresolved_attitude_rad(kt)
+    assert u2**2 - u1**2 == pytest.approx(3.0 * unresolved_attitude(kt, 1.0) ** 2, rel=1e-9)
+    np.testing.assert_allclose(
+        double.collinearity.sigma_px**2 - stated[:, None] ** 2, (u2 / u1) ** 2 * extra, rtol=1e-9
+    )
     cams = p.observations.camera[rows]
     line = {
         c: float(np.sqrt(extra[cams == CAMERAS.index(c), 0].mean()))

@@ -9,7 +9,7 @@ from misrgraph.errors import InputError
 from misrgraph.estimate.adjust import AdjustConfig
 from misrgraph.estimate.graph import GraphConfig, build_pass_graph
 from misrgraph.model.constants import ARCSEC, CAMERAS
-from misrgraph.model.errormodels import unresolved_attitude
+from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, unresolved_attitude, unresolved_process_sigma
 
 
 def test_observation_sigma_carries_the_unresolved_jitter_through_the_pointing_sensitivity(small_pass):
@@ -22,9 +22,18 @@ def test_observation_sigma_carries_the_unresolved_jitter_through_the_pointing_se
     from misrgraph.products.pp import image_derivatives
 
     sc, p = small_pass
-    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, AdjustConfig().graph_config())
-    sigma_u = unresolved_attitude(pg.attitude_model.knot_times, 1.0)
-    assert 0.8 * ARCSEC < sigma_u < 0.95 * ARCSEC
+    cfg0 = AdjustConfig().graph_config()
+    pg = build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, cfg0)
+    sigma_u = cfg0.unresolved_attitude_rad(pg.attitude_model.knot_times)
+    # the jitter's share (0.86 of its 1 arcsec on 60 s knots) and the slow process's between the
+    # knots, in quadrature
+    jitter_u = unresolved_attitude(pg.attitude_model.knot_times, 1.0)
+    assert 0.8 * ARCSEC < jitter_u < 0.95 * ARCSEC
+    process_u = [
+        unresolved_process_sigma(kt, s * ARCSEC, ATTITUDE_RATE_FACTOR, cfg0.knot_prior_damping)
+        for kt, s in zip(pg.attitude_model.knot_times, cfg0.attitude_sigma_arcsec)
+    ]
+    assert sigma_u == pytest.approx(np.sqrt(jitter_u**2 + np.mean(np.square(process_u))), rel=1e-9)
     rows = pg.obs_index[pg.collinearity.order]
     o = p.observations
     extra = pg.collinearity.sigma_px**2 - o.sigma_px[rows, None] ** 2

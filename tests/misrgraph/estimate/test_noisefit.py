@@ -243,20 +243,52 @@ def test_a_level_driven_to_its_bound_is_not_applied():
     assert fit.model.attitude.value_sigma_arcsec == NoiseModel().attitude.value_sigma_arcsec
 
 
-def test_the_attitude_shape_stays_the_bases_unless_asked():
-    """By default the learned value sigma enters the model with the base's rate/value ratio (the
-    fitted ratio is reported, not applied); with ``learn_attitude_shape`` the fitted rate enters."""
+def test_the_attitude_shape_is_learned_only_where_the_passes_reject_the_base():
+    """Passes whose process is three times faster than the pre-flight one: by default the fitted
+    rate enters the model (its z against the base's above SHAPE_Z) and the knots get denser, to
+    the spacing on which the spline misses no more of the learned process than of the jitter
+    (checked here against :func:`unresolved_process_sigma` directly). With
+    ``learn_attitude_shape=False`` the learned value sigma keeps the base's rate/value ratio and
+    the 60 s knots. Passes drawn with the pre-flight shape, or a slower one, keep the base's shape
+    by default; ``True`` applies whatever was fitted."""
+    from misrgraph.estimate.noisefit import SHAPE_Z, spacing_tolerance
+    from misrgraph.model.errormodels import unresolved_process_sigma
+
     rng = np.random.default_rng(7)
-    passes = [_synthetic_pass(rng, 20.0, 3 * ATTITUDE_RATE_FACTOR, 20.0, name=str(i)) for i in range(3)]
+    fast = [_synthetic_pass(rng, 20.0, 3 * ATTITUDE_RATE_FACTOR, 20.0, name=str(i)) for i in range(3)]
     base = NoiseModel()
-    fit = fit_noise_model(passes)
-    v, r = fit.model.attitude.value_sigma_arcsec, fit.model.attitude.rate_sigma_arcsec_per_s
+    fit = fit_noise_model(fast)
+    tol = spacing_tolerance(base)
+    for a, ang in enumerate(("roll", "pitch", "yaw")):
+        lv = fit.levels[f"attitude.rate_sigma_arcsec_per_s.{ang}"]
+        value = fit.model.attitude.value_sigma_arcsec[a]
+        assert lv["applied"] is True and lv["shape_z"] > SHAPE_Z, lv
+        lam = fit.model.attitude.rate_sigma_arcsec_per_s[a] / value
+        assert lam == pytest.approx(lv["value"] / fit.levels[f"attitude.value_sigma_arcsec.{ang}"]["value"])
+        assert 2 * ATTITUDE_RATE_FACTOR < lam < 4.5 * ATTITUDE_RATE_FACTOR, lam
+        h = fit.model.attitude.knot_spacing_s[a]
+        assert h < 60.0 and fit.levels[f"attitude.knot_spacing_s.{ang}"]["value"] == h
+
+        def missed(spacing, value=value, lam=lam):
+            return unresolved_process_sigma(np.arange(0.0, 1200.5, spacing), value, lam, ATTITUDE_DAMPING)
+
+        assert missed(h) <= tol * 1.01 and missed(60.0) > tol, (h, missed(h), missed(60.0), tol)
+    kept = fit_noise_model(fast, base, learn_attitude_shape=False)
+    v, r = kept.model.attitude.value_sigma_arcsec, kept.model.attitude.rate_sigma_arcsec_per_s
     np.testing.assert_allclose(np.array(r) / np.array(v), ATTITUDE_RATE_FACTOR, rtol=1e-12)
-    lv = fit.levels["attitude.rate_sigma_arcsec_per_s.pitch"]
-    assert lv["applied"] is False and lv["value"] / fit.levels["attitude.value_sigma_arcsec.pitch"]["value"] > 2 * (
-        ATTITUDE_RATE_FACTOR
-    )
-    shaped = fit_noise_model(passes, base, learn_attitude_shape=True)
+    assert kept.model.attitude.knot_spacing_s == base.attitude.knot_spacing_s
+    assert kept.levels["attitude.rate_sigma_arcsec_per_s.pitch"]["applied"] is False
+    for lam_true in (ATTITUDE_RATE_FACTOR, ATTITUDE_RATE_FACTOR / 3):
+        same = [_synthetic_pass(rng, 20.0, lam_true, 20.0, name=str(i)) for i in range(3)]
+        fit = fit_noise_model(same)
+        np.testing.assert_allclose(
+            np.array(fit.model.attitude.rate_sigma_arcsec_per_s) / np.array(fit.model.attitude.value_sigma_arcsec),
+            ATTITUDE_RATE_FACTOR,
+            rtol=1e-12,
+        )
+        assert fit.model.attitude.knot_spacing_s == base.attitude.knot_spacing_s
+        assert all(fit.levels[f"attitude.rate_sigma_arcsec_per_s.{a}"]["shape_z"] < SHAPE_Z for a in ("roll", "pitch"))
+    shaped = fit_noise_model(same, base, learn_attitude_shape=True)
     assert shaped.model.attitude.rate_sigma_arcsec_per_s[1] == pytest.approx(
         shaped.levels["attitude.rate_sigma_arcsec_per_s.pitch"]["value"]
     )

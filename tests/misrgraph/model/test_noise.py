@@ -90,9 +90,10 @@ def test_bad_levels_name_the_field():
 
 def test_the_levels_reach_the_adjustment(small_pass_dir, tmp_path):
     """With the attitude's value sigma doubled and the jitter doubled, the adjustment's summary
-    states the file's prior and an unresolved jitter twice the default (it is linear in the
-    jitter's sigma: closed form), and its posterior attitude sigma grows; the ephemeris offset's
-    prior widened tenfold widens the ephemeris posterior."""
+    states the file's prior and an unresolved attitude about twice the default (the jitter's
+    share is linear in the jitter's sigma, the process's in its sigma: closed form), and its
+    posterior attitude sigma grows; the ephemeris offset's prior widened tenfold widens the
+    ephemeris posterior."""
     runner.invoke(app, ["noise", "init", "--out", str(tmp_path / "pre.json")])
     m = NoiseModel.from_dict(
         {
@@ -115,7 +116,10 @@ def test_the_levels_reach_the_adjustment(small_pass_dir, tmp_path):
     for axis, value in zip(("roll", "pitch", "yaw"), (27.0, 29.0, 24.0)):
         a, b = pre["attitude_sigma"][axis], wide["attitude_sigma"][axis]
         assert b["prior_sigma_arcsec"] == pytest.approx(value)
-        assert b["unresolved_sigma_arcsec"] == pytest.approx(2 * a["unresolved_sigma_arcsec"], rel=1e-9)
+        # the jitter's share doubles; the slow process's between the knots grows with its sigma
+        # (27/13.67 to 24/12 of the pre-flight's): the whole by a factor in between
+        ratio = b["unresolved_sigma_arcsec"] / a["unresolved_sigma_arcsec"]
+        assert 27.0 / (41.0 / 3) - 1e-9 < ratio < 2.0 + 1e-9, ratio
         assert b["max_sigma_arcsec"] > a["max_sigma_arcsec"]
     assert np.all(np.array(wide["ephemeris"]["sigma"])[:, 3:] > np.array(pre["ephemeris"]["sigma"])[:, 3:])
 

@@ -114,14 +114,22 @@ def test_drop_rejected_tie_points_drops_every_tie_point_with_a_rejected_ray(smal
 
 def test_adjust_cli_jitter_options(small_pass_dir):
     """``--jitter-arcsec``/``--jitter-periods-s`` reach the adjustment: the summary's unresolved
-    attitude is the stated jitter's part the knots cannot follow on that band, none at 0, and a bad
-    band is refused naming the option."""
+    attitude is the stated jitter's part the knots cannot follow on that band in quadrature with
+    the pre-flight process's (:func:`unresolved_process_sigma`), none at 0, and a bad band is
+    refused naming the option."""
     import json
 
     from typer.testing import CliRunner
 
     from misrgraph.commands.cli import app
-    from misrgraph.model.errormodels import uniform_knots, unresolved_band_sigma
+    from misrgraph.model.errormodels import (
+        ATTITUDE_DAMPING,
+        ATTITUDE_RATE_FACTOR,
+        uniform_knots,
+        unresolved_band_sigma,
+        unresolved_process_sigma,
+    )
+    from misrgraph.model.noise import NoiseModel
 
     def unresolved(*args):
         out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--json", *args])
@@ -133,8 +141,14 @@ def test_adjust_cli_jitter_options(small_pass_dir):
     (two,) = unresolved("--jitter-arcsec", "2", "--jitter-periods-s", "30,300")
     assert unresolved("--jitter-arcsec", "0") == {0.0}
     kt = uniform_knots(0.0, 600.0, 60.0)  # the share depends on the knot spacing, not the pass
-    assert default == pytest.approx(unresolved_band_sigma(kt, 1.0), rel=0.02)
-    assert two == pytest.approx(2 * unresolved_band_sigma(kt, 1.0, (30.0, 300.0)), rel=0.02)
+    process2 = np.mean(
+        [
+            unresolved_process_sigma(kt, s, ATTITUDE_RATE_FACTOR, ATTITUDE_DAMPING) ** 2
+            for s in NoiseModel().attitude.value_sigma_arcsec
+        ]
+    )
+    assert default == pytest.approx(np.sqrt(unresolved_band_sigma(kt, 1.0) ** 2 + process2), rel=0.02)
+    assert two == pytest.approx(np.sqrt((2 * unresolved_band_sigma(kt, 1.0, (30.0, 300.0))) ** 2 + process2), rel=0.02)
     assert two < 2 * default  # slower jitter: the knots take up more of it
     for bad in ("120,8", "8"):
         out = CliRunner().invoke(app, ["adjust", str(small_pass_dir), "--jitter-periods-s", bad])
