@@ -70,6 +70,19 @@ def noise_show(
     console.print(table)
 
 
+def _in_model(level: dict) -> str:
+    """The fit table's "in the model" cell: yes, or why the base's level stays."""
+    if level.get("applied", True):
+        return "yes"
+    z = level.get("z")
+    why = {
+        "not determined": "not determined",
+        "agrees with the base": "agrees with the base" + (f", z {z:+.1f}" if z is not None else ""),
+        "the base's shape": "the base's shape",
+    }.get(level.get("reason", ""), level.get("reason", ""))
+    return f"no ({why})"
+
+
 @app.command("fit")
 @handle_errors
 def noise_fit(
@@ -94,7 +107,8 @@ def noise_fit(
 
     The attitude sigma per angle and the ephemeris offset and drift sigmas maximise the passes'
     marginal likelihood of their prior, each with a 1 sigma from the likelihood's curvature; a
-    level the passes do not determine keeps the base's, and the attitude's shape (rate over value)
+    level the passes do not determine, or whose base level they do not reject (|z| <= 1.96), keeps
+    the base's, and the attitude's shape (rate over value)
     stays the base's unless the passes reject it; a faster process gets knots that miss no more
     of it than of the jitter. The tie-point, GCP and DEM sigma scales come from the passes'
     variance components. Jitter, the attitude damping, the camera prior and the
@@ -118,7 +132,7 @@ def noise_fit(
             "-" if v["sigma"] is None else f"{v['sigma']:.2g}",
             "-" if v["previous"] is None else f"{v['previous']:.4g}",
             v["unit"],
-            "yes" if v.get("applied", True) else "no (not determined: the base's level)",
+            _in_model(v),
         )
     console.print(table)
     console.print("not fitted (kept from the base): " + ", ".join(res["not_fitted"]), highlight=False)

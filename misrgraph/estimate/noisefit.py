@@ -19,11 +19,11 @@ per axis. The fitted ``lam`` replaces the base's only where the passes reject th
 faster process (:data:`SHAPE_Z`), which then gets knots dense enough that the spline misses no
 more of it than of the jitter (:func:`knot_spacing_for`). Each level's 1 sigma is from the
 curvature of the summed (1) at its maximum, in the logarithm of the level (the Laplace
-approximation). A level enters the fitted model only when
-the passes determine it (:data:`MAX_LOG_SD`); otherwise the base model's stays, and the fit says
-so (``applied``). The blocks are taken one at a time, each
-with the others' priors as they were (a pass stores each angle's and each segment's joint
-covariance, not their cross-covariance).
+approximation). A level enters the fitted model only when the passes determine it
+(:data:`MAX_LOG_SD`) and reject the base model's level (:data:`LEVEL_Z`); otherwise the base
+model's stays, and the fit says which and why (``applied``, ``reason``, ``z``). The blocks are
+taken one at a time, each with the others' priors as they were (a pass stores each angle's and
+each segment's joint covariance, not their cross-covariance).
 
 **Observation classes** (tie points, GCP measurements, GCP positions, DEM heights): a pass's
 variance components give each class's sigma0 after any rescaling (:mod:`misrgraph.estimate.adjust`;
@@ -34,7 +34,8 @@ level is ``k_used * scale * sigma0`` pooled over the passes' classes with their 
     k^2 = sum r (k_used scale sigma0)^2 / sum r,                                            (2)
 
 with 1 sigma the standard error over passes, and never less than ``k / sqrt(2 sum r)`` (all a
-single pass gives; two passes' scatter can be small by chance).
+single pass gives; two passes' scatter can be small by chance). As for the priors, a scale
+replaces the base's only when the passes reject the base's (:data:`LEVEL_Z`).
 
 What adjusted passes do not carry is not fitted and keeps its level from the base model: the
 jitter, the attitude damping ratio, the camera prior and the once-per-revolution term.
@@ -64,6 +65,7 @@ __all__ = [
     "relative_log_marginal_likelihood",
     "pooled_scale",
     "MAX_LOG_SD",
+    "LEVEL_Z",
     "SHAPE_Z",
     "SPACING_FRACTIONS",
     "knot_spacing_for",
@@ -236,6 +238,22 @@ def _determined(cov: np.ndarray | None, i: int) -> bool:
     return cov is not None and bool(np.isfinite(cov[i, i]) and np.sqrt(cov[i, i]) < MAX_LOG_SD)
 
 
+#: a determined level replaces the base model's only when the passes reject the base's: its log
+#: more than this many standard deviations from the base's (two-sided 5 %). Within that the
+#: documented pre-flight level (or the file's stated sigma, scale 1) stays: a loosely determined
+#: maximum-likelihood sigma from a few passes scatters, and low more often than high (the
+#: ephemeris offset from two passes: 27 +- 11 m where the truth is 50 m), and an under-stated
+#: prior makes every covariance of the pass over-confident
+LEVEL_Z = 1.96
+
+
+def _z(value: float, base: float, log_sd: float | None) -> float | None:
+    """``log(value / base)`` in standard deviations of the log (None without a finite sd)."""
+    if log_sd is None or not (np.isfinite(log_sd) and log_sd > 0) or not (value > 0 and base > 0):
+        return None
+    return float(np.log(value / base) / log_sd)
+
+
 def _level(
     levels: dict[str, dict[str, Any]],
     name: str,
@@ -244,16 +262,30 @@ def _level(
     previous: Any,
     n: int,
     unit: str,
-    applied: bool = True,
-) -> None:
+    determined: bool = True,
+    base: float | None = None,
+) -> bool:
+    """Record a learned level; with ``base`` (the base model's level) it is applied only when
+    ``determined`` and its z against ``base`` (:data:`LEVEL_Z`) rejects the base. Returns whether it
+    is applied."""
+    z = _z(value, base, (sigma / value) if sigma is not None and value > 0 else None) if base is not None else None
+    if not determined:
+        applied, reason = False, "not determined"
+    elif base is not None and (z is None or abs(z) <= LEVEL_Z):
+        applied, reason = False, "agrees with the base"
+    else:
+        applied, reason = True, "learned"
     levels[name] = {
         "value": float(value),
         "sigma": sigma,
         "previous": previous,
         "passes": n,
         "unit": unit,
-        "applied": bool(applied),
+        "applied": applied,
+        "reason": reason,
+        "z": z,
     }
+    return applied
 
 
 def _sd(cov: np.ndarray | None, i: int, value: float) -> float | None:
@@ -342,7 +374,17 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
         th, cov = _maximise(objective, start, [(np.log(0.01), np.log(1e4)), (np.log(1e-5), np.log(1.0))])
         sig, lam = np.exp(th)
         base_lam = rate_sig[a] / value_sig[a]
-        if _determined(cov, 0):
+        if _level(
+            levels,
+            f"attitude.value_sigma_arcsec.{ang}",
+            sig,
+            _sd(cov, 0, sig),
+            float(passes[0].used.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]),
+            len(blocks),
+            "arcsec",
+            _determined(cov, 0),
+            value_sig[a],
+        ):
             value_sig[a] = float(sig)
         # the fitted natural frequency against the base's, in standard deviations of its log
         shape_z = (
@@ -359,16 +401,6 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
             spacing[a] = min(
                 base_spacing[a], knot_spacing_for(value_sig[a], float(lam), zeta_base, base_spacing[a], tolerance)
             )
-        _level(
-            levels,
-            f"attitude.value_sigma_arcsec.{ang}",
-            sig,
-            _sd(cov, 0, sig),
-            float(passes[0].used.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]),
-            len(blocks),
-            "arcsec",
-            _determined(cov, 0),
-        )
         rate_sd = (
             None
             if cov is None or not np.all(np.isfinite(cov))
@@ -382,9 +414,11 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
             None,
             len(blocks),
             "arcsec/s",
-            _determined(cov, 0) and shape,
+            shape,
         )
         levels[f"attitude.rate_sigma_arcsec_per_s.{ang}"]["shape_z"] = shape_z
+        if not shape:
+            levels[f"attitude.rate_sigma_arcsec_per_s.{ang}"]["reason"] = "the base's shape"
         if spacing[a] != base_spacing[a]:
             _level(levels, f"attitude.knot_spacing_s.{ang}", spacing[a], None, base_spacing[a], len(blocks), "s")
     return base.attitude.replace(
@@ -419,14 +453,25 @@ def _fit_ephemeris(passes: list[PassLevels], base: NoiseModel, levels: dict) -> 
     b, a = float(np.exp(th[0])), np.exp(th[1:])
     n = len(passes)
     prev_b = float(passes[0].used.get("ephemeris_b_sigma_m", e.offset_sigma_m))
-    _level(levels, "ephemeris.offset_sigma_m", b, _sd(cov, 0, b), prev_b, n, "m", _determined(cov, 0))
+    offset_ok = _level(
+        levels, "ephemeris.offset_sigma_m", b, _sd(cov, 0, b), prev_b, n, "m", _determined(cov, 0), e.offset_sigma_m
+    )
     base_a = np.broadcast_to(np.asarray(e.drift_sigma_mps, float), (3,))
     drift = []
     for i, axis in enumerate(("along", "cross", "radial")):
-        ok = _determined(cov, 1 + i)
-        _level(levels, f"ephemeris.drift_sigma_mps.{axis}", a[i], _sd(cov, 1 + i, float(a[i])), None, n, "m/s", ok)
+        ok = _level(
+            levels,
+            f"ephemeris.drift_sigma_mps.{axis}",
+            a[i],
+            _sd(cov, 1 + i, float(a[i])),
+            None,
+            n,
+            "m/s",
+            _determined(cov, 1 + i),
+            float(base_a[i]),
+        )
         drift.append(float(a[i]) if ok else float(base_a[i]))
-    return e.replace(offset_sigma_m=b if _determined(cov, 0) else e.offset_sigma_m, drift_sigma_mps=tuple(drift))
+    return e.replace(offset_sigma_m=b if offset_ok else e.offset_sigma_m, drift_sigma_mps=tuple(drift))
 
 
 def fit_noise_model(
@@ -452,7 +497,6 @@ def fit_noise_model(
         raise InputError("RESULTS", 0, "at least one adjusted pass (RESULT.h5 of 'misrgraph adjust --out')")
     base = base or NoiseModel()
     levels: dict[str, dict[str, Any]] = {}
-    sections = {"attitude", "ephemeris"}
     attitude = _fit_attitude(passes, base, levels, learn_attitude_shape)
     ephemeris = _fit_ephemeris(passes, base, levels)
 
@@ -482,9 +526,8 @@ def fit_noise_model(
         if len(per_pass) >= 2:  # the passes' scatter, unless smaller than the redundancy allows (few passes)
             m2, se2 = _mean_and_se(per_pass)
             k, sk = float(np.sqrt(m2)), max(float(se2 / (2 * np.sqrt(m2))), sk)
-        scales[fname] = k
-        sections.add(section)
-        _level(
+        base_k = float(getattr(base.dem if section == "dem" else base.observations, fname))
+        if _level(
             levels,
             f"{section}.{fname}",
             k,
@@ -492,12 +535,16 @@ def fit_noise_model(
             float(passes[0].used.get(used_key, 1.0)),
             len(per_pass),
             "1",
-        )
+            True,
+            base_k,
+        ):
+            scales[fname] = k
     observations = base.observations.replace(
         **{k: v for k, v in scales.items() if k in ("tie_sigma_scale", "gcp_pixel_sigma_scale", "gcp_sigma_scale")}
     )
     dem = base.dem.replace(sigma_scale=scales["sigma_scale"]) if "sigma_scale" in scales else base.dem
     model = base.replace(attitude=attitude, ephemeris=ephemeris, observations=observations, dem=dem)
+    sections = {name.split(".")[0] for name, v in levels.items() if v["applied"]}
     return NoiseFit(
         model=model, levels=levels, learned_sections=tuple(sorted(sections)), passes=[p.name for p in passes]
     )

@@ -20,7 +20,7 @@ from misrgraph.model.errormodels import ATTITUDE_DAMPING, ATTITUDE_RATE_FACTOR
 from misrgraph.model.noise import NoiseModel
 
 
-def _synthetic_pass(rng, sigma, lam, used_sigma, meas_arcsec=2.0, n=40, name="p"):
+def _synthetic_pass(rng, sigma, lam, used_sigma, meas_arcsec=2.0, n=40, name="p", offset_m=50.0):
     """One pass whose knots (60 s apart) are drawn from the process with ``sigma`` (arcsec) and
     ``lam`` (1/s) on every angle, measured in value with ``meas_arcsec`` noise, and estimated with
     the process prior of ``used_sigma`` (the exact linear-Gaussian posterior)."""
@@ -38,7 +38,7 @@ def _synthetic_pass(rng, sigma, lam, used_sigma, meas_arcsec=2.0, n=40, name="p"
         knots.append((post @ vec).reshape(n, 2) * ARCSEC)
         covs.append(post * ARCSEC**2)
     eph = np.zeros((1, 6))
-    eph[0, 3:] = rng.normal(0.0, 50.0, 3)
+    eph[0, 3:] = rng.normal(0.0, offset_m, 3)
     eph[0, :3] = rng.normal(0.0, [0.05, 0.01, 0.01])
     return PassLevels(
         name=name,
@@ -215,8 +215,10 @@ def test_noise_fit_learns_a_world_it_was_not_adjusted_for(world_results, tmp_pat
 def test_a_level_the_passes_do_not_determine_keeps_the_base():
     """One pass holds one ephemeris segment: one drift per axis cannot say how wide the drift's
     prior is (its log's sd from the curvature is above MAX_LOG_SD), so the model keeps the base's
-    drift and says so; the offset, pooled over three axes, is learned."""
-    from misrgraph.estimate.noisefit import MAX_LOG_SD
+    drift and says so; the offset, pooled over three axes, is determined. Drawn with the base's
+    50 m it keeps the base's (the passes do not reject it: |z| <= LEVEL_Z); drawn with 500 m it
+    is learned."""
+    from misrgraph.estimate.noisefit import LEVEL_Z, MAX_LOG_SD
 
     rng = np.random.default_rng(5)
     fit = fit_noise_model([_synthetic_pass(rng, 10.0, ATTITUDE_RATE_FACTOR, 10.0)])
@@ -227,7 +229,12 @@ def test_a_level_the_passes_do_not_determine_keeps_the_base():
         assert lv["sigma"] is None or lv["sigma"] / lv["value"] > MAX_LOG_SD * 0.9
     assert fit.model.ephemeris.drift_sigma_mps == base.ephemeris.drift_sigma_mps
     off = fit.levels["ephemeris.offset_sigma_m"]
-    assert off["applied"] and fit.model.ephemeris.offset_sigma_m == pytest.approx(off["value"])
+    assert off["sigma"] is not None and off["sigma"] / off["value"] < MAX_LOG_SD
+    assert abs(off["z"]) <= LEVEL_Z and not off["applied"] and off["reason"] == "agrees with the base", off
+    assert fit.model.ephemeris.offset_sigma_m == base.ephemeris.offset_sigma_m
+    wide = fit_noise_model([_synthetic_pass(rng, 10.0, ATTITUDE_RATE_FACTOR, 10.0, offset_m=500.0)])
+    off = wide.levels["ephemeris.offset_sigma_m"]
+    assert off["applied"] and off["z"] > LEVEL_Z and wide.model.ephemeris.offset_sigma_m == pytest.approx(off["value"])
 
 
 def test_a_level_driven_to_its_bound_is_not_applied():
@@ -289,8 +296,10 @@ def test_the_attitude_shape_is_learned_only_where_the_passes_reject_the_base():
         assert fit.model.attitude.knot_spacing_s == base.attitude.knot_spacing_s
         assert all(fit.levels[f"attitude.rate_sigma_arcsec_per_s.{a}"]["shape_z"] < SHAPE_Z for a in ("roll", "pitch"))
     shaped = fit_noise_model(same, base, learn_attitude_shape=True)
-    assert shaped.model.attitude.rate_sigma_arcsec_per_s[1] == pytest.approx(
-        shaped.levels["attitude.rate_sigma_arcsec_per_s.pitch"]["value"]
+    lv = shaped.levels
+    att = shaped.model.attitude
+    assert att.rate_sigma_arcsec_per_s[1] / att.value_sigma_arcsec[1] == pytest.approx(
+        lv["attitude.rate_sigma_arcsec_per_s.pitch"]["value"] / lv["attitude.value_sigma_arcsec.pitch"]["value"]
     )
 
 
