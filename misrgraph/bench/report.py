@@ -352,6 +352,7 @@ def _render_recovered(r: dict[str, Any]) -> str:
             f"{x['ratio']:.2f}",
             "–" if x["sigma"] is None else f"{x['z']:+.1f}",
             "yes" if x["within"] else "no",
+            "–" if x.get("applied") is None else ("yes" if x["applied"] else f"no ({x.get('reason')})"),
         ]
         for x in rec["rows"]
         if x["world"] == "base" or abs(x["true"] - 1.0) > 1e-9 or x["level"].startswith("attitude")
@@ -363,8 +364,12 @@ def _render_recovered(r: dict[str, Any]) -> str:
         "world, the scales a world changes, and the attitude sigmas (not in the band worlds, whose truth "
         "is a band). The matching errors are drawn with Student-t tails; data snooping removes the "
         "largest, so the tie-point and GCP-measurement scales are compared with the sigma of the "
-        "observations an adjustment keeps (in brackets).\n\n"
-        + _table(["world", "level", "learned ± 1σ", "true", "learned/true", "z", "within the bound"], rows)
+        "observations an adjustment keeps (in brackets). The last column says whether the level entered "
+        "the learned model (a level the passes do not determine, or whose base level they do not reject, "
+        "keeps the base's).\n\n"
+        + _table(
+            ["world", "level", "learned ± 1σ", "true", "learned/true", "z", "within the bound", "in the model"], rows
+        )
     )
 
 

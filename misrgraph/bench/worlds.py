@@ -159,7 +159,8 @@ def kept_sigma_fraction(dof: float, critical: float, draws: int = 400_000, seed:
 
 def levels_recovered(result: dict[str, Any]) -> dict[str, Any]:
     """Each world's learned levels (:data:`RECOVERED_LEVELS`) against its own: ``{"rows": [{"world",
-    "level", "learned", "sigma", "true", "true_kept", "ratio", "z", "within"}], "within": k,
+    "level", "learned", "sigma", "true", "true_kept", "ratio", "z", "within", "applied", "reason"}],
+    "within": k,
     "rows_counted": n,
     "covered": c, "with_sigma": m}`` -- ``within``: rows inside the acceptance's bound; ``covered``:
     rows with a 1 sigma whose 95 % interval (+-1.96 sigma) holds the truth, of ``with_sigma``. The
@@ -197,6 +198,8 @@ def levels_recovered(result: dict[str, Any]) -> dict[str, Any]:
                     "ratio": v / t,
                     "z": z,
                     "within": abs(v / t - 1.0) <= bound,
+                    "applied": learned[name].get("applied"),
+                    "reason": learned[name].get("reason"),
                 }
             )
     finite = [r for r in rows if r["sigma"] is not None and r["sigma"] > 0]
@@ -340,7 +343,10 @@ def run_bench_worlds(
             "overrides": {k: (list(v) if isinstance(v, tuple) else v) for k, v in over.items()},
             "ways": ways,
             "per_pass": per_way,
-            "learned_levels": {k: {"value": v["value"], "sigma": v["sigma"]} for k, v in fit["levels"].items()},
+            "learned_levels": {
+                k: {key: v.get(key) for key in ("value", "sigma", "applied", "reason")}
+                for k, v in fit["levels"].items()
+            },
             "true_levels": oracle.to_dict(),
             "acceptance": _accept(ways),
         }
