@@ -335,7 +335,27 @@ def _render_worlds(r: dict[str, Any]) -> str:
         "within 5 % of the oracle's):\n\n"
         + _table(["world", "learned way within the bounds"], acc)
         + "\n\n"
+        + _render_cost(r)
         + _render_recovered(r)
+    )
+
+
+def _render_cost(r: dict[str, Any]) -> str:
+    """The adjustment's time per pass with the learned levels over the fixed ones', per world (empty
+    for results without timings)."""
+    rows = [
+        [name, _ci(w["cost_ratio"]), _num(w["ways"]["fixed"]["seconds"]["mean"], ".1f")]
+        for name, w in r["worlds"].items()
+        if w.get("cost_ratio") and "seconds" in w["ways"].get("fixed", {})
+    ]
+    if not rows:
+        return ""
+    return (
+        "The adjustment's time per pass with the learned levels over the fixed ones' (the same pass, "
+        "one after the other in this run; mean and 95 % interval over the scored passes), and the "
+        "fixed way's seconds per pass:\n\n"
+        + _table(["world", "learned / fixed time", "fixed s per pass"], rows)
+        + "\n\n"
     )
 
 

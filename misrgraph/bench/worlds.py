@@ -220,12 +220,14 @@ def _score(summary: dict[str, Any]) -> dict[str, float]:
     cp = _checkpoint_rms_after(summary)
     if cp is not None:
         out["checkpoint_rms_m"] = cp
+    if "seconds" in summary:
+        out["seconds"] = float(summary["seconds"])
     return out
 
 
 def _summarise(runs: list[dict[str, float]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
-    for k in ("landmarks", "knots", "camera", "checkpoint_rms_m"):
+    for k in ("landmarks", "knots", "camera", "checkpoint_rms_m", "seconds"):
         v = [r[k] for r in runs if k in r]
         if v:
             out[k] = _interval(v)
@@ -339,6 +341,13 @@ def run_bench_worlds(
                     log.warning("%s, %s, pass %d: %s", name, way, i + 1, exc)
                     failures[way].append(f"pass {i + 1}: {str(exc).splitlines()[0][:200]}")
         ways = {w: {**_summarise(per_way[w]), "passes": len(per_way[w]), "failed": failures[w]} for w in WAYS}
+        # the adjustment's time with the learned levels over the fixed ones', pass by pass (the same
+        # pass, one after the other in this run)
+        paired = [
+            a["seconds"] / b["seconds"]
+            for a, b in zip(per_way["learned"], per_way["fixed"])
+            if a.get("seconds") and b.get("seconds")
+        ]
         out[name] = {
             "overrides": {k: (list(v) if isinstance(v, tuple) else v) for k, v in over.items()},
             "ways": ways,
@@ -349,6 +358,7 @@ def run_bench_worlds(
             },
             "true_levels": oracle.to_dict(),
             "acceptance": _accept(ways),
+            "cost_ratio": _interval(paired) if paired else None,
         }
         log.info("world %d/%d (%s) done", w_i + 1, len(names), name)
     if tmp is not None:

@@ -27,7 +27,18 @@ def test_oracle_holds_the_worlds_levels():
     assert m.ephemeris.once_per_rev_m == ScenarioConfig().once_per_rev_m
     rate = [r / v for r, v in zip(m.attitude.rate_sigma_arcsec_per_s, m.attitude.value_sigma_arcsec)]
     assert rate == pytest.approx([ATTITUDE_RATE_FACTOR] * 3, rel=0.02)
+    assert m.attitude.knot_spacing_s == (60.0, 60.0, 60.0)
     assert len(WORLDS) >= 12
+    # a world whose attitude error is faster gets the knots the noise fit's rule gives its levels:
+    # on them the spline misses no more of the process than of the jitter, on twice the spacing more
+    from misrgraph.model.errormodels import unresolved_process_sigma
+
+    fast = oracle_noise_model(ScenarioConfig.from_dict(WORLDS["attitude band 30-300 s"]))
+    a = fast.attitude
+    for h, v, r in zip(a.knot_spacing_s, a.value_sigma_arcsec, a.rate_sigma_arcsec_per_s):
+        assert h < 60.0
+        missed = [unresolved_process_sigma(np.arange(0.0, 1200.5, x), v, r / v, a.damping) for x in (h, 2 * h)]
+        assert missed[0] <= fast.jitter.sigma_arcsec * 1.01 < missed[1], (h, missed)
 
 
 def test_bench_worlds_cli_scores_three_ways(tmp_path):
@@ -61,6 +72,12 @@ def test_bench_worlds_cli_scores_three_ways(tmp_path):
     assert w["true_levels"]["observations"]["tie_sigma_scale"] == 2.0
     assert w["learned_levels"]["observations.tie_sigma_scale"]["value"] == pytest.approx(2.0, rel=0.15)
     assert set(w["acceptance"]) >= {"landmarks_0.8_1.25", "knots_0.7_1.4"}
+    # the stated sigma is rejected (far from 1): the learned scale entered the model
+    assert w["learned_levels"]["observations.tie_sigma_scale"]["applied"] is True
+    # the time ratio is the per-pass learned over fixed adjustment seconds
+    pp = w["per_pass"]
+    want = pp["learned"][0]["seconds"] / pp["fixed"][0]["seconds"]
+    assert w["cost_ratio"]["mean"] == pytest.approx(want) and want > 0
     assert "provenance" in res
     bad = CliRunner().invoke(app, ["bench", "worlds", "--worlds", "mars", "--size", "tiny"])
     assert bad.exit_code == 2 and "worlds" in bad.output
