@@ -108,11 +108,11 @@ def noise_fit(
     The attitude sigma per angle and the ephemeris offset and drift sigmas maximise the passes'
     marginal likelihood of their prior, each with a 1 sigma from the likelihood's curvature; a
     level the passes do not determine, or whose base level they do not reject (|z| <= 1.96), keeps
-    the base's, and the attitude's shape (rate over value)
-    stays the base's unless the passes reject it; a faster process gets knots that miss no more
-    of it than of the jitter. The tie-point, GCP and DEM sigma scales come from the passes'
-    variance components. Jitter, the attitude damping, the camera prior and the
-    once-per-revolution term are not fitted and keep the base's levels.
+    the base's, and the attitude's shape (rate over value) stays the base's unless the passes
+    reject it for a faster one, which gets knots that miss no more of it than of the jitter.
+    The tie-point, GCP and DEM sigma scales come from the passes' variance components. Jitter,
+    the attitude damping, the camera prior and the once-per-revolution term are not fitted and
+    keep the base's levels.
     """
     from misrgraph.runs.noise import run_noise_fit
 

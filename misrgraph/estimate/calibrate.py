@@ -125,9 +125,10 @@ class CalibrateConfig(Config):
     #: pass adjustment (``AdjustConfig.graph.attitude_jitter_arcsec``). 0 (default): the matcher's sigma alone
     attitude_jitter_arcsec: float = 0.0
     attitude_jitter_periods_s: tuple = JITTER_PERIODS_S
-    #: the navigation's error levels (attitude process, ephemeris) of every pass's nuisance
-    #: variables (:class:`~misrgraph.model.noise.NoiseModel`, ``--noise-model``); None: the
-    #: pre-flight defaults of :class:`~misrgraph.estimate.graph.GraphConfig`
+    #: the navigation's error levels (attitude process and its knots' spacing, which replaces
+    #: ``knot_spacing_s``; ephemeris) of every pass's nuisance variables
+    #: (:class:`~misrgraph.model.noise.NoiseModel`, ``--noise-model``); None: the pre-flight
+    #: defaults of :class:`~misrgraph.estimate.graph.GraphConfig`
     noise: NoiseModel | None = None
 
     def __post_init__(self) -> None:
