@@ -11,6 +11,7 @@ from misrgraph.commands.common import (
     CONFIG_HELP,
     NOISE_HELP,
     adjust_config,
+    check_output,
     console,
     err_console,
     fail,
@@ -60,6 +61,13 @@ def update(
     noise_model: Optional[Path] = typer.Option(
         None, "--noise-model", help=NOISE_HELP + " Fixed when the state is created."
     ),
+    noise_fit: Optional[Path] = typer.Option(
+        None,
+        "--noise-fit",
+        help="After the update, learn the attitude and ephemeris noise levels from every pass of the state and write "
+        "them to this noise-model file (JSON) for --noise-model of a new state, adjust or campaign; the state keeps "
+        "its own levels.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON."),
 ) -> None:
     """Add passes to a persistent state and re-solve incrementally with iSAM2 (crash- and restart-safe)."""
@@ -69,8 +77,10 @@ def update(
 
     # None: a new state takes the defaults, an existing one keeps its own
     cfg = adjust_config({}, config, noise_model) if config is not None or noise_model is not None else None
-    if not passes and report is None:
-        fail("PASSES: give new pass files to add, or --report PASS_ID for an earlier pass")
+    if not passes and report is None and noise_fit is None:
+        fail("PASSES: give new pass files to add, --report PASS_ID for an earlier pass, or --noise-fit FILE")
+    if noise_fit is not None:
+        check_output(noise_fit, "--noise-fit")
     with err_console.status("updating...") as st:
         out = run_update(
             state,
@@ -84,6 +94,7 @@ def update(
             report=report,
             linearization_tol=linearization_tol,
             observations=observations,
+            noise_fit=noise_fit,
         )  # None: the library default
     if as_json:
         print_json(out)
@@ -124,3 +135,11 @@ def update(
                 "attitude RMS where observed (arcsec) "
                 + ", ".join(f"{k} {v:.1f}" for k, v in u["attitude_rms_arcsec_observed"].items())
             )
+    if "noise_fit" in out:
+        nf = out["noise_fit"]
+        learned = [k for k, v in nf["levels"].items() if v.get("applied")]
+        console.print(
+            f"noise levels from {nf['passes']} passes -> {nf['out']}: "
+            + (", ".join(learned) if learned else "none learned (the state's levels kept)"),
+            highlight=False,
+        )

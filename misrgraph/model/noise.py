@@ -192,6 +192,38 @@ class NoiseModel(Config):
             "ephemeris_once_per_rev_m": float(e.once_per_rev_m),
         }
 
+    @classmethod
+    def from_graph(cls, graph: Any) -> "NoiseModel":
+        """The noise model a pass graph's configuration (:class:`~misrgraph.estimate.graph.GraphConfig`)
+        holds: the inverse of :meth:`graph_fields` (e.g. the levels an ``update`` state was created
+        with)."""
+        return cls(
+            attitude=AttitudeNoise(
+                value_sigma_arcsec=tuple(float(x) for x in graph.attitude_sigma_arcsec),
+                rate_sigma_arcsec_per_s=tuple(float(x) for x in graph.attitude_rate_sigma_arcsec_per_s),
+                damping=float(graph.knot_prior_damping),
+                knot_spacing_s=tuple(float(x) for x in graph.knot_spacing_s),
+            ),
+            jitter=JitterNoise(
+                sigma_arcsec=float(graph.attitude_jitter_arcsec),
+                periods_s=tuple(float(x) for x in graph.attitude_jitter_periods_s),
+            ),
+            ephemeris=EphemerisNoise(
+                offset_sigma_m=float(graph.ephemeris_b_sigma_m),
+                drift_sigma_mps=tuple(float(x) for x in np.broadcast_to(graph.ephemeris_a_sigma_mps, (3,))),
+                once_per_rev_m=float(graph.ephemeris_once_per_rev_m),
+            ),
+            camera=CameraNoise(
+                angle_prior_px=float(graph.camera_prior_px), focal_prior_px=float(graph.camera_focal_prior_px)
+            ),
+            dem=DemNoise(sigma_scale=float(graph.dem_sigma_scale)),
+            observations=ObservationNoise(
+                tie_sigma_scale=float(graph.tie_sigma_scale),
+                gcp_pixel_sigma_scale=float(graph.gcp_pixel_sigma_scale),
+                gcp_sigma_scale=float(graph.gcp_sigma_scale),
+            ),
+        )
+
     def graph_fields(self) -> dict[str, Any]:
         """Every level as :class:`~misrgraph.estimate.graph.GraphConfig` fields (a pass adjustment)."""
         return {

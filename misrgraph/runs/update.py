@@ -341,6 +341,31 @@ def _observation_set(meta: dict[str, Any]) -> str:
     return str(meta.get("observations", "simulated"))
 
 
+def _fit_noise(
+    solver: IncrementalSolver,
+    files: list[Path],
+    camera: CameraModel,
+    observations: str,
+    out: str | os.PathLike[str],
+    progress: Callable[[str], None] | None,
+) -> dict[str, Any]:
+    """The noise levels learned from every pass of the state (``run_update``'s ``noise_fit``)."""
+    from misrgraph.io.noise import SECTIONS
+    from misrgraph.model.noise import NoiseModel
+    from misrgraph.runs.noise import fit_and_save, pass_levels_of
+
+    if not solver.passes:
+        raise InputError("--noise-fit", str(out), "a state holding at least one pass")
+    levels = []
+    for i, p in enumerate(solver.passes):
+        if progress:
+            progress(f"noise fit: pass {i + 1}/{len(solver.passes)}")
+        res = _pass_result(solver, i, files[i], camera, observations)
+        levels.append(pass_levels_of(res, solver.cfg.graph, p.pass_id))
+    base = NoiseModel.from_graph(solver.cfg.graph)
+    return fit_and_save(levels, out, base, {s: "input" for s in SECTIONS})
+
+
 def _pass_result(
     solver: IncrementalSolver, index: int, pass_file: Path, camera: CameraModel, observations: str, seconds: float = 0.0
 ) -> AdjustResult:
@@ -395,6 +420,7 @@ def run_update(
     report: str | None = None,
     linearization_tol: float | None = None,
     observations: str | None = None,
+    noise_fit: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Add passes to a persistent state and re-solve incrementally; summary of each new pass.
 
@@ -409,7 +435,13 @@ def run_update(
     ``state.json`` is replaced. ``cfg``: the adjustment settings of a new state (default
     :class:`AdjustConfig`'s); a state keeps the settings it was created with, and another ``cfg``
     for it is refused. ``linearization_tol`` (sigma units, default
-    :data:`DEFAULT_LINEARIZATION_TOL`): see :class:`IncrementalSolver`.
+    :data:`DEFAULT_LINEARIZATION_TOL`): see :class:`IncrementalSolver`. ``noise_fit``: after the
+    update, learn the noise levels from every pass of the state at the current estimate (the
+    attitude and ephemeris priors' marginal likelihood, :func:`misrgraph.runs.noise.fit_and_save`;
+    ``update`` keeps the stated sigmas, so the observation scales are not fitted) and write them
+    to this noise-model file, the state's own levels kept for what the passes do not carry. The
+    state keeps the levels it was created with; the file is for the next state, ``adjust`` or
+    ``campaign`` (``--noise-model``). Its summary is returned under ``"noise_fit"``.
     """
     d = Path(state_dir)
     with _state_lock(d):
@@ -426,6 +458,7 @@ def run_update(
             report,
             linearization_tol,
             observations,
+            noise_fit,
         )
 
 
@@ -442,6 +475,7 @@ def _run_update_locked(
     report: str | None,
     linearization_tol: float | None,
     observations: str | None,
+    noise_fit: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     if observations is not None and observations not in OBSERVATION_SETS:
         raise InputError("--observations", observations, OBSERVATION_SETS)
@@ -604,6 +638,8 @@ def _run_update_locked(
         _write_json_atomic(d / "state.json", new_meta)  # the commit point
         meta = new_meta
         _collect_garbage(d, meta)
+    if noise_fit is not None:
+        out["noise_fit"] = _fit_noise(solver, files, camera, obs_set, noise_fit, progress)
     return {
         "state": str(d),
         "passes_in_state": len(meta["passes"]),
