@@ -323,6 +323,8 @@ def unresolved_band_sigma(
     knots every 120 s."""
     if not sigma >= 0:
         raise InputError("sigma", sigma, "a 1 sigma >= 0 (rad)")
+    if not (step_s > 0 and len(periods_s) == 2 and 0 < periods_s[0] < periods_s[1]):
+        raise InputError("(periods_s, step_s)", (periods_s, step_s), "0 < period_min < period_max, step > 0")
     share = _unresolved_share(_spacings(knot_times), ("band", *(float(x) for x in periods_s)), float(step_s))
     return float(sigma * np.sqrt(share))
 
@@ -336,8 +338,12 @@ def unresolved_process_sigma(
     pre-flight process (``lam`` = :data:`ATTITUDE_RATE_FACTOR`, ``zeta`` = 0.58) on knots every
     60 s it is 0.027 ``sigma``; for ``lam`` = 0.1/s (errors with periods of tens of seconds) it is
     0.46 ``sigma`` on the same knots and 0.06 ``sigma`` on knots every 15 s."""
-    if not (sigma >= 0 and lam > 0 and zeta > 0):
-        raise InputError("(sigma, lam, zeta)", (sigma, lam, zeta), "sigma >= 0 (rad), lam > 0 (1/s), zeta > 0")
+    if not (sigma >= 0 and lam > 0 and zeta > 0 and step_s > 0):
+        raise InputError(
+            "(sigma, lam, zeta, step_s)",
+            (sigma, lam, zeta, step_s),
+            "sigma >= 0 (rad), lam > 0 (1/s), zeta > 0, step > 0",
+        )
     share = _unresolved_share(_spacings(knot_times), ("process", float(lam), float(zeta)), float(step_s))
     return float(sigma * np.sqrt(share))
 

@@ -191,6 +191,8 @@ def test_unresolved_band_sigma_is_the_fits_residual_and_has_its_limits():
         projected_band_covariance(kt, 1.0, (120.0, 8.0))
     with pytest.raises(InputError, match="sigma"):
         unresolved_band_sigma(kt, -1.0)
+    with pytest.raises(InputError, match="periods_s"):
+        unresolved_band_sigma(kt, 1.0, (120.0, 8.0))
     with pytest.raises(InputError, match="knot_times"):
         projected_band_covariance([0.0], 1.0)
 
