@@ -306,6 +306,12 @@ SHAPE_Z = 3.29
 SPACING_FRACTIONS = (1.0, 0.75, 0.5, 1.0 / 3.0, 0.25, 1.0 / 6.0)
 
 
+def _missed(spacing_s: float, span_s: float, sigma_arcsec: float, lam: float, zeta: float) -> float:
+    """What knots every ``spacing_s`` over ``span_s`` (s) miss of an attitude process (arcsec,
+    :func:`~misrgraph.model.errormodels.unresolved_process_sigma`)."""
+    return unresolved_process_sigma(np.arange(0.0, span_s + 0.5 * spacing_s, spacing_s), sigma_arcsec, lam, zeta)
+
+
 def knot_spacing_for(
     sigma_arcsec: float, lam: float, zeta: float, base_spacing_s: float, tolerance_arcsec: float
 ) -> float:
@@ -316,8 +322,7 @@ def knot_spacing_for(
     span = 20.0 * base_spacing_s
     for f in SPACING_FRACTIONS:
         h = base_spacing_s * f
-        kt = np.arange(0.0, span + 0.5 * h, h)
-        if unresolved_process_sigma(kt, sigma_arcsec, lam, zeta) <= tolerance_arcsec:
+        if _missed(h, span, sigma_arcsec, lam, zeta) <= tolerance_arcsec:
             return float(h)
     return float(base_spacing_s * SPACING_FRACTIONS[-1])
 
@@ -325,20 +330,18 @@ def knot_spacing_for(
 def spacing_tolerance(model: NoiseModel) -> float:
     """What knots for a faster process may miss of it (arcsec, :func:`knot_spacing_for`): the
     larger of the model's jitter sigma and what the model's own knots miss of its own process (the
-    worst angle)."""
+    worst angle, over twenty of its spacings)."""
     a = model.attitude
-    value = [float(v) for v in a.value_sigma_arcsec]
-    rate = [float(r) for r in a.rate_sigma_arcsec_per_s] or [v * ATTITUDE_RATE_FACTOR for v in value]
     own = max(
-        unresolved_process_sigma(np.arange(0.0, 20.5 * h, h), v, r / v, float(a.damping))
-        for h, v, r in zip(a.knot_spacing_s, value, rate)
+        _missed(h, 20.0 * h, v, r / v, float(a.damping))
+        for h, v, r in zip(a.knot_spacing_s, a.value_sigma_arcsec, a.rate_sigmas())
     )
     return max(float(model.jitter.sigma_arcsec), own)
 
 
 def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, learn_shape: bool | None = None) -> Any:
     value_sig = list(base.attitude.value_sigma_arcsec)
-    rate_sig = list(base.attitude.rate_sigma_arcsec_per_s) or [v * ATTITUDE_RATE_FACTOR for v in value_sig]
+    rate_sig = list(base.attitude.rate_sigmas())
     spacing = [float(x) for x in base.attitude.knot_spacing_s]
     base_spacing = list(spacing)
     zeta_base = float(base.attitude.damping)

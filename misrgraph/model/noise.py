@@ -80,6 +80,13 @@ class AttitudeNoise(Config):
         _positive("attitude.damping", self.damping)
         _positive("attitude.knot_spacing_s", self.knot_spacing_s, 3)
 
+    def rate_sigmas(self) -> tuple[float, float, float]:
+        """The rate's 1 sigma per angle (arcsec/s): ``rate_sigma_arcsec_per_s``, or the value's sigma
+        times :data:`~misrgraph.model.errormodels.ATTITUDE_RATE_FACTOR` when empty."""
+        if len(self.rate_sigma_arcsec_per_s):
+            return tuple(float(r) for r in self.rate_sigma_arcsec_per_s)  # type: ignore[return-value]
+        return tuple(float(v) * ATTITUDE_RATE_FACTOR for v in self.value_sigma_arcsec)  # type: ignore[return-value]
+
 
 @dataclass(frozen=True)
 class JitterNoise(Config):
