@@ -409,22 +409,21 @@ def fit_noise(out: str, base: dict[str, Any] | None, *results: dict[str, Any]) -
     ``--noise-model`` reads."""
 
     def body() -> tuple[Path, bool, dict[str, Any]]:
-        from misrgraph.estimate.noisefit import fit_noise_model
-        from misrgraph.io.noise import SECTIONS, save_noise_model
+        from misrgraph.io.noise import SECTIONS
         from misrgraph.model.noise import NoiseModel
-        from misrgraph.runs.noise import read_pass_levels
+        from misrgraph.runs.noise import fit_and_save, read_pass_levels
 
         files = [Path(r["output"]) for r in results]
         key = digest("noise fit", [_sha(f) for f in files], base)
         f = Path(out) / "noise" / f"noise-{key[:12]}.json"
-        if f.exists():
-            return f, True, json.loads(f.read_text())["fit"]
-        fit = fit_noise_model([read_pass_levels(x) for x in files], _noise(base) or NoiseModel())
-        source = {s: ("learned" if s in fit.learned_sections else "input" if base else "pre-flight") for s in SECTIONS}
-        summary = {"passes": [r["name"] for r in results], "levels": fit.levels}
-        f.parent.mkdir(parents=True, exist_ok=True)
-        save_noise_model(fit.model, f, source, fit=summary)
-        return f, False, summary
+        found = f.exists()
+        if not found:
+            passes = [read_pass_levels(x) for x in files]
+            for p, r in zip(passes, results):
+                p.name = r["name"]  # the file records the passes by the campaign's names
+            f.parent.mkdir(parents=True, exist_ok=True)
+            fit_and_save(passes, f, _noise(base) or NoiseModel(), {s: "input" for s in SECTIONS} if base else {})
+        return f, found, json.loads(f.read_text())["fit"]
 
     return _task("noise", "fit", tuple(results), body)
 
