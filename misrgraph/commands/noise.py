@@ -97,8 +97,8 @@ def noise_fit(
         None,
         "--learn-attitude-shape/--keep-attitude-shape",
         help="Apply the attitude process's fitted natural frequency (the rate's sigma over the value's) always, or "
-        "never. Default: per angle, when the passes reject the base's for a faster process (z > 3.29), which "
-        "then also gets denser knots.",
+        "never. Default: per angle, when the passes reject the base's for a faster process (some angle's z > "
+        "3.29, then each angle's z > 1.96), which then also gets denser knots.",
         show_default=False,
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the fitted levels as JSON."),

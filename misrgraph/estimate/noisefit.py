@@ -16,8 +16,9 @@ over the passes (type-II maximum likelihood, the empirical-Bayes estimate): per 
 process's sigma and natural frequency ``lam`` (the rate's sigma is ``lam sigma``; the damping
 ratio stays as used), and the ephemeris offset sigma (the three axes pooled) and the drift sigma
 per axis. The fitted ``lam`` replaces the base's only where the passes reject the base's for a
-faster process (:data:`SHAPE_Z`), which then gets knots dense enough that the spline misses no
-more of it than of the jitter (:func:`knot_spacing_for`). Each level's 1 sigma is from the
+faster process (for the attitude as a whole at :data:`SHAPE_Z`, then per angle at
+:data:`SHAPE_FOLLOW_Z`), which then gets knots dense enough that the spline misses no more of it
+than of the jitter (:func:`knot_spacing_for`). Each level's 1 sigma is from the
 curvature of the summed (1) at its maximum, in the logarithm of the level (the Laplace
 approximation). A level enters the fitted model only when the passes determine it
 (:data:`MAX_LOG_SD`) and reject the base model's level (:data:`LEVEL_Z`); otherwise the base
@@ -67,6 +68,7 @@ __all__ = [
     "MAX_LOG_SD",
     "LEVEL_Z",
     "SHAPE_Z",
+    "SHAPE_FOLLOW_Z",
     "SPACING_FRACTIONS",
     "knot_spacing_for",
     "spacing_tolerance",
@@ -301,6 +303,13 @@ def _sd(cov: np.ndarray | None, i: int, value: float) -> float | None:
 #: them (:func:`~misrgraph.model.errormodels.projected_band_covariance`)
 SHAPE_Z = 3.29
 
+#: once some angle's shape rejects the base's (:data:`SHAPE_Z`), the base's shape no longer holds
+#: for the attitude process, and each other angle's fitted shape replaces the base's when its own
+#: z is above this (2.5 % one-sided): a gatekeeping test, the strict level guarding the family
+#: (``misrgraph bench worlds``, the attitude band 30-300 s world: yaw's z near 2.3 while roll's and
+#: pitch's are above 5, and the yaw knots 8x over-confident on the base's shape)
+SHAPE_FOLLOW_Z = 1.96
+
 #: the knot spacings (as fractions of the base's) tried, longest first, for a process faster than
 #: the base's (:func:`knot_spacing_for`)
 SPACING_FRACTIONS = (1.0, 0.75, 0.5, 1.0 / 3.0, 0.25, 1.0 / 6.0)
@@ -339,6 +348,40 @@ def spacing_tolerance(model: NoiseModel) -> float:
     return max(float(model.jitter.sigma_arcsec), own)
 
 
+def _attitude_blocks(passes: list[PassLevels], base: NoiseModel, a: int) -> list[tuple]:
+    """One angle's knot blocks of the passes for eq. (1), in arcsec and arcsec/s (entries of order
+    1): ``(times, D, d, damping, prior kind, x_hat, L0)`` per pass with at least two knots."""
+    blocks = []
+    for p in passes:
+        if p.knots[a].shape[0] < 2:
+            continue
+        u = p.used
+        s0 = float(u.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]) * ARCSEC
+        rates = u.get("attitude_rate_sigma_arcsec_per_s") or ()
+        lam0 = float(rates[a]) * ARCSEC / s0 if len(rates) else ATTITUDE_RATE_FACTOR
+        zeta = float(u.get("knot_prior_damping", base.attitude.damping))
+        kind = str(u.get("knot_prior", "process"))
+        x = p.knots[a].reshape(-1) / ARCSEC
+        cov = p.knot_cov[a] / ARCSEC**2
+        prior0 = knot_prior_precision(p.knot_times[a], s0 / ARCSEC, lam0, zeta, kind)
+        d_info, d_vec = _data_terms(x, cov, prior0)
+        blocks.append((p.knot_times[a], d_info, d_vec, zeta, kind, x, prior0))
+    return blocks
+
+
+def _shape_applied(shape_z: list[float | None], learn_shape: bool | None, determined: list[bool]) -> list[bool]:
+    """Per angle, whether the fitted natural frequency replaces the base's (module docstring):
+    ``learn_shape`` True applies every determined one and False none; None (the default) applies an
+    angle's when the passes reject the base's for a faster process, for the attitude as a whole at
+    :data:`SHAPE_Z` (some angle's z above it) and then for each angle at :data:`SHAPE_FOLLOW_Z`."""
+    if learn_shape is not None:
+        return [bool(learn_shape) and d for d in determined]
+    z = [v if v is not None else -np.inf for v in shape_z]
+    if max(z) <= SHAPE_Z:
+        return [False] * len(z)
+    return [v > SHAPE_FOLLOW_Z for v in z]
+
+
 def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, learn_shape: bool | None = None) -> Any:
     value_sig = list(base.attitude.value_sigma_arcsec)
     rate_sig = list(base.attitude.rate_sigmas())
@@ -346,23 +389,9 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
     base_spacing = list(spacing)
     zeta_base = float(base.attitude.damping)
     tolerance = spacing_tolerance(base)
-    for a, ang in enumerate(ANGLES):
-        blocks = []
-        for p in passes:
-            if p.knots[a].shape[0] < 2:
-                continue
-            u = p.used
-            s0 = float(u.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]) * ARCSEC
-            rates = u.get("attitude_rate_sigma_arcsec_per_s") or ()
-            lam0 = float(rates[a]) * ARCSEC / s0 if len(rates) else ATTITUDE_RATE_FACTOR
-            zeta = float(u.get("knot_prior_damping", base.attitude.damping))
-            kind = str(u.get("knot_prior", "process"))
-            # work in arcsec and arcsec/s: the blocks' entries are then of order 1
-            x = p.knots[a].reshape(-1) / ARCSEC
-            cov = p.knot_cov[a] / ARCSEC**2
-            prior0 = knot_prior_precision(p.knot_times[a], s0 / ARCSEC, lam0, zeta, kind)
-            d_info, d_vec = _data_terms(x, cov, prior0)
-            blocks.append((p.knot_times[a], d_info, d_vec, zeta, kind, x, prior0))
+    fits: dict[int, tuple] = {}  # angle -> (sigma, lam, log-levels' covariance, passes, base lam, shape z)
+    for a in range(len(ANGLES)):
+        blocks = _attitude_blocks(passes, base, a)
         if not blocks:
             continue
 
@@ -375,30 +404,37 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
 
         start = np.log([value_sig[a], rate_sig[a] / value_sig[a]])
         th, cov = _maximise(objective, start, [(np.log(0.01), np.log(1e4)), (np.log(1e-5), np.log(1.0))])
-        sig, lam = np.exp(th)
         base_lam = rate_sig[a] / value_sig[a]
-        if _level(
-            levels,
-            f"attitude.value_sigma_arcsec.{ang}",
-            sig,
-            _sd(cov, 0, sig),
-            float(passes[0].used.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]),
-            len(blocks),
-            "arcsec",
-            _determined(cov, 0),
-            value_sig[a],
-        ):
-            value_sig[a] = float(sig)
         # the fitted natural frequency against the base's, in standard deviations of its log
         shape_z = (
             float((th[1] - np.log(base_lam)) / np.sqrt(cov[1, 1]))
             if cov is not None and np.isfinite(cov[1, 1]) and cov[1, 1] > 0
             else None
         )
-        if learn_shape is None:  # only a faster process (module docstring)
-            shape = shape_z is not None and shape_z > SHAPE_Z
-        else:
-            shape = bool(learn_shape) and _determined(cov, 1)
+        fits[a] = (*np.exp(th), cov, len(blocks), base_lam, shape_z)
+    fitted = sorted(fits)
+    applied = dict(
+        zip(
+            fitted,
+            _shape_applied([fits[a][5] for a in fitted], learn_shape, [_determined(fits[a][2], 1) for a in fitted]),
+        )
+    )
+    for a in fitted:
+        ang = ANGLES[a]
+        sig, lam, cov, n_passes, base_lam, shape_z = fits[a]
+        if _level(
+            levels,
+            f"attitude.value_sigma_arcsec.{ang}",
+            sig,
+            _sd(cov, 0, sig),
+            float(passes[0].used.get("attitude_sigma_arcsec", base.attitude.value_sigma_arcsec)[a]),
+            n_passes,
+            "arcsec",
+            _determined(cov, 0),
+            value_sig[a],
+        ):
+            value_sig[a] = float(sig)
+        shape = applied[a]
         rate_sig[a] = float(value_sig[a] * (lam if shape else base_lam))
         if shape and lam > base_lam:
             spacing[a] = min(
@@ -415,7 +451,7 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
             sig * lam,
             rate_sd,
             None,
-            len(blocks),
+            n_passes,
             "arcsec/s",
             shape,
         )
@@ -423,7 +459,7 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
         if not shape:
             levels[f"attitude.rate_sigma_arcsec_per_s.{ang}"]["reason"] = "the base's shape"
         if spacing[a] != base_spacing[a]:
-            _level(levels, f"attitude.knot_spacing_s.{ang}", spacing[a], None, base_spacing[a], len(blocks), "s")
+            _level(levels, f"attitude.knot_spacing_s.{ang}", spacing[a], None, base_spacing[a], n_passes, "s")
     return base.attitude.replace(
         value_sigma_arcsec=tuple(value_sig), rate_sigma_arcsec_per_s=tuple(rate_sig), knot_spacing_s=tuple(spacing)
     )
@@ -485,11 +521,12 @@ def fit_noise_model(
 
     The attitude process's shape (its natural frequency, i.e. the rate's sigma over the value's)
     is estimated and reported; per angle it replaces the base's only when the passes reject the
-    base's for a faster one (``learn_attitude_shape`` None, the default: :data:`SHAPE_Z`), always
-    (True) or never (False). Otherwise the rate follows the learned value sigma with the base's shape: a few
-    passes' fitted shape, close to the base's, makes the knots over-confident (``misrgraph bench
-    worlds`` measures it). A learned process faster than the base's also gets denser knots
-    (:func:`knot_spacing_for`: the spline misses no more of it than of the jitter).
+    base's for a faster one (``learn_attitude_shape`` None, the default: :data:`SHAPE_Z` for some
+    angle, then :data:`SHAPE_FOLLOW_Z` for each), always (True) or never (False). Otherwise the
+    rate follows the learned value sigma with the base's shape: a few passes' fitted shape, close
+    to the base's, makes the knots over-confident (``misrgraph bench worlds`` measures it). A
+    learned process faster than the base's also gets denser knots (:func:`knot_spacing_for`: the
+    spline misses no more of it than of the jitter).
 
     Raises
     ------

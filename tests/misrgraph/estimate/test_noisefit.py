@@ -22,12 +22,13 @@ from misrgraph.model.noise import NoiseModel
 
 def _synthetic_pass(rng, sigma, lam, used_sigma, meas_arcsec=2.0, n=40, name="p", offset_m=50.0):
     """One pass whose knots (60 s apart) are drawn from the process with ``sigma`` (arcsec) and
-    ``lam`` (1/s) on every angle, measured in value with ``meas_arcsec`` noise, and estimated with
-    the process prior of ``used_sigma`` (the exact linear-Gaussian posterior)."""
+    ``lam`` (1/s; one for every angle or one per angle) on every angle, measured in value with
+    ``meas_arcsec`` noise, and estimated with the process prior of ``used_sigma`` (the exact
+    linear-Gaussian posterior)."""
     t = 60.0 * np.arange(n)
     knots, covs = [], []
-    for _ in range(3):
-        prior_true = knot_prior_precision(t, sigma, lam, ATTITUDE_DAMPING)
+    for lam_a in np.broadcast_to(np.asarray(lam, float), (3,)):
+        prior_true = knot_prior_precision(t, sigma, float(lam_a), ATTITUDE_DAMPING)
         x = np.linalg.cholesky(np.linalg.inv(prior_true)) @ rng.standard_normal(2 * n)
         data = np.zeros((2 * n, 2 * n))
         data[::2, ::2] = np.eye(n) / meas_arcsec**2
@@ -321,3 +322,42 @@ def test_a_flat_level_does_not_hide_the_determined_ones():
     np.testing.assert_allclose(th[:2], mu, atol=1e-4)
     np.testing.assert_allclose(cov[:2, :2], c, rtol=1e-3)
     assert np.isinf(cov[2, 2])
+
+
+def test_the_shape_rule_tests_the_attitude_then_each_angle():
+    """The default rule (closed-form cases): no angle's shape is applied unless some angle's z is
+    above SHAPE_Z; then every angle whose z is above SHAPE_FOLLOW_Z gets its own. A forced rule
+    applies every determined shape (True) or none (False)."""
+    from misrgraph.estimate.noisefit import SHAPE_FOLLOW_Z, SHAPE_Z, _shape_applied
+
+    between = 0.5 * (SHAPE_Z + SHAPE_FOLLOW_Z)
+    assert _shape_applied([SHAPE_Z + 2, SHAPE_Z + 5, between], None, [True] * 3) == [True, True, True]
+    assert _shape_applied([between, between, between], None, [True] * 3) == [False] * 3
+    assert _shape_applied([SHAPE_Z + 1, SHAPE_FOLLOW_Z - 0.1, None], None, [True] * 3) == [True, False, False]
+    assert _shape_applied([-SHAPE_Z - 5, 0.0, between], None, [True] * 3) == [False] * 3
+    assert _shape_applied([0.0, None, 1.0], True, [True, False, True]) == [True, False, True]
+    assert _shape_applied([SHAPE_Z + 5] * 3, False, [True] * 3) == [False] * 3
+
+
+def test_a_moderately_faster_angle_follows_a_clearly_faster_one():
+    """Roll's process five times faster than the pre-flight one (its z far above SHAPE_Z), yaw's
+    1.6 times faster on few knots (a z between the two thresholds), pitch's the pre-flight one:
+    the fit applies each angle's fitted shape exactly when its own z is above SHAPE_FOLLOW_Z, and
+    the one whose shape is applied and faster gets denser knots."""
+    from misrgraph.estimate.noisefit import SHAPE_FOLLOW_Z, SHAPE_Z
+
+    rng = np.random.default_rng(11)
+    lam = (5 * ATTITUDE_RATE_FACTOR, ATTITUDE_RATE_FACTOR, 1.6 * ATTITUDE_RATE_FACTOR)
+    passes = [_synthetic_pass(rng, 20.0, lam, 20.0, n=20, name=str(i)) for i in range(2)]
+    fit = fit_noise_model(passes)
+    z = {a: fit.levels[f"attitude.rate_sigma_arcsec_per_s.{a}"]["shape_z"] for a in ("roll", "pitch", "yaw")}
+    assert z["roll"] > SHAPE_Z, z
+    for a, ang in enumerate(("roll", "pitch", "yaw")):
+        lv = fit.levels[f"attitude.rate_sigma_arcsec_per_s.{ang}"]
+        assert lv["applied"] is (z[ang] > SHAPE_FOLLOW_Z), (ang, z)
+        ratio = fit.model.attitude.rate_sigma_arcsec_per_s[a] / fit.model.attitude.value_sigma_arcsec[a]
+        if lv["applied"]:
+            assert ratio == pytest.approx(lv["value"] / fit.levels[f"attitude.value_sigma_arcsec.{ang}"]["value"])
+        else:
+            assert ratio == pytest.approx(ATTITUDE_RATE_FACTOR)
+    assert fit.model.attitude.knot_spacing_s[0] < 60.0
