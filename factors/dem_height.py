@@ -66,11 +66,18 @@ def dem_residual_hessian(landmark: Array, surface: Surface, step_m: float = 1.0)
 
 
 class DemBatch:
-    """One DEM factor per landmark, evaluated together (same cache protocol as CollinearityBatch)."""
+    """One DEM factor per landmark, evaluated together (same cache protocol as CollinearityBatch).
 
-    def __init__(self, keys: NDArray[np.int64], sigma_m: Array, surface: Surface) -> None:
+    ``sigma_m`` ``(N,)`` m: each factor's 1 sigma; ``stated_m`` ``(N,)`` m (optional): the part of
+    it that is the DEM's own stated sigma (as weighted), the rest being the local surface fit's
+    residual; it says how much of the factors' variance a misstated DEM sigma would move."""
+
+    def __init__(
+        self, keys: NDArray[np.int64], sigma_m: Array, surface: Surface, stated_m: Array | None = None
+    ) -> None:
         self.keys = np.asarray(keys, np.int64)
         self.sigma_m = np.asarray(sigma_m, float)
+        self.stated_m = None if stated_m is None else np.asarray(stated_m, float)
         self.surface = surface
         self._cache: tuple[gtsam.Values, Array, Array | None] | None = None  # (at, residuals, Jacobians)
 
@@ -83,8 +90,12 @@ class DemBatch:
         batch's surface (the batches must have been built on the same DEM, geoid and fit)."""
         if not batches:
             raise ValueError("DemBatch.concatenate needs at least one batch")
+        stated = np.concatenate([b.stated_m for b in batches]) if all(b.stated_m is not None for b in batches) else None
         return cls(
-            np.concatenate([b.keys for b in batches]), np.concatenate([b.sigma_m for b in batches]), batches[0].surface
+            np.concatenate([b.keys for b in batches]),
+            np.concatenate([b.sigma_m for b in batches]),
+            batches[0].surface,
+            stated,
         )
 
     def _landmarks(self, values: gtsam.Values) -> Array:

@@ -80,7 +80,10 @@ def adjust(
     ),
     no_dem: bool = typer.Option(False, "--no-dem", help="Leave out the DEM height factors."),
     dem_sigma_scale: float = typer.Option(
-        1.0, "--dem-sigma-scale", help="The DEM height factors' 1 sigma is the DEM's stated 1 sigma times this."
+        1.0,
+        "--dem-sigma-scale",
+        help="The DEM height factors' 1 sigma is the DEM's stated 1 sigma times this, with the local surface fit's "
+        "residual added in quadrature.",
     ),
     dem_smoothing: float = typer.Option(
         1.0,
@@ -281,6 +284,13 @@ def _print_adjust_summary(s: dict) -> None:
     for d in s.get("diagnostics", []):
         console.print(f"[yellow]note:[/] {d}")
     _print_learned_sigma(s.get("reliability", {}).get("observation_sigma"))
+    dem = s.get("reliability", {}).get("dem_sigma") or {}
+    if dem.get("status") not in (None, "none"):
+        console.print(
+            f"DEM heights: scale on the DEM's stated sigma {dem['sigma_scale']:.3f} ({dem['status']}; "
+            f"sigma0 {dem['sigma0']:.3f}, redundancy {dem['redundancy']:.0f}, "
+            f"stated sigma {100 * dem['stated_share']:.0f} % of the factors' variance)"
+        )
     th = s.get("tie_height", {})
     if th.get("source") == "estimated":
         console.print(

@@ -38,6 +38,7 @@ from factors import keys as K
 from misrgraph.config import Config
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph, check_jitter
+from misrgraph.estimate.noisefit import class_scale
 from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
 from misrgraph.estimate.reliability import Reliability, critical_T, reliability
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
@@ -58,6 +59,7 @@ __all__ = [
     "adjust_pass",
     "observation_classes",
     "learned_sigma_summary",
+    "dem_sigma_summary",
     "corrected_geometry",
     "find_blunders",
     "estimated_models",
@@ -336,11 +338,13 @@ def adjust_pass(
     res = solve(pg.problem, params.replace(backend=cfg.backend))
     check_converged(res, "the least-squares solve", cfg.accept_unconverged)
 
+    dem_scale = 1.0  # the variance components' factor on the configured DEM scale
+
     def resolve(op: OrbitPass, excluded: NDArray[np.bool_], previous: gtsam.Values, after: str):
-        """Rebuild and re-solve, warm-started from the previous optimum."""
-        g = build_pass_graph(
-            op, camera, dem, gcps, cfg.graph_config(), exclude_observations=excluded, camera_prior=camera_prior
-        )
+        """Rebuild (with the DEM scale the variance components reached) and re-solve, warm-started
+        from the previous optimum."""
+        gcfg = cfg.graph_config(dem_sigma_scale=cfg.graph.dem_sigma_scale * dem_scale)
+        g = build_pass_graph(op, camera, dem, gcps, gcfg, exclude_observations=excluded, camera_prior=camera_prior)
         g.problem.warm_start(previous)
         r = solve(g.problem, params.replace(backend=cfg.backend))
         check_converged(r, f"the least-squares solve after {after}", cfg.accept_unconverged)
@@ -358,20 +362,24 @@ def adjust_pass(
     while True:
         if rounds < cfg.variance_component_rounds:
             comps = _variance_components(at, obs_class)
-            moved = {
-                k: v["sigma0"]
-                for k, v in comps.items()
-                if v["redundancy"] >= cfg.variance_component_min_redundancy
-                and abs(v["sigma0"] - 1.0) > max(cfg.variance_component_tol, cfg.variance_component_z * v["sigma0_sd"])
-            }
+            moved = _departed(comps, cfg)
+            # the DEM heights once the image classes hold: their residuals are the landmarks'
+            # heights against the DEM, which over-weighted image observations pull away from it
+            dem_vc = _dem_component(at, pg) if not moved else None
+            if dem_vc is not None:
+                moved = _departed({"DEM": dem_vc}, cfg)
             if moved:
                 rounds += 1
+                if "DEM" in moved:  # eq. 3 of the noise fit: the scale on the DEM's stated sigma
+                    assert dem_vc is not None
+                    k0 = cfg.graph.dem_sigma_scale
+                    dem_scale = class_scale(k0 * dem_scale, moved.pop("DEM"), dem_vc["stated_share"])[0] / k0
                 for k, v in moved.items():
                     vc_scale[k] = vc_scale.get(k, 1.0) * v
                 if progress:
                     progress(
                         f"variance components: round {rounds}, sigma scale "
-                        + ", ".join(f"{k} {v:.3f}" for k, v in sorted(vc_scale.items()))
+                        + ", ".join(f"{k} {v:.3f}" for k, v in sorted({**vc_scale, "DEM": dem_scale}.items()))
                     )
                 orbit_pass = _with_sigma_scale(orbit_pass, stated, obs_class, vc_scale)
                 pg, res = resolve(orbit_pass, rejected, res.values, "variance-component estimation")
@@ -409,6 +417,7 @@ def adjust_pass(
         _variance_components(at, obs_class), vc_scale, cfg, rounds, stated, obs_class
     )
     rel["sigma_scale_applied"] = {k: vc_scale.get(k, 1.0) for k in rel["observation_sigma"]["classes"]}
+    rel["dem_sigma"] = dem_sigma_summary(_dem_component(at, pg), dem_scale, cfg)
     rel["covariance"] = cov_used
     return AdjustResult(
         pass_graph=pg,
@@ -628,6 +637,37 @@ def _variance_components(at: "_ReliabilityAt | None", obs_class: NDArray[np.str_
     return out
 
 
+def _departed(comps: dict[str, dict[str, float]], cfg: AdjustConfig) -> dict[str, float]:
+    """The classes whose ``sigma0`` departs from 1 by more than the tolerance and by more than
+    ``variance_component_z`` of its standard error, with enough redundancy: class -> sigma0."""
+    return {
+        k: v["sigma0"]
+        for k, v in comps.items()
+        if v["redundancy"] >= cfg.variance_component_min_redundancy
+        and abs(v["sigma0"] - 1.0) > max(cfg.variance_component_tol, cfg.variance_component_z * v["sigma0_sd"])
+    }
+
+
+def _dem_component(at: "_ReliabilityAt | None", pg: PassGraph) -> dict[str, float] | None:
+    """The DEM factors' variance component (``sigma0``, ``sigma0_sd``, ``redundancy``, ``rows``) and
+    ``stated_share``, the part of their variance that is the DEM's stated sigma (by redundancy;
+    the rest is the surface fit's residual, which the DEM scale does not touch: what a misstated
+    DEM sigma moves). None without DEM factors or outside the flat form."""
+    if at is None:
+        return None
+    rel = at[0]
+    fam = rel.families["dem"]
+    flat_dem = pg.problem.flat().dem
+    if fam.stop <= fam.start or flat_dem is None:
+        return None
+    vc = rel.variance_component(fam)
+    r = rel.r[fam]
+    vc["sigma0_sd"] = float(vc["sigma0"] / np.sqrt(2.0 * vc["redundancy"])) if vc["redundancy"] > 0 else float("inf")
+    share = (flat_dem.stated_m / flat_dem.sigma_m) ** 2 if flat_dem.stated_m is not None else np.ones(r.size)
+    vc["stated_share"] = float(np.sum(r * share) / np.sum(r)) if np.sum(r) > 0 else float(np.mean(share))
+    return vc
+
+
 def learned_sigma_summary(
     comps: dict[str, dict[str, float]],
     scale: dict[str, float],
@@ -664,6 +704,30 @@ def learned_sigma_summary(
         "min_redundancy": cfg.variance_component_min_redundancy,
         "tolerance": cfg.variance_component_tol,
         "classes": classes,
+    }
+
+
+def dem_sigma_summary(comp: dict[str, float] | None, scale: float, cfg: AdjustConfig) -> dict[str, Any]:
+    """What the variance components did to the DEM factors: ``scale`` the factor they put on the
+    configured DEM scale (on the DEM's stated sigma), ``sigma_scale`` the DEM scale used in the
+    end, the final ``sigma0`` with its redundancy and the stated sigma's share of the factors'
+    variance, and ``status`` as for the image classes (:func:`learned_sigma_summary`); ``{"status":
+    "none"}`` without DEM factors."""
+    if comp is None:
+        return {"status": "none"}
+    if not cfg.variance_component_rounds:
+        status = "off"
+    elif comp["redundancy"] < cfg.variance_component_min_redundancy:
+        status = "guard"
+    else:
+        status = "learned" if scale != 1.0 else "stated"
+    return {
+        "status": status,
+        "scale": float(scale),
+        "sigma_scale": float(cfg.graph.dem_sigma_scale * scale),
+        "sigma0": comp["sigma0"],
+        "redundancy": comp["redundancy"],
+        "stated_share": comp["stated_share"],
     }
 
 
@@ -762,6 +826,9 @@ def reliability_summary(
         return {}
     rel, obs_of_row, kind = at
     out = rel.summary(kind, {KIND_TIE: "tie-point", KIND_GCP: "GCP"})
+    dem = _dem_component(at, pg)
+    if dem is not None:
+        out["variance_components"]["dem"]["stated_share"] = dem["stated_share"]
     gcp_rows = _gcp_position_rows(pg)
     if gcp_rows.any():
         prior_rows = np.zeros(rel.e.size, bool)

@@ -168,8 +168,9 @@ class GraphConfig(Config):
     estimate_omega: bool = False
     omega_prior_rad: float = 1.745e-3
     use_dem: bool = True
-    #: the DEM height factors' sigma is the DEM's stated 1 sigma (quality class, local fit) times
-    #: this; 1 weights the DEM as stated (the posting-level roughness that would make the term
+    #: the DEM height factors' sigma is the DEM's stated 1 sigma (posting or quality class) times
+    #: this, combined with the local surface fit's residual RMS (which this does not scale); 1
+    #: weights the DEM as stated (the posting-level roughness that would make the term
     #: pull too hard is removed by ``dem_smoothing_postings``; docs, "The DEM weight")
     dem_sigma_scale: float = _PRE_FLIGHT.dem.sigma_scale
     #: every tie point's image sigma, every GCP's image sigma and every GCP's position sigma (and
@@ -523,6 +524,7 @@ def build_pass_graph(
     surface = dem_surface(dem, geoid, cfg.dem_method) if dem is not None else None
     dem_keys: list[int] = []
     dem_sig: list[float] = []
+    dem_stated: list[float] = []
     dem_rows: list[int] = []
     gcp_ecef = gcps.ecef() if gcps is not None else None
     scenes = gcps.scenes() if gcps is not None and cfg.gcp_scenes else {}
@@ -564,10 +566,14 @@ def build_pass_graph(
         lat, lon, _ = ecef_to_geodetic(np.stack([init[r] for r in dem_rows]))
         s = fit_local_surface(dem_raw, lat, lon, cfg.dem_method)
         dem_keys = [lm_key_of[r] for r, ok in zip(dem_rows, s.valid) if ok]
-        dem_sig = [float(x) * cfg.dem_sigma_scale for x, ok in zip(s.sigma, s.valid) if ok]
+        # the scale is on the DEM's stated sigma; the surface fit's residual RMS is the estimator's own
+        stated = s.stated[s.valid] * cfg.dem_sigma_scale
+        fit_rms2 = np.clip(s.sigma[s.valid] ** 2 - s.stated[s.valid] ** 2, 0.0, None)
+        dem_stated = list(stated)
+        dem_sig = list(np.sqrt(stated**2 + fit_rms2))
     if dem_keys:
         assert surface is not None
-        problem.add_batch(DemBatch(np.array(dem_keys), np.array(dem_sig), surface))
+        problem.add_batch(DemBatch(np.array(dem_keys), np.array(dem_sig), surface, np.array(dem_stated)))
     # navigation variables and priors
     att_sig = np.asarray(cfg.attitude_sigma_arcsec) * ARCSEC
     if len(cfg.attitude_rate_sigma_arcsec_per_s):

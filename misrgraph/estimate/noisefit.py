@@ -35,7 +35,11 @@ level is ``k_used * scale * sigma0`` pooled over the passes' classes with their 
     k^2 = sum r (k_used scale sigma0)^2 / sum r,                                            (2)
 
 with 1 sigma the standard error over passes, and never less than ``k / sqrt(2 sum r)`` (all a
-single pass gives; two passes' scatter can be small by chance). As for the priors, a scale
+single pass gives; two passes' scatter can be small by chance). The DEM's scale is on its stated
+sigma only, while its factors' sigma also holds the surface fit's residual: its class gives
+``k`` by eq. (3) of :func:`class_scale` from the stated sigma's share of the factors' variance
+and the scale its pass weighted them with (the pass's own variance components may have moved
+it), in place of ``k_used scale sigma0``. As for the priors, a scale
 replaces the base's only when the passes reject the base's (:data:`LEVEL_Z`).
 
 What adjusted passes do not carry is not fitted and keeps its level from the base model: the
@@ -65,6 +69,7 @@ __all__ = [
     "log_marginal_likelihood",
     "relative_log_marginal_likelihood",
     "pooled_scale",
+    "class_scale",
     "MAX_LOG_SD",
     "LEVEL_Z",
     "SHAPE_Z",
@@ -219,6 +224,23 @@ def _maximise(
 def _mean_and_se(per_pass: list[float]) -> tuple[float, float]:
     x = np.asarray(per_pass, float)
     return float(x.mean()), float(x.std(ddof=1) / np.sqrt(x.size))
+
+
+def class_scale(used: float, factor: float, stated_share: float = 1.0) -> tuple[float, float]:
+    """A class's scale on its file's stated sigma from its variance component: ``factor`` (its
+    sigma0 times any rescaling, against the sigma it was weighted with), ``used`` the scale it was
+    weighted with and ``stated_share`` the part ``F`` of its weighted variance that is the stated
+    sigma (the DEM's: the rest is the surface fit's residual, which the scale does not touch;
+    1 for the other classes). With ``factor^2 = F (k / used)^2 + 1 - F``::
+
+        k = used sqrt((factor^2 - 1 + F) / F)                                              (3)
+
+    Returns ``k`` and ``dk/k`` over ``dfactor/factor`` (``factor^2 / (factor^2 - 1 + F)``, 1 when
+    ``F`` is 1), by which the scale's relative 1 sigma exceeds ``factor``'s. A factor that leaves
+    the stated share no variance (``factor^2 <= 1 - F``) gives a scale of 1e-3 of ``used``."""
+    f = float(np.clip(stated_share, 1e-6, 1.0))
+    excess = max(float(factor) ** 2 - 1.0 + f, 1e-6 * f)
+    return float(used * np.sqrt(excess / f)), float(factor) ** 2 / excess
 
 
 def pooled_scale(factors: list[float], redundancies: list[float]) -> tuple[float, float]:
@@ -548,21 +570,25 @@ def fit_noise_model(
         ("gcp_position", "observations", "gcp_sigma_scale", "gcp_sigma_scale"),
         ("dem", "dem", "sigma_scale", "dem_sigma_scale"),
     ):
-        per_pass, r_all, f_all = [], [], []
+        per_pass, r_all, f_all, amp_all = [], [], [], []
         for p in passes:
             cls = [c for c in p.classes.values() if c["kind"] == kind and c["redundancy"] > 0]
             if not cls:
                 continue
             used = float(p.used.get(used_key, 1.0))
-            f = [used * c["factor"] for c in cls]
+            f, amp = zip(
+                *(class_scale(used * c.get("scale", 1.0), c["factor"], c.get("stated_share", 1.0)) for c in cls)
+            )
             r = [c["redundancy"] for c in cls]
-            k, _ = pooled_scale(f, r)
+            k, _ = pooled_scale(list(f), r)
             per_pass.append(k**2)
             r_all += r
             f_all += f
+            amp_all += amp
         if not per_pass:
             continue
         k, sk = pooled_scale(f_all, r_all)
+        sk *= float(np.average(amp_all, weights=r_all))  # the share the scale moves
         if len(per_pass) >= 2:  # the passes' scatter, unless smaller than the redundancy allows (few passes)
             m2, se2 = _mean_and_se(per_pass)
             k, sk = float(np.sqrt(m2)), max(float(se2 / (2 * np.sqrt(m2))), sk)

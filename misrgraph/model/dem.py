@@ -117,8 +117,9 @@ class LocalSurface:
     """Result of :func:`fit_local_surface` per point (arrays ``(N,)``).
 
     ``height`` m above MSL; ``dh_dlat``, ``dh_dlon`` in m per degree; ``sigma`` m (1 sigma of the
-    height: the DEM quality sigma combined with the fit's residual RMS); ``valid`` False where the
-    point is not covered by a tile.
+    height: the DEM's stated sigma combined with the fit's residual RMS, ``sqrt(stated^2 +
+    rms^2)``); ``valid`` False where the point is not covered by a tile; ``stated`` m the DEM's
+    stated sigma alone (the posting nearest the point, or its tile's quality class).
     """
 
     height: Array
@@ -128,6 +129,7 @@ class LocalSurface:
     valid: NDArray[np.bool_]
     #: index of the tile each point was read from (-1 where not covered)
     tile: NDArray[np.int64] | None = None
+    stated: Array | None = None
 
 
 #: method -> (degree of the tensor-product polynomial, window size in postings). Measured on the
@@ -459,5 +461,7 @@ def fit_local_surface(
     else:
         stated = sig_q[dem.quality[t]]
     out.sigma[sel] = np.sqrt(stated**2 + rms**2)
+    out.stated = np.full(n, np.nan)
+    out.stated[sel] = stated
     out.valid[sel] = True
     return out

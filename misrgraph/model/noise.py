@@ -134,7 +134,8 @@ class CameraNoise(Config):
 
 @dataclass(frozen=True)
 class DemNoise(Config):
-    """The DEM height factors' 1 sigma is the DEM's stated 1 sigma times ``sigma_scale``."""
+    """The DEM height factors' 1 sigma is the DEM's stated 1 sigma times ``sigma_scale``, combined
+    with the local surface fit's residual RMS, which the scale does not touch."""
 
     sigma_scale: float = 1.0
 
@@ -271,7 +272,10 @@ LEVELS: dict[tuple[str, str], tuple[str, str]] = {
         "pre-flight: the calibration requirement, 1/16 px; a calibrated model's own covariance replaces it",
     ),
     ("camera", "focal_prior_px"): ("px", "pre-flight: the focal plane's ground calibration, 0.05 px at the swath edge"),
-    ("dem", "sigma_scale"): ("1", "input: 1 takes the DEM's stated accuracy as it is; noise fit learns it"),
+    ("dem", "sigma_scale"): (
+        "1",
+        "input: 1 takes the DEM's stated accuracy as it is; learned per pass (variance components) and by noise fit",
+    ),
     ("observations", "tie_sigma_scale"): (
         "1",
         "input: 1 takes the tie points' stated sigma as it is; noise fit learns it",

@@ -22,7 +22,9 @@ log = logging.getLogger(__name__)
 
 def _classes(rel: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """The observation classes' variance components in an adjustment's reliability summary:
-    ``{name: {"kind", "factor" (scale * sigma0), "redundancy"}}`` (:class:`PassLevels`)."""
+    ``{name: {"kind", "factor" (scale * sigma0), "redundancy"}}``; the DEM's ``factor`` is its
+    sigma0 alone, with the pass's ``"scale"`` on its DEM scale and ``"stated_share"`` beside it
+    (:class:`PassLevels`, :func:`~misrgraph.estimate.noisefit.class_scale`)."""
     classes: dict[str, dict[str, Any]] = {}
     for name, v in ((rel.get("observation_sigma") or {}).get("classes") or {}).items():
         classes[name] = {
@@ -46,6 +48,10 @@ def _classes(rel: dict[str, Any]) -> dict[str, dict[str, Any]]:
                 "kind": kind,
                 "factor": float(v["sigma0"]),
                 "redundancy": float(v["redundancy"]),
+                # the DEM's stated sigma's share of its factors' variance (1: a result that does not
+                # say) and the factor the pass's variance components put on its DEM scale
+                **({"stated_share": float(v["stated_share"])} if "stated_share" in v else {}),
+                **({"scale": float((rel.get("dem_sigma") or {}).get("scale", 1.0))} if kind == "dem" else {}),
             }
     return classes
 

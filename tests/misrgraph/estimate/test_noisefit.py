@@ -361,3 +361,26 @@ def test_a_moderately_faster_angle_follows_a_clearly_faster_one():
         else:
             assert ratio == pytest.approx(ATTITUDE_RATE_FACTOR)
     assert fit.model.attitude.knot_spacing_s[0] < 60.0
+
+
+def test_class_scale_inverts_the_variance_component_of_a_partly_stated_sigma():
+    """Eq. 3 (closed form): a class whose weighted variance is a share F of a stated sigma at
+    scale ``used`` and 1 - F of a part no scale touches reads ``factor^2 = F (k/used)^2 + 1 - F``
+    when the truth's scale is ``k``; class_scale gives ``k`` back, and its amplification is the
+    numerical derivative of log k over log factor. With F = 1 it is ``used * factor``."""
+    from misrgraph.estimate.noisefit import class_scale
+
+    for share in (1.0, 0.96, 0.6):
+        for k_true in (0.5, 2.0):
+            for used in (1.0, 1.3):
+                factor = np.sqrt(share * (k_true / used) ** 2 + 1.0 - share)
+                k, amp = class_scale(used, factor, share)
+                assert k == pytest.approx(k_true, rel=1e-12)
+                h = 1e-6
+                num = (
+                    np.log(class_scale(used, factor * (1 + h), share)[0])
+                    - np.log(class_scale(used, factor * (1 - h), share)[0])
+                ) / (np.log(1 + h) - np.log(1 - h))
+                assert amp == pytest.approx(num, rel=1e-5)
+    assert class_scale(1.5, 0.8)[0] == pytest.approx(1.2)
+    assert class_scale(1.0, 0.5, 0.6)[0] == pytest.approx(1e-3 * np.sqrt(0.6 / 0.6), rel=1e-9)

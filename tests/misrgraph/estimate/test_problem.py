@@ -363,24 +363,27 @@ def test_a_scene_of_one_gcp_is_its_plain_prior(small_pass):
 
 
 def test_dem_sigma_scale_multiplies_the_stated_dem_sigma(small_pass):
-    """``dem_sigma_scale`` scales every DEM factor's sigma (the DEM's stated 1 sigma at the
-    landmark, :func:`fit_local_surface`) and nothing else; a non-positive factor is refused."""
+    """``dem_sigma_scale`` scales the DEM's stated 1 sigma at each landmark and not the local
+    surface fit's residual: a factor's sigma is ``sqrt((k stated)^2 + rms^2)``, checked against
+    :func:`fit_local_surface` at the landmarks (``sigma^2 = stated^2 + rms^2``), and the batch
+    keeps ``k stated`` as its stated part; a non-positive factor is refused."""
     from factors.dem_height import DemBatch
     from misrgraph.errors import InputError
+    from misrgraph.model.dem import fit_local_surface
+    from misrgraph.model.frames import ecef_to_geodetic
 
     sc, p = small_pass
-    batches = [
-        next(
-            b
-            for b in build_pass_graph(
-                p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(dem_sigma_scale=f)
-            ).problem.batches
-            if isinstance(b, DemBatch)
-        )
-        for f in (1.0, 2.0)
-    ]
+    graphs = [build_pass_graph(p, sc.camera_model, sc.dem, sc.gcps, GraphConfig(dem_sigma_scale=f)) for f in (1.0, 2.0)]
+    batches = [next(b for b in g.problem.batches if isinstance(b, DemBatch)) for g in graphs]
     np.testing.assert_array_equal(batches[0].keys, batches[1].keys)
-    np.testing.assert_allclose(batches[1].sigma_m, 2.0 * batches[0].sigma_m, rtol=1e-12)
+    lat, lon, _ = ecef_to_geodetic(np.stack([graphs[0].problem.initial.atVector(int(k)) for k in batches[0].keys]))
+    s = fit_local_surface(sc.dem, lat, lon)
+    rms2 = s.sigma**2 - s.stated**2
+    assert np.all(rms2 > 0)
+    for f, b in zip((1.0, 2.0), batches):
+        np.testing.assert_allclose(b.sigma_m, np.sqrt((f * s.stated) ** 2 + rms2), rtol=1e-12)
+        np.testing.assert_allclose(b.stated_m, f * s.stated, rtol=1e-12)
+    assert np.all(batches[1].sigma_m < 2.0 * batches[0].sigma_m)
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(InputError, match="dem_sigma_scale"):
             GraphConfig(dem_sigma_scale=bad)

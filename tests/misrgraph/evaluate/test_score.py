@@ -71,6 +71,8 @@ def test_an_independent_truth_is_scored_on_what_it_defines(tmp_path):
     assert r.exit_code == 0, r.output
     text = " ".join(r.stdout.split())  # rich wraps at the terminal's width
     assert "NEES / dim: knots" in text and "within them" in text and "whole state" not in text
+    dem = s["reliability"]["dem_sigma"]  # the DEM row, as the summary has it
+    assert f"DEM heights: scale on the DEM's stated sigma {dem['sigma_scale']:.3f} ({dem['status']};" in text, text
     with pytest.raises(Exception, match="truth"):
         ScenarioConfig(truth="made-up")
 

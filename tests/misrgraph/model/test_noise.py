@@ -153,9 +153,11 @@ def test_the_campaign_carries_a_noise_model_and_plans_as_before_without_one():
     assert plan_campaign(withm).to_dict()["config"]["noise"]["ephemeris"]["offset_sigma_m"] == 120.0
 
 
-def _misstated_pass_components(tmp_path, seed: int, field: str, scale_field: str, **sizes) -> dict[str, dict]:
+def _misstated_pass_components(
+    tmp_path, seed: int, field: str, scale_field: str, section: str = "observations", **sizes
+) -> dict[str, dict]:
     """A model-truth pass drawn with ``field`` = 2 (a file that understates its sigma by half),
-    adjusted with its noise-model scale ``scale_field`` at 1 ("stated") and at 2 ("scaled"):
+    adjusted with its noise-model scale ``section.scale_field`` at 1 ("stated") and at 2 ("scaled"):
     each adjustment's variance components. The model truth has no jitter, and the per-pass
     variance components and data snooping are off, so that sigma0 shows the stated scale."""
     from misrgraph.estimate.adjust import adjust_pass
@@ -168,7 +170,7 @@ def _misstated_pass_components(tmp_path, seed: int, field: str, scale_field: str
     base = AdjustConfig.from_dict(attitude_jitter_arcsec=0.0, snooping_rounds=0, variance_component_rounds=0)
     out = {}
     for name, k in (("stated", 1.0), ("scaled", 2.0)):
-        m = NoiseModel.from_dict({"observations": {scale_field: k}})
+        m = NoiseModel.from_dict({section: {scale_field: k}})
         g = base.graph.replace(**{**m.graph_fields(), "attitude_jitter_arcsec": 0.0})
         out[name] = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, base.replace(graph=g)).reliability[
             "variance_components"
@@ -203,3 +205,49 @@ def test_gcp_positions_variance_component_reads_a_misstated_catalogue(tmp_path):
     assert r > 20, got  # enough GCP rows to read the scale
     assert abs(s - 2.0) < 3 * 2.0 / np.sqrt(2 * r), got
     assert 0.7 < got["scaled"]["sigma0"] < 1.3 and 1.6 < s / got["scaled"]["sigma0"] < 2.4, got
+
+
+def test_the_dem_scale_reads_a_misstated_dem(tmp_path):
+    """A pass whose DEM understates its sigma by half (its errors drawn at twice the stated
+    sigma), adjusted once with the DEM scale at 1 and once at 2 (no per-pass variance
+    components): the DEM factors' sigma also holds the surface fit's residual, which the file does
+    not state (a share of their variance strictly between 0 and 1 is the stated sigma); eq. 3 of
+    the noise fit turns each component, with that share and the scale it was read at, into the
+    scale on the stated sigma, near 2 both times; at 2 the component itself reads near 1."""
+    from misrgraph.estimate.noisefit import class_scale
+
+    vc = _misstated_pass_components(
+        tmp_path, 33, "dem_sigma_true_over_stated", "sigma_scale", "dem", n_tie_points=200, n_check_points=5, n_gcps=20
+    )
+    for name, used in (("stated", 1.0), ("scaled", 2.0)):
+        c = vc[name]["dem"]
+        assert 0.0 < c["stated_share"] < 1.0 and c["redundancy"] > 50, c
+        k, amp = class_scale(used, c["sigma0"], c["stated_share"])
+        assert abs(k - 2.0) < 3 * 2.0 * amp / np.sqrt(2 * c["redundancy"]), (name, k, amp, c)
+    assert abs(vc["scaled"]["dem"]["sigma0"] - 1.0) < 0.2, vc
+
+
+def test_the_pass_variance_components_learn_a_misstated_dem(tmp_path):
+    """With the per-pass variance components on (the default), a pass whose DEM understates its
+    sigma by half rescales its DEM factors until their component reads 1: the DEM scale it ends
+    with (on the stated sigma) is near 2, and the noise fit's DEM level from that pass agrees."""
+    from misrgraph.estimate.adjust import adjust_pass
+    from misrgraph.estimate.noisefit import fit_noise_model
+    from misrgraph.runs.noise import pass_levels_of
+    from misrgraph.sim.simulate import ScenarioConfig, load_scenario, run_simulate
+
+    cfg = dict(truth="model", scenario="pass", seed=33, duration_s=900.0, start_lat_deg=55.0, gcp_blunder_rate=0.0)
+    run_simulate(
+        ScenarioConfig(**cfg, n_tie_points=200, n_check_points=5, n_gcps=20, dem_sigma_true_over_stated=2.0),
+        tmp_path / "s",
+    )
+    sc = load_scenario(tmp_path / "s")
+    acfg = AdjustConfig.from_dict(attitude_jitter_arcsec=0.0, snooping_rounds=0)
+    res = adjust_pass(sc.load_pass(0), sc.camera_model, sc.dem, sc.gcps, acfg)
+    d = res.reliability["dem_sigma"]
+    se = 2.0 / np.sqrt(2 * d["redundancy"])
+    assert d["status"] == "learned" and abs(d["sigma_scale"] - 2.0) < 3 * se, d
+    assert abs(d["sigma0"] - 1.0) < max(acfg.variance_component_tol, 3 * se / 2.0) + 1e-9, d
+    fit = fit_noise_model([pass_levels_of(res, acfg.graph, "p")])
+    lv = fit.levels["dem.sigma_scale"]
+    assert abs(lv["value"] - 2.0) < 3 * se and lv["applied"] is True, lv
