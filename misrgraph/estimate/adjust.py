@@ -668,6 +668,16 @@ def _dem_component(at: "_ReliabilityAt | None", pg: PassGraph) -> dict[str, floa
     return vc
 
 
+def _vc_status(cfg: AdjustConfig, redundancy: float, scale: float) -> str:
+    """What the variance components did to a class: ``"off"`` (no rounds), ``"guard"`` (too little
+    redundancy to learn from; the stated sigma is kept), ``"learned"`` (rescaled) or ``"stated"``."""
+    if not cfg.variance_component_rounds:
+        return "off"
+    if redundancy < cfg.variance_component_min_redundancy:
+        return "guard"
+    return "learned" if scale != 1.0 else "stated"
+
+
 def learned_sigma_summary(
     comps: dict[str, dict[str, float]],
     scale: dict[str, float],
@@ -684,14 +694,8 @@ def learned_sigma_summary(
     for name, v in comps.items():
         k = scale.get(name, 1.0)
         med = float(np.median(stated[obs_class == name])) if np.any(obs_class == name) else float("nan")
-        if not cfg.variance_component_rounds:
-            status = "off"
-        elif v["redundancy"] < cfg.variance_component_min_redundancy:
-            status = "guard"
-        else:
-            status = "learned" if k != 1.0 else "stated"
         classes[name] = {
-            "status": status,
+            "status": _vc_status(cfg, v["redundancy"], k),
             "scale": k,
             "scale_sd": k * v["sigma0_sd"],
             "sigma_px": med * k,
@@ -715,14 +719,8 @@ def dem_sigma_summary(comp: dict[str, float] | None, scale: float, cfg: AdjustCo
     "none"}`` without DEM factors."""
     if comp is None:
         return {"status": "none"}
-    if not cfg.variance_component_rounds:
-        status = "off"
-    elif comp["redundancy"] < cfg.variance_component_min_redundancy:
-        status = "guard"
-    else:
-        status = "learned" if scale != 1.0 else "stated"
     return {
-        "status": status,
+        "status": _vc_status(cfg, comp["redundancy"], scale),
         "scale": float(scale),
         "sigma_scale": float(cfg.graph.dem_sigma_scale * scale),
         "sigma0": comp["sigma0"],
