@@ -132,7 +132,9 @@ class AdjustConfig(Config):
     #: standard errors (``sigma0 / sqrt(2 r)``; 3: a class of a pass whose stated sigma is right
     #: moves by chance 0.3 % of the time) has its sigmas rescaled by it, and the pass is
     #: re-solved, until no class moves; 0 keeps the stated sigmas. A class whose redundancy is
-    #: below ``variance_component_min_redundancy`` keeps its stated sigma (the guard), and says so
+    #: below ``variance_component_min_redundancy`` keeps its stated sigma (the guard), and says so.
+    #: The DEM heights are a class too, taken in a round where the image classes hold, their
+    #: scale on the DEM's stated sigma (:func:`~misrgraph.estimate.noisefit.class_scale`)
     variance_component_rounds: int = 3
     variance_component_tol: float = 0.05
     variance_component_z: float = 3.0
