@@ -430,7 +430,12 @@ def fit_local_surface(
     lo = np.atleast_1d(np.asarray(lon, dtype=float))
     n = la.size
     out = LocalSurface(
-        np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool)
+        np.full(n, np.nan),
+        np.full(n, np.nan),
+        np.full(n, np.nan),
+        np.full(n, np.nan),
+        np.zeros(n, bool),
+        stated=np.full(n, np.nan),
     )
     tile = dem.tile_of(la, lo, hint=hint)
     out.tile = tile
@@ -461,7 +466,6 @@ def fit_local_surface(
     else:
         stated = sig_q[dem.quality[t]]
     out.sigma[sel] = np.sqrt(stated**2 + rms**2)
-    out.stated = np.full(n, np.nan)
     out.stated[sel] = stated
     out.valid[sel] = True
     return out

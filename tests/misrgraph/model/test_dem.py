@@ -108,8 +108,10 @@ def test_tiles_surface_and_sigma(rng):
     true = terrain.height(lat + 1e-4, lon - 2e-4)
     # error = tile bias (sigma from quality) + small noise: within 5 sigma
     assert np.all(np.abs(s.height - true) < 5 * s.sigma)
+    # the stated sigma alone: the quality class's, within the combined sigma
+    assert np.all(s.stated <= s.sigma) and np.all(s.stated >= 30.0)
     out = fit_local_surface(dem, np.array([0.0]), np.array([0.0]))
-    assert not out.valid[0] and np.isnan(out.height[0])
+    assert not out.valid[0] and np.isnan(out.height[0]) and np.isnan(out.stated[0])
 
 
 def test_dem_error_statistics_match_quality_sigma():
