@@ -38,9 +38,8 @@ from factors import keys as K
 from misrgraph.config import Config
 from misrgraph.errors import DegenerateProblemError, InputError
 from misrgraph.estimate.graph import GraphConfig, PassGraph, build_pass_graph, check_jitter
-from misrgraph.estimate.noisefit import class_scale
 from misrgraph.estimate.problem import Marginals, NotFlat, flat_marginals, marginal_covariances, variance_factor
-from misrgraph.estimate.reliability import Reliability, critical_T, reliability
+from misrgraph.estimate.reliability import Reliability, class_scale, critical_T, reliability
 from misrgraph.estimate.solver import SolverParams, check_converged, solve
 from misrgraph.estimate.tieheight import TIE_HEIGHT_MODES, inflate_along, shared_height_variance
 from misrgraph.estimate.tieoffset import TIE_OFFSET_MODES, counted_covariance, offset_covariance, offset_response
@@ -134,7 +133,7 @@ class AdjustConfig(Config):
     #: re-solved, until no class moves; 0 keeps the stated sigmas. A class whose redundancy is
     #: below ``variance_component_min_redundancy`` keeps its stated sigma (the guard), and says so.
     #: The DEM heights are a class too, taken in a round where the image classes hold, their
-    #: scale on the DEM's stated sigma (:func:`~misrgraph.estimate.noisefit.class_scale`)
+    #: scale on the DEM's stated sigma (:func:`~misrgraph.estimate.reliability.class_scale`)
     variance_component_rounds: int = 3
     variance_component_tol: float = 0.05
     variance_component_z: float = 3.0
@@ -372,7 +371,7 @@ def adjust_pass(
                 moved = _departed({"DEM": dem_vc}, cfg)
             if moved:
                 rounds += 1
-                if "DEM" in moved:  # eq. 3 of the noise fit: the scale on the DEM's stated sigma
+                if "DEM" in moved:  # class_scale: the scale on the DEM's stated sigma
                     assert dem_vc is not None
                     k0 = cfg.graph.dem_sigma_scale
                     dem_scale = class_scale(k0 * dem_scale, moved.pop("DEM"), dem_vc["stated_share"])[0] / k0

@@ -523,8 +523,7 @@ def build_pass_graph(
 
     surface = dem_surface(dem, geoid, cfg.dem_method) if dem is not None else None
     dem_keys: list[int] = []
-    dem_sig: list[float] = []
-    dem_stated: list[float] = []
+    dem_sig = dem_stated = np.zeros(0)
     dem_rows: list[int] = []
     gcp_ecef = gcps.ecef() if gcps is not None else None
     scenes = gcps.scenes() if gcps is not None and cfg.gcp_scenes else {}
@@ -567,13 +566,12 @@ def build_pass_graph(
         s = fit_local_surface(dem_raw, lat, lon, cfg.dem_method)
         dem_keys = [lm_key_of[r] for r, ok in zip(dem_rows, s.valid) if ok]
         # the scale is on the DEM's stated sigma; the surface fit's residual RMS is the estimator's own
-        stated = s.stated[s.valid] * cfg.dem_sigma_scale
+        dem_stated = s.stated[s.valid] * cfg.dem_sigma_scale
         fit_rms2 = np.clip(s.sigma[s.valid] ** 2 - s.stated[s.valid] ** 2, 0.0, None)
-        dem_stated = list(stated)
-        dem_sig = list(np.sqrt(stated**2 + fit_rms2))
+        dem_sig = np.sqrt(dem_stated**2 + fit_rms2)
     if dem_keys:
         assert surface is not None
-        problem.add_batch(DemBatch(np.array(dem_keys), np.array(dem_sig), surface, np.array(dem_stated)))
+        problem.add_batch(DemBatch(np.array(dem_keys), dem_sig, surface, dem_stated))
     # navigation variables and priors
     att_sig = np.asarray(cfg.attitude_sigma_arcsec) * ARCSEC
     if len(cfg.attitude_rate_sigma_arcsec_per_s):

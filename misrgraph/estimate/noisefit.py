@@ -37,8 +37,8 @@ level is ``k_used * scale * sigma0`` pooled over the passes' classes with their 
 with 1 sigma the standard error over passes, and never less than ``k / sqrt(2 sum r)`` (all a
 single pass gives; two passes' scatter can be small by chance). The DEM's scale is on its stated
 sigma only, while its factors' sigma also holds the surface fit's residual: its class gives
-``k`` by eq. (3) of :func:`class_scale` from the stated sigma's share of the factors' variance
-and the scale its pass weighted them with (the pass's own variance components may have moved
+``k`` by :func:`~misrgraph.estimate.reliability.class_scale` from the stated sigma's share of the
+factors' variance and the scale its pass weighted them with (the pass's own variance components may have moved
 it), in place of ``k_used scale sigma0``. As for the priors, a scale
 replaces the base's only when the passes reject the base's (:data:`LEVEL_Z`).
 
@@ -57,6 +57,7 @@ from scipy import optimize
 
 from factors.priors import process_transition
 from misrgraph.errors import InputError
+from misrgraph.estimate.reliability import class_scale
 from misrgraph.model.constants import ANGLES, ARCSEC
 from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, ephemeris_prior_covariance, unresolved_process_sigma
 from misrgraph.model.noise import NoiseModel
@@ -69,7 +70,6 @@ __all__ = [
     "log_marginal_likelihood",
     "relative_log_marginal_likelihood",
     "pooled_scale",
-    "class_scale",
     "MAX_LOG_SD",
     "LEVEL_Z",
     "SHAPE_Z",
@@ -224,23 +224,6 @@ def _maximise(
 def _mean_and_se(per_pass: list[float]) -> tuple[float, float]:
     x = np.asarray(per_pass, float)
     return float(x.mean()), float(x.std(ddof=1) / np.sqrt(x.size))
-
-
-def class_scale(used: float, factor: float, stated_share: float = 1.0) -> tuple[float, float]:
-    """A class's scale on its file's stated sigma from its variance component: ``factor`` (its
-    sigma0 times any rescaling, against the sigma it was weighted with), ``used`` the scale it was
-    weighted with and ``stated_share`` the part ``F`` of its weighted variance that is the stated
-    sigma (the DEM's: the rest is the surface fit's residual, which the scale does not touch;
-    1 for the other classes). With ``factor^2 = F (k / used)^2 + 1 - F``::
-
-        k = used sqrt((factor^2 - 1 + F) / F)                                              (3)
-
-    Returns ``k`` and ``dk/k`` over ``dfactor/factor`` (``factor^2 / (factor^2 - 1 + F)``, 1 when
-    ``F`` is 1), by which the scale's relative 1 sigma exceeds ``factor``'s. A factor that leaves
-    the stated share no variance (``factor^2 <= 1 - F``) gives a scale of 1e-3 of ``used``."""
-    f = float(np.clip(stated_share, 1e-6, 1.0))
-    excess = max(float(factor) ** 2 - 1.0 + f, 1e-6 * f)
-    return float(used * np.sqrt(excess / f)), float(factor) ** 2 / excess
 
 
 def pooled_scale(factors: list[float], redundancies: list[float]) -> tuple[float, float]:

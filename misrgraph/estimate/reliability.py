@@ -31,7 +31,7 @@ from scipy import stats
 
 from misrgraph.estimate.problem import FlatProblem, reduced_cholesky, schur_reduce
 
-__all__ = ["Reliability", "reliability", "critical_T", "W_TEST_ALPHA"]
+__all__ = ["Reliability", "reliability", "critical_T", "class_scale", "W_TEST_ALPHA"]
 
 Array = NDArray[np.float64]
 
@@ -112,6 +112,23 @@ class Reliability:
             if fam[name].stop > fam[name].start:
                 out["variance_components"][name] = self.variance_component(fam[name])
         return out
+
+
+def class_scale(used: float, factor: float, stated_share: float = 1.0) -> tuple[float, float]:
+    """A class's scale on its file's stated sigma from its variance component: ``factor`` (its
+    sigma0 times any rescaling, against the sigma it was weighted with), ``used`` the scale it was
+    weighted with and ``stated_share`` the part ``F`` of its weighted variance that is the stated
+    sigma (the DEM's: the rest is the surface fit's residual, which the scale does not touch;
+    1 for the other classes). With ``factor^2 = F (k / used)^2 + 1 - F``::
+
+        k = used sqrt((factor^2 - 1 + F) / F)
+
+    Returns ``k`` and ``dk/k`` over ``dfactor/factor`` (``factor^2 / (factor^2 - 1 + F)``, 1 when
+    ``F`` is 1), by which the scale's relative 1 sigma exceeds ``factor``'s. A factor that leaves
+    the stated share no variance (``factor^2 <= 1 - F``) gives a scale of 1e-3 of ``used``."""
+    f = float(np.clip(stated_share, 1e-6, 1.0))
+    excess = max(float(factor) ** 2 - 1.0 + f, 1e-6 * f)
+    return float(used * np.sqrt(excess / f)), float(factor) ** 2 / excess
 
 
 def reliability(flat: FlatProblem, x: Array, chunk: int = 2048) -> Reliability:

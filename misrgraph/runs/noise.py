@@ -24,7 +24,7 @@ def _classes(rel: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """The observation classes' variance components in an adjustment's reliability summary:
     ``{name: {"kind", "factor" (scale * sigma0), "redundancy"}}``; the DEM's ``factor`` is its
     sigma0 alone, with the pass's ``"scale"`` on its DEM scale and ``"stated_share"`` beside it
-    (:class:`PassLevels`, :func:`~misrgraph.estimate.noisefit.class_scale`)."""
+    (:class:`PassLevels`, :func:`~misrgraph.estimate.reliability.class_scale`)."""
     classes: dict[str, dict[str, Any]] = {}
     for name, v in ((rel.get("observation_sigma") or {}).get("classes") or {}).items():
         classes[name] = {

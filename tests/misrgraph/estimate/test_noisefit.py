@@ -364,11 +364,11 @@ def test_a_moderately_faster_angle_follows_a_clearly_faster_one():
 
 
 def test_class_scale_inverts_the_variance_component_of_a_partly_stated_sigma():
-    """Eq. 3 (closed form): a class whose weighted variance is a share F of a stated sigma at
+    """class_scale in closed form: a class whose weighted variance is a share F of a stated sigma at
     scale ``used`` and 1 - F of a part no scale touches reads ``factor^2 = F (k/used)^2 + 1 - F``
     when the truth's scale is ``k``; class_scale gives ``k`` back, and its amplification is the
     numerical derivative of log k over log factor. With F = 1 it is ``used * factor``."""
-    from misrgraph.estimate.noisefit import class_scale
+    from misrgraph.estimate.reliability import class_scale
 
     for share in (1.0, 0.96, 0.6):
         for k_true in (0.5, 2.0):

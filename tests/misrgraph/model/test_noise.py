@@ -211,10 +211,10 @@ def test_the_dem_scale_reads_a_misstated_dem(tmp_path):
     """A pass whose DEM understates its sigma by half (its errors drawn at twice the stated
     sigma), adjusted once with the DEM scale at 1 and once at 2 (no per-pass variance
     components): the DEM factors' sigma also holds the surface fit's residual, which the file does
-    not state (a share of their variance strictly between 0 and 1 is the stated sigma); eq. 3 of
-    the noise fit turns each component, with that share and the scale it was read at, into the
+    not state (a share of their variance strictly between 0 and 1 is the stated sigma);
+    class_scale turns each component, with that share and the scale it was read at, into the
     scale on the stated sigma, near 2 both times; at 2 the component itself reads near 1."""
-    from misrgraph.estimate.noisefit import class_scale
+    from misrgraph.estimate.reliability import class_scale
 
     vc = _misstated_pass_components(
         tmp_path, 33, "dem_sigma_true_over_stated", "sigma_scale", "dem", n_tie_points=200, n_check_points=5, n_gcps=20
