@@ -312,7 +312,7 @@ SHAPE_Z = 3.29
 #: for the attitude process, and each other angle's fitted shape replaces the base's when its own
 #: z is above this (2.5 % one-sided): a gatekeeping test, the strict level guarding the family
 #: (``misrgraph bench worlds``, the attitude band 30-300 s world: yaw's z near 2.3 while roll's and
-#: pitch's are above 5; with yaw on the base's shape the passes' knots were 2-15x over-confident)
+#: pitch's are above 5; yaw on the base's shape leaves the passes' knots over-confident)
 SHAPE_FOLLOW_Z = 1.96
 
 #: the knot spacings (as fractions of the base's) tried, longest first, for a process faster than
