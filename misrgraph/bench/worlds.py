@@ -21,8 +21,10 @@ NEES in 0.7-1.4, check-point RMS within 5 % of the oracle's.
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any, Callable
 
@@ -253,6 +255,92 @@ def _accept(ways: dict[str, dict[str, Any]]) -> dict[str, bool]:
     return ok
 
 
+def _run_world(
+    name: str,
+    passes: int,
+    fit_passes: int,
+    seed: int,
+    size: str,
+    wd: Path,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """One world of :func:`run_bench_worlds`: simulate (or reuse) its passes in ``wd``, fit the
+    noise model on the first ``fit_passes``, score the other ``passes`` three ways."""
+    from misrgraph.estimate.adjust import AdjustConfig
+    from misrgraph.io.noise import read_noise_model
+    from misrgraph.runs.adjust import run_adjust
+    from misrgraph.runs.noise import run_noise_fit
+
+    over = WORLDS[name]
+    w_index = list(WORLDS).index(name)
+    cfgs = [
+        ScenarioConfig.from_dict(
+            {
+                **WORLD_SIZES[size],
+                "scenario": "pass",
+                "start_lat_deg": 50.0,
+                **over,
+                "seed": seed + 100 * w_index + i,
+            }
+        )
+        for i in range(fit_passes + passes)
+    ]
+    dirs = []
+    for i, cfg in enumerate(cfgs):
+        d = wd / f"world{w_index:02d}_{size}_{cfg.seed}"
+        if not (d / "scenario.json").exists():
+            if progress:
+                progress(f"{name}: simulating pass {i + 1}/{len(cfgs)}")
+            run_simulate(cfg, d)
+        dirs.append(d)
+    results = []
+    for i, d in enumerate(dirs[:fit_passes]):
+        if progress:
+            progress(f"{name}: adjusting fit pass {i + 1}/{fit_passes}")
+        r = d / "fit_result.h5"
+        run_adjust(d, out=r, cfg=AdjustConfig())
+        results.append(r)
+    noise_file = wd / f"world{w_index:02d}_{size}_noise.json"
+    fit = run_noise_fit(results, out=noise_file)
+    learned_model, _ = read_noise_model(noise_file)  # as a user's --noise-model would read it
+    oracle = oracle_noise_model(cfgs[0])
+    configs = {
+        "fixed": AdjustConfig(variance_component_rounds=0),
+        "learned": AdjustConfig().with_noise(learned_model),
+        "oracle": AdjustConfig(variance_component_rounds=0).with_noise(oracle),
+    }
+    per_way: dict[str, list[dict[str, float]]] = {w: [] for w in WAYS}
+    failures: dict[str, list[str]] = {w: [] for w in WAYS}
+    for i, d in enumerate(dirs[fit_passes:]):
+        for way in WAYS:
+            if progress:
+                progress(f"{name}: scoring pass {i + 1}/{passes} ({way})")
+            try:
+                per_way[way].append(_score(run_adjust(d, cfg=configs[way])))
+            except MisrGraphError as exc:  # a way that cannot adjust a pass is a finding, not a crash
+                log.warning("%s, %s, pass %d: %s", name, way, i + 1, exc)
+                failures[way].append(f"pass {i + 1}: {str(exc).splitlines()[0][:200]}")
+    ways = {w: {**_summarise(per_way[w]), "passes": len(per_way[w]), "failed": failures[w]} for w in WAYS}
+    # the adjustment's time with the learned levels over the fixed ones', pass by pass (the same
+    # pass, one after the other in this run)
+    paired = [
+        a["seconds"] / b["seconds"]
+        for a, b in zip(per_way["learned"], per_way["fixed"])
+        if a.get("seconds") and b.get("seconds")
+    ]
+    return {
+        "overrides": {k: (list(v) if isinstance(v, tuple) else v) for k, v in over.items()},
+        "ways": ways,
+        "per_pass": per_way,
+        "learned_levels": {
+            k: {key: v.get(key) for key in ("value", "sigma", "applied", "reason")} for k, v in fit["levels"].items()
+        },
+        "true_levels": oracle.to_dict(),
+        "acceptance": _accept(ways),
+        "cost_ratio": _interval(paired) if paired else None,
+    }
+
+
 def run_bench_worlds(
     passes: int = 4,
     fit_passes: int = 2,
@@ -261,20 +349,18 @@ def run_bench_worlds(
     size: str = "reduced",
     workdir: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
+    workers: int = 1,
 ) -> dict[str, Any]:
     """Score the three ways in each world (module docstring). ``worlds``: names of :data:`WORLDS`
     (default all); ``passes`` scored and ``fit_passes`` fitted per world, seeds from ``seed`` (world
     ``w`` uses ``seed + 100 w + i``); ``size``: :data:`WORLD_SIZES`; ``workdir`` keeps the
-    simulated passes (a rerun reuses them).
+    simulated passes (a rerun reuses them); ``workers``: worlds run at once, each in a process of
+    its own (1: one after the other in this process). The worlds' figures do not depend on
+    ``workers``; the cost ratio is timed within one process, beside the other workers' load.
 
-    Returns ``{"passes", "fit_passes", "size", "seconds", "worlds": {name: {"overrides",
-    "ways": {way: summary}, "learned_levels", "true_levels", "acceptance"}}, "acceptance":
-    {"worlds_passing", "worlds"}}``."""
-    from misrgraph.estimate.adjust import AdjustConfig
-    from misrgraph.io.noise import read_noise_model
-    from misrgraph.runs.adjust import run_adjust
-    from misrgraph.runs.noise import run_noise_fit
-
+    Returns ``{"passes", "fit_passes", "size", "workers", "seconds", "worlds": {name: {"overrides",
+    "ways": {way: summary}, "per_pass", "learned_levels", "true_levels", "acceptance",
+    "cost_ratio"}}, "acceptance": {"worlds_passing", "worlds", "passing"}}``."""
     names = list(WORLDS) if worlds is None else list(worlds)
     for n in names:
         if n not in WORLDS:
@@ -283,6 +369,8 @@ def run_bench_worlds(
         raise InputError("size", size, tuple(WORLD_SIZES))
     if passes < 1 or fit_passes < 1:
         raise InputError("passes", (passes, fit_passes), "at least 1 scored and 1 fitted pass per world")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InputError("workers", workers, "an integer >= 1")
     t0 = time.perf_counter()
     tmp = None
     if workdir is None:
@@ -290,85 +378,34 @@ def run_bench_worlds(
         workdir = tmp.name
     wd = Path(workdir)
     out: dict[str, Any] = {}
-    for w_i, name in enumerate(names):
-        over = WORLDS[name]
-        w_index = list(WORLDS).index(name)
-        cfgs = [
-            ScenarioConfig.from_dict(
-                {
-                    **WORLD_SIZES[size],
-                    "scenario": "pass",
-                    "start_lat_deg": 50.0,
-                    **over,
-                    "seed": seed + 100 * w_index + i,
-                }
-            )
-            for i in range(fit_passes + passes)
-        ]
-        dirs = []
-        for i, cfg in enumerate(cfgs):
-            d = wd / f"world{w_index:02d}_{size}_{cfg.seed}"
-            if not (d / "scenario.json").exists():
+    try:
+        if workers == 1 or len(names) == 1:
+            for w_i, name in enumerate(names):
+                out[name] = _run_world(name, passes, fit_passes, seed, size, wd, progress)
+                log.info("world %d/%d (%s) done", w_i + 1, len(names), name)
+        else:
+            got: dict[str, Any] = {}
+            ctx = multiprocessing.get_context("spawn")  # a fresh interpreter per worker: no forked GTSAM state
+            with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx) as pool:
+                jobs = {pool.submit(_run_world, n, passes, fit_passes, seed, size, wd): n for n in names}
                 if progress:
-                    progress(f"{name}: simulating pass {i + 1}/{len(cfgs)}")
-                run_simulate(cfg, d)
-            dirs.append(d)
-        results = []
-        for i, d in enumerate(dirs[:fit_passes]):
-            if progress:
-                progress(f"{name}: adjusting fit pass {i + 1}/{fit_passes}")
-            r = d / "fit_result.h5"
-            run_adjust(d, out=r, cfg=AdjustConfig())
-            results.append(r)
-        noise_file = wd / f"world{w_index:02d}_{size}_noise.json"
-        fit = run_noise_fit(results, out=noise_file)
-        learned_model, _ = read_noise_model(noise_file)  # as a user's --noise-model would read it
-        oracle = oracle_noise_model(cfgs[0])
-        configs = {
-            "fixed": AdjustConfig(variance_component_rounds=0),
-            "learned": AdjustConfig().with_noise(learned_model),
-            "oracle": AdjustConfig(variance_component_rounds=0).with_noise(oracle),
-        }
-        per_way: dict[str, list[dict[str, float]]] = {w: [] for w in WAYS}
-        failures: dict[str, list[str]] = {w: [] for w in WAYS}
-        for i, d in enumerate(dirs[fit_passes:]):
-            for way in WAYS:
-                if progress:
-                    progress(f"{name}: scoring pass {i + 1}/{passes} ({way})")
-                try:
-                    per_way[way].append(_score(run_adjust(d, cfg=configs[way])))
-                except MisrGraphError as exc:  # a way that cannot adjust a pass is a finding, not a crash
-                    log.warning("%s, %s, pass %d: %s", name, way, i + 1, exc)
-                    failures[way].append(f"pass {i + 1}: {str(exc).splitlines()[0][:200]}")
-        ways = {w: {**_summarise(per_way[w]), "passes": len(per_way[w]), "failed": failures[w]} for w in WAYS}
-        # the adjustment's time with the learned levels over the fixed ones', pass by pass (the same
-        # pass, one after the other in this run)
-        paired = [
-            a["seconds"] / b["seconds"]
-            for a, b in zip(per_way["learned"], per_way["fixed"])
-            if a.get("seconds") and b.get("seconds")
-        ]
-        out[name] = {
-            "overrides": {k: (list(v) if isinstance(v, tuple) else v) for k, v in over.items()},
-            "ways": ways,
-            "per_pass": per_way,
-            "learned_levels": {
-                k: {key: v.get(key) for key in ("value", "sigma", "applied", "reason")}
-                for k, v in fit["levels"].items()
-            },
-            "true_levels": oracle.to_dict(),
-            "acceptance": _accept(ways),
-            "cost_ratio": _interval(paired) if paired else None,
-        }
-        log.info("world %d/%d (%s) done", w_i + 1, len(names), name)
-    if tmp is not None:
-        tmp.cleanup()
+                    progress(f"{len(names)} worlds on {min(workers, len(names))} workers")
+                for k, job in enumerate(as_completed(jobs)):
+                    got[jobs[job]] = job.result()
+                    log.info("world %d/%d (%s) done", k + 1, len(names), jobs[job])
+                    if progress:
+                        progress(f"{k + 1}/{len(names)} worlds done (last: {jobs[job]})")
+            out = {n: got[n] for n in names}
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
     passing = [n for n, v in out.items() if v["acceptance"] and all(v["acceptance"].values())]
     return {
         "passes": passes,
         "fit_passes": fit_passes,
         "size": size,
         "seed": seed,
+        "workers": workers,
         "seconds": time.perf_counter() - t0,
         "worlds": out,
         "acceptance": {"worlds_passing": len(passing), "worlds": len(out), "passing": passing},

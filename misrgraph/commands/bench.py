@@ -891,6 +891,9 @@ def bench_worlds(
     workdir: Optional[Path] = typer.Option(
         None, "--workdir", help="Keep the simulated passes here (a rerun reuses them)."
     ),
+    workers: int = typer.Option(
+        1, "--workers", help="Worlds run at once, each in a process of its own (1: one after the other)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -907,7 +910,9 @@ def bench_worlds(
         return
     names = [w.strip() for w in worlds.split(",")] if worlds else None
     with err_console.status("worlds...") as st:
-        res = run_bench_worlds(passes, fit_passes, names, seed, size, workdir, progress=lambda m: st.update(m))
+        res = run_bench_worlds(
+            passes, fit_passes, names, seed, size, workdir, progress=lambda m: st.update(m), workers=workers
+        )
     res = finish(res, save)
     if as_json:
         print_json(res)

@@ -81,6 +81,30 @@ def test_bench_worlds_cli_scores_three_ways(tmp_path):
     assert "provenance" in res
     bad = CliRunner().invoke(app, ["bench", "worlds", "--worlds", "mars", "--size", "tiny"])
     assert bad.exit_code == 2 and "worlds" in bad.output
+    bad = CliRunner().invoke(app, ["bench", "worlds", "--workers", "0", "--size", "tiny"])
+    assert bad.exit_code == 2 and "workers" in bad.output
+
+
+def test_bench_worlds_on_two_workers_gives_the_serial_figures(tmp_path):
+    """Two tiny worlds on two worker processes, then the first alone in this process on the same
+    simulated passes: the worlds come back in the order asked, and the first world's per-pass
+    figures (all but the seconds) and learned levels are the serial run's."""
+    from misrgraph.bench.worlds import run_bench_worlds
+
+    names = ["GCP stated x2", "tie stated x0.5"]
+    both = run_bench_worlds(1, 1, names, size="tiny", workdir=tmp_path, workers=2)
+    assert list(both["worlds"]) == names and both["workers"] == 2
+    alone = run_bench_worlds(1, 1, names[:1], size="tiny", workdir=tmp_path)
+    a, b = both["worlds"][names[0]], alone["worlds"][names[0]]
+
+    def figures(w):
+        return {
+            way: [{k: v for k, v in p.items() if k != "seconds"} for p in runs] for way, runs in w["per_pass"].items()
+        }
+
+    assert figures(a) == figures(b) and figures(a)["learned"]
+    assert a["learned_levels"] == b["learned_levels"]
+    assert both["worlds"][names[1]]["true_levels"]["observations"]["tie_sigma_scale"] == 2.0
 
 
 def test_kept_sigma_fraction_against_the_truncated_gaussian_in_closed_form():
