@@ -933,6 +933,43 @@ def _print_worlds(res: dict) -> None:
     console.print(f"learned levels meet the acceptance bounds in {a['worlds_passing']} of {a['worlds']} worlds")
 
 
+@app.command("knot-prior")
+@handle_errors
+def bench_knot_prior(
+    workdir: Path = typer.Option(..., "--workdir", help="The --workdir of a 'misrgraph bench worlds' run."),
+    worlds: Optional[str] = typer.Option(
+        None, "--worlds", help="Comma-separated world names (default: every world the workdir holds a noise model of)."
+    ),
+    size: str = typer.Option("reduced", "--size", help="The size the worlds run used (reduced or tiny)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
+    save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
+) -> None:
+    """The knots' NEES and error under other knot priors, in closed form, on the passes a 'bench
+    worlds' run fitted its noise models on.
+
+    Per world: the damped process at the world's levels and at the learned ones, each with and
+    without a jitter component, and the truth's own covariance (NEES 1, the least error).
+    """
+    from misrgraph.bench.knotprior import run_bench_knot_prior
+
+    names = [w.strip() for w in worlds.split(",")] if worlds else None
+    with err_console.status("knot priors...") as st:
+        res = run_bench_knot_prior(workdir, names, size, progress=lambda m: st.update(m))
+    res = finish(res, save)
+    if as_json:
+        print_json(res)
+        return
+    from misrgraph.bench.report import knot_prior_table
+
+    head, rows = knot_prior_table(res)
+    table = Table(title="knot priors in closed form: expected NEES/dim (value RMS error, arcsec)")
+    for col in head:
+        table.add_column(col, justify="right")
+    for row in rows:
+        table.add_row(*row)
+    console.print(table)
+
+
 @app.command("monitor")
 @handle_errors
 def bench_monitor(
