@@ -45,6 +45,7 @@ __all__ = [
     "vector_prior",
     "process_transition",
     "process_prior_factors",
+    "process_covariance",
     "linear_factor",
     "joint_prior_factor",
 ]
@@ -98,6 +99,33 @@ def process_transition(dt: float, sigma: float, lam: float, zeta: float = 1.0) -
     p = np.diag([sigma**2, (lam * sigma) ** 2])
     q = p - phi @ p @ phi.T
     return phi, 0.5 * (q + q.T)
+
+
+def process_covariance(times: ArrayLike, sigma: float, lam: float, zeta: float = 1.0) -> np.ndarray:
+    """Joint covariance ``(2n, 2n)`` (knot-major ``(value, rate)``) of the process's state at
+    increasing ``times`` (s): ``Cov(x_j, x_i) = Phi(t_j - t_i) P`` for ``t_j >= t_i`` (module
+    docstring), the distribution :func:`process_prior_factors` encode, in covariance form."""
+    t = np.asarray(times, dtype=float)
+    if t.size == 0 or np.any(np.diff(t) <= 0):
+        raise ValueError(f"process_covariance needs increasing times, got {t.size} times")
+    n = t.size
+    p = np.diag([sigma**2, (lam * sigma) ** 2])
+    cache: dict[float, np.ndarray] = {}  # one transition per distinct spacing (knots are mostly uniform)
+    phis = []
+    for dt in np.diff(t):
+        key = round(float(dt), 9)
+        if key not in cache:
+            cache[key] = process_transition(float(dt), sigma, lam, zeta)[0]
+        phis.append(cache[key])
+    out = np.zeros((2 * n, 2 * n))
+    for i in range(n):
+        m = p
+        out[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = p
+        for j in range(i + 1, n):
+            m = phis[j - 1] @ m
+            out[2 * j : 2 * j + 2, 2 * i : 2 * i + 2] = m
+            out[2 * i : 2 * i + 2, 2 * j : 2 * j + 2] = m.T
+    return out
 
 
 def linear_factor(

@@ -338,7 +338,13 @@ def _render_worlds(r: dict[str, Any]) -> str:
         f"{r['passes']} scored and {r['fit_passes']} fitted passes per world ({r['size']} size), "
         f"{r['seconds'] / 60:.0f} minutes in all"
         + (f" on {r['workers']} worker processes" if r.get("workers", 1) > 1 else "")
-        + ".\n\n"
+        + "."
+        + (
+            f" Every adjustment's knot prior: `{r['knot_prior']}`."
+            if r.get("knot_prior", "process") != "process"
+            else ""
+        )
+        + "\n\n"
         + table
         + f"\n\nThe learned way meets the acceptance bounds in {a['worlds_passing']} of {a['worlds']} worlds "
         "(landmark NEES and check points' ratio within 0.8-1.25, knot NEES within 0.7-1.4, check-point RMS "

@@ -32,6 +32,7 @@ import numpy as np
 
 from misrgraph.bench.studies import _checkpoint_rms_after, _interval, _rms_interval
 from misrgraph.errors import InputError, MisrGraphError
+from misrgraph.estimate.graph import KNOT_PRIORS
 from misrgraph.model.noise import NoiseModel
 from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
@@ -263,6 +264,7 @@ def _run_world(
     size: str,
     wd: Path,
     progress: Callable[[str], None] | None = None,
+    knot_prior: str = "process",
 ) -> dict[str, Any]:
     """One world of :func:`run_bench_worlds`: simulate (or reuse) its passes in ``wd``, fit the
     noise model on the first ``fit_passes``, score the other ``passes`` three ways."""
@@ -293,21 +295,26 @@ def _run_world(
                 progress(f"{name}: simulating pass {i + 1}/{len(cfgs)}")
             run_simulate(cfg, d)
         dirs.append(d)
+    tag = "" if knot_prior == "process" else f"-{knot_prior}"  # another knot prior's outputs beside these
+
+    def adjust_config(**fields: Any) -> AdjustConfig:
+        return AdjustConfig.from_dict(knot_prior=knot_prior, **fields)
+
     results = []
     for i, d in enumerate(dirs[:fit_passes]):
         if progress:
             progress(f"{name}: adjusting fit pass {i + 1}/{fit_passes}")
-        r = d / "fit_result.h5"
-        run_adjust(d, out=r, cfg=AdjustConfig())
+        r = d / f"fit_result{tag}.h5"
+        run_adjust(d, out=r, cfg=adjust_config())
         results.append(r)
-    noise_file = wd / f"world{w_index:02d}_{size}_noise.json"
+    noise_file = wd / f"world{w_index:02d}_{size}_noise{tag}.json"
     fit = run_noise_fit(results, out=noise_file)
     learned_model, _ = read_noise_model(noise_file)  # as a user's --noise-model would read it
     oracle = oracle_noise_model(cfgs[0])
     configs = {
-        "fixed": AdjustConfig(variance_component_rounds=0),
-        "learned": AdjustConfig().with_noise(learned_model),
-        "oracle": AdjustConfig(variance_component_rounds=0).with_noise(oracle),
+        "fixed": adjust_config(variance_component_rounds=0),
+        "learned": adjust_config().with_noise(learned_model),
+        "oracle": adjust_config(variance_component_rounds=0).with_noise(oracle),
     }
     per_way: dict[str, list[dict[str, float]]] = {w: [] for w in WAYS}
     failures: dict[str, list[str]] = {w: [] for w in WAYS}
@@ -350,6 +357,7 @@ def run_bench_worlds(
     workdir: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
     workers: int = 1,
+    knot_prior: str = "process",
 ) -> dict[str, Any]:
     """Score the three ways in each world (module docstring). ``worlds``: names of :data:`WORLDS`
     (default all); ``passes`` scored and ``fit_passes`` fitted per world, seeds from ``seed`` (world
@@ -357,6 +365,9 @@ def run_bench_worlds(
     simulated passes (a rerun reuses them); ``workers``: worlds run at once, each in a process of
     its own (1: one after the other in this process). The worlds' figures do not depend on
     ``workers``; the cost ratio is timed within one process, beside the other workers' load.
+    ``knot_prior``: every adjustment's (:data:`~misrgraph.estimate.graph.KNOT_PRIORS`); another
+    than ``"process"`` writes its fitted passes and noise models beside the default's in
+    ``workdir`` (``fit_result-<prior>.h5``, ``..._noise-<prior>.json``), on the same simulated passes.
 
     Returns ``{"passes", "fit_passes", "size", "workers", "seconds", "worlds": {name: {"overrides",
     "ways": {way: summary}, "per_pass", "learned_levels", "true_levels", "acceptance",
@@ -371,6 +382,8 @@ def run_bench_worlds(
         raise InputError("passes", (passes, fit_passes), "at least 1 scored and 1 fitted pass per world")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise InputError("workers", workers, "an integer >= 1")
+    if knot_prior not in KNOT_PRIORS:
+        raise InputError("knot_prior", knot_prior, KNOT_PRIORS)
     t0 = time.perf_counter()
     tmp = None
     if workdir is None:
@@ -381,13 +394,15 @@ def run_bench_worlds(
     try:
         if workers == 1 or len(names) == 1:
             for w_i, name in enumerate(names):
-                out[name] = _run_world(name, passes, fit_passes, seed, size, wd, progress)
+                out[name] = _run_world(name, passes, fit_passes, seed, size, wd, progress, knot_prior)
                 log.info("world %d/%d (%s) done", w_i + 1, len(names), name)
         else:
             got: dict[str, Any] = {}
             ctx = multiprocessing.get_context("spawn")  # a fresh interpreter per worker: no forked GTSAM state
             with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx) as pool:
-                jobs = {pool.submit(_run_world, n, passes, fit_passes, seed, size, wd): n for n in names}
+                jobs = {
+                    pool.submit(_run_world, n, passes, fit_passes, seed, size, wd, None, knot_prior): n for n in names
+                }
                 if progress:
                     progress(f"{len(names)} worlds on {min(workers, len(names))} workers")
                 for k, job in enumerate(as_completed(jobs)):
@@ -406,6 +421,7 @@ def run_bench_worlds(
         "size": size,
         "seed": seed,
         "workers": workers,
+        "knot_prior": knot_prior,
         "seconds": time.perf_counter() - t0,
         "worlds": out,
         "acceptance": {"worlds_passing": len(passing), "worlds": len(out), "passing": passing},

@@ -71,6 +71,7 @@ def adjust(
         "process",
         "--knot-prior",
         help="'process': consecutive knots tied by the attitude error process, every knot kept; "
+        "'process+jitter': the process plus the jitter's share of the knots, one joint prior per angle; "
         "'independent': the paper's independent knot priors with eqs. 28-29's knot removal.",
     ),
     knot_damping: float = typer.Option(

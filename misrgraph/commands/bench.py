@@ -894,6 +894,12 @@ def bench_worlds(
     workers: int = typer.Option(
         1, "--workers", help="Worlds run at once, each in a process of its own (1: one after the other)."
     ),
+    knot_prior: str = typer.Option(
+        "process",
+        "--knot-prior",
+        help="Every adjustment's knot prior (as 'adjust --knot-prior'); another than 'process' keeps its "
+        "fitted passes and noise models beside the default's in --workdir.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -911,7 +917,15 @@ def bench_worlds(
     names = [w.strip() for w in worlds.split(",")] if worlds else None
     with err_console.status("worlds...") as st:
         res = run_bench_worlds(
-            passes, fit_passes, names, seed, size, workdir, progress=lambda m: st.update(m), workers=workers
+            passes,
+            fit_passes,
+            names,
+            seed,
+            size,
+            workdir,
+            progress=lambda m: st.update(m),
+            workers=workers,
+            knot_prior=knot_prior,
         )
     res = finish(res, save)
     if as_json:

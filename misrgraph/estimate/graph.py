@@ -35,6 +35,7 @@ from factors.priors import (
     gcp_scene_prior,
     joint_prior_factor,
     linear_factor,
+    process_covariance,
     process_prior_factors,
     scene_offset_prior,
     vector_prior,
@@ -53,6 +54,7 @@ from misrgraph.model.errormodels import (
     ephemeris_prior_covariance,
     interval_counts,
     knots_to_remove,
+    projected_band_covariance,
     unresolved_attitude,
 )
 from misrgraph.model.frames import ecef_to_geodetic
@@ -66,6 +68,7 @@ __all__ = [
     "observation_sigma",
     "check_jitter",
     "KNOT_PRIORS",
+    "PROCESS_KNOT_PRIORS",
     "PassGraph",
     "build_pass_graph",
     "camera_parameter_matrix",
@@ -90,9 +93,14 @@ CAMERA_PRIOR_SIGMA = dict(
 
 #: How the attitude knots are held a priori: ``"process"`` (default) ties consecutive knots by the
 #: attitude error process (:func:`factors.priors.process_prior_factors`, a damped-oscillator process
-#: with the navigation's value and rate sigmas) and keeps every knot; ``"independent"`` is the seed's
-#: rule: an independent prior per knot and eqs. 28-29's knot removal where data are scarce.
-KNOT_PRIORS = ("process", "independent")
+#: with the navigation's value and rate sigmas) and keeps every knot; ``"process+jitter"`` adds the
+#: jitter's share of the knots (``attitude_jitter_arcsec`` over ``attitude_jitter_periods_s``
+#: projected onto the spline, :func:`~misrgraph.model.errormodels.projected_band_covariance`) to
+#: the process's covariance, one joint prior per angle; ``"independent"`` is the seed's rule: an
+#: independent prior per knot and eqs. 28-29's knot removal where data are scarce.
+KNOT_PRIORS = ("process", "process+jitter", "independent")
+#: the knot priors that tie the knots by the process (every knot kept)
+PROCESS_KNOT_PRIORS = ("process", "process+jitter")
 
 
 def check_jitter(jitter_arcsec: float, periods_s: Any) -> None:
@@ -273,7 +281,7 @@ class GraphConfig(Config):
         (``attitude_jitter_arcsec`` 0: the knots are taken to follow the whole attitude error)."""
         if self.attitude_jitter_arcsec == 0:
             return 0.0
-        process = self.attitude_process() if self.knot_prior == "process" else None
+        process = self.attitude_process() if self.knot_prior in PROCESS_KNOT_PRIORS else None
         return unresolved_attitude(
             knot_times, self.attitude_jitter_arcsec, tuple(self.attitude_jitter_periods_s), process
         )
@@ -426,7 +434,7 @@ def build_pass_graph(
     att = AttitudeErrorModel.zeros(t_lo, t_hi, cfg.knot_spacing_s)
     removed = []
     for a in range(3):
-        if cfg.knot_prior == "process":  # knots without data are held by the process prior
+        if cfg.knot_prior in PROCESS_KNOT_PRIORS:  # knots without data are held by the process prior
             removed.append(np.zeros(0, np.int64))
             continue
         counts = interval_counts(att.knot_times[a], t_obs, cam)
@@ -584,7 +592,14 @@ def build_pass_graph(
         ks = [K.knot_key(a, pass_index, j) for j in range(att_kept.knot_times[a].size)]
         for k in ks:
             add(k, np.zeros(2))
-        if cfg.knot_prior == "process":
+        if cfg.knot_prior == "process+jitter" and cfg.attitude_jitter_arcsec > 0:
+            t_a = att_kept.knot_times[a]
+            cov = process_covariance(t_a, float(att_sig[a]), float(lam[a]), cfg.knot_prior_damping)
+            cov = cov + projected_band_covariance(
+                t_a, cfg.attitude_jitter_arcsec * ARCSEC, tuple(cfg.attitude_jitter_periods_s)
+            )
+            graph.add(joint_prior_factor(ks, [2] * len(ks), cov))
+        elif cfg.knot_prior in PROCESS_KNOT_PRIORS:
             for f in process_prior_factors(
                 ks, att_kept.knot_times[a], float(att_sig[a]), float(lam[a]), cfg.knot_prior_damping
             ):

@@ -55,11 +55,16 @@ from typing import Any, Callable
 import numpy as np
 from scipy import optimize
 
-from factors.priors import process_transition
+from factors.priors import process_covariance, process_transition
 from misrgraph.errors import InputError
 from misrgraph.estimate.reliability import class_scale
 from misrgraph.model.constants import ANGLES, ARCSEC
-from misrgraph.model.errormodels import ATTITUDE_RATE_FACTOR, ephemeris_prior_covariance, unresolved_process_sigma
+from misrgraph.model.errormodels import (
+    ATTITUDE_RATE_FACTOR,
+    ephemeris_prior_covariance,
+    projected_band_covariance,
+    unresolved_process_sigma,
+)
 from misrgraph.model.noise import NoiseModel
 
 __all__ = [
@@ -116,15 +121,26 @@ class NoiseFit:
     passes: list[str] = field(default_factory=list)
 
 
-def knot_prior_precision(times: np.ndarray, sigma: float, lam: float, zeta: float, kind: str = "process") -> np.ndarray:
+def knot_prior_precision(
+    times: np.ndarray,
+    sigma: float,
+    lam: float,
+    zeta: float,
+    kind: str = "process",
+    jitter_cov: np.ndarray | None = None,
+) -> np.ndarray:
     """Precision ``(2n, 2n)`` (knot-major ``(value, rate)``) of one angle's knot prior: the damped
-    process (:func:`factors.priors.process_prior_factors`) or, ``kind="independent"``, each knot
-    ``N(0, diag(sigma^2, (lam sigma)^2))``."""
+    process (:func:`factors.priors.process_prior_factors`); ``kind="process+jitter"``, the
+    process's covariance plus ``jitter_cov`` (the jitter projected onto the knots, in ``sigma``'s
+    unit squared; :func:`~misrgraph.model.errormodels.projected_band_covariance`); or,
+    ``kind="independent"``, each knot ``N(0, diag(sigma^2, (lam sigma)^2))``."""
     t = np.asarray(times, float)
     n = t.size
     first = np.diag([1.0 / sigma**2, 1.0 / (lam * sigma) ** 2])
-    if kind != "process":
+    if kind == "independent":
         return np.kron(np.eye(n), first)
+    if kind == "process+jitter" and jitter_cov is not None:
+        return np.linalg.inv(process_covariance(t, sigma, lam, zeta) + jitter_cov)
     out = np.zeros((2 * n, 2 * n))
     out[:2, :2] = first
     blocks: dict[float, np.ndarray] = {}  # one transition per distinct spacing (knots are mostly uniform)
@@ -355,7 +371,8 @@ def spacing_tolerance(model: NoiseModel) -> float:
 
 def _attitude_blocks(passes: list[PassLevels], base: NoiseModel, a: int) -> list[tuple]:
     """One angle's knot blocks of the passes for eq. (1), in arcsec and arcsec/s (entries of order
-    1): ``(times, D, d, damping, prior kind, x_hat, L0)`` per pass with at least two knots."""
+    1): ``(times, D, d, damping, (prior kind, the jitter's covariance or None), x_hat, L0)`` per pass
+    with at least two knots."""
     blocks = []
     for p in passes:
         if p.knots[a].shape[0] < 2:
@@ -366,11 +383,16 @@ def _attitude_blocks(passes: list[PassLevels], base: NoiseModel, a: int) -> list
         lam0 = float(rates[a]) * ARCSEC / s0 if len(rates) else ATTITUDE_RATE_FACTOR
         zeta = float(u.get("knot_prior_damping", base.attitude.damping))
         kind = str(u.get("knot_prior", "process"))
+        jitter = None
+        if kind == "process+jitter":  # the jitter's share of the knots, as the pass's graph held it
+            jit = float(u.get("attitude_jitter_arcsec", base.jitter.sigma_arcsec))
+            periods = tuple(u.get("attitude_jitter_periods_s", base.jitter.periods_s))
+            jitter = projected_band_covariance(p.knot_times[a], jit, periods) if jit > 0 else None
         x = p.knots[a].reshape(-1) / ARCSEC
         cov = p.knot_cov[a] / ARCSEC**2
-        prior0 = knot_prior_precision(p.knot_times[a], s0 / ARCSEC, lam0, zeta, kind)
+        prior0 = knot_prior_precision(p.knot_times[a], s0 / ARCSEC, lam0, zeta, kind, jitter)
         d_info, d_vec = _data_terms(x, cov, prior0)
-        blocks.append((p.knot_times[a], d_info, d_vec, zeta, kind, x, prior0))
+        blocks.append((p.knot_times[a], d_info, d_vec, zeta, (kind, jitter), x, prior0))
     return blocks
 
 
@@ -403,7 +425,7 @@ def _fit_attitude(passes: list[PassLevels], base: NoiseModel, levels: dict, lear
         def objective(th: np.ndarray, blocks=blocks) -> float:
             sig, lam = np.exp(th)
             return sum(
-                relative_log_marginal_likelihood(d, v, x0, l0, knot_prior_precision(t, sig, lam, z, k))
+                relative_log_marginal_likelihood(d, v, x0, l0, knot_prior_precision(t, sig, lam, z, *k))
                 for t, d, v, z, k, x0, l0 in blocks
             )
 

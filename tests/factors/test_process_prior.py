@@ -11,7 +11,7 @@ import pytest
 from scipy.linalg import expm
 
 from factors.geometry import hermite_weights
-from factors.priors import linear_factor, process_prior_factors, process_transition
+from factors.priors import linear_factor, process_covariance, process_prior_factors, process_transition
 
 LAM, SIG = 0.0146, 3e-5
 
@@ -75,6 +75,29 @@ def test_underdamped_chain_gives_the_process_covariance():
     assert joint[2, 0] == pytest.approx(
         SIG**2 * float(process_correlation(1600.0, LAM, 0.58)), rel=1e-5, abs=1e-6 * SIG**2
     )
+
+
+@pytest.mark.parametrize("zeta", [0.58, 1.0])
+def test_process_covariance_is_the_chains_joint_marginal(zeta):
+    """The covariance form of the process prior against GTSAM's joint marginal of the chain of
+    factors on uneven knots (every pair, value and rate); at damping 1 its value block against the
+    Matern-3/2 covariance function in closed form."""
+    times = np.array([0.0, 60.0, 120.0, 500.0, 560.0, 2100.0])
+    keys = list(range(40, 40 + times.size))
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    for k in keys:
+        v.insert(k, np.zeros(2))
+    for f in process_prior_factors(keys, times, SIG, LAM, zeta):
+        g.add(f)
+    joint = gtsam.Marginals(g, v).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+    cov = process_covariance(times, SIG, LAM, zeta)
+    np.testing.assert_allclose(cov, joint, rtol=1e-6, atol=1e-9 * SIG**2)
+    if zeta == 1.0:
+        tau = np.abs(times[:, None] - times[None, :])
+        np.testing.assert_allclose(cov[0::2, 0::2], SIG**2 * (1 + LAM * tau) * np.exp(-LAM * tau), rtol=1e-9)
+    with pytest.raises(ValueError, match="increasing"):
+        process_covariance(times[::-1], SIG, LAM, zeta)
 
 
 def test_linear_factor_error_is_its_mahalanobis_norm(rng):

@@ -83,6 +83,23 @@ def test_bench_worlds_cli_scores_three_ways(tmp_path):
     assert bad.exit_code == 2 and "worlds" in bad.output
     bad = CliRunner().invoke(app, ["bench", "worlds", "--workers", "0", "--size", "tiny"])
     assert bad.exit_code == 2 and "workers" in bad.output
+    # another knot prior on the same simulated passes: its own fit beside the default's
+    noise = next(tmp_path.glob("world*_tiny_noise.json"))
+    before = noise.read_text()
+    r = CliRunner().invoke(
+        app,
+        ["bench", "worlds", "--worlds", "tie stated x0.5", "--passes", "1", "--fit-passes", "1", "--size", "tiny"]
+        + ["--workdir", str(tmp_path), "--knot-prior", "process+jitter", "--json"],
+    )
+    assert r.exit_code == 0, r.output
+    other = json.loads(r.output)
+    assert other["knot_prior"] == "process+jitter" and noise.read_text() == before
+    assert len(list(tmp_path.glob("world*_tiny_noise-process+jitter.json"))) == 1
+    assert len(list(tmp_path.glob("world*/fit_result-process+jitter.h5"))) == 1
+    knots = [x["worlds"]["tie stated x0.5"]["per_pass"]["fixed"][0]["knots"] for x in (res, other)]
+    assert knots[0] != pytest.approx(knots[1], rel=1e-3)  # the knots are held by another prior
+    bad = CliRunner().invoke(app, ["bench", "worlds", "--knot-prior", "spline", "--size", "tiny"])
+    assert bad.exit_code == 2 and "knot_prior" in bad.output
 
 
 def test_bench_worlds_on_two_workers_gives_the_serial_figures(tmp_path):

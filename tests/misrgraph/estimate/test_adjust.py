@@ -563,3 +563,52 @@ def test_adjust_config_nests_its_graph_config():
     assert AdjustConfig().graph.attitude_jitter_arcsec == 1.0
     with pytest.raises(InputError, match="AdjustConfig.grpah"):
         AdjustConfig.from_dict({"grpah": {}})
+
+
+def test_process_plus_jitter_knot_prior_adds_the_jitters_share(small_pass):
+    """``knot_prior="process+jitter"``: the knots' adjusted covariance is what the process-only
+    adjustment's data information gives under the prior ``C_process + J`` in closed form,
+    ``(D + (C_process + J)^-1)^-1`` with ``D = P_process^-1 - C_process^-1`` and ``J`` the stated
+    jitter projected onto the knots; the rates' variance well above the process-only one's, and the
+    knots and the unresolved attitude in the observations' weights stay those of the process prior.
+    The noise fit reads each pass under the prior it was adjusted with: the data information it
+    takes from the two adjustments is the same."""
+    from factors.priors import process_covariance
+    from misrgraph.estimate.noisefit import _attitude_blocks
+    from misrgraph.model.constants import ARCSEC
+    from misrgraph.model.errormodels import projected_band_covariance
+    from misrgraph.model.noise import NoiseModel
+    from misrgraph.runs.noise import pass_levels_of
+
+    sc, p = small_pass
+    runs, graphs = {}, {}
+    for kp in ("process", "process+jitter"):
+        cfg = AdjustConfig.from_dict(robust="none", variance_component_rounds=0, knot_prior=kp)
+        runs[kp], graphs[kp] = adjust_pass(p, sc.camera_model, sc.dem, sc.gcps, cfg), cfg.graph
+    g = graphs["process"]
+    value, rate, zeta = g.attitude_process()
+    base, jit = runs["process"], runs["process+jitter"]
+    assert jit.unresolved_attitude_rad == base.unresolved_attitude_rad > 0
+    for a in range(3):
+        t = base.pass_graph.attitude_model.knot_times[a]
+        assert np.array_equal(t, jit.pass_graph.attitude_model.knot_times[a])
+        keys = list(base.pass_graph.knot_keys(a))
+        c = process_covariance(t, value[a], rate[a] / value[a], zeta)  # arcsec, arcsec/s
+        j = projected_band_covariance(t, g.attitude_jitter_arcsec, tuple(g.attitude_jitter_periods_s))
+        d = np.linalg.inv(base.marginals.joint_of(keys) / ARCSEC**2) - np.linalg.inv(c)
+        want = np.linalg.inv(d + np.linalg.inv(c + j))
+        got = jit.marginals.joint_of(list(jit.pass_graph.knot_keys(a))) / ARCSEC**2
+        sd = np.sqrt(np.diag(want))
+        np.testing.assert_allclose(got / np.outer(sd, sd), want / np.outer(sd, sd), atol=0.02)
+        assert np.trace(got[1::2, 1::2]) > 1.2 * np.trace(base.marginals.joint_of(keys)[1::2, 1::2] / ARCSEC**2)
+    infos = [
+        [
+            (b[1], b[1] + b[6])
+            for a in range(3)
+            for b in _attitude_blocks([pass_levels_of(runs[kp], graphs[kp], kp)], NoiseModel(), a)
+        ]
+        for kp in runs
+    ]
+    for (d_p, post), (d_pj, _) in zip(*infos):  # in units of the process-only posterior's information
+        scale = np.sqrt(np.outer(np.diag(post), np.diag(post)))
+        np.testing.assert_allclose(d_pj / scale, d_p / scale, atol=0.05)
