@@ -94,7 +94,7 @@ def run_bench_knot_prior(
 
     Returns ``{"size", "worlds": {name: {"passes", "blocks", "priors": {prior: {"nees",
     "value_rms_arcsec"}}}}}``."""
-    from misrgraph.bench.worlds import WORLDS, oracle_noise_model
+    from misrgraph.bench.worlds import WORLD_SIZES, WORLDS, oracle_noise_model
     from misrgraph.estimate.noisefit import _attitude_blocks, knot_prior_precision
     from misrgraph.io.noise import read_noise_model
     from misrgraph.model.errormodels import projected_band_covariance
@@ -105,6 +105,8 @@ def run_bench_knot_prior(
     wd = Path(workdir)
     if not wd.is_dir():
         raise InputError("workdir", str(wd), "the --workdir of a 'misrgraph bench worlds' run")
+    if size not in WORLD_SIZES:
+        raise InputError("size", size, tuple(WORLD_SIZES))
     names = list(WORLDS) if worlds is None else list(worlds)
     for n in names:
         if n not in WORLDS:
@@ -141,7 +143,9 @@ def run_bench_knot_prior(
                     lp = knot_prior_precision(t, sig, lam, float(at.damping))
                     j = projected_band_covariance(t, float(model.jitter.sigma_arcsec), tuple(model.jitter.periods_s))
                     priors[label + "process"] = lp
-                    priors[label + "process + jitter"] = np.linalg.inv(np.linalg.inv(lp) + j)
+                    priors[label + "process + jitter"] = knot_prior_precision(
+                        t, sig, lam, float(at.damping), "process+jitter", j
+                    )
                 priors["exact"] = np.linalg.inv(c)
                 for prior, lp in priors.items():
                     nees, err = expected_knot_error(d_info, lp, c)
