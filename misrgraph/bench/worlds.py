@@ -369,9 +369,10 @@ def run_bench_worlds(
     than ``"process"`` writes its fitted passes and noise models beside the default's in
     ``workdir`` (``fit_result-<prior>.h5``, ``..._noise-<prior>.json``), on the same simulated passes.
 
-    Returns ``{"passes", "fit_passes", "size", "workers", "seconds", "worlds": {name: {"overrides",
-    "ways": {way: summary}, "per_pass", "learned_levels", "true_levels", "acceptance",
-    "cost_ratio"}}, "acceptance": {"worlds_passing", "worlds", "passing"}}``."""
+    Returns ``{"passes", "fit_passes", "size", "seed", "workers", "knot_prior", "seconds",
+    "worlds": {name: {"overrides", "ways": {way: summary}, "per_pass", "learned_levels",
+    "true_levels", "acceptance", "cost_ratio"}}, "acceptance": {"worlds_passing", "worlds",
+    "passing"}}``."""
     names = list(WORLDS) if worlds is None else list(worlds)
     for n in names:
         if n not in WORLDS:

@@ -22,6 +22,17 @@ def _kernel(tau: float) -> tuple[float, float, float]:
     return (SIG**2 * (1 + LAM * tau) * e, -(SIG**2) * LAM**2 * tau * e, -(SIG**2) * LAM**2 * (1 - LAM * tau) * e)
 
 
+def _chain_marginals(keys: list[int], times: np.ndarray, zeta: float) -> gtsam.Marginals:
+    """GTSAM's marginals of a graph holding only the process prior's chain on ``keys``."""
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    for k in keys:
+        v.insert(k, np.zeros(2))
+    for f in process_prior_factors(keys, times, SIG, LAM, zeta):
+        g.add(f)
+    return gtsam.Marginals(g, v)
+
+
 @pytest.mark.parametrize("dt", [2.0, 60.0, 120.0, 1600.0])
 def test_transition_is_the_matern_covariance(dt):
     phi, q = process_transition(dt, SIG, LAM)
@@ -37,13 +48,7 @@ def test_transition_is_the_matern_covariance(dt):
 def test_chain_gives_every_knot_the_stationary_marginal():
     times = np.array([0.0, 60.0, 120.0, 500.0, 2100.0, 2160.0])
     keys = list(range(10, 10 + times.size))
-    g = gtsam.NonlinearFactorGraph()
-    v = gtsam.Values()
-    for k in keys:
-        v.insert(k, np.zeros(2))
-    for f in process_prior_factors(keys, times, SIG, LAM):
-        g.add(f)
-    m = gtsam.Marginals(g, v)
+    m = _chain_marginals(keys, times, 1.0)
     p = np.diag([SIG**2, (LAM * SIG) ** 2])
     for k in keys:
         np.testing.assert_allclose(m.marginalCovariance(k), p, rtol=1e-7, atol=1e-20)
@@ -61,13 +66,7 @@ def test_underdamped_chain_gives_the_process_covariance():
 
     times = np.array([0.0, 60.0, 120.0, 1720.0])
     keys = list(range(20, 24))
-    g = gtsam.NonlinearFactorGraph()
-    v = gtsam.Values()
-    for k in keys:
-        v.insert(k, np.zeros(2))
-    for f in process_prior_factors(keys, times, SIG, LAM, 0.58):
-        g.add(f)
-    m = gtsam.Marginals(g, v)
+    m = _chain_marginals(keys, times, 0.58)
     p = np.diag([SIG**2, (LAM * SIG) ** 2])
     for k in keys:
         np.testing.assert_allclose(m.marginalCovariance(k), p, rtol=1e-7, atol=1e-20)
@@ -84,13 +83,7 @@ def test_process_covariance_is_the_chains_joint_marginal(zeta):
     Matern-3/2 covariance function in closed form."""
     times = np.array([0.0, 60.0, 120.0, 500.0, 560.0, 2100.0])
     keys = list(range(40, 40 + times.size))
-    g = gtsam.NonlinearFactorGraph()
-    v = gtsam.Values()
-    for k in keys:
-        v.insert(k, np.zeros(2))
-    for f in process_prior_factors(keys, times, SIG, LAM, zeta):
-        g.add(f)
-    joint = gtsam.Marginals(g, v).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+    joint = _chain_marginals(keys, times, zeta).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
     cov = process_covariance(times, SIG, LAM, zeta)
     np.testing.assert_allclose(cov, joint, rtol=1e-6, atol=1e-9 * SIG**2)
     if zeta == 1.0:
