@@ -94,7 +94,7 @@ def run_bench_knot_prior(
 
     Returns ``{"size", "worlds": {name: {"passes", "blocks", "priors": {prior: {"nees",
     "value_rms_arcsec"}}}}}``."""
-    from misrgraph.bench.worlds import WORLD_SIZES, WORLDS, oracle_noise_model
+    from misrgraph.bench.worlds import WORLD_SIZES, WORLDS, oracle_noise_model, world_files
     from misrgraph.estimate.noisefit import _attitude_blocks, knot_prior_precision
     from misrgraph.io.noise import read_noise_model
     from misrgraph.model.errormodels import projected_band_covariance
@@ -113,8 +113,7 @@ def run_bench_knot_prior(
             raise InputError("worlds", n, tuple(WORLDS))
     out: dict[str, Any] = {}
     for name in names:
-        w_index = list(WORLDS).index(name)
-        noise_file = wd / f"world{w_index:02d}_{size}_noise.json"
+        *_, noise_file = world_files(wd, name, size)
         if not noise_file.exists():
             if worlds is not None:
                 raise InputError("worlds", name, f"a world whose fitted noise model is in {wd}")

@@ -40,6 +40,7 @@ __all__ = [
     "WORLDS",
     "WORLD_SIZES",
     "oracle_noise_model",
+    "world_files",
     "run_bench_worlds",
     "levels_recovered",
     "kept_sigma_fraction",
@@ -256,6 +257,16 @@ def _accept(ways: dict[str, dict[str, Any]]) -> dict[str, bool]:
     return ok
 
 
+def world_files(wd: Path, name: str, size: str, knot_prior: str = "process") -> tuple[Callable[[int], Path], str, Path]:
+    """Where a worlds run keeps world ``name``'s files in ``wd``: the directory of its simulated
+    pass of seed ``s`` (a function of ``s``), the name of a fitted pass's result in it, and the
+    fitted noise model (``knot_prior`` other than ``"process"``: that prior's, beside the
+    default's)."""
+    stem = f"world{list(WORLDS).index(name):02d}_{size}"
+    tag = "" if knot_prior == "process" else f"-{knot_prior}"
+    return (lambda s: wd / f"{stem}_{s}"), f"fit_result{tag}.h5", wd / f"{stem}_noise{tag}.json"
+
+
 def _run_world(
     name: str,
     passes: int,
@@ -287,15 +298,15 @@ def _run_world(
         )
         for i in range(fit_passes + passes)
     ]
+    pass_dir, fit_result, noise_file = world_files(wd, name, size, knot_prior)
     dirs = []
     for i, cfg in enumerate(cfgs):
-        d = wd / f"world{w_index:02d}_{size}_{cfg.seed}"
+        d = pass_dir(cfg.seed)
         if not (d / "scenario.json").exists():
             if progress:
                 progress(f"{name}: simulating pass {i + 1}/{len(cfgs)}")
             run_simulate(cfg, d)
         dirs.append(d)
-    tag = "" if knot_prior == "process" else f"-{knot_prior}"  # another knot prior's outputs beside these
 
     def adjust_config(**fields: Any) -> AdjustConfig:
         return AdjustConfig.from_dict(knot_prior=knot_prior, **fields)
@@ -304,10 +315,9 @@ def _run_world(
     for i, d in enumerate(dirs[:fit_passes]):
         if progress:
             progress(f"{name}: adjusting fit pass {i + 1}/{fit_passes}")
-        r = d / f"fit_result{tag}.h5"
+        r = d / fit_result
         run_adjust(d, out=r, cfg=adjust_config())
         results.append(r)
-    noise_file = wd / f"world{w_index:02d}_{size}_noise{tag}.json"
     fit = run_noise_fit(results, out=noise_file)
     learned_model, _ = read_noise_model(noise_file)  # as a user's --noise-model would read it
     oracle = oracle_noise_model(cfgs[0])

@@ -42,18 +42,19 @@ def test_knot_prior_study_on_a_tiny_worlds_run(tmp_path) -> None:
     """A tiny 'jitter x2' world (one fitted pass): the exact prior's NEES is 1, a jitter component
     lowers the damped process's NEES (the world has twice the jitter the process's tail holds),
     and a workdir without a worlds run is refused naming the option."""
-    from misrgraph.bench.worlds import WORLD_SIZES, WORLDS
+    from misrgraph.bench.worlds import WORLD_SIZES, WORLDS, world_files
     from misrgraph.runs.adjust import run_adjust
     from misrgraph.runs.noise import run_noise_fit
     from misrgraph.sim.simulate import ScenarioConfig, run_simulate
 
     # what 'bench worlds --size tiny --fit-passes 1' leaves of the world's fit in its workdir
     w = list(WORLDS).index("jitter x2")
-    d = tmp_path / f"world{w:02d}_tiny_{20000 + 100 * w}"
+    pass_dir, fit_result, noise_file = world_files(tmp_path, "jitter x2", "tiny")
+    d = pass_dir(20000 + 100 * w)
     over = {**WORLD_SIZES["tiny"], "scenario": "pass", "start_lat_deg": 50.0, **WORLDS["jitter x2"]}
     run_simulate(ScenarioConfig.from_dict({**over, "seed": 20000 + 100 * w}), d)
-    run_adjust(d, out=d / "fit_result.h5")
-    run_noise_fit([d / "fit_result.h5"], out=tmp_path / f"world{w:02d}_tiny_noise.json")
+    run_adjust(d, out=d / fit_result)
+    run_noise_fit([d / fit_result], out=noise_file)
     r = CliRunner().invoke(app, ["bench", "knot-prior", "--workdir", str(tmp_path), "--size", "tiny", "--json"])
     assert r.exit_code == 0, r.output
     res = json.loads(r.output)
