@@ -2,11 +2,17 @@
 asks for a new camera model, and how often it asks for nothing.
 
 Each campaign is a series of recalibrations of every camera (9 cameras x 3 pointing parameters,
-in pixels), one every ``recalibrate_days`` over ``years``. A recalibration's estimate is the
-true parameter plus an error of the calibration's own 1-sigma per camera: taken from a
-calibration summary (``calibrate --json``) the user gives, or measured in the bench itself by
-calibrating a standard simulated window of GCP passes as long as the time between
-recalibrations (120 GCPs over ``recalibrate_days`` days: a longer window, a smaller sigma). The
+``delta``, ``beta``, ``epsilon``, in pixels: the pointing change a parameter's change makes, RMS
+over the swath), one every ``recalibrate_days`` over ``years``. A recalibration's estimate is the
+true parameter plus an error of the calibration's own 1-sigma of that camera and parameter (its
+``sigma_px``: the pointing change when the parameter alone moves by its 1 sigma), the nine
+cameras' errors of one parameter correlated as the calibration's covariance says (a calibration's
+errors are shared across cameras): taken from a calibration summary (``calibrate --json``) the
+user gives, or measured in the bench itself by calibrating a standard simulated window of GCP
+passes as long as the time between recalibrations (120 GCPs over ``recalibrate_days`` days: a
+longer window, a smaller sigma). The monitor tests the series of ``view``
+(:data:`misrgraph.runs.monitor.MONITOR_VIEWS`: by default each camera given the others at each
+recalibration, :func:`misrgraph.evaluate.drift.conditional_series`). The
 true parameters wander as a random walk with an annual term (the world, which the monitor does
 not know) and, per campaign kind:
 
@@ -21,11 +27,12 @@ not know) and, per campaign kind:
   against the configured ``alpha`` (shared by the 27 series of a campaign).
 
 The monitor's process levels are learned from ``training`` other campaigns of the same world
-without changes (fit on some, score on others). Fractions carry Wilson 95 % intervals, means a
-Student t interval from the run-to-run scatter.
+without changes (fit on some, score on others), from the series the monitor tests. Fractions
+carry Wilson 95 % intervals, means a Student t interval from the run-to-run scatter.
 
-What this does not do: it draws each recalibration from its 1-sigma rather than calibrating each
-window's passes, and keeps no camera-model versions (``bench cgm`` calibrates two windows around
+What this does not do: it draws each recalibration from its covariance rather than calibrating
+each window's passes (every window with the one calibration's covariance; the three parameters
+drawn independently of each other), and keeps no camera-model versions (``bench cgm`` calibrates two windows around
 one step and adjusts passes with each version).
 """
 
@@ -41,7 +48,7 @@ import numpy as np
 
 from misrgraph.bench.studies import _interval
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.evaluate.drift import SEASON_DAYS, fit_process_levels, monitor_cameras
+from misrgraph.evaluate.drift import SEASON_DAYS, conditional_series, fit_process_levels, monitor_cameras
 from misrgraph.model.constants import CAMERAS
 
 __all__ = ["run_bench_monitor", "wilson_interval", "WORLD"]
@@ -49,8 +56,10 @@ __all__ = ["run_bench_monitor", "wilson_interval", "WORLD"]
 #: The simulated world of the true parameters (px): a random walk of 0.005 px per sqrt(year) and
 #: an annual term of 0.01 px amplitude. The monitor learns its levels from training campaigns.
 WORLD = {"random_walk_px_per_sqrt_year": 0.005, "annual_px": 0.01}
-_PARAMETERS = ("p1", "p2", "p3")
+_PARAMETERS = ("delta", "beta", "epsilon")
 _SIXTEENTH = 1.0 / 16.0
+#: per (camera, parameter) the recalibration's 1 sigma (px); per parameter the cameras' covariance (px^2)
+_Recalibration = tuple[dict[tuple[str, str], float], dict[str, np.ndarray]]
 
 
 def wilson_interval(k: int, n: int, z: float = 1.96) -> list[float]:
@@ -64,16 +73,34 @@ def wilson_interval(k: int, n: int, z: float = 1.96) -> list[float]:
     return [max(0.0, c - h), min(1.0, c + h)]
 
 
+def _parameter_sigmas(summary: dict[str, Any]) -> _Recalibration:
+    """Each camera's and monitored parameter's ``sigma_px`` in a calibration summary, and per
+    parameter the cameras' joint covariance in px^2 (their correlation from the summary)."""
+    from misrgraph.runs.monitor import summary_covariance
+
+    sig = {(c, par): float(summary["cameras"][c]["params"][par]["sigma_px"]) for c in CAMERAS for par in _PARAMETERS}
+    cov = {}
+    for par in _PARAMETERS:
+        rad = summary_covariance(summary, par)
+        sd = np.sqrt(np.diag(rad))
+        px = np.array([sig[c, par] for c in CAMERAS])
+        cov[par] = rad / np.outer(sd, sd) * np.outer(px, px)
+    return sig, cov
+
+
 def _sigmas_from(
     calibration: str | Path | None, window_days: int, progress: Callable[[str], None] | None
-) -> tuple[dict[str, float], str]:
+) -> tuple[_Recalibration, str]:
     if calibration is not None:
         p = Path(calibration)
         try:
-            summary = json.loads(p.read_text())
-            return {c: float(summary["cameras"][c]["sigma_px"]) for c in CAMERAS}, str(p)
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise FileFormatError(p, f"not a calibration summary with cameras.<camera>.sigma_px ({exc})") from None
+            return _parameter_sigmas(json.loads(p.read_text())), str(p)
+        except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+            raise FileFormatError(
+                p,
+                "not a calibration summary with cameras.<camera>.params.<delta|beta|epsilon>.sigma_px and "
+                f"correlation.labels/matrix ('misrgraph calibrate --json'; missing or bad: {exc})",
+            ) from None
     import tempfile
 
     from misrgraph.runs.calibrate import run_calibrate
@@ -85,11 +112,11 @@ def _sigmas_from(
         run_simulate(ScenarioConfig(truth="model", scenario="month", seed=3, month_days=window_days), Path(d) / "m")
         summary = run_calibrate(Path(d) / "m")
     source = f"a standard simulated window of {window_days} days (120 GCPs, seed 3)"
-    return {c: float(summary["cameras"][c]["sigma_px"]) for c in CAMERAS}, source
+    return _parameter_sigmas(summary), source
 
 
 def _campaign(
-    rng: np.random.Generator, t: np.ndarray, sig: dict[str, float]
+    rng: np.random.Generator, t: np.ndarray, sig: dict[tuple[str, str], float]
 ) -> dict[tuple[str, str], list[np.ndarray]]:
     """Every camera's and parameter's true series (no change) and its recalibrations' sigma."""
     q = WORLD["random_walk_px_per_sqrt_year"] ** 2 / 365.25
@@ -99,12 +126,32 @@ def _campaign(
             walk = np.concatenate([[0.0], np.cumsum(rng.normal(0, np.sqrt(q * np.diff(t))))])
             phase = rng.uniform(0, 2 * np.pi)
             truth = walk + WORLD["annual_px"] * np.cos(2 * np.pi * t / SEASON_DAYS + phase)
-            out[(cam, par)] = [truth, np.full(t.size, sig[cam])]
+            out[(cam, par)] = [truth, np.full(t.size, sig[cam, par])]
     return out
 
 
-def _observe(rng: np.random.Generator, t: np.ndarray, truth: dict[tuple[str, str], list[np.ndarray]]) -> dict:
-    return {key: (t, tr + rng.normal(0, s), s) for key, (tr, s) in truth.items()}
+def _observe(
+    rng: np.random.Generator,
+    t: np.ndarray,
+    truth: dict[tuple[str, str], list[np.ndarray]],
+    cov: dict[str, np.ndarray],
+) -> dict:
+    """The recalibrations: every parameter's nine cameras with errors drawn jointly from ``cov``."""
+    out = {}
+    for par in _PARAMETERS:
+        err = rng.standard_normal((t.size, len(CAMERAS))) @ np.linalg.cholesky(cov[par]).T
+        for i, cam in enumerate(CAMERAS):
+            tr, s = truth[cam, par]
+            out[cam, par] = (t, tr + err[:, i], s)
+    return out
+
+
+def _tested(series: dict, cov: dict[str, np.ndarray], view: str) -> tuple[dict, dict[tuple[str, str], float] | None]:
+    """The series the monitor tests in ``view`` and their gains."""
+    if view == "marginal":
+        return series, None
+    n = next(iter(series.values()))[0].size
+    return conditional_series(series, {p: np.broadcast_to(c, (n, *c.shape)) for p, c in cov.items()}, CAMERAS)
 
 
 def run_bench_monitor(
@@ -118,9 +165,11 @@ def run_bench_monitor(
     training: int = 5,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
+    view: str = "conditional",
 ) -> dict[str, Any]:
     """The study of the module docstring over ``campaigns`` campaigns of each kind. Returns
-    ``{"campaigns", "years", "recalibrate_days", "alpha", "sigma_px", "sigma_source", "levels",
+    ``{"campaigns", "years", "recalibrate_days", "alpha", "sigma_px" (camera -> parameter -> px),
+    "view", "sigma_source", "levels",
     "step": {"detected", "right_camera", "delay_windows", "interval"}, "drift": {"flagged",
     "px_when_flagged", "interval"}, "false_alarm_rate", "interval", "seconds"}``."""
     for name, v, ok in (
@@ -135,7 +184,16 @@ def run_bench_monitor(
                 name, v, "a positive value (campaigns, training: whole numbers; years > 0.5; alpha in (0, 1))"
             )
     t0 = time.perf_counter()
-    sig, source = _sigmas_from(calibration, max(1, int(round(recalibrate_days))), progress)
+    from misrgraph.runs.monitor import MONITOR_VIEWS
+
+    if view not in MONITOR_VIEWS:
+        raise InputError("view", view, " or ".join(MONITOR_VIEWS))
+    (sig, cov), source = _sigmas_from(calibration, max(1, int(round(recalibrate_days))), progress)
+
+    def alarms_of(truth: dict[tuple[str, str], list[np.ndarray]]) -> list[dict[str, Any]]:
+        tested, gains = _tested(_observe(rng, t, truth, cov), cov, view)
+        return monitor_cameras(tested, levels, alpha, gains=gains)
+
     t = np.arange(0.0, years * 365.25, recalibrate_days)
     if t.size < 12:
         raise InputError("years / recalibrate_days", t.size, "at least 12 recalibrations")
@@ -143,10 +201,14 @@ def run_bench_monitor(
     if progress:
         progress("learning the monitor's levels from training campaigns")
     train = []
+    train_gains: list[float] = []
     for _ in range(training):
-        for tt, yy, ss in _observe(rng, t, _campaign(rng, t, sig)).values():
-            train.append((tt, yy, ss))
-    levels = fit_process_levels(train[:: max(1, len(train) // 27)])
+        tested, gains = _tested(_observe(rng, t, _campaign(rng, t, sig), cov), cov, view)
+        for key, one in tested.items():
+            train.append(one)
+            train_gains.append(1.0 if gains is None else gains[key])
+    every = max(1, len(train) // 27)
+    levels = fit_process_levels(train[::every], gains=train_gains[::every])
     n = t.size
     step_hits = right = 0
     delays: list[float] = []
@@ -161,7 +223,7 @@ def run_bench_monitor(
         key = (CAMERAS[rng.integers(len(CAMERAS))], _PARAMETERS[rng.integers(3)])
         at = int(rng.integers(int(0.4 * n), int(0.8 * n)))
         truth[key][0] = truth[key][0] + np.where(np.arange(n) >= at, step_px * rng.choice([-1.0, 1.0]), 0.0)
-        after = [a for a in monitor_cameras(_observe(rng, t, truth), levels, alpha) if a["index"] >= at]
+        after = [a for a in alarms_of(truth) if a["index"] >= at]
         if after and after[0]["index"] <= at + 1:
             step_hits += 1
             delays.append(float(after[0]["index"] - at))
@@ -172,13 +234,13 @@ def run_bench_monitor(
         start = float(rng.uniform(0.1, 0.5) * t[-1])
         drift = np.clip(t - start, 0.0, None) / 365.25 * drift_px_per_year * rng.choice([-1.0, 1.0])
         truth[key][0] = truth[key][0] + drift
-        alarms = [a for a in monitor_cameras(_observe(rng, t, truth), levels, alpha) if a["camera"] == key[0]]
+        alarms = [a for a in alarms_of(truth) if a["camera"] == key[0]]
         alarms = [a for a in alarms if a["parameter"] == key[1] and a["t"] >= start]
         if alarms and abs(drift[int(alarms[0]["index"])]) < _SIXTEENTH:
             drift_hits += 1
             drift_px.append(float(abs(drift[int(alarms[0]["index"])])))
         # no change
-        false_alarms += bool(monitor_cameras(_observe(rng, t, _campaign(rng, t, sig)), levels, alpha))
+        false_alarms += bool(alarms_of(_campaign(rng, t, sig)))
     delay_iv = _interval(delays) if delays else {"mean": float("nan"), "ci95": [float("nan")] * 2}
     px_iv = _interval(drift_px) if drift_px else {"mean": float("nan"), "ci95": [float("nan")] * 2}
     return {
@@ -187,7 +249,8 @@ def run_bench_monitor(
         "recalibrate_days": recalibrate_days,
         "recalibrations": int(n),
         "alpha": alpha,
-        "sigma_px": sig,
+        "sigma_px": {c: {par: sig[c, par] for par in _PARAMETERS} for c in CAMERAS},
+        "view": view,
         "sigma_source": source,
         "world": WORLD,
         "levels": {

@@ -432,7 +432,13 @@ def _frac(v: float, iv: list[float]) -> str:
 
 def _render_monitor(r: dict[str, Any]) -> str:
     st, dr = r["step"], r["drift"]
-    sig = ", ".join(f"{c} {v:.3f}" for c, v in r["sigma_px"].items())
+    # per camera one sigma for every parameter (a result before per-parameter sigmas), or one per parameter
+    sig = ", ".join(
+        f"{c} {v:.3f}" if not isinstance(v, dict) else f"{c} " + "/".join(f"{x:.3f}" for x in v.values())
+        for c, v in r["sigma_px"].items()
+    )
+    first = next(iter(r["sigma_px"].values()))
+    sig_of = "" if not isinstance(first, dict) else " (" + "/".join(first) + ")"
     rows = [
         [
             f"a {st['step_px']:g} px step found at the step or the next recalibration",
@@ -455,8 +461,21 @@ def _render_monitor(r: dict[str, Any]) -> str:
     ]
     return (
         f"{r['campaigns']} campaigns of each kind, {r['years']:g} years, a recalibration every "
-        f"{r['recalibrate_days']:g} days ({r['recalibrations']} in all); recalibration 1 sigma (px) from "
-        f"{r['sigma_source']}: {sig}. {r['seconds']:.0f} s in all.\n\n" + _table(["", "measured"], rows)
+        f"{r['recalibrate_days']:g} days ({r['recalibrations']} in all); recalibration 1 sigma (px{sig_of}) from "
+        f"{r['sigma_source']}: {sig}. "
+        + (
+            "Each parameter's 1 sigma is the pointing it moves (its sigma_px), the nine cameras' errors "
+            "of a parameter correlated as that calibration's; the monitor tests "
+            + (
+                "each camera given the others (conditional view). "
+                if r["view"] == "conditional"
+                else "each camera's own series (marginal view). "
+            )
+            if "view" in r
+            else ""
+        )
+        + f"{r['seconds']:.0f} s in all.\n\n"
+        + _table(["", "measured"], rows)
     )
 
 

@@ -7,8 +7,9 @@ windows of ``R`` months (``R x 30.4375`` days; window ``w`` covers days ``[w R, 
 the window's first day) and its own calibration. The calibrations, in time order (each at the
 middle of its GCP scenario), make the series that :func:`misrgraph.evaluate.drift.monitor_cameras`
 tests -- every camera's ``delta``, ``beta`` and ``epsilon`` in arcseconds, with the 1-sigma of the
-calibration's covariance -- with its levels learned from the first half of the windows (at least
-two), as ``misrgraph monitor`` does.
+calibration's covariance, each camera given the other cameras at each calibration
+(:func:`misrgraph.evaluate.drift.conditional_series`) -- with its levels learned from those
+series over the first half of the windows (at least two), as ``misrgraph monitor`` does.
 
 Versions (:func:`plan_versions`): version 1 is the first window's calibration, valid from orbit 0.
 The monitor runs over the series; its earliest alarm, at window ``a``, makes the calibration of
@@ -55,7 +56,6 @@ __all__ = [
 
 #: The calibrated parameters watched per camera (their values in radians in a summary).
 MONITORED = ("delta", "beta", "epsilon")
-_ARCSEC = 180.0 / math.pi * 3600.0
 
 
 def window_days(cfg: CampaignConfig) -> float:
@@ -96,27 +96,34 @@ def date_of_day(cfg: CampaignConfig, day: float) -> str:
     return (_dt.date.fromisoformat(cfg.epoch_date) + _dt.timedelta(days=int(math.floor(day)))).isoformat()
 
 
-def plan_versions(t_days: list[float], summaries: list[dict[str, Any]], alpha: float = 0.05) -> dict[str, Any]:
+def plan_versions(
+    t_days: list[float], summaries: list[dict[str, Any]], alpha: float = 0.05, view: str = "conditional"
+) -> dict[str, Any]:
     """The versions of the module docstring from the calibrations' summaries (``calibrate
-    --json`` output, one per window, in time order at days ``t_days``). Returns ``{"series":
-    {camera: {parameter: {"value_arcsec", "sigma_arcsec"}}}, "levels", "trained_on", "alarms":
-    [{"camera", "parameter", "window", "onset_window", "kind", "direction", "statistic",
-    "threshold"}], "version_windows": [0, a1, ...]}``."""
+    --json`` output, one per window, in time order at days ``t_days``); the monitor tests the
+    series of ``view`` (:data:`misrgraph.runs.monitor.MONITOR_VIEWS`: by default each camera given
+    the others), with the cameras' levels learned on those series. Returns ``{"series": {camera:
+    {parameter: {"value_arcsec", "sigma_arcsec"}}} (the cameras' own), "view", "levels",
+    "trained_on", "alarms": [{"camera", "parameter", "window", "onset_window", "kind",
+    "direction", "statistic", "threshold"}], "version_windows": [0, a1, ...]}``."""
+    from misrgraph.runs.monitor import monitored_series
+
     n = len(summaries)
     t = np.asarray(t_days, dtype=float)
-    series: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    for cam in CAMERAS:
-        for par in MONITORED:
-            y = np.array([float(s["cameras"][cam]["params"][par]["value"]) for s in summaries]) * _ARCSEC
-            sd = np.array([float(s["cameras"][cam]["params"][par]["sigma"]) for s in summaries]) * _ARCSEC
-            series[(cam, par)] = (t, y, sd)
+    series, tested, gains = monitored_series(t, summaries, view)
     cut = max(2, n // 2)
-    levels = fit_process_levels([(a[:cut], b[:cut], c[:cut]) for a, b, c in series.values()])
+    keys = list(tested)
+    levels = fit_process_levels(
+        [(tested[k][0][:cut], tested[k][1][:cut], tested[k][2][:cut]) for k in keys],
+        gains=None if gains is None else [gains[k] for k in keys],
+    )
     alarms: list[dict[str, Any]] = []
     starts = [0]
     while n - starts[-1] >= 3:
         s0 = starts[-1]
-        found = monitor_cameras({k: (a[s0:], b[s0:], c[s0:]) for k, (a, b, c) in series.items()}, levels, alpha)
+        found = monitor_cameras(
+            {k: (a[s0:], b[s0:], c[s0:]) for k, (a, b, c) in tested.items()}, levels, alpha, gains=gains
+        )
         if not found:
             break
         first = found[0]
@@ -146,6 +153,7 @@ def plan_versions(t_days: list[float], summaries: list[dict[str, Any]], alpha: f
             }
             for cam in CAMERAS
         },
+        "view": view,
         "levels": {
             "q_level_arcsec2_per_day": levels.q_level,
             "q_slope_arcsec2_per_day3": levels.q_slope,

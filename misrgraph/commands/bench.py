@@ -993,14 +993,17 @@ def bench_monitor(
     calibration: Optional[Path] = typer.Option(
         None,
         "--calibration",
-        help="A calibration summary ('calibrate --json' output) whose per-camera sigma_px the recalibrations "
-        "have. Default: calibrate a standard simulated window of --recalibrate-days days first (about a "
-        "minute per 30 days).",
+        help="A calibration summary ('calibrate --json' output) whose per-parameter sigma_px and correlations the "
+        "recalibrations have. Default: calibrate a standard simulated window of --recalibrate-days days first "
+        "(about a minute per 30 days).",
     ),
     step_px: float = typer.Option(0.1, "--step-px", help="Size of the step in one camera (px)."),
     drift_px_per_year: float = typer.Option(0.05, "--drift-px-per-year", help="Rate of the drift in one camera."),
     alpha: float = typer.Option(0.05, "--alpha", help="False-alarm probability of a campaign without change."),
     seed: int = typer.Option(0, "--seed", help="Seed of the campaigns."),
+    view: str = typer.Option(
+        "conditional", "--view", help="What the monitor tests: conditional (each camera given the others) or marginal."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (with its provenance)."),
     save: Optional[Path] = typer.Option(None, "--save", help=SAVE_HELP),
 ) -> None:
@@ -1020,12 +1023,15 @@ def bench_monitor(
             alpha,
             seed=seed,
             progress=lambda m: st.update(m),
+            view=view,
         )
     res = finish(res, save)
     if as_json:
         print_json(res)
         return
-    table = Table(title=f"monitor: {res['campaigns']} campaigns of {res['years']:g} years each kind")
+    table = Table(
+        title=f"monitor ({res['view']} view): {res['campaigns']} campaigns of {res['years']:g} years each kind"
+    )
     for col in ("what", "value", "95 % interval"):
         table.add_column(col, justify="right")
 

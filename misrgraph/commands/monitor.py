@@ -27,6 +27,12 @@ def monitor(
         0.05, "--alpha", help="False-alarm probability of the whole table (shared by every camera and parameter)."
     ),
     seasonal: bool = typer.Option(True, "--seasonal/--no-seasonal", help="Model an annual term."),
+    view: str = typer.Option(
+        "conditional",
+        "--view",
+        help="conditional: each camera given the other cameras at each calibration (their shared "
+        "error taken out, from the summaries' correlations); marginal: each camera's own series.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
 ) -> None:
     """Test every camera's delta, beta and epsilon over a series of calibrations for a step or a
@@ -34,13 +40,13 @@ def monitor(
     needed, with the camera, the parameter, the date and the evidence."""
     from misrgraph.runs.monitor import run_monitor
 
-    res = run_monitor(table, train_until, alpha, seasonal)
+    res = run_monitor(table, train_until, alpha, seasonal, view)
     if as_json:
         print_json(res)
         return
     console.print(
         f"{res['calibrations']} calibrations {res['from']} .. {res['to']}; levels learned on the first "
-        f"{res['trained_on']}; false-alarm probability {res['alpha']:g}"
+        f"{res['trained_on']}; false-alarm probability {res['alpha']:g}; {res['view']} view"
     )
     if not res["alarms"]:
         console.print("no change found: the camera model holds")

@@ -546,10 +546,13 @@ def calibrated_bands(res: CalibrationResult, cfg: CalibrateConfig, c: int) -> li
 
 def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraModel) -> dict[str, Any]:
     """The JSON summary of a calibration from the estimate alone (see ``misrgraph calibrate --help``):
-    corrections with sigma, each camera's posterior pointing spread ``sigma_px`` (RMS over the
-    swath and the temperature grid of :func:`evaluation_grid` of the pointing's 1 sigma, propagated
+    corrections with sigma and, per parameter, ``sigma_px``: the pointing change (px, RMS over the
+    swath and the temperature grid of :func:`evaluation_grid`) when that parameter alone moves by
+    its 1 sigma -- the unit in which a change of the parameter shows in the images; each camera's
+    posterior pointing spread ``sigma_px`` (the same RMS of the pointing's 1 sigma, propagated
     linearly from the posterior ``C = L L^T``: the sum over the columns ``l_i`` of ``L`` of the
-    squared pointing change when the corrections move by ``l_i``; no sampling error), poorly determined parameters,
+    squared pointing change when the corrections move by ``l_i``; no sampling error: all its
+    parameters together), poorly determined parameters,
     the correlation matrix, and with temperature bins the thermal slopes (:func:`thermal_slopes`). Scores against a
     simulated truth are added by :func:`misrgraph.evaluate.calibration.score_calibration`.
     """
@@ -573,15 +576,16 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
             )
     for c, name in enumerate(CAMERAS):
         entry: dict[str, Any] = {"params": {}}
+        bands = calibrated_bands(res, cfg, c)
         for i, label in enumerate(res.labels):
             if label.startswith(name + ".") or label.startswith(name + "/") or label.startswith(name + "@"):
                 entry["params"][label[len(name) + 1 :] if label[len(name)] in "./" else label[len(name) :]] = {
                     "value": float(res.values[i]),
                     "sigma": float(sig[i]),
+                    "sigma_px": _parameter_pointing_px(res, cfg, supplied, grid, est_at, i, sig[i], c, bands),
                 }
         if not entry["params"]:
             continue
-        bands = calibrated_bands(res, cfg, c)
         entry["sigma_px"] = float(
             np.sqrt(
                 np.sum(
@@ -614,6 +618,28 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
         out["temperature_bins_c"] = [float(t) for t in res.bin_temperatures_c]
         out["thermal"] = thermal_slopes(res, cfg)
     return out
+
+
+def _parameter_pointing_px(
+    res: CalibrationResult,
+    cfg: CalibrateConfig,
+    supplied: CameraModel,
+    grid: Array,
+    est_at: list[CameraModel],
+    i: int,
+    sigma: float,
+    c: int,
+    bands: list[int],
+) -> float:
+    """Camera ``c``'s pointing change (px, RMS over the swath, ``grid`` and ``bands``) when
+    correction ``i`` alone moves by ``sigma`` from the estimate (``est_at``: the estimate's models
+    on ``grid``)."""
+    x = res.values.copy()
+    x[i] += sigma
+    moved = calibrated_models(res, cfg, supplied, grid, x)
+    return float(
+        np.sqrt(np.mean([pointing_error_px(moved[j], est_at[j], c, b) ** 2 for j in range(grid.size) for b in bands]))
+    )
 
 
 def param_value(m: CameraModel, p: str, c: int, b: int) -> float:

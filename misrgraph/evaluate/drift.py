@@ -40,6 +40,20 @@ diffuse states) are left out of the likelihood and the test.
   evidence (the CUSUM statistic against ``h``) the series asks for a new camera model;
   :func:`monitor_cameras` does so for every camera and parameter at once, the false-alarm
   probability shared among them.
+* :func:`conditional_series` turns the cameras' series of one parameter into each camera's series
+  *given the other cameras'* at each calibration. A calibration's errors are correlated across
+  cameras (the GCP passes' navigation errors move every camera's angles alike: the calibration's
+  covariance says by how much), while a camera that moves moves alone. With ``S`` the cameras'
+  joint covariance at a calibration, camera ``c``'s value given the others ``o``:
+
+      y'_c = y_c - b^T y_o,    b = S_oo^-1 S_oc,    s'_c^2 = S_cc - S_co b,
+
+  has the error of ``y_c`` that the others do not predict (``s'_c`` the smaller, the more the
+  cameras' errors are shared), and moves by the whole change when camera ``c`` alone changes.
+  Its true series is ``x_c - b^T x_o``: when the cameras wander independently with the same
+  process, one with levels ``1 + |b|^2`` times theirs (its ``gain``): :func:`fit_process_levels`
+  learns the cameras' levels from such series divided by the gain's square root, and
+  :func:`monitor_cameras` tests each with the levels times its gain.
 """
 
 from __future__ import annotations
@@ -66,6 +80,7 @@ __all__ = [
     "cusum_threshold",
     "monitor_series",
     "monitor_cameras",
+    "conditional_series",
 ]
 
 Array = NDArray[np.float64]
@@ -210,7 +225,10 @@ def _filter(
 
 
 def fit_process_levels(
-    series: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike]], seasonal: bool = True, learn_start: bool = True
+    series: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike]],
+    seasonal: bool = True,
+    learn_start: bool = True,
+    gains: Sequence[float] | None = None,
 ) -> TrendLevels:
     """The levels that maximise the innovations' likelihood (module docstring) summed over
     ``series`` (``(t, y, sigma)`` each: e.g. the years before the ones watched, or the series of
@@ -218,7 +236,16 @@ def fit_process_levels(
     calibration variance ``s2``: ``q_level`` between 1e-10 and 1e2 ``s2`` per day, ``q_slope``
     between 1e-18 and 1e2 ``s2`` per day^3; with ``learn_start``, ``slope_var`` between 1e-14 and
     1e-2 ``s2`` per day^2 and ``season_var`` between 1e-8 and 1e4 ``s2`` (otherwise those two stay
-    diffuse)."""
+    diffuse). ``gains``: per series, the factor its levels have over the common ones (a camera
+    given the others, :func:`conditional_series`): the series and its sigma are divided by the
+    factor's square root, so the levels returned are the cameras' own."""
+    if gains is not None:
+        if len(gains) != len(series) or not all(np.isfinite(g) and g > 0 for g in gains):
+            raise InputError("gains", list(gains), f"{len(series)} positive factors, one per series")
+        series = [
+            (t, np.asarray(y, float) / math.sqrt(g), np.asarray(s, float) / math.sqrt(g))
+            for (t, y, s), g in zip(series, gains)
+        ]
     checked = [_check(*one) for one in series]
     if not checked:
         raise InputError("series", [], "at least one (t, y, sigma) series")
@@ -367,23 +394,86 @@ def monitor_series(
     )
 
 
+def _scaled(levels: TrendLevels, gain: float) -> TrendLevels:
+    return TrendLevels(levels.q_level * gain, levels.q_slope * gain, levels.slope_var * gain, levels.season_var * gain)
+
+
 def monitor_cameras(
     series: dict[tuple[str, str], tuple[ArrayLike, ArrayLike, ArrayLike]],
     levels: TrendLevels,
     alpha: float = 0.05,
     k: float = 1.5,
     seasonal: bool = True,
+    gains: dict[tuple[str, str], float] | None = None,
 ) -> list[dict[str, object]]:
     """Test every ``(camera, parameter)`` series for a change, with the false-alarm probability
     ``alpha`` shared by all of them (Bonferroni: ``alpha / len(series)`` each), and return the
-    alarms, earliest first: ``{"camera", "parameter", "index", "t", "direction", "statistic",
-    "threshold", "level_before", "level_sigma_before", "kind", "onset"}`` ("a new camera model is needed")."""
+    alarms, earliest first and, at the same calibration, strongest evidence (statistic over
+    threshold) first: ``{"camera", "parameter", "index", "t", "direction", "statistic",
+    "threshold", "level_before", "level_sigma_before", "kind", "onset"}`` ("a new camera model is
+    needed"). ``gains``: per series, the factor on ``levels`` (:func:`conditional_series`; 1 when
+    absent)."""
     if not series:
         raise InputError("series", {}, "at least one (camera, parameter) series")
     each = float(alpha) / len(series)
     out = []
     for (cam, param), (t, y, s) in series.items():
-        _, alarm = monitor_series(t, y, s, levels, each, k, seasonal)
+        lv = levels if gains is None else _scaled(levels, float(gains.get((cam, param), 1.0)))
+        _, alarm = monitor_series(t, y, s, lv, each, k, seasonal)
         if alarm is not None:
             out.append({"camera": cam, "parameter": param, **alarm.__dict__})
-    return sorted(out, key=lambda a: (a["t"], a["camera"], a["parameter"]))
+    return sorted(out, key=lambda a: (a["t"], -a["statistic"] / a["threshold"], a["camera"], a["parameter"]))
+
+
+def conditional_series(
+    series: dict[tuple[str, str], tuple[ArrayLike, ArrayLike, ArrayLike]],
+    covariances: dict[str, ArrayLike],
+    cameras: Sequence[str],
+) -> tuple[dict[tuple[str, str], tuple[Array, Array, Array]], dict[tuple[str, str], float]]:
+    """Each camera's series given the other cameras' (module docstring), and its gain.
+
+    Parameters
+    ----------
+    series
+        ``(camera, parameter) -> (t (n,), y (n,), sigma (n,))`` for every camera of ``cameras``
+        and every parameter of ``covariances``, on the same times.
+    covariances
+        parameter -> ``(n, C, C)``: the cameras' joint covariance of that parameter at each
+        calibration, cameras in the order of ``cameras`` (the same unit squared as ``y``).
+    cameras
+        The ``C`` cameras (at least two).
+
+    Returns
+    -------
+    (series, gains)
+        The conditional series, ``(t, y', s')`` per ``(camera, parameter)``, and per series the
+        factor on the process levels, ``1 + |b|^2`` averaged over the calibrations.
+    """
+    cams = list(cameras)
+    if len(cams) < 2:
+        raise InputError("cameras", cams, "at least two cameras (a camera given the others)")
+    out: dict[tuple[str, str], tuple[Array, Array, Array]] = {}
+    gains: dict[tuple[str, str], float] = {}
+    for par, cov in covariances.items():
+        try:
+            t = np.asarray(series[cams[0], par][0], dtype=float)
+            y = np.stack([np.asarray(series[c, par][1], dtype=float) for c in cams], axis=1)
+        except KeyError as exc:
+            raise InputError("series", exc.args[0], f"a series for every camera of {cams} and {par}") from None
+        S = np.asarray(cov, dtype=float)
+        if S.shape != (t.size, len(cams), len(cams)) or y.shape != (t.size, len(cams)):
+            raise InputError(
+                f"covariances[{par!r}]", S.shape, f"({t.size}, {len(cams)}, {len(cams)}) beside series of {t.size}"
+            )
+        for i, c in enumerate(cams):
+            o = [j for j in range(len(cams)) if j != i]
+            try:
+                b = np.linalg.solve(S[:, o][:, :, o], S[:, o, i][..., None])[..., 0]  # (n, C-1)
+            except np.linalg.LinAlgError:
+                raise InputError(f"covariances[{par!r}]", "singular", "positive definite covariances") from None
+            var = S[:, i, i] - np.einsum("nj,nj->n", S[:, i, o], b)
+            if np.any(~np.isfinite(var)) or np.any(var <= 0):
+                raise InputError(f"covariances[{par!r}]", "not positive definite", "positive definite covariances")
+            out[c, par] = (t, y[:, i] - np.einsum("nj,nj->n", b, y[:, o]), np.sqrt(var))
+            gains[c, par] = float(np.mean(1.0 + np.sum(b**2, axis=1)))
+    return out, gains

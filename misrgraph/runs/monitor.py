@@ -7,6 +7,12 @@ camera's ``delta``, ``beta`` and ``epsilon`` (the pointing angles; their values 
 the summary, in arcseconds) make one series; :func:`misrgraph.evaluate.drift.monitor_cameras`
 tests them all, the false-alarm probability shared among them, with process levels learned from
 the calibrations before ``train_until`` (default: the first half of the series).
+
+``view``: ``"conditional"`` (the default) tests each camera's value *given the other cameras'* at
+each calibration (:func:`misrgraph.evaluate.drift.conditional_series`, from the summary's
+correlation matrix and sigmas): a calibration's errors are shared across cameras, a camera that
+moves moves alone, so the change stands out against the error the other cameras do not
+predict. ``"marginal"`` tests each camera's own series.
 """
 
 from __future__ import annotations
@@ -22,15 +28,65 @@ from typing import Any
 import numpy as np
 
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.evaluate.drift import fit_process_levels, monitor_cameras
+from misrgraph.evaluate.drift import conditional_series, fit_process_levels, monitor_cameras
 from misrgraph.misr.orbits import format_utc, parse_utc
 from misrgraph.model.constants import CAMERAS
 
-__all__ = ["run_monitor", "MONITORED_PARAMETERS"]
+__all__ = ["run_monitor", "summary_covariance", "monitored_series", "MONITORED_PARAMETERS", "MONITOR_VIEWS"]
 
 #: The calibrated parameters watched per camera (radians in a summary, arcseconds here).
 MONITORED_PARAMETERS = ("delta", "beta", "epsilon")
+#: What the monitor tests (module docstring).
+MONITOR_VIEWS = ("conditional", "marginal")
 _ARCSEC = 180.0 / math.pi * 3600.0
+
+
+def summary_covariance(summary: dict[str, Any], parameter: str, cameras: tuple[str, ...] = CAMERAS) -> np.ndarray:
+    """The cameras' joint covariance ``(C, C)`` (rad^2) of one parameter in a calibration summary
+    (``misrgraph calibrate --json``: ``cameras.<camera>.params.<parameter>.sigma`` and
+    ``correlation.labels``/``matrix``, labels ``"<camera>.<parameter>"``).
+
+    Raises
+    ------
+    KeyError, ValueError
+        When the summary lacks one of those fields or a camera's label."""
+    labels = list(summary["correlation"]["labels"])
+    corr = np.asarray(summary["correlation"]["matrix"], dtype=float)
+    idx = [labels.index(f"{cam}.{parameter}") for cam in cameras]
+    sd = np.array([float(summary["cameras"][cam]["params"][parameter]["sigma"]) for cam in cameras])
+    return corr[np.ix_(idx, idx)] * np.outer(sd, sd)
+
+
+def monitored_series(
+    t: np.ndarray, summaries: list[dict[str, Any]], view: str
+) -> tuple[
+    dict[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    dict[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    dict[tuple[str, str], float] | None,
+]:
+    """The cameras' own series (arcsec) of calibration summaries at days ``t``, the series the
+    monitor tests in ``view`` (:data:`MONITOR_VIEWS`) and their gains (None for ``"marginal"``).
+
+    Raises
+    ------
+    KeyError, ValueError
+        When a summary lacks a field (the caller names the file)."""
+    if view not in MONITOR_VIEWS:
+        raise InputError("view", view, " or ".join(MONITOR_VIEWS))
+    own = {
+        (cam, par): (
+            t,
+            np.array([float(s["cameras"][cam]["params"][par]["value"]) for s in summaries]) * _ARCSEC,
+            np.array([float(s["cameras"][cam]["params"][par]["sigma"]) for s in summaries]) * _ARCSEC,
+        )
+        for cam in CAMERAS
+        for par in MONITORED_PARAMETERS
+    }
+    if view == "marginal":
+        return own, own, None
+    covs = {par: np.stack([summary_covariance(s, par) for s in summaries]) * _ARCSEC**2 for par in MONITORED_PARAMETERS}
+    tested, gains = conditional_series(own, covs, CAMERAS)
+    return own, tested, gains
 
 
 def _read_table(path: Path) -> list[tuple[_dt.datetime, Path]]:
@@ -48,20 +104,17 @@ def _read_table(path: Path) -> list[tuple[_dt.datetime, Path]]:
     return sorted(out)
 
 
-def _read_summary(path: Path) -> dict[str, Any]:
+def _read_summary(path: Path, view: str) -> dict[str, Any]:
     try:
         s = json.loads(path.read_text())
-        cams = s["cameras"]
-        return {
-            (cam, p): (float(cams[cam]["params"][p]["value"]), float(cams[cam]["params"][p]["sigma"]))
-            for cam in CAMERAS
-            for p in MONITORED_PARAMETERS
-        }
+        monitored_series(np.zeros(1), [s], view)  # every field the view needs is there
+        return s
     except OSError as exc:
         raise FileFormatError(path, f"cannot read ({exc.strerror})") from None
-    except (ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        need = " and correlation.labels/matrix (or --view marginal)" if view == "conditional" else ""
         raise FileFormatError(
-            path, f"not a calibration summary with cameras.<camera>.params.<delta|beta|epsilon> ({exc!r})"
+            path, f"not a calibration summary with cameras.<camera>.params.<delta|beta|epsilon>{need} ({exc!r})"
         ) from None
 
 
@@ -70,13 +123,17 @@ def run_monitor(
     train_until: str | None = None,
     alpha: float = 0.05,
     seasonal: bool = True,
+    view: str = "conditional",
 ) -> dict[str, Any]:
     """Test a table of calibrations for a change (module docstring). Return
     ``{"calibrations", "from", "to", "trained_on", "levels": {"q_level_arcsec2_per_day",
-    "q_slope_arcsec2_per_day3", "slope_var_arcsec2_per_day2", "season_var_arcsec2"},
-    "alpha", "alarms": [{"camera", "parameter", "utc", "onset_utc", "kind",
-    "direction", "statistic", "threshold", "level_before_arcsec", "level_sigma_before_arcsec"}],
-    "new_cgm_needed"}``."""
+    "q_slope_arcsec2_per_day3", "slope_var_arcsec2_per_day2", "season_var_arcsec2"} (the
+    cameras' levels, learned on the series tested), "alpha", "view", "alarms": [{"camera",
+    "parameter", "utc", "onset_utc", "kind", "direction", "statistic", "threshold", "level_before_arcsec",
+    "level_sigma_before_arcsec"}] (the levels of the series tested: in the conditional view the
+    camera's given the others), "new_cgm_needed"}``."""
+    if view not in MONITOR_VIEWS:
+        raise InputError("--view", view, " or ".join(MONITOR_VIEWS))
     p = Path(table)
     rows = _read_table(p)
     if len(rows) < 8:
@@ -85,11 +142,7 @@ def run_monitor(
     t = np.array([(r[0] - t0).total_seconds() / 86400.0 for r in rows])
     if np.any(np.diff(t) <= 0):
         raise InputError(f"{p.name}: utc", "repeated", "one calibration per time")
-    values = [_read_summary(r[1]) for r in rows]
-    series = {
-        key: (t, np.array([v[key][0] for v in values]) * _ARCSEC, np.array([v[key][1] for v in values]) * _ARCSEC)
-        for key in values[0]
-    }
+    own, tested, gains = monitored_series(t, [_read_summary(r[1], view) for r in rows], view)
     cut = (
         len(rows) // 2
         if train_until is None
@@ -97,8 +150,13 @@ def run_monitor(
     )
     if cut < 7:
         raise InputError("--train-until", train_until, "a time with at least 7 calibrations before it")
-    levels = fit_process_levels([(s[0][:cut], s[1][:cut], s[2][:cut]) for s in series.values()], seasonal)
-    alarms = monitor_cameras(series, levels, alpha, seasonal=seasonal)
+    keys = list(tested)
+    levels = fit_process_levels(
+        [(tested[k][0][:cut], tested[k][1][:cut], tested[k][2][:cut]) for k in keys],
+        seasonal,
+        gains=None if gains is None else [gains[k] for k in keys],
+    )
+    alarms = monitor_cameras(tested, levels, alpha, seasonal=seasonal, gains=gains)
     return {
         "calibrations": len(rows),
         "from": format_utc(rows[0][0]),
@@ -111,6 +169,7 @@ def run_monitor(
             "season_var_arcsec2": levels.season_var,
         },
         "alpha": alpha,
+        "view": view,
         "alarms": [
             {
                 "camera": a["camera"],

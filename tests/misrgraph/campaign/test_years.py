@@ -50,7 +50,8 @@ def _summaries(rng: np.random.Generator, n: int, step_at: int | None, sigma_arcs
                     v += 10 * sigma_arcsec
                 params[par] = {"value": v * ARCSEC, "sigma": sigma_arcsec * ARCSEC}
             cams[cam] = {"params": params}
-        out.append({"cameras": cams})
+        labels = [f"{cam}.{par}" for cam in CAMERAS for par in ("delta", "beta", "epsilon")]
+        out.append({"cameras": cams, "correlation": {"labels": labels, "matrix": np.eye(len(labels)).tolist()}})
     return out
 
 

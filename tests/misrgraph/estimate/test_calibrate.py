@@ -155,7 +155,7 @@ def test_cli_json_and_bad_params(small_month_dir):
     for key in ("cameras", "max_pointing_error_px", "rejected_observations", "iterations", "nees"):
         assert key in s
     assert set(s["cameras"]["Df"]) >= {"params", "pointing_error_px", "sigma_px"}
-    assert set(s["cameras"]["Df"]["params"]["beta"]) == {"value", "sigma"}
+    assert set(s["cameras"]["Df"]["params"]["beta"]) == {"value", "sigma", "sigma_px"}
     r = CliRunner().invoke(app, ["calibrate", str(small_month_dir), "--params", "delta,gamma"])
     assert r.exit_code == 2 and "--params" in r.output
     r = CliRunner().invoke(app, ["calibrate", str(small_month_dir), "--jitter-arcsec", "-1"])
@@ -327,16 +327,22 @@ def test_an_unconverged_calibration_fails_unless_accepted(month):
     assert s["solver_status"] == "iteration_limit" and s["variance_factor"]["dof"] > 0
 
 
-def test_sigma_px_agrees_with_a_monte_carlo(month):
+@pytest.fixture(scope="module")
+def calibrated6(month):
+    """A calibration of the month's first six passes: (scenario, config, result, summary)."""
+    sc, passes = month
+    cfg = CalibrateConfig()
+    res = calibrate_passes(passes[:6], sc.camera_model, sc.gcps, cfg)
+    return sc, cfg, res, summarise(res, cfg, sc.camera_model)
+
+
+def test_sigma_px_agrees_with_a_monte_carlo(calibrated6):
     """Each camera's ``sigma_px`` (linear propagation of the posterior) against a 400-draw Monte
     Carlo of the calibrated model's pointing: the mean squares agree within 4 standard errors of
     the Monte Carlo's mean (from its own draws) plus 2 % for nonlinearity."""
     from misrgraph.estimate.calibrate import calibrated_models, evaluation_grid, pointing_error_px
 
-    sc, passes = month
-    cfg = CalibrateConfig()
-    res = calibrate_passes(passes[:6], sc.camera_model, sc.gcps, cfg)
-    s = summarise(res, cfg, sc.camera_model)
+    sc, cfg, res, s = calibrated6
     grid = evaluation_grid(res, sc.camera_model)
     est = calibrated_models(res, cfg, sc.camera_model, grid)
     chol = np.linalg.cholesky(res.covariance)
@@ -352,6 +358,34 @@ def test_sigma_px_agrees_with_a_monte_carlo(month):
     for c, name in enumerate(CAMERAS):
         lin = s["cameras"][name]["sigma_px"] ** 2
         assert abs(lin - mc[c]) < 4 * se[c] + 0.02 * mc[c], (name, lin, mc[c], se[c])
+
+
+def test_parameter_sigma_px_is_the_rotation_of_its_one_sigma_in_closed_form(calibrated6):
+    """Each angle's ``sigma_px`` against the small rotation it is: moving ``delta`` by ``s`` turns
+    every pointing vector ``d`` by ``s |a x d|`` about the axis ``a = T_si Ry(beta) x`` (``beta``:
+    ``T_si y``; ``epsilon``: the boresight ``T_si Ry(beta) Rx(delta) z``), in IFOVs, RMS over the
+    swath; and a camera's parameters together are no larger than its ``sigma_px``'s propagation
+    of the whole covariance allows (their squares sum to it when uncorrelated)."""
+    from factors.geometry import rot_x, rot_y
+    from misrgraph.estimate.calibrate import RED, calibrated_models, evaluation_grid
+
+    sc, cfg, res, s = calibrated6
+    est = calibrated_models(res, cfg, sc.camera_model, evaluation_grid(res, sc.camera_model))[0]
+    samples = np.linspace(0, 1503, 48)
+    for c, name in enumerate(CAMERAS):
+        d = est.direction_scs(np.full(48, c), np.full(48, RED), np.zeros(48), samples)
+        ifov = est.ifov_cross_rad(c, RED, samples)
+        dl, be, _ = est.angles(c)
+        axes = {
+            "delta": est.t_si() @ rot_y(be) @ np.array([1.0, 0.0, 0.0]),
+            "beta": est.t_si() @ np.array([0.0, 1.0, 0.0]),
+            "epsilon": est.t_si() @ rot_y(be) @ rot_x(dl) @ np.array([0.0, 0.0, 1.0]),
+        }
+        for par, axis in axes.items():
+            entry = s["cameras"][name]["params"][par]
+            want = entry["sigma"] * np.sqrt(np.mean((np.linalg.norm(np.cross(axis, d), axis=1) / ifov) ** 2))
+            assert entry["sigma_px"] == pytest.approx(want, rel=1e-3), (name, par)
+        assert s["cameras"][name]["params"]["delta"]["sigma_px"] < s["cameras"][name]["sigma_px"]
 
 
 def test_jitter_in_the_calibrations_weights(month):
