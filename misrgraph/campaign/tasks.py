@@ -335,11 +335,20 @@ def calibrate(
 
 
 def _stored_calibration_summary(f: Path) -> dict[str, Any]:
-    """The summary (``calibrate --json``) a calibrated camera-model file holds."""
+    """The summary (``calibrate --json``) a calibrated camera-model file holds, with its
+    ``correlation`` block from the file's covariance (the file's summary leaves it out) when the
+    file holds a camera-level one."""
+    from misrgraph.io.camera import read_calibration_prior
     from misrgraph.io.h5 import open_h5
 
     with open_h5(f, "camera_model") as h:
-        return json.loads(h["calibration"].attrs["summary_json"])
+        summary = json.loads(h["calibration"].attrs["summary_json"])
+    prior = read_calibration_prior(f)
+    if prior is not None and "correlation" not in summary:
+        labels, cov = prior
+        sd = np.sqrt(np.diag(cov))
+        summary["correlation"] = {"labels": labels, "matrix": (cov / np.outer(sd, sd)).tolist()}
+    return summary
 
 
 def _calibration_summary(s: dict[str, Any]) -> dict[str, Any]:
@@ -374,7 +383,12 @@ def camera_versions(out: str, cfg: CampaignConfig, *calibrations: dict[str, Any]
         if (final / "monitor.json").exists():
             return final / "store", True, json.loads((final / "monitor.json").read_text())
         summaries = [_stored_calibration_summary(f) for f in files]
-        plan = plan_versions(calibration_days(cfg), summaries, cfg.monitor_alpha)
+        # each camera given the others where every calibration has its covariance (per-band or
+        # per-temperature calibrations do not hold a camera-level one)
+        view = "conditional" if all("correlation" in x for x in summaries) else "marginal"
+        if view == "marginal":
+            log.warning("the calibrations hold no camera-level covariance: the monitor tests each camera's own series")
+        plan = plan_versions(calibration_days(cfg), summaries, cfg.monitor_alpha, view)
         versions = []
         with _building(final) as tmp:
             for k, w in enumerate(plan["version_windows"]):
