@@ -201,6 +201,12 @@ def _render_nees(r: dict[str, Any]) -> str:
     seeds = sorted(int(x["seed"]) for x in r.get("per_run", []) if "seed" in x)
     which = f" (seeds {seeds[0]}-{seeds[-1]})" if seeds else ""
     head = f"{r['runs']} {r['size']} {r['study']} runs under the {r['truth']} truth{which}."
+    if "camera_given_others" in r["summary"]:
+        head += (
+            " camera_given_others: the mean squared standardised error of each camera's delta, beta and "
+            "epsilon given the other cameras' (what the drift monitor's conditional view tests; correlated "
+            "terms, so no chi-square band)."
+        )
     return (
         head
         + "\n\n"

@@ -319,6 +319,9 @@ def run_bench_nees(
             )
             vals = {"camera": (s["nees"], s["nees_dim"])}
             per_run.append({"seed": seed + i, "nees": s["nees"], "max_pointing_error_px": s["max_pointing_error_px"]})
+            if "nees_given_others" in s:
+                per_class.setdefault("camera_given_others", []).append(s["nees_given_others"])
+                per_run[-1]["nees_given_others"] = s["nees_given_others"]
         else:
             s = run_adjust(out, cfg=adjust_cfg)
             vals = {k: (s["nees"][k], s["nees"][f"{k}_dim"]) for k in NEES_CLASSES if k in s["nees"]}
@@ -360,7 +363,10 @@ def _nees_summary(
 ) -> dict[str, Any]:
     """``bench nees``'s summary: per class the pooled NEES/dim (``totals[k]`` = [sum of chi-square,
     sum of dof]) with its chi-square band, and the runs' mean with its interval (``per_class``);
-    the check points' ratio also as the RMS of the runs, over all cameras and per camera."""
+    the check points' ratio also as the RMS of the runs, over all cameras and per camera; a
+    calibration's mean squared error of each camera's angle given the others
+    (``camera_given_others``, :func:`misrgraph.evaluate.calibration.given_others_z`: correlated
+    terms, so only the runs' mean with its interval)."""
     from scipy import stats
 
     summary: dict[str, Any] = {}
@@ -373,7 +379,7 @@ def _nees_summary(
             "dof": int(dof),
             "per_run": _interval(per_class[k]),
         }
-    for k in ("checkpoint_rms_over_predicted", "checkpoint_rms_m"):
+    for k in ("checkpoint_rms_over_predicted", "checkpoint_rms_m", "camera_given_others"):
         if k in per_class:
             summary[k] = {"per_run": _interval(per_class[k])}
     if "checkpoint_rms_over_predicted" in per_class:

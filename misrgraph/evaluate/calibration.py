@@ -4,9 +4,13 @@
 per camera the pointing error of the calibrated and of the supplied model against the truth
 (pixels, RMS over the swath, worst over the passes' temperatures and the calibrated bands), the
 largest of them, the NEES of the corrections (truth minus supplied model, each temperature bin at
-its temperature) and, with temperature bins, each slope's true value and z-score and the slopes'
-joint NEES (the true slope is the truth's change across the bins' extreme temperatures, exact for
-a truth linear in temperature).
+its temperature), the mean squared error of each camera's angle *given the other cameras'*
+(``nees_given_others``: ``z_c = (e_c - b^T e_o) / s'_c`` of
+:func:`misrgraph.evaluate.drift.conditional_series`, pooled over the cameras and the angles
+``delta``, ``beta``, ``epsilon``; 1 when the covariance's share of error between cameras is
+right, which the drift monitor's conditional view relies on) and, with temperature bins, each
+slope's true value and z-score and the slopes' joint NEES (the true slope is the truth's change
+across the bins' extreme temperatures, exact for a truth linear in temperature).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from misrgraph.estimate.calibrate import (
 from misrgraph.model.camera import CameraModel, TabulatedCameraModel
 from misrgraph.model.constants import CAMERAS
 
-__all__ = ["score_calibration", "true_corrections"]
+__all__ = ["score_calibration", "true_corrections", "given_others_z"]
 
 Array = NDArray[np.float64]
 
@@ -64,7 +68,29 @@ def score_calibration(
     e = res.values - true_corrections(res, cfg, supplied, truth)
     summary["nees"] = float(e @ np.linalg.solve(res.covariance, e) / e.size)
     summary["nees_dim"] = int(e.size)
+    z = given_others_z(res.labels, e, res.covariance)
+    if z.size:
+        summary["nees_given_others"] = float(np.mean(z**2))
+        summary["nees_given_others_dim"] = int(z.size)
     return summary
+
+
+def given_others_z(
+    labels: list[str], e: Array, cov: Array, params: tuple[str, ...] = ("delta", "beta", "epsilon")
+) -> Array:
+    """Each camera's standardised error given the other cameras' (``(9 * len(params),)``, camera
+    by camera within each parameter; empty when the labels do not hold every camera's camera-level
+    ``"<camera>.<param>"``): errors ``e`` and covariance ``cov`` over ``labels``."""
+    from misrgraph.evaluate.drift import conditional_series
+
+    try:
+        idx = {par: [labels.index(f"{cam}.{par}") for cam in CAMERAS] for par in params}
+    except ValueError:
+        return np.zeros(0)
+    one = np.zeros(1)
+    series = {(cam, par): (one, e[i : i + 1], one) for par in params for cam, i in zip(CAMERAS, idx[par])}
+    cond, _ = conditional_series(series, {par: cov[np.ix_(ix, ix)][None] for par, ix in idx.items()}, CAMERAS)
+    return np.array([cond[cam, par][1][0] / cond[cam, par][2][0] for par in params for cam in CAMERAS])
 
 
 def _score_slopes(
