@@ -444,7 +444,7 @@ def _render_monitor(r: dict[str, Any]) -> str:
         for c, v in r["sigma_px"].items()
     )
     first = next(iter(r["sigma_px"].values()))
-    sig_of = "" if not isinstance(first, dict) else " (" + "/".join(first) + ")"
+    sig_of = "" if not isinstance(first, dict) else "; " + "/".join(first)
     rows = [
         [
             f"a {st['step_px']:g} px step found at the step or the next recalibration",
