@@ -612,7 +612,7 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
             [{"pass": int(p), "observation": int(o), "normalised_residual": float(r)} for p, o, r in res.rejected], None
         ),
         "poorly_determined": poorly,
-        "correlation": {"labels": res.labels, "matrix": np.round(corr, 4).tolist()},
+        "correlation": {"labels": res.labels, "matrix": np.round(corr, 6).tolist()},
     }
     if res.binned:
         out["temperature_bins_c"] = [float(t) for t in res.bin_temperatures_c]

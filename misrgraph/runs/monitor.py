@@ -111,7 +111,7 @@ def _read_summary(path: Path, view: str) -> dict[str, Any]:
         return s
     except OSError as exc:
         raise FileFormatError(path, f"cannot read ({exc.strerror})") from None
-    except (ValueError, KeyError, TypeError, IndexError) as exc:
+    except (ValueError, KeyError, TypeError, IndexError, InputError) as exc:
         need = " and correlation.labels/matrix (or --view marginal)" if view == "conditional" else ""
         raise FileFormatError(
             path, f"not a calibration summary with cameras.<camera>.params.<delta|beta|epsilon>{need} ({exc!r})"

@@ -106,6 +106,16 @@ def test_monitor_refuses_bad_tables(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "cal_05.json" in r.output and "--view marginal" in r.output, r.output
     r = CliRunner().invoke(app, ["monitor", str(table), "--view", "marginal", "--json"])
     assert r.exit_code == 0 and json.loads(r.output)["alarms"] == [], r.output
+    (tmp_path / "c").mkdir()
+    other = _table(tmp_path / "c", 0.0)
+    s = json.loads((tmp_path / "c" / "cal_07.json").read_text())
+    m = np.array(s["correlation"]["matrix"])
+    d = [i for i, x in enumerate(s["correlation"]["labels"]) if x.endswith(".delta")]
+    m[np.ix_(d, d)] = 1.0  # every camera's delta the same error: no camera given the others
+    s["correlation"]["matrix"] = m.tolist()
+    (tmp_path / "c" / "cal_07.json").write_text(json.dumps(s))
+    r = CliRunner().invoke(app, ["monitor", str(other)])
+    assert r.exit_code == 2 and "cal_07.json" in r.output and "positive definite" in r.output, r.output
     r = CliRunner().invoke(app, ["monitor", str(table), "--view", "joint"])
     assert r.exit_code == 2 and "--view" in r.output and "conditional" in r.output
     (tmp_path / "cal_03.json").write_text("{}")
