@@ -142,7 +142,7 @@ def run_monitor(
     t = np.array([(r[0] - t0).total_seconds() / 86400.0 for r in rows])
     if np.any(np.diff(t) <= 0):
         raise InputError(f"{p.name}: utc", "repeated", "one calibration per time")
-    own, tested, gains = monitored_series(t, [_read_summary(r[1], view) for r in rows], view)
+    _, tested, gains = monitored_series(t, [_read_summary(r[1], view) for r in rows], view)
     cut = (
         len(rows) // 2
         if train_until is None
