@@ -50,13 +50,14 @@ from misrgraph.bench.studies import _interval
 from misrgraph.errors import FileFormatError, InputError
 from misrgraph.evaluate.drift import SEASON_DAYS, conditional_series, fit_process_levels, monitor_cameras
 from misrgraph.model.constants import CAMERAS
+from misrgraph.runs.monitor import MONITOR_VIEWS, MONITORED_PARAMETERS, summary_covariance
 
 __all__ = ["run_bench_monitor", "wilson_interval", "WORLD"]
 
 #: The simulated world of the true parameters (px): a random walk of 0.005 px per sqrt(year) and
 #: an annual term of 0.01 px amplitude. The monitor learns its levels from training campaigns.
 WORLD = {"random_walk_px_per_sqrt_year": 0.005, "annual_px": 0.01}
-_PARAMETERS = ("delta", "beta", "epsilon")
+_PARAMETERS = MONITORED_PARAMETERS
 _SIXTEENTH = 1.0 / 16.0
 #: per (camera, parameter) the recalibration's 1 sigma (px); per parameter the cameras' covariance (px^2)
 _Recalibration = tuple[dict[tuple[str, str], float], dict[str, np.ndarray]]
@@ -76,8 +77,6 @@ def wilson_interval(k: int, n: int, z: float = 1.96) -> list[float]:
 def _parameter_sigmas(summary: dict[str, Any]) -> _Recalibration:
     """Each camera's and monitored parameter's ``sigma_px`` in a calibration summary, and per
     parameter the cameras' joint covariance in px^2 (their correlation from the summary)."""
-    from misrgraph.runs.monitor import summary_covariance
-
     sig = {(c, par): float(summary["cameras"][c]["params"][par]["sigma_px"]) for c in CAMERAS for par in _PARAMETERS}
     cov = {}
     for par in _PARAMETERS:
@@ -184,8 +183,6 @@ def run_bench_monitor(
                 name, v, "a positive value (campaigns, training: whole numbers; years > 0.5; alpha in (0, 1))"
             )
     t0 = time.perf_counter()
-    from misrgraph.runs.monitor import MONITOR_VIEWS
-
     if view not in MONITOR_VIEWS:
         raise InputError("view", view, " or ".join(MONITOR_VIEWS))
     (sig, cov), source = _sigmas_from(calibration, max(1, int(round(recalibrate_days))), progress)

@@ -436,9 +436,24 @@ def _frac(v: float, iv: list[float]) -> str:
     return f"{v:.0%} [{iv[0]:.0%}, {iv[1]:.0%}]"
 
 
+def _monitor_view(r: dict[str, Any]) -> str:
+    """What a bench monitor result drew and tested (nothing for a result that does not say)."""
+    if "view" not in r:
+        return ""
+    tested = (
+        "each camera given the others (conditional view)"
+        if r["view"] == "conditional"
+        else "each camera's own series (marginal view)"
+    )
+    return (
+        "Each parameter's 1 sigma is the pointing it moves (its sigma_px), the nine cameras' errors "
+        f"of a parameter correlated as that calibration's; the monitor tests {tested}. "
+    )
+
+
 def _render_monitor(r: dict[str, Any]) -> str:
     st, dr = r["step"], r["drift"]
-    # per camera one sigma for every parameter (a result before per-parameter sigmas), or one per parameter
+    # per camera one sigma for every parameter (a result without per-parameter sigmas), or one per parameter
     sig = ", ".join(
         f"{c} {v:.3f}" if not isinstance(v, dict) else f"{c} " + "/".join(f"{x:.3f}" for x in v.values())
         for c, v in r["sigma_px"].items()
@@ -468,19 +483,7 @@ def _render_monitor(r: dict[str, Any]) -> str:
     return (
         f"{r['campaigns']} campaigns of each kind, {r['years']:g} years, a recalibration every "
         f"{r['recalibrate_days']:g} days ({r['recalibrations']} in all); recalibration 1 sigma (px{sig_of}) from "
-        f"{r['sigma_source']}: {sig}. "
-        + (
-            "Each parameter's 1 sigma is the pointing it moves (its sigma_px), the nine cameras' errors "
-            "of a parameter correlated as that calibration's; the monitor tests "
-            + (
-                "each camera given the others (conditional view). "
-                if r["view"] == "conditional"
-                else "each camera's own series (marginal view). "
-            )
-            if "view" in r
-            else ""
-        )
-        + f"{r['seconds']:.0f} s in all.\n\n"
+        f"{r['sigma_source']}: {sig}. {_monitor_view(r)}{r['seconds']:.0f} s in all.\n\n"
         + _table(["", "measured"], rows)
     )
 

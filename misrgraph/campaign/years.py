@@ -38,9 +38,10 @@ from typing import Any
 import numpy as np
 
 from misrgraph.campaign.plan import DAYS_PER_MONTH, REPEAT_DAYS, SIZES, CampaignConfig
-from misrgraph.evaluate.drift import fit_process_levels, monitor_cameras
+from misrgraph.evaluate.drift import monitor_cameras
 from misrgraph.model.constants import CAMERAS
 from misrgraph.model.orbit import REPEAT_PATHS
+from misrgraph.runs.monitor import MONITORED_PARAMETERS, learn_levels, monitored_series
 
 __all__ = [
     "MONITORED",
@@ -55,7 +56,7 @@ __all__ = [
 ]
 
 #: The calibrated parameters watched per camera (their values in radians in a summary).
-MONITORED = ("delta", "beta", "epsilon")
+MONITORED = MONITORED_PARAMETERS
 
 
 def window_days(cfg: CampaignConfig) -> float:
@@ -106,17 +107,11 @@ def plan_versions(
     {parameter: {"value_arcsec", "sigma_arcsec"}}} (the cameras' own), "view", "levels",
     "trained_on", "alarms": [{"camera", "parameter", "window", "onset_window", "kind",
     "direction", "statistic", "threshold"}], "version_windows": [0, a1, ...]}``."""
-    from misrgraph.runs.monitor import monitored_series
-
     n = len(summaries)
     t = np.asarray(t_days, dtype=float)
     series, tested, gains = monitored_series(t, summaries, view)
     cut = max(2, n // 2)
-    keys = list(tested)
-    levels = fit_process_levels(
-        [(tested[k][0][:cut], tested[k][1][:cut], tested[k][2][:cut]) for k in keys],
-        gains=None if gains is None else [gains[k] for k in keys],
-    )
+    levels = learn_levels(tested, gains, cut)
     alarms: list[dict[str, Any]] = []
     starts = [0]
     while n - starts[-1] >= 3:

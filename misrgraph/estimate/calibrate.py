@@ -586,18 +586,7 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
                 }
         if not entry["params"]:
             continue
-        entry["sigma_px"] = float(
-            np.sqrt(
-                np.sum(
-                    [
-                        np.mean(
-                            [pointing_error_px(m[j], est_at[j], c, b) ** 2 for j in range(grid.size) for b in bands]
-                        )
-                        for m in moved
-                    ]
-                )
-            )
-        )
+        entry["sigma_px"] = float(np.sqrt(np.sum([_mean_square_pointing(m, est_at, c, bands) for m in moved])))
         cams_out[name] = entry
     out: dict[str, Any] = {
         "cameras": cams_out,
@@ -620,6 +609,12 @@ def summarise(res: CalibrationResult, cfg: CalibrateConfig, supplied: CameraMode
     return out
 
 
+def _mean_square_pointing(models: list[CameraModel], est_at: list[CameraModel], c: int, bands: list[int]) -> float:
+    """Mean over the temperature grid and ``bands`` of camera ``c``'s squared pointing change
+    (px^2, each RMS over the swath) from the estimate's models ``est_at`` to ``models``."""
+    return float(np.mean([pointing_error_px(m, e, c, b) ** 2 for m, e in zip(models, est_at) for b in bands]))
+
+
 def _parameter_pointing_px(
     res: CalibrationResult,
     cfg: CalibrateConfig,
@@ -636,10 +631,7 @@ def _parameter_pointing_px(
     on ``grid``)."""
     x = res.values.copy()
     x[i] += sigma
-    moved = calibrated_models(res, cfg, supplied, grid, x)
-    return float(
-        np.sqrt(np.mean([pointing_error_px(moved[j], est_at[j], c, b) ** 2 for j in range(grid.size) for b in bands]))
-    )
+    return float(np.sqrt(_mean_square_pointing(calibrated_models(res, cfg, supplied, grid, x), est_at, c, bands)))
 
 
 def param_value(m: CameraModel, p: str, c: int, b: int) -> float:

@@ -28,11 +28,18 @@ from typing import Any
 import numpy as np
 
 from misrgraph.errors import FileFormatError, InputError
-from misrgraph.evaluate.drift import conditional_series, fit_process_levels, monitor_cameras
+from misrgraph.evaluate.drift import TrendLevels, conditional_series, fit_process_levels, monitor_cameras
 from misrgraph.misr.orbits import format_utc, parse_utc
 from misrgraph.model.constants import CAMERAS
 
-__all__ = ["run_monitor", "summary_covariance", "monitored_series", "MONITORED_PARAMETERS", "MONITOR_VIEWS"]
+__all__ = [
+    "run_monitor",
+    "summary_covariance",
+    "monitored_series",
+    "learn_levels",
+    "MONITORED_PARAMETERS",
+    "MONITOR_VIEWS",
+]
 
 #: The calibrated parameters watched per camera (radians in a summary, arcseconds here).
 MONITORED_PARAMETERS = ("delta", "beta", "epsilon")
@@ -104,6 +111,22 @@ def _read_table(path: Path) -> list[tuple[_dt.datetime, Path]]:
     return sorted(out)
 
 
+def learn_levels(
+    tested: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    gains: dict[tuple[str, str], float] | None,
+    cut: int,
+    seasonal: bool = True,
+) -> TrendLevels:
+    """The cameras' process levels learned on the first ``cut`` calibrations of the series the
+    monitor tests, each divided by the square root of its gain (:func:`monitored_series`)."""
+    keys = list(tested)
+    return fit_process_levels(
+        [(tested[k][0][:cut], tested[k][1][:cut], tested[k][2][:cut]) for k in keys],
+        seasonal,
+        gains=None if gains is None else [gains[k] for k in keys],
+    )
+
+
 def _read_summary(path: Path, view: str) -> dict[str, Any]:
     try:
         s = json.loads(path.read_text())
@@ -150,12 +173,7 @@ def run_monitor(
     )
     if cut < 7:
         raise InputError("--train-until", train_until, "a time with at least 7 calibrations before it")
-    keys = list(tested)
-    levels = fit_process_levels(
-        [(tested[k][0][:cut], tested[k][1][:cut], tested[k][2][:cut]) for k in keys],
-        seasonal,
-        gains=None if gains is None else [gains[k] for k in keys],
-    )
+    levels = learn_levels(tested, gains, cut, seasonal)
     alarms = monitor_cameras(tested, levels, alpha, seasonal=seasonal, gains=gains)
     return {
         "calibrations": len(rows),
